@@ -1,0 +1,119 @@
+"""HDF5 output in the ICESat-2 ATL03 layout, plus a documented truth group.
+
+Layout (one beam per file)::
+
+    /                         attrs: lidar_mitsuba_version, config (JSON), description
+    /orbit_info/sc_orient     0 = backward: left beams strong (gt1l strong, gt1r weak)
+    /<beam>/                  gt1l (strong) or gt1r (weak); attrs atlas_beam_type
+        heights/h_ph          (n,) float64  photon elevation [m]
+        heights/delta_time    (n,) float64  transmit time of the photon's shot [s] from the first shot
+        heights/dist_ph_along (n,) float64  along-track distance of the footprint centre [m]
+        heights/signal_conf_ph (n, 5) int8  ATL03 confidence per surface type; -1 = not
+                                            classified (no classifier runs in this version)
+    /truth/photons/           per detected photon (n,): shot, channel, anode, is_signal,
+                              time_ns [ns], return_index, hit_x_m/hit_y_m/hit_z_m [m]
+    /truth/shots/             per shot (n_shots,): along_track_m, x_m, y_m [m], z_ref_m [m]
+                              (Gaussian-footprint mean height), surface_z_m [m], arrivals,
+                              mean_photons
+
+Files are written atomically: a temporary file in the same folder, renamed on success.
+"""
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import tempfile
+
+import h5py
+import numpy as np
+
+from . import __version__
+
+BEAM_GROUPS = {"strong": "gt1l", "weak": "gt1r"}
+
+
+def write(result, path: str | os.PathLike) -> pathlib.Path:
+    """Write a :class:`~lidar_mitsuba.simulate.SimulationResult` to ``path`` atomically."""
+    path = pathlib.Path(path)
+    inst = result.instrument
+    det = result.detections
+    ret = result.returns
+    n = len(det)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
+    os.close(fd)
+    try:
+        with h5py.File(tmp, "w") as f:
+            f.attrs["lidar_mitsuba_version"] = __version__
+            f.attrs["config"] = json.dumps(result.config)
+            f.attrs["description"] = ("Simulated ATL03-like photon data (lidar_mitsuba); "
+                                      "see /truth for the simulation truth.")
+            f.create_dataset("orbit_info/sc_orient", data=np.int8(0))
+            g = f.create_group(f"{BEAM_GROUPS[inst.beam]}/heights")
+            f[BEAM_GROUPS[inst.beam]].attrs["atlas_beam_type"] = inst.beam
+            _ds(g, "h_ph", result.h_m, "meters", "photon elevation: altitude - c t / 2")
+            _ds(g, "delta_time", det.shot / inst.prf_hz, "seconds",
+                "transmit time of the photon's shot since the first shot")
+            _ds(g, "dist_ph_along", result.along_track_m[det.shot], "meters",
+                "along-track distance of the footprint centre from the first shot")
+            _ds(g, "signal_conf_ph", np.full((n, 5), -1, np.int8), "counts",
+                "ATL03 confidence (land, ocean, sea ice, land ice, inland water); "
+                "-1: not classified")
+            tp = f.create_group("truth/photons")
+            _ds(tp, "shot", det.shot, "1", "shot index")
+            _ds(tp, "channel", det.channel, "1", "detector channel")
+            _ds(tp, "anode", det.anode, "1", "PMT anode segment")
+            _ds(tp, "is_signal", det.is_signal.astype(np.int8), "1", "1 signal, 0 noise")
+            _ds(tp, "time_ns", det.time_ns, "ns", "round-trip time from the pulse centre")
+            _ds(tp, "return_index", det.return_index, "1", "index of the traced return")
+            for axis in ("x", "y", "z"):
+                vals = np.asarray(ret[f"{axis}_m"])[det.return_index] if n else np.zeros(0)
+                _ds(tp, f"hit_{axis}_m", vals, "meters", f"{axis} of the scattering point")
+            ts = f.create_group("truth/shots")
+            _ds(ts, "along_track_m", result.along_track_m, "meters", "along-track distance")
+            _ds(ts, "x_m", result.shot_x_m, "meters", "footprint centre x")
+            _ds(ts, "y_m", result.shot_y_m, "meters", "footprint centre y")
+            _ds(ts, "z_ref_m", result.z_ref_m, "meters",
+                "reference elevation: Gaussian-footprint-weighted mean height")
+            _ds(ts, "surface_z_m", result.surface_z_m, "meters", "height at the footprint centre")
+            _ds(ts, "arrivals", det.arrivals_per_shot, "1", "photons reaching the detector")
+            _ds(ts, "mean_photons", det.mean_photons_per_shot, "1", "Poisson mean per shot")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def _ds(group, name, data, units, description):
+    d = group.create_dataset(name, data=np.asarray(data), compression="gzip", compression_opts=1,
+                             shuffle=True) if np.ndim(data) else group.create_dataset(name, data=data)
+    d.attrs["units"] = units
+    d.attrs["description"] = description
+    return d
+
+
+def read(path: str | os.PathLike) -> dict:
+    """Read what ``stats`` needs: per photon ``h_m``, ``shot``, ``channel``, ``is_signal``;
+    per shot ``z_ref_m``, ``along_track_m``, ``surface_z_m``; and ``config``, ``beam``,
+    ``n_shots``, ``n_channels``. Raises ``ValueError`` for a file that is not ours."""
+    with h5py.File(path, "r") as f:
+        beams = [b for b in BEAM_GROUPS.values() if b in f]
+        if not beams or "truth" not in f or "config" not in f.attrs:
+            raise ValueError(f"{path} is not a lidar_mitsuba ATL03 file")
+        beam = beams[0]
+        config = json.loads(f.attrs["config"])
+        out = {
+            "beam": beam, "config": config,
+            "h_m": f[f"{beam}/heights/h_ph"][()],
+            "shot": f["truth/photons/shot"][()],
+            "channel": f["truth/photons/channel"][()],
+            "is_signal": f["truth/photons/is_signal"][()].astype(bool),
+            "z_ref_m": f["truth/shots/z_ref_m"][()],
+            "along_track_m": f["truth/shots/along_track_m"][()],
+            "surface_z_m": f["truth/shots/surface_z_m"][()],
+        }
+    out["n_shots"] = int(out["z_ref_m"].size)
+    out["n_channels"] = int(config["instrument"]["channels"])
+    return out

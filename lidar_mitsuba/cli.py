@@ -1,0 +1,247 @@
+"""Command-line interface ``lidar-mitsuba`` (simulate, stats, terrain).
+
+Bad input is reported as one line naming the option, with exit code 2 and no output file.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import sys
+
+PROG = "lidar-mitsuba"
+
+
+class UsageError(Exception):
+    """Bad command-line input: ``option`` is the flag to name in the one-line message."""
+
+    def __init__(self, option: str, message: str):
+        super().__init__(f"{option}: {message}")
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):   # one line, exit 2 (argparse would also print the usage)
+        sys.stderr.write(f"{self.prog}: error: {message}\n")
+        raise SystemExit(2)
+
+
+def _option(name: str) -> str:
+    return {"scene": "--scene", "surface": "--surface"}.get(name, "--" + name.replace("_", "-"))
+
+
+def _out_path(value: str, suffixes: tuple[str, ...], option: str = "--out") -> pathlib.Path:
+    path = pathlib.Path(value)
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise UsageError(option, f"must end with {' or '.join(suffixes)} (got {value!r})")
+    parent = path.parent if str(path.parent) else pathlib.Path(".")
+    if not parent.is_dir():
+        raise UsageError(option, f"folder {str(parent)!r} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise UsageError(option, f"folder {str(parent)!r} is not writable")
+    return path
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog=PROG, description="Physically based simulation of a spaceborne "
+                "photon-counting lidar (ICESat-2/ATLAS-like) with Mitsuba 3.")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    s = sub.add_parser("simulate", help="simulate a ground track and write ATL03-like HDF5",
+                       description="Simulate laser shots over a surface, detect their photons "
+                       "and write an ATL03-like HDF5 file; prints bias and precision.")
+    src = s.add_mutually_exclusive_group()
+    src.add_argument("--scene", metavar="FILE.xml", help="Mitsuba XML scene (z up, metres)")
+    src.add_argument("--surface", choices=("flat", "slope", "fractal"),
+                     help="built-in surface (default fractal; slope if --slope-deg is given)")
+    g = s.add_argument_group("surface")
+    g.add_argument("--slope-deg", type=float, metavar="D", help="slope of --surface slope [deg]")
+    g.add_argument("--slope-azimuth-deg", type=float, default=0.0, metavar="D",
+                   help="direction of steepest ascent [deg], 0 = along track (default 0)")
+    g.add_argument("--p", type=float, default=1.8, metavar="P", help="fractal 1/f^p exponent (1.8)")
+    g.add_argument("--relief-m", type=float, default=10.0, metavar="M", help="fractal relief [m] (10)")
+    g.add_argument("--size-m", type=float, default=1024.0, metavar="M", help="tile side [m] (1024)")
+    g.add_argument("--grid-m", type=float, default=1.0, metavar="M", help="fractal grid [m] (1)")
+    g.add_argument("--terrain-seed", type=int, default=0, metavar="S", help="fractal seed (0)")
+    g.add_argument("--rho-d", type=float, default=0.9, metavar="X", help="Ward diffuse albedo (0.9)")
+    g.add_argument("--rho-s", type=float, default=0.05, metavar="X", help="Ward specular (0.05)")
+    g.add_argument("--alpha", type=float, default=0.3, metavar="X", help="Ward roughness (0.3)")
+    i = s.add_argument_group("instrument")
+    i.add_argument("--beam", choices=("strong", "weak"), default="strong", help="beam (strong)")
+    i.add_argument("--shots", type=int, default=1000, metavar="N", help="laser shots (1000)")
+    i.add_argument("--seed", type=int, default=0, metavar="S", help="Monte Carlo seed (0)")
+    i.add_argument("--signal-photons", type=float, metavar="MEAN",
+                   help="mean photons/shot from a flat Lambertian 0.9 plate (8.17 strong, 2.04 weak)")
+    i.add_argument("--channels", type=int, metavar="N",
+                   help="channels the 16 anodes are summed into (16 strong, 4 weak)")
+    i.add_argument("--dead-time-ns", type=float, default=3.0, metavar="NS", help="dead time [ns] (3)")
+    i.add_argument("--pde", type=float, default=0.5, metavar="X", help="detection efficiency (0.5)")
+    i.add_argument("--fill-factor", type=float, default=0.8, metavar="X", help="fill factor (0.8)")
+    i.add_argument("--ideal-detector", action="store_true", help="no dead time")
+    r = s.add_argument_group("rendering")
+    r.add_argument("--variant", default="llvm_ad_mono", metavar="NAME",
+                   help="Mitsuba variant: llvm_ad_mono (CPU, default) or cuda_ad_mono (GPU)")
+    r.add_argument("--paths-per-shot", type=int, default=128, metavar="N",
+                   help="photon paths traced per shot (128)")
+    r.add_argument("--max-depth", type=int, default=1, metavar="N",
+                   help="surface interactions per path (1: single bounce)")
+    o = s.add_argument_group("output")
+    o.add_argument("--out", required=True, metavar="FILE.h5", help="ATL03-like HDF5 output")
+    o.add_argument("--plot", metavar="FILE.png", help="also write the photon cloud (Fig. 10)")
+    o.add_argument("--window", type=int, default=1000, metavar="SHOTS",
+                   help="shots per statistics window (1000)")
+    o.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    st = sub.add_parser("stats", help="elevation bias and precision of a simulated file",
+                        description="Bias and precision (mean and std of h - z_ref) of the "
+                        "signal photons: overall, per window and per channel.")
+    st.add_argument("file", metavar="FILE.h5")
+    st.add_argument("--window", type=int, default=1000, metavar="SHOTS",
+                    help="shots per window (1000)")
+    st.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+    t = sub.add_parser("terrain", help="fractal terrain by Fourier synthesis (.npy or .ply)",
+                       description="Synthesise a periodic 1/f^p fractal heightfield (paper eqs. 2-4).")
+    t.add_argument("--p", type=float, required=True, metavar="P", help="1/f^p exponent")
+    t.add_argument("--size-m", type=float, default=1024.0, metavar="M", help="tile side [m] (1024)")
+    t.add_argument("--grid-m", type=float, default=1.0, metavar="M", help="grid spacing [m] (1)")
+    t.add_argument("--relief-m", type=float, default=10.0, metavar="M", help="max - min [m] (10)")
+    t.add_argument("--seed", type=int, default=0, metavar="S", help="seed (0)")
+    t.add_argument("--out", required=True, metavar="FILE.npy",
+                   help=".npy (heights [m], shape (N, N)) or .ply (mesh for XML scenes)")
+    return p
+
+
+# ------------------------------------------------------------------------------ commands
+def _cmd_simulate(a) -> int:
+    out = _out_path(a.out, (".h5", ".hdf5"))
+    plot = _out_path(a.plot, (".png",), "--plot") if a.plot else None
+    if a.window < 1:
+        raise UsageError("--window", f"must be >= 1 (got {a.window})")
+    if a.scene is not None and not pathlib.Path(a.scene).is_file():
+        raise UsageError("--scene", f"file {a.scene!r} not found")
+    from . import atl03
+    from .instrument import Instrument
+    from .retrieval import format_report
+    from .simulate import SurfaceSpec, simulate
+
+    inst = Instrument(beam=a.beam, signal_photons=a.signal_photons, channels=a.channels,
+                      dead_time_ns=a.dead_time_ns, pde=a.pde, fill_factor=a.fill_factor,
+                      ideal_detector=a.ideal_detector)
+    surface = None
+    if a.scene is None:
+        kind = a.surface or ("slope" if a.slope_deg is not None else "fractal")
+        surface = SurfaceSpec(kind=kind, slope_deg=a.slope_deg or 0.0,
+                              slope_azimuth_deg=a.slope_azimuth_deg, p=a.p, relief_m=a.relief_m,
+                              size_m=a.size_m, grid_m=a.grid_m, terrain_seed=a.terrain_seed,
+                              rho_d=a.rho_d, rho_s=a.rho_s, alpha=a.alpha)
+    res = simulate(instrument=inst, surface=surface, scene_file=a.scene, shots=a.shots,
+                   seed=a.seed, paths_per_shot=a.paths_per_shot, max_depth=a.max_depth,
+                   variant=a.variant, progress=not a.no_progress)
+    atl03.write(res, out)
+    rep = res.report(window_shots=a.window)
+    what = a.scene or f"{surface.kind} surface"
+    print(format_report(rep, title=f"{inst.beam} beam, {res.n_shots} shots over {what} "
+                                   f"({res.timings_s['total_s']:.1f} s)"))
+    print(f"wrote {out}")
+    if plot is not None:
+        from .plotting import photon_cloud
+        d = res.detections
+        photon_cloud(along_track_m=res.along_track_m, surface_z_m=res.surface_z_m,
+                     z_ref_m=res.z_ref_m, photon_along_m=res.along_track_m[d.shot],
+                     photon_h_m=res.h_m, path=plot,
+                     title=f"{inst.beam} beam over {what}: bias {100 * rep.overall.bias_m:.1f} cm, "
+                           f"precision {100 * rep.overall.std_m:.1f} cm")
+        print(f"wrote {plot}")
+    return 0
+
+
+def _cmd_stats(a) -> int:
+    if a.window < 1:
+        raise UsageError("--window", f"must be >= 1 (got {a.window})")
+    if not pathlib.Path(a.file).is_file():
+        raise UsageError("FILE", f"{a.file!r} not found")
+    from . import atl03
+    from .retrieval import elevation_report, format_report
+    try:
+        d = atl03.read(a.file)
+    except (OSError, ValueError, KeyError) as e:
+        raise UsageError("FILE", f"cannot read {a.file!r} ({str(e).splitlines()[0]})") from None
+    sig = d["is_signal"]
+    dh = d["h_m"] - d["z_ref_m"][d["shot"]]
+    rep = elevation_report(dh_m=dh[sig], shot=d["shot"][sig], channel=d["channel"][sig],
+                           n_shots=d["n_shots"], n_channels=d["n_channels"], window_shots=a.window)
+    if a.json:
+        doc = rep.to_dict()
+        doc.update(beam=d["beam"], file=str(a.file))
+        print(json.dumps(_finite(doc), indent=1))
+    else:
+        print(format_report(rep, title=f"{a.file} ({d['beam']})"))
+    return 0
+
+
+def _finite(obj):
+    """JSON-safe copy: NaN and inf become null."""
+    import math
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _cmd_terrain(a) -> int:
+    out = _out_path(a.out, (".npy", ".ply"))
+    from . import terrain
+    try:
+        hf = terrain.fractal(p=a.p, size_m=a.size_m, grid_m=a.grid_m, relief_m=a.relief_m,
+                             seed=a.seed)
+    except ValueError as e:
+        name = str(e).split()[0]
+        raise UsageError(_option("grid_m" if name == "size_m/grid_m" else name),
+                         str(e).split(" ", 1)[1]) from None
+    tmp = out.with_name(f".{out.name}.tmp{out.suffix}")
+    try:
+        if out.suffix.lower() == ".npy":
+            with open(tmp, "wb") as fh:
+                import numpy as np
+                np.save(fh, hf.z_m)
+        else:
+            from .scene import export_ply, heightfield_to_trimesh
+            export_ply(heightfield_to_trimesh(hf), tmp)
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    print(f"wrote {out} ({hf.z_m.shape[0]}x{hf.z_m.shape[1]} grid, {hf.grid_m} m, "
+          f"relief {hf.relief_m:.3f} m, p {a.p})")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    prog = f"{PROG} {args.command}"
+    try:
+        try:
+            import lidar_mitsuba  # noqa: F401  (libLLVM check, variant, plugins)
+        except ImportError as e:
+            sys.stderr.write(f"{prog}: error: {e}\n")
+            return 1
+        from .instrument import ParameterError
+        try:
+            return {"simulate": _cmd_simulate, "stats": _cmd_stats,
+                    "terrain": _cmd_terrain}[args.command](args)
+        except ParameterError as e:
+            raise UsageError(_option(e.name), e.message) from None
+    except UsageError as e:
+        sys.stderr.write(f"{prog}: error: {e}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write(f"{prog}: interrupted\n")
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

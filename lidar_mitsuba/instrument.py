@@ -1,0 +1,161 @@
+"""Instrument description: an ICESat-2 / ATLAS-like photon-counting lidar.
+
+Defaults are the paper's (Zhang & Kerekes): 532 nm, Gaussian pulse of 1 ns FWHM, Gaussian
+footprint of 10 m 1/e^2 diameter, 496 km altitude, 10 kHz and 0.7 m along-track spacing,
+a 16-anode PMT read as 16 channels (strong beam, 8.17 signal photons per shot) or as
+4 channels of 4 summed anodes (weak beam, 2.04), PDE 0.5, fill factor 0.8, dead time 3 ns.
+
+Field names match the CLI options (``dead_time_ns`` is ``--dead-time-ns``), and every
+out-of-range value raises :class:`ParameterError` naming the field.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+C_M_PER_NS = 0.299792458
+FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))   # 2.3548
+
+
+class ParameterError(ValueError):
+    """An out-of-range parameter. ``name`` is the parameter (a dataclass field / CLI option)."""
+
+    def __init__(self, name: str, message: str):
+        super().__init__(f"{name}: {message}")
+        self.name = name
+        self.message = message
+
+
+def _check(name: str, value, ok: bool, expect: str) -> None:
+    if not ok:
+        raise ParameterError(name, f"{expect} (got {value!r})")
+
+
+@dataclass(frozen=True)
+class BeamPreset:
+    """Signal level and channel layout of one ATLAS beam type."""
+    signal_photons: float
+    channels: int
+
+
+BEAMS: dict[str, BeamPreset] = {
+    "strong": BeamPreset(signal_photons=8.17, channels=16),
+    "weak": BeamPreset(signal_photons=2.04, channels=4),
+}
+
+
+@dataclass(frozen=True)
+class Instrument:
+    """Transmitter, geometry and detector of the lidar.
+
+    Attributes:
+        beam: ``"strong"`` or ``"weak"``; sets the defaults of ``signal_photons`` and ``channels``.
+        signal_photons: mean photons per shot reaching the detector from a flat, horizontal
+            Lambertian surface of albedo 0.9 at nadir [photons/shot]; ``None`` = beam default.
+        channels: detector outputs the ``anodes`` are summed into; ``None`` = beam default
+            (16 strong, 4 weak). Must divide ``anodes``.
+        anodes: anode segments of the PMT (16 for ATLAS's 4x4).
+        wavelength_nm: laser wavelength [nm] (mono rendering: informational).
+        pulse_fwhm_ns: full width at half maximum of the Gaussian pulse [ns].
+        footprint_diameter_m: 1/e^2 diameter of the Gaussian footprint on the ground [m].
+        altitude_m: spacecraft height above the scene's z = 0 [m].
+        prf_hz: pulse repetition frequency [Hz].
+        shot_spacing_m: along-track distance between footprints [m].
+        fov_diameter_m: receiver field of view on the ground [m].
+        pde: photon detection efficiency, probability in [0, 1].
+        fill_factor: probability in [0, 1] that a photon falls on an active anode area.
+        dead_time_ns: non-paralyzable dead time of each channel [ns].
+        ideal_detector: no dead time (every photon that passes fill factor and PDE counts).
+    """
+    beam: str = "strong"
+    signal_photons: float | None = None
+    channels: int | None = None
+    anodes: int = 16
+    wavelength_nm: float = 532.0
+    pulse_fwhm_ns: float = 1.0
+    footprint_diameter_m: float = 10.0
+    altitude_m: float = 496e3
+    prf_hz: float = 10e3
+    shot_spacing_m: float = 0.7
+    fov_diameter_m: float = 41.3
+    pde: float = 0.5
+    fill_factor: float = 0.8
+    dead_time_ns: float = 3.0
+    ideal_detector: bool = False
+
+    def __post_init__(self):
+        _check("beam", self.beam, self.beam in BEAMS, f"must be one of {', '.join(BEAMS)}")
+        preset = BEAMS[self.beam]
+        if self.signal_photons is None:
+            object.__setattr__(self, "signal_photons", preset.signal_photons)
+        if self.channels is None:
+            object.__setattr__(self, "channels", preset.channels)
+        f = math.isfinite
+        _check("signal_photons", self.signal_photons,
+               f(self.signal_photons) and 0 <= self.signal_photons <= 1e5, "must be in [0, 1e5]")
+        _check("anodes", self.anodes, isinstance(self.anodes, int) and 1 <= self.anodes <= 1024,
+               "must be an integer in [1, 1024]")
+        divisors = [d for d in range(1, self.anodes + 1) if self.anodes % d == 0]
+        _check("channels", self.channels,
+               isinstance(self.channels, int) and self.channels in divisors,
+               f"must divide the {self.anodes} anodes: one of {', '.join(map(str, divisors))}")
+        _check("wavelength_nm", self.wavelength_nm,
+               f(self.wavelength_nm) and 100 <= self.wavelength_nm <= 20000, "must be in [100, 20000]")
+        _check("pulse_fwhm_ns", self.pulse_fwhm_ns,
+               f(self.pulse_fwhm_ns) and 0 <= self.pulse_fwhm_ns <= 1e4, "must be in [0, 1e4]")
+        _check("footprint_diameter_m", self.footprint_diameter_m,
+               f(self.footprint_diameter_m) and 0 <= self.footprint_diameter_m <= 1e4,
+               "must be in [0, 1e4]")
+        _check("altitude_m", self.altitude_m,
+               f(self.altitude_m) and 10 <= self.altitude_m <= 1e8, "must be in [10, 1e8]")
+        _check("prf_hz", self.prf_hz, f(self.prf_hz) and 0 < self.prf_hz <= 1e9, "must be in (0, 1e9]")
+        _check("shot_spacing_m", self.shot_spacing_m,
+               f(self.shot_spacing_m) and 0 <= self.shot_spacing_m <= 1e5, "must be in [0, 1e5]")
+        _check("fov_diameter_m", self.fov_diameter_m,
+               f(self.fov_diameter_m) and 0 < self.fov_diameter_m <= 1e5, "must be in (0, 1e5]")
+        for name in ("pde", "fill_factor"):
+            value = getattr(self, name)
+            _check(name, value, f(value) and 0 <= value <= 1, "must be in [0, 1]")
+        _check("dead_time_ns", self.dead_time_ns,
+               f(self.dead_time_ns) and 0 <= self.dead_time_ns <= 1e6, "must be in [0, 1e6]")
+
+    # Derived quantities ------------------------------------------------------------------
+    @property
+    def pulse_sigma_ns(self) -> float:
+        """Standard deviation of the Gaussian pulse [ns]."""
+        return self.pulse_fwhm_ns / FWHM_PER_SIGMA
+
+    @property
+    def footprint_sigma_m(self) -> float:
+        """Standard deviation of the Gaussian footprint [m] (a quarter of the 1/e^2 diameter)."""
+        return self.footprint_diameter_m / 4.0
+
+    @property
+    def anodes_per_channel(self) -> int:
+        return self.anodes // self.channels
+
+    @property
+    def ranging_sigma_m(self) -> float:
+        """Elevation spread of an ideal detector over a flat plate, c * sigma_t / 2 [m]."""
+        return C_M_PER_NS * self.pulse_sigma_ns / 2.0
+
+    @property
+    def effective_dead_time_ns(self) -> float:
+        return 0.0 if self.ideal_detector else self.dead_time_ns
+
+    def replace(self, **changes) -> "Instrument":
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    def integrator_dict(self, *, max_depth: int = 1, max_lanes: int = 2 ** 23) -> dict:
+        """Mitsuba dict of the ``pathlength`` integrator for this instrument."""
+        return {"type": "pathlength", "max_depth": int(max_depth),
+                "altitude_m": float(self.altitude_m),
+                "footprint_sigma_m": float(self.footprint_sigma_m),
+                "pulse_sigma_ns": float(self.pulse_sigma_ns),
+                "fov_radius_m": float(self.fov_diameter_m / 2.0),
+                "max_lanes": int(max_lanes)}
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)

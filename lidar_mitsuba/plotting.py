@@ -1,0 +1,40 @@
+"""Figures. matplotlib with the Agg backend (no display needed)."""
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def photon_cloud(*, along_track_m: np.ndarray, surface_z_m: np.ndarray, z_ref_m: np.ndarray,
+                 photon_along_m: np.ndarray, photon_h_m: np.ndarray, title: str = "",
+                 path=None, max_points: int = 200_000):
+    """The paper's Fig. 10: detected photons over the along-track surface profile.
+
+    Args:
+        along_track_m, surface_z_m, z_ref_m: (n_shots,) footprint centres' along-track
+            distance, surface height at the centre and reference elevation [m].
+        photon_along_m, photon_h_m: (n_photons,) photon along-track position and elevation [m].
+        path: PNG file to write (optional). Returns the matplotlib Figure.
+    """
+    fig, ax = plt.subplots(figsize=(10, 4), dpi=120)
+    k = photon_h_m.size
+    sel = slice(None) if k <= max_points else np.random.default_rng(0).choice(k, max_points, False)
+    ax.plot(photon_along_m[sel], photon_h_m[sel], ".", ms=2, color="tab:red",
+            label=f"detected photons ({k})")
+    ax.plot(along_track_m, surface_z_m, "-", lw=1.0, color="tab:blue",
+            label="surface along track")
+    ax.plot(along_track_m, z_ref_m, "-", lw=1.0, color="k", alpha=0.6,
+            label="reference elevation (footprint mean)")
+    ax.set_xlabel("along-track distance [m]")
+    ax.set_ylabel("elevation [m]")
+    ax.set_title(title)
+    ax.legend(loc="best", fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path)
+        plt.close(fig)
+    return fig

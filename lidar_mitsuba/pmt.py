@@ -1,0 +1,215 @@
+"""Radiometry and the multi-anode PMT: traced returns -> detected photon events. Pure numpy.
+
+Per shot ``s`` with traced returns of weights ``w`` (``paths_per_shot`` photon paths):
+
+1. the mean number of photons reaching the detector is
+   ``mu_s = signal_photons * sum(w) / paths_per_shot`` (``signal_photons`` is defined for a flat,
+   horizontal Lambertian plate of albedo 0.9 at nadir, where every weight is 1);
+2. the number of arrivals is Poisson(``mu_s``), and the arrivals are distinct traced returns
+   drawn in proportion to their weights (rejection sampling; arrival times are unbiased);
+3. each arrival lands on a uniformly random anode, survives the fill factor, then the PDE;
+4. anodes are summed into channels (``anodes / channels`` consecutive anodes each);
+5. each channel is dead for ``dead_time_ns`` after every detection (non-paralyzable), unless
+   the detector is ideal.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .instrument import Instrument
+
+
+@dataclass(frozen=True)
+class Detections:
+    """Detected photon events, sorted by shot then time. All arrays have shape (n_events,).
+
+    Attributes:
+        shot: shot index (int64).
+        channel: detector channel (int16), ``anode // anodes_per_channel``.
+        anode: anode segment (int16).
+        time_ns: round-trip time [ns] (float64).
+        return_index: index of the traced return the photon came from (int64; -1 for noise).
+        is_signal: True for laser photons (bool).
+        arrivals_per_shot: (n_shots,) photons that reached the detector (before fill factor,
+            PDE and dead time).
+        mean_photons_per_shot: (n_shots,) the Poisson mean ``mu_s`` of each shot.
+    """
+    shot: np.ndarray
+    channel: np.ndarray
+    anode: np.ndarray
+    time_ns: np.ndarray
+    return_index: np.ndarray
+    is_signal: np.ndarray
+    arrivals_per_shot: np.ndarray
+    mean_photons_per_shot: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.shot.size)
+
+
+def shot_weight_sums(shot: np.ndarray, weight: np.ndarray, n_shots: int) -> np.ndarray:
+    """(n_shots,) sum of return weights per shot (float64)."""
+    return np.bincount(shot, weights=np.asarray(weight, np.float64), minlength=n_shots)
+
+
+def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths_per_shot: int,
+                    signal_photons: float, rng: np.random.Generator
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Poisson photon arrivals per shot, each a distinct traced return drawn by weight.
+
+    The traced paths of a shot are iid samples of its footprint and pulse; a path's weight
+    is its probability of returning to the receiver. Each return is accepted with probability
+    ``w / w_max`` (rejection sampling, ``w_max`` the largest weight of the track), so accepted
+    returns are iid draws from the weighted return distribution; a shot's ``k`` arrivals are a
+    uniformly random ``k``-subset of its accepted returns. Distinct paths matter: drawing with replacement would let two
+    arrivals share one path with probability ~1/paths_per_shot and bias the first-photon
+    statistics. Only when a shot has fewer accepted returns than arrivals (rare: it needs
+    ``k`` close to ``paths_per_shot * mean(w) / w_max``) are the extra arrivals drawn with
+    replacement, in proportion to weight.
+
+    Args:
+        shot: (n_returns,) shot index of each traced return, non-decreasing.
+        weight: (n_returns,) return weights (>= 0).
+        n_shots, paths_per_shot: the trace's shot count and paths traced per shot.
+        signal_photons: mean photons per shot from the reference plate.
+
+    Returns:
+        ``(return_index, mu, counts)``: (n_arrivals,) index of the chosen return per arrival,
+        grouped by shot; (n_shots,) Poisson means ``signal_photons * sum(w) / paths_per_shot``;
+        (n_shots,) arrivals per shot.
+    """
+    shot = np.asarray(shot, np.int64)
+    if shot.size and np.any(np.diff(shot) < 0):
+        raise ValueError("returns must be sorted by shot")
+    w = np.asarray(weight, np.float64)
+    w_sum = shot_weight_sums(shot, w, n_shots)
+    mu = signal_photons * w_sum / paths_per_shot
+    counts = rng.poisson(mu)
+    total = int(counts.sum())
+    if total == 0:
+        return np.zeros(0, np.int64), mu, counts
+    arrival_shot = np.repeat(np.arange(n_shots), counts)
+    rank = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
+
+    accepted = np.flatnonzero(rng.random(w.size) * w.max() < w)
+    # a uniformly random order within each shot, so that any k of them are a random k-subset
+    accepted = accepted[np.lexsort((rng.random(accepted.size), shot[accepted]))]
+    n_acc = np.bincount(shot[accepted], minlength=n_shots)
+    acc_start = np.cumsum(n_acc) - n_acc
+    ok = rank < n_acc[arrival_shot]
+    idx = np.empty(total, np.int64)
+    idx[ok] = accepted[acc_start[arrival_shot[ok]] + rank[ok]]
+
+    if not ok.all():          # fallback: weighted draws with replacement within the shot
+        s = arrival_shot[~ok]
+        cw = np.cumsum(w)
+        first = np.searchsorted(shot, np.arange(n_shots), side="left")
+        last = np.searchsorted(shot, np.arange(n_shots), side="right") - 1
+        before = np.where(first > 0, cw[np.maximum(first - 1, 0)], 0.0)
+        target = before[s] + rng.random(s.size) * w_sum[s]
+        idx[~ok] = np.clip(np.searchsorted(cw, target, side="right"), first[s], last[s])
+    return idx, mu, counts
+
+
+def _time_keys(group: np.ndarray, time_ns: np.ndarray, dead_time_ns: float):
+    """Exact integer sort keys ``group * stride + quantised time`` and the quantised dead time."""
+    t = time_ns - time_ns.min()
+    span = float(t.max()) + dead_time_ns
+    n_groups = int(group.max()) + 1
+    res_ns = 1e-6                                   # 1 fs
+    while (span / res_ns + 2) * n_groups > 2 ** 62:
+        res_ns *= 2.0
+    q = np.rint(t / res_ns).astype(np.int64)
+    dead_q = int(np.rint(dead_time_ns / res_ns))
+    stride = np.int64(int(span / res_ns) + dead_q + 2)
+    return group.astype(np.int64) * stride + q, dead_q
+
+
+def nonparalyzable_mask(group: np.ndarray, time_ns: np.ndarray, dead_time_ns: float) -> np.ndarray:
+    """Which events a non-paralyzable detector records.
+
+    Within each ``group`` (a channel of a shot), an event is recorded when it comes at least
+    ``dead_time_ns`` after the previous *recorded* event. Events need not be sorted.
+    Vectorised: one pass per recorded event of the busiest group, each a binary search.
+
+    Returns:
+        (n_events,) bool.
+    """
+    n = time_ns.size
+    keep = np.zeros(n, bool)
+    if n == 0:
+        return keep
+    if dead_time_ns <= 0:
+        keep[:] = True
+        return keep
+    order = np.lexsort((time_ns, group))
+    key, dead_q = _time_keys(np.asarray(group)[order], np.asarray(time_ns, float)[order], dead_time_ns)
+    if dead_q == 0:
+        keep[:] = True
+        return keep
+    g = np.asarray(group)[order]
+    ptr = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    hit = np.zeros(n, bool)
+    while ptr.size:
+        hit[ptr] = True
+        nxt = np.searchsorted(key, key[ptr] + dead_q, side="left")
+        ok = nxt < n
+        ok[ok] = g[nxt[ok]] == g[ptr[ok]]
+        ptr = nxt[ok]
+    keep[order] = hit
+    return keep
+
+
+def paralyzable_mask(group: np.ndarray, time_ns: np.ndarray, dead_time_ns: float) -> np.ndarray:
+    """Which events a paralyzable (extending) detector records: those at least
+    ``dead_time_ns`` after the previous event of their group, recorded or not. (n_events,) bool."""
+    n = time_ns.size
+    keep = np.zeros(n, bool)
+    if n == 0:
+        return keep
+    order = np.lexsort((time_ns, group))
+    g = np.asarray(group)[order]
+    t = np.asarray(time_ns, float)[order]
+    first = np.r_[True, g[1:] != g[:-1]]
+    gap_ok = np.r_[True, np.diff(t) >= dead_time_ns]
+    keep[order] = first | gap_ok
+    return keep
+
+
+def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
+           paralyzable: bool = False) -> Detections:
+    """Turn traced returns into detected photon events.
+
+    Args:
+        returns: output of ``PathLengthIntegrator.trace``: ``shot``, ``time_ns``, ``weight``
+            (shape (n_returns,), sorted by shot), ``n_shots`` and ``paths_per_shot``.
+        instrument: signal level, anodes, channels, fill factor, PDE, dead time.
+        rng: numpy random generator (seed it for reproducible runs).
+        paralyzable: extending dead time instead of the paper's non-paralyzable one.
+    """
+    n_shots = int(returns["n_shots"])
+    idx, mu, counts = sample_arrivals(
+        returns["shot"], returns["weight"], n_shots=n_shots,
+        paths_per_shot=int(returns["paths_per_shot"]),
+        signal_photons=float(instrument.signal_photons), rng=rng)
+    m = idx.size
+    anode = rng.integers(0, instrument.anodes, m)
+    kept = rng.random(m) < instrument.fill_factor
+    kept[kept] = rng.random(int(kept.sum())) < instrument.pde
+    idx, anode = idx[kept], anode[kept]
+    shot = np.asarray(returns["shot"], np.int64)[idx]
+    channel = anode // instrument.anodes_per_channel
+    time_ns = np.asarray(returns["time_ns"], np.float64)[idx]
+    dead = instrument.effective_dead_time_ns
+    group = shot * instrument.channels + channel
+    mask_fn = paralyzable_mask if paralyzable else nonparalyzable_mask
+    on = mask_fn(group, time_ns, dead) if dead > 0 else np.ones(idx.size, bool)
+    order = np.lexsort((time_ns[on], shot[on]))
+    sel = np.flatnonzero(on)[order]
+    return Detections(shot=shot[sel], channel=channel[sel].astype(np.int16),
+                      anode=anode[sel].astype(np.int16), time_ns=time_ns[sel],
+                      return_index=idx[sel].astype(np.int64),
+                      is_signal=np.ones(sel.size, bool), arrivals_per_shot=counts,
+                      mean_photons_per_shot=mu)

@@ -1,0 +1,258 @@
+"""The Python API: simulate a ground track and get photons, references and statistics.
+
+>>> import lidar_mitsuba as lm
+>>> from lidar_mitsuba.simulate import simulate, SurfaceSpec
+>>> from lidar_mitsuba.instrument import Instrument
+>>> res = simulate(instrument=Instrument(beam="weak"), surface=SurfaceSpec(kind="fractal", p=1.8),
+...                shots=1000, seed=1)                                    # doctest: +SKIP
+>>> print(res.report().overall)                                          # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+
+import mitsuba as mi
+import numpy as np
+
+from . import pmt, retrieval, scene as scn, terrain
+from .instrument import C_M_PER_NS, Instrument, ParameterError
+from .variant import set_variant
+
+SURFACES = ("flat", "slope", "fractal")
+
+
+@dataclass(frozen=True)
+class SurfaceSpec:
+    """A built-in surface and its Ward reflectance (the paper's snow by default).
+
+    Attributes:
+        kind: ``flat``, ``slope`` or ``fractal``.
+        slope_deg: slope of the ``slope`` plane [deg], in [0, 90).
+        slope_azimuth_deg: direction of steepest ascent [deg] (0 = along track).
+        p: spectral exponent of the fractal (1/f^p filter).
+        relief_m: max - min height of the fractal tile [m].
+        size_m: side of the square tile [m].
+        grid_m: fractal grid spacing [m].
+        terrain_seed: seed of the fractal's white noise.
+        rho_d, rho_s, alpha: Ward diffuse albedo, specular reflectance, roughness.
+    """
+    kind: str = "fractal"
+    slope_deg: float = 0.0
+    slope_azimuth_deg: float = 0.0
+    p: float = 1.8
+    relief_m: float = 10.0
+    size_m: float = 1024.0
+    grid_m: float = 1.0
+    terrain_seed: int = 0
+    rho_d: float = 0.9
+    rho_s: float = 0.05
+    alpha: float = 0.3
+
+    def __post_init__(self):
+        if self.kind not in SURFACES:
+            raise ParameterError("surface", f"must be one of {', '.join(SURFACES)} (got {self.kind!r})")
+        if not (math.isfinite(self.slope_deg) and 0 <= self.slope_deg < 90):
+            raise ParameterError("slope_deg", f"must be in [0, 90) (got {self.slope_deg})")
+        if self.kind != "slope" and self.slope_deg != 0:
+            raise ParameterError("slope_deg", "only applies to --surface slope")
+        for name in ("rho_d", "rho_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0 <= v <= 1):
+                raise ParameterError(name, f"must be in [0, 1] (got {v})")
+        if self.rho_d + self.rho_s > 1:
+            raise ParameterError("rho_d", f"+ rho_s must be <= 1 (got {self.rho_d} + {self.rho_s})")
+        if not (math.isfinite(self.alpha) and self.alpha > 0):
+            raise ParameterError("alpha", f"must be > 0 (got {self.alpha})")
+        if not (math.isfinite(self.size_m) and 1 <= self.size_m <= 1e5):
+            raise ParameterError("size_m", f"must be in [1, 1e5] (got {self.size_m})")
+        if not (math.isfinite(self.grid_m) and self.grid_m > 0):
+            raise ParameterError("grid_m", f"must be > 0 (got {self.grid_m})")
+        if self.kind == "fractal":
+            try:   # the fractal's own checks, without building it
+                n = round(self.size_m / self.grid_m)
+                if not 8 <= n <= 8192:
+                    raise ValueError(f"size_m / grid_m must give 8 to 8192 grid points (got {n})")
+                if not (math.isfinite(self.p) and 0 < self.p <= 5):
+                    raise ValueError(f"p must be in (0, 5] (got {self.p})")
+                if not (math.isfinite(self.relief_m) and 0 <= self.relief_m <= 1e4):
+                    raise ValueError(f"relief_m must be in [0, 1e4] (got {self.relief_m})")
+            except ValueError as e:
+                name = str(e).split()[0]
+                name = "grid_m" if name == "size_m" else name
+                raise ParameterError(name, str(e).split(" ", 1)[1]) from None
+
+    def bsdf_dict(self) -> dict:
+        return scn.ward_bsdf_dict(rho_d=self.rho_d, rho_s=self.rho_s, alpha=self.alpha)
+
+    def build(self):
+        """The surface object: :class:`~lidar_mitsuba.scene.Plane` or a periodic Heightfield."""
+        if self.kind == "fractal":
+            return terrain.fractal(p=self.p, size_m=self.size_m, grid_m=self.grid_m,
+                                   relief_m=self.relief_m, seed=self.terrain_seed)
+        return scn.Plane(slope_deg=self.slope_deg if self.kind == "slope" else 0.0,
+                         azimuth_deg=self.slope_azimuth_deg, size_m=self.size_m)
+
+
+@dataclass
+class SimulationResult:
+    """Everything one run produced. Per-shot arrays have shape (shots,), per-photon (n_photons,).
+
+    Attributes:
+        instrument: the instrument simulated.
+        config: the run's settings (JSON-serialisable).
+        along_track_m: along-track distance of each footprint centre from the first [m].
+        shot_x_m, shot_y_m: footprint centres in scene coordinates (unwrapped) [m].
+        surface_z_m: surface height at each footprint centre [m].
+        z_ref_m: reference elevation, the Gaussian-footprint-weighted mean height [m].
+        detections: the detected photon events (:class:`~lidar_mitsuba.pmt.Detections`).
+        h_m: elevation of each detected photon [m].
+        returns: the traced returns (see ``PathLengthIntegrator.trace``).
+        timings_s: wall time of each stage [s].
+    """
+    instrument: Instrument
+    config: dict
+    along_track_m: np.ndarray
+    shot_x_m: np.ndarray
+    shot_y_m: np.ndarray
+    surface_z_m: np.ndarray
+    z_ref_m: np.ndarray
+    detections: pmt.Detections
+    h_m: np.ndarray
+    returns: dict
+    timings_s: dict = field(default_factory=dict)
+
+    @property
+    def n_shots(self) -> int:
+        return int(self.along_track_m.size)
+
+    @property
+    def dh_m(self) -> np.ndarray:
+        """(n_photons,) h - z_ref of every detected photon [m]."""
+        return self.h_m - self.z_ref_m[self.detections.shot]
+
+    def report(self, *, window_shots: int = 1000) -> retrieval.StatsReport:
+        """Bias and precision of the signal photons, overall, per window and per channel."""
+        d = self.detections
+        sig = d.is_signal
+        return retrieval.elevation_report(
+            dh_m=self.dh_m[sig], shot=d.shot[sig], channel=d.channel[sig], n_shots=self.n_shots,
+            n_channels=self.instrument.channels, window_shots=window_shots)
+
+
+def track_positions(n_shots: int, *, spacing_m: float, centre_x_m: float, y_m: float):
+    """(along_track_m, x_m, y_m) of ``n_shots`` footprints along +x, centred on ``centre_x_m``."""
+    along = np.arange(n_shots) * float(spacing_m)
+    x = centre_x_m - along[-1] / 2.0 + along if n_shots else along
+    return along, x, np.full(n_shots, float(y_m))
+
+
+def _progress(total: int, desc: str, enabled: bool):
+    if not enabled:
+        return None, None
+    from tqdm.auto import tqdm
+    bar = tqdm(total=total, desc=desc, unit="shot", delay=2.0, leave=False)
+    return bar, bar.update
+
+
+def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | None = None,
+             scene_file: str | None = None, bsdf: dict | None = None, shots: int = 1000,
+             seed: int = 0, paths_per_shot: int = 128, max_depth: int = 1,
+             variant: str | None = None, progress: bool = True) -> SimulationResult:
+    """Simulate ``shots`` laser shots along a ground track and detect their photons.
+
+    Args:
+        instrument: the lidar (default: strong beam, the paper's parameters).
+        surface: a built-in surface (default: fractal p = 1.8, 10 m relief, Ward snow).
+        scene_file: a Mitsuba XML scene to use instead of ``surface`` (its own BSDFs; z up,
+            metres); the track runs along +x through the centre of its bounding box.
+        bsdf: a Mitsuba BSDF dict replacing the surface's Ward BSDF (any Mitsuba BSDF).
+        shots: number of laser shots (>= 1).
+        seed: seed of the photon Monte Carlo and the detector (same seed, same photons).
+        paths_per_shot: photon paths traced per shot to sample its return.
+        max_depth: surface interactions per photon path (1 = single bounce).
+        variant: Mitsuba variant (default: the active one, ``llvm_ad_mono``).
+        progress: show a progress bar on runs longer than ~2 s.
+    """
+    instrument = instrument or Instrument()
+    if not isinstance(shots, (int, np.integer)) or not 1 <= shots <= 10 ** 8:
+        raise ParameterError("shots", f"must be an integer in [1, 1e8] (got {shots!r})")
+    if not isinstance(paths_per_shot, (int, np.integer)) or not 1 <= paths_per_shot <= 10 ** 6:
+        raise ParameterError("paths_per_shot", f"must be an integer in [1, 1e6] (got {paths_per_shot!r})")
+    if not isinstance(max_depth, (int, np.integer)) or not 1 <= max_depth <= 64:
+        raise ParameterError("max_depth", f"must be an integer in [1, 64] (got {max_depth!r})")
+    if scene_file is not None and surface is not None:
+        raise ParameterError("scene", "give either a scene file or a built-in surface, not both")
+    if variant is not None:
+        try:
+            set_variant(variant)
+        except ValueError as e:
+            raise ParameterError("variant", str(e)) from None
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    sigma = instrument.footprint_sigma_m
+    margin = 5.0 * sigma + 1.0
+
+    if scene_file is not None:
+        scene = mi.load_file(str(scene_file))
+        lo, hi = scn.scene_bounds(scene)
+        cx, cy = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])
+        along, x, y = track_positions(shots, spacing_m=instrument.shot_spacing_m,
+                                      centre_x_m=cx, y_m=cy)
+        if x[0] - margin < lo[0] or x[-1] + margin > hi[0]:
+            raise ParameterError("shots", f"a track of {along[-1]:.1f} m plus footprints does not "
+                                 f"fit the scene's {hi[0] - lo[0]:.1f} m extent along x")
+        x_loc, y_loc, dz = x, y, np.zeros(shots)
+        surface_z = scn.cast_heights_m(scene, x, y)
+        z_ref = scn.raycast_reference_elevation_m(scene, x, y, sigma_m=sigma)
+        surf_cfg = {"scene_file": str(scene_file)}
+    else:
+        surface = surface or SurfaceSpec()
+        surf = surface.build()
+        size = surface.size_m
+        along, x, y = track_positions(shots, spacing_m=instrument.shot_spacing_m,
+                                      centre_x_m=size / 2.0, y_m=size / 2.0)
+        if isinstance(surf, scn.Plane):
+            x_loc, y_loc, dz = surf.wrap(x, y)
+            tm = surf.to_trimesh(margin_m=margin)
+        else:
+            x_loc, y_loc, dz = scn.heightfield_wrap(surf, x, y)
+            tm = scn.heightfield_to_trimesh(surf, margin_m=margin)
+        scene = scn.scene_from_trimesh(tm, bsdf=bsdf if bsdf is not None else surface.bsdf_dict())
+        surface_z = surf.height_m(x, y)
+        z_ref = surf.reference_elevation_m(x, y, sigma_m=sigma)
+        surf_cfg = asdict(surface)
+        if bsdf is not None:
+            surf_cfg["bsdf"] = repr(bsdf)
+    timings["scene_s"] = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    integrator = mi.load_dict(instrument.integrator_dict(max_depth=max_depth))
+    bar, update = _progress(shots, "tracing", progress)
+    try:
+        returns = integrator.trace(scene, shot_x_m=x_loc, shot_y_m=y_loc,
+                                   paths_per_shot=int(paths_per_shot), seed=seed, progress=update)
+    finally:
+        if bar is not None:
+            bar.close()
+    if np.any(dz):   # fold the exact plane offset back in (float64)
+        off = dz[returns["shot"]]
+        returns["time_ns"] = returns["time_ns"] - 2.0 * off / C_M_PER_NS
+        returns["z_m"] = (returns["z_m"] + off).astype(np.float32)
+        returns["x_m"] = (returns["x_m"] + (x - x_loc)[returns["shot"]]).astype(np.float32)
+    timings["trace_s"] = time.perf_counter() - t1
+
+    t2 = time.perf_counter()
+    rng = np.random.default_rng([int(seed), 0x504D54])
+    det = pmt.detect(returns, instrument, rng)
+    h = retrieval.photon_heights_m(det.time_ns, altitude_m=instrument.altitude_m)
+    timings["detect_s"] = time.perf_counter() - t2
+    timings["total_s"] = time.perf_counter() - t0
+
+    config = {"instrument": instrument.to_dict(), "surface": surf_cfg, "shots": int(shots),
+              "seed": int(seed), "paths_per_shot": int(paths_per_shot), "max_depth": int(max_depth),
+              "variant": mi.variant()}
+    return SimulationResult(instrument=instrument, config=config, along_track_m=along,
+                            shot_x_m=x, shot_y_m=y, surface_z_m=surface_z, z_ref_m=z_ref,
+                            detections=det, h_m=h, returns=returns, timings_s=timings)

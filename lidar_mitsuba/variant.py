@@ -1,0 +1,65 @@
+"""Mitsuba variant selection and registration of our plugins in every variant.
+
+Python plugins subclass variant-specific classes (``mi.BSDF`` differs between ``llvm_ad_mono``
+and ``cuda_ad_mono``), so each plugin file is executed once per variant, under its own module
+name, whenever that variant becomes active.
+"""
+from __future__ import annotations
+
+import importlib.util
+import pathlib
+
+import drjit as dr
+import mitsuba as mi
+
+DEFAULT_VARIANT = "llvm_ad_mono"
+SUPPORTED_VARIANTS = ("llvm_ad_mono", "cuda_ad_mono", "llvm_ad_rgb", "cuda_ad_rgb")
+PLUGIN_FILES = ("ward", "pathlength")
+
+_registered: set[str] = set()
+
+
+def _register_plugins(variant: str | None) -> None:
+    if variant is None or variant.startswith("scalar") or variant in _registered:
+        return
+    from . import plugins   # the top-level plugins/ folder, installed as lidar_mitsuba.plugins
+    plugin_dir = pathlib.Path(plugins.__file__).parent
+    for name in PLUGIN_FILES:
+        path = plugin_dir / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(
+            f"lidar_mitsuba.plugins._{variant}_{name}", path)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)  # registers itself with mi.register_*
+    _registered.add(variant)
+
+
+def _on_variant_change(old: str | None, new: str | None) -> None:
+    _register_plugins(new)
+
+
+def set_variant(name: str = DEFAULT_VARIANT) -> str:
+    """Activate Mitsuba variant ``name`` (e.g. ``llvm_ad_mono``, ``cuda_ad_mono``).
+
+    Raises ``ValueError`` naming the variant when it is unknown or its backend (CUDA) is absent.
+    """
+    if name not in mi.variants():
+        raise ValueError(f"variant {name!r} is not available (choose from "
+                         f"{', '.join(v for v in SUPPORTED_VARIANTS if v in mi.variants())})")
+    if name.startswith("cuda") and not dr.has_backend(dr.JitBackend.CUDA):
+        raise ValueError(f"variant {name!r} needs a CUDA GPU and driver, and none was found "
+                         f"(use llvm_ad_mono on the CPU)")
+    if name.startswith("scalar"):
+        raise ValueError(f"variant {name!r} is not supported: use a JIT variant such as "
+                         f"{DEFAULT_VARIANT}")
+    if mi.variant() != name:
+        mi.set_variant(name)
+    _register_plugins(name)
+    return name
+
+
+def init() -> None:
+    """Called on ``import lidar_mitsuba``: keep plugins registered in whatever variant is active."""
+    mi.detail.add_variant_callback(_on_variant_change)
+    if mi.variant() is None:
+        mi.set_variant(DEFAULT_VARIANT)
+    _register_plugins(mi.variant())

@@ -1,0 +1,144 @@
+"""The PMT stage against closed forms and an independent, deliberately simple implementation.
+
+Tolerances: each Monte Carlo estimate is compared with its closed form within Z = 4.5 standard
+errors, the standard error computed from the sample (binomial for fractions, sigma/sqrt(n) for
+means, sigma*sqrt((kurtosis-1)/(4n)) for standard deviations). With ~25 such comparisons the
+chance of a false failure is below 1e-4.
+"""
+import math
+
+import numpy as np
+import pytest
+from scipy import integrate, stats
+
+from lidar_mitsuba import pmt
+from lidar_mitsuba.instrument import C_M_PER_NS, Instrument
+
+Z = 4.5
+
+
+def loop_nonparalyzable(group, t, dead):
+    """Reference: walk each group's events in time order, one at a time."""
+    keep = np.zeros(t.size, bool)
+    last = {}
+    for i in np.lexsort((t, group)):
+        g = group[i]
+        if g not in last or t[i] >= last[g] + dead:
+            keep[i] = True
+            last[g] = t[i]
+    return keep
+
+
+def loop_paralyzable(group, t, dead):
+    keep = np.zeros(t.size, bool)
+    prev = {}
+    for i in np.lexsort((t, group)):
+        g = group[i]
+        if g not in prev or t[i] - prev[g] >= dead:
+            keep[i] = True
+        prev[g] = t[i]
+    return keep
+
+
+@pytest.mark.parametrize("dead", [0.0, 0.5, 3.0, 20.0])
+def test_dead_time_masks_match_simple_loops(rng, dead):
+    n = 4000
+    group = rng.integers(0, 60, n)
+    t = 3.3e6 + rng.uniform(0, 40, n)          # absolute times at orbital range [ns]
+    t[::7] = t[1::7][: t[::7].size] if dead else t[::7]   # exact ties
+    assert np.array_equal(pmt.nonparalyzable_mask(group, t, dead), loop_nonparalyzable(group, t, dead))
+    assert np.array_equal(pmt.paralyzable_mask(group, t, dead), loop_paralyzable(group, t, dead))
+
+
+def test_dead_time_boundary_is_exact():
+    """An event exactly one dead time after a recorded one is recorded (dead on [t, t+tau))."""
+    t = np.array([0.0, 1.0, 3.0, 3.5, 6.0]) + 3.3e6
+    g = np.zeros(5, int)
+    assert pmt.nonparalyzable_mask(g, t, 3.0).tolist() == [True, False, True, False, True]
+    assert pmt.paralyzable_mask(g, t, 3.0).tolist() == [True, False, False, False, False]
+
+
+def test_arrivals_poisson_and_weighted(rng):
+    """Counts are Poisson(mu) with mu = S * mean weight; arrivals pick returns by weight."""
+    n_shots, k = 20000, 32
+    shot = np.repeat(np.arange(n_shots), k)
+    w = np.where(np.arange(shot.size) % 2 == 0, 0.5, 1.5)       # mean weight 1
+    idx, mu, counts = pmt.sample_arrivals(shot, w, n_shots=n_shots, paths_per_shot=k,
+                                          signal_photons=3.0, rng=rng)
+    assert np.allclose(mu, 3.0)
+    # Poisson: mean 3 and variance 3; SE of the mean sqrt(3/n), of the variance ~ sqrt(2*9/n)
+    assert abs(counts.mean() - 3.0) < Z * math.sqrt(3.0 / n_shots)
+    assert abs(counts.var() - 3.0) < Z * math.sqrt((2 * 9 + 3) / n_shots)
+    # heavy returns (w = 1.5) are chosen with probability 0.75; binomial SE
+    frac = np.mean(idx % 2 == 1)
+    assert abs(frac - 0.75) < Z * math.sqrt(0.75 * 0.25 / idx.size)
+    # distinct paths within a shot
+    pairs = shot[idx] * shot.size + idx
+    assert np.unique(pairs).size == idx.size
+    assert np.all(shot[idx] == np.repeat(np.arange(n_shots), counts))
+
+
+def test_arrivals_fallback_keeps_weights(rng):
+    """More arrivals than paths: the fallback draws with replacement, still by weight."""
+    n_shots, k = 5000, 2
+    shot = np.repeat(np.arange(n_shots), k)
+    w = np.tile([1.0, 3.0], n_shots)
+    idx, mu, counts = pmt.sample_arrivals(shot, w, n_shots=n_shots, paths_per_shot=k,
+                                          signal_photons=6.0, rng=rng)
+    frac = np.mean(idx % 2 == 1)
+    assert abs(frac - 0.75) < Z * math.sqrt(0.75 * 0.25 / idx.size) * 3  # clustered draws: 3x SE
+    assert np.all(shot[idx] == np.repeat(np.arange(n_shots), counts))
+
+
+def first_photon_moments(lam, sigma):
+    """Closed form of the first arrival of a Poisson process of mean lam with Gaussian
+    intensity (sd sigma), given at least one arrival: density
+    f(t) = lam phi(t) exp(-lam Phi(t)) / (1 - exp(-lam)). Returns (p_detect, mean, sd, kurtosis)."""
+    norm = -math.expm1(-lam)
+
+    def f(t):
+        return lam * stats.norm.pdf(t, scale=sigma) * math.exp(-lam * stats.norm.cdf(t, scale=sigma)) / norm
+
+    lim = 12 * sigma
+    m1 = integrate.quad(lambda t: t * f(t), -lim, lim, epsabs=1e-13)[0]
+    m2 = integrate.quad(lambda t: (t - m1) ** 2 * f(t), -lim, lim, epsabs=1e-13)[0]
+    m4 = integrate.quad(lambda t: (t - m1) ** 4 * f(t), -lim, lim, epsabs=1e-13)[0]
+    return norm, m1, math.sqrt(m2), m4 / m2 ** 2
+
+
+@pytest.mark.parametrize("channels", [1, 4, 16])
+def test_first_photon_statistics_closed_form(rng, channels):
+    """Strong-beam signal (8.17 photons/shot) on a Gaussian return, dead time 3 ns >> pulse:
+    each channel records exactly its first photon. Detection fraction per channel
+    1 - exp(-lam), lam = S * ff * pde / channels, and first-photon mean and spread."""
+    inst = Instrument(beam="strong", channels=channels)
+    n_shots, k = 60000, 48
+    sigma_ns = inst.pulse_sigma_ns
+    t0 = 2 * inst.altitude_m / C_M_PER_NS
+    returns = {"shot": np.repeat(np.arange(n_shots), k),
+               "time_ns": t0 + sigma_ns * rng.standard_normal(n_shots * k),
+               "weight": np.ones(n_shots * k), "n_shots": n_shots, "paths_per_shot": k}
+    det = pmt.detect(returns, inst, rng)
+    lam = inst.signal_photons * inst.fill_factor * inst.pde / channels
+    p_det, mean, sd, kurt = first_photon_moments(lam, sigma_ns)
+
+    frac = len(det) / (n_shots * channels)
+    assert abs(frac - p_det) < Z * math.sqrt(p_det * (1 - p_det) / (n_shots * channels))
+    dt = det.time_ns - t0
+    n = dt.size
+    assert abs(dt.mean() - mean) < Z * sd / math.sqrt(n)
+    assert abs(dt.std(ddof=1) - sd) < Z * sd * math.sqrt((kurt - 1) / (4 * n))
+    # more channels, less first-photon bias (the paper's Fig. 7); in metres: h = -c t / 2
+    assert mean < 0
+
+
+def test_ideal_detector_keeps_every_photon(rng):
+    inst = Instrument(beam="weak", ideal_detector=True)
+    n_shots, k = 30000, 16
+    returns = {"shot": np.repeat(np.arange(n_shots), k), "time_ns": np.zeros(n_shots * k),
+               "weight": np.ones(n_shots * k), "n_shots": n_shots, "paths_per_shot": k}
+    det = pmt.detect(returns, inst, rng)
+    expect = inst.signal_photons * inst.fill_factor * inst.pde     # Poisson thinning
+    assert abs(len(det) / n_shots - expect) < Z * math.sqrt(expect / n_shots)
+    assert det.channel.max() < inst.channels
+    assert np.array_equal(det.channel, det.anode // 4)
