@@ -224,11 +224,6 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     prog = f"{PROG} {args.command}"
     try:
-        try:
-            import lidar_mitsuba  # noqa: F401  (libLLVM check, variant, plugins)
-        except ImportError as e:
-            sys.stderr.write(f"{prog}: error: {e}\n")
-            return 1
         from .instrument import ParameterError
         try:
             return {"simulate": _cmd_simulate, "stats": _cmd_stats,

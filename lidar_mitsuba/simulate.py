@@ -62,7 +62,7 @@ class SurfaceSpec:
             if not (math.isfinite(v) and 0 <= v <= 1):
                 raise ParameterError(name, f"must be in [0, 1] (got {v})")
         if self.rho_d + self.rho_s > 1:
-            raise ParameterError("rho_d", f"+ rho_s must be <= 1 (got {self.rho_d} + {self.rho_s})")
+            raise ParameterError("rho_d", f"rho_d + rho_s must be <= 1 (got {self.rho_d} + {self.rho_s})")
         if not (math.isfinite(self.alpha) and self.alpha > 0):
             raise ParameterError("alpha", f"must be > 0 (got {self.alpha})")
         if not (math.isfinite(self.size_m) and 1 <= self.size_m <= 1e5):

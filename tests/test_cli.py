@@ -1,0 +1,139 @@
+"""The CLI: bad input gives one line naming the option, exit 2, no traceback, no output file;
+good input writes ATL03-layout HDF5 that `stats` reads."""
+import json
+import subprocess
+import sys
+
+import h5py
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from lidar_mitsuba.cli import main
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "lidar_mitsuba.cli", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=300)
+
+
+BAD = [
+    (["--shots", "0"], "--shots"),
+    (["--shots", "ten"], "--shots"),
+    (["--pde", "1.5"], "--pde"),
+    (["--fill-factor", "-0.1"], "--fill-factor"),
+    (["--dead-time-ns", "-3"], "--dead-time-ns"),
+    (["--channels", "3"], "--channels"),
+    (["--signal-photons", "-1"], "--signal-photons"),
+    (["--surface", "slope", "--slope-deg", "95"], "--slope-deg"),
+    (["--surface", "fractal", "--p", "-1"], "--p"),
+    (["--surface", "fractal", "--grid-m", "0"], "--grid-m"),
+    (["--surface", "fractal", "--relief-m", "-2"], "--relief-m"),
+    (["--rho-d", "0.99", "--rho-s", "0.05"], "--rho-d"),
+    (["--alpha", "0"], "--alpha"),
+    (["--variant", "cuda_ad_mono"], "--variant"),
+    (["--variant", "nonsense"], "--variant"),
+    (["--scene", "missing.xml"], "--scene"),
+    (["--beam", "medium"], "--beam"),
+    (["--paths-per-shot", "0"], "--paths-per-shot"),
+    (["--max-depth", "0"], "--max-depth"),
+    (["--window", "0"], "--window"),
+]
+
+
+def call(argv):
+    """main()'s exit status, whether it returns it or argparse raises SystemExit."""
+    try:
+        return main(argv)
+    except SystemExit as e:
+        return e.code
+
+
+@pytest.mark.parametrize("args,option", BAD, ids=[o + ":" + " ".join(a) for a, o in BAD])
+def test_bad_simulate_input(tmp_path, capsys, args, option):
+    out = tmp_path / "out.h5"
+    # a later --shots in args overrides this one
+    code = call(["simulate", "--shots", "5", *args, "--out", str(out), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1, err
+    assert option in err and "Traceback" not in err
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_bad_input_real_process(tmp_path):
+    """Exit code and stderr as a shell user sees them."""
+    out = tmp_path / "o.h5"
+    r = run("simulate", "--pde", "2", "--out", str(out))
+    assert r.returncode == 2
+    assert r.stderr.strip().count("\n") == 0 and "--pde" in r.stderr and "Traceback" not in r.stderr
+    assert not out.exists()
+    r = run("simulate", "--shots", "5", "--out", str(tmp_path / "nodir" / "o.h5"))
+    assert r.returncode == 2 and "--out" in r.stderr
+    r = run("stats", str(tmp_path / "nothere.h5"))
+    assert r.returncode == 2 and r.stderr.count("\n") == 1
+
+
+def test_simulate_then_stats(tmp_path, capsys):
+    out = tmp_path / "run.h5"
+    png = tmp_path / "run.png"
+    assert main(["simulate", "--surface", "fractal", "--p", "1.8", "--beam", "weak",
+                 "--shots", "300", "--seed", "3", "--out", str(out), "--plot", str(png),
+                 "--no-progress", "--size-m", "256"]) == 0
+    printed = capsys.readouterr().out
+    assert "bias [cm]" in printed and png.stat().st_size > 10_000
+    with h5py.File(out) as f:
+        assert f["gt1r"].attrs["atlas_beam_type"] == "weak"
+        for name in ("h_ph", "delta_time", "dist_ph_along", "signal_conf_ph"):
+            assert "units" in f[f"gt1r/heights/{name}"].attrs
+        n = f["gt1r/heights/h_ph"].shape[0]
+        assert f["gt1r/heights/signal_conf_ph"].shape == (n, 5)
+        assert f["truth/photons/shot"].shape == (n,)
+        assert f["truth/shots/z_ref_m"].shape == (300,)
+        cfg = json.loads(f.attrs["config"])
+        assert cfg["instrument"]["channels"] == 4 and cfg["surface"]["p"] == 1.8
+    assert main(["stats", str(out), "--json", "--window", "100"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    for key in ("bias_m", "std_m", "photons_per_shot", "shots"):
+        assert key in doc
+    assert doc["shots"] == 300 and len(doc["windows"]) == 3 and len(doc["channels"]) == 4
+    assert abs(doc["bias_m"]) < 0.1 and 0.05 < doc["std_m"] < 0.5
+    # same seed, same numbers
+    out2 = tmp_path / "run2.h5"
+    main(["simulate", "--surface", "fractal", "--p", "1.8", "--beam", "weak", "--shots", "300",
+          "--seed", "3", "--out", str(out2), "--no-progress", "--size-m", "256"])
+    capsys.readouterr()
+    with h5py.File(out) as a, h5py.File(out2) as b:
+        assert np.array_equal(a["gt1r/heights/h_ph"][()], b["gt1r/heights/h_ph"][()])
+
+
+def test_terrain_command(tmp_path, capsys):
+    npy = tmp_path / "t.npy"
+    assert main(["terrain", "--p", "2.0", "--size-m", "128", "--relief-m", "4", "--seed", "2",
+                 "--out", str(npy)]) == 0
+    z = np.load(npy)
+    assert z.shape == (128, 128) and abs(np.ptp(z) - 4.0) < 1e-9
+    ply = tmp_path / "t.ply"
+    assert main(["terrain", "--p", "2.0", "--size-m", "64", "--out", str(ply)]) == 0
+    scene = mi.load_dict({"type": "scene", "t": {"type": "ply", "filename": str(ply)}})
+    assert scene.shapes()[0].face_count() == 2 * 63 * 63
+    assert main(["terrain", "--p", "9", "--out", str(tmp_path / "bad.npy")]) == 2
+    err = capsys.readouterr().err
+    assert "--p" in err and not (tmp_path / "bad.npy").exists()
+
+
+def test_atomic_write_leaves_nothing(tmp_path, monkeypatch):
+    from lidar_mitsuba import atl03
+    from lidar_mitsuba.simulate import SurfaceSpec, simulate
+    res = simulate(surface=SurfaceSpec(kind="flat"), shots=20, progress=False)
+    real = atl03._ds
+
+    def failing(group, name, *a, **k):
+        if name == "dist_ph_along":
+            raise OSError("disk full")
+        return real(group, name, *a, **k)
+
+    monkeypatch.setattr(atl03, "_ds", failing)
+    with pytest.raises(OSError):
+        atl03.write(res, tmp_path / "x.h5")
+    assert list(tmp_path.iterdir()) == []

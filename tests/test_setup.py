@@ -1,0 +1,71 @@
+"""libLLVM detection and the instrument's parameter checks."""
+import os
+import subprocess
+import sys
+
+import pytest
+
+from lidar_mitsuba import _llvm
+from lidar_mitsuba.instrument import Instrument, ParameterError
+
+
+@pytest.mark.parametrize("path,major", [
+    ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", 19),
+    ("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1", 19),
+    ("/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1", 15),
+    ("/usr/lib/llvm-17/lib/libLLVM.so", 17),
+    ("/opt/libLLVM.so", None),
+])
+def test_llvm_version_from_name(path, major):
+    assert _llvm.llvm_major_version(path) == major
+
+
+def test_find_libllvm_prefers_newest_usable(tmp_path):
+    files = {v: tmp_path / f"libLLVM-{v}.so" for v in (14, 15, 16, 18, 19)}
+    for f in files.values():
+        f.touch()
+    assert _llvm.find_libllvm([str(f) for f in files.values()]) == str(files[19])
+    bad = [str(files[v]) for v in (14, 15, 16)]
+    assert _llvm.find_libllvm(bad) is None
+
+
+def test_import_refuses_bad_llvm_without_aborting(tmp_path):
+    """With only libLLVM 15 on offer, `import lidar_mitsuba` raises an ImportError that says what
+    to install; the interpreter is not aborted by LLVM."""
+    fake = tmp_path / "libLLVM-15.so"
+    fake.touch()
+    env = dict(os.environ, DRJIT_LIBLLVM_PATH=str(fake))
+    r = subprocess.run([sys.executable, "-c", "import lidar_mitsuba"], env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1
+    assert "ImportError" in r.stderr and "libllvm19" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "lidar_mitsuba_cli", "stats", "x.h5"], env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1 and r.stderr.count("\n") == 1 and "libllvm19" in r.stderr
+
+
+def test_import_sets_usable_llvm():
+    path = os.environ["DRJIT_LIBLLVM_PATH"]
+    assert (_llvm.llvm_major_version(path) or 99) >= _llvm.MIN_LLVM_MAJOR
+
+
+def test_instrument_defaults_are_the_papers():
+    strong, weak = Instrument(beam="strong"), Instrument(beam="weak")
+    assert (strong.signal_photons, strong.channels, strong.anodes_per_channel) == (8.17, 16, 1)
+    assert (weak.signal_photons, weak.channels, weak.anodes_per_channel) == (2.04, 4, 4)
+    assert strong.footprint_sigma_m == 2.5
+    assert abs(strong.pulse_sigma_ns - 1 / 2.35482) < 1e-5
+    assert abs(strong.ranging_sigma_m - 0.06366) < 1e-5          # c sigma_t / 2
+    assert strong.prf_hz * strong.shot_spacing_m == 7000.0        # ground speed [m/s]
+    assert (strong.pde, strong.fill_factor, strong.dead_time_ns, strong.altitude_m) == (0.5, 0.8, 3.0, 496e3)
+
+
+@pytest.mark.parametrize("field,value", [
+    ("pde", 1.2), ("fill_factor", -0.1), ("dead_time_ns", -1.0), ("signal_photons", float("nan")),
+    ("channels", 5), ("pulse_fwhm_ns", -1.0), ("footprint_diameter_m", -1.0), ("altitude_m", 0.0),
+    ("prf_hz", 0.0), ("beam", "medium"), ("anodes", 0), ("fov_diameter_m", 0.0),
+])
+def test_instrument_refuses_out_of_range(field, value):
+    with pytest.raises(ParameterError) as e:
+        Instrument(**{field: value})
+    assert e.value.name == field and str(e.value).startswith(field)
