@@ -55,7 +55,7 @@ def shot_weight_sums(shot: np.ndarray, weight: np.ndarray, n_shots: int) -> np.n
 
 
 def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths_per_shot: int,
-                    signal_photons: float, rng: np.random.Generator
+                    signal_photons: float, rng: np.random.Generator, exchangeable: bool = False
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Poisson photon arrivals per shot, each a distinct traced return drawn by weight.
 
@@ -74,6 +74,10 @@ def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths
         weight: (n_returns,) return weights (>= 0).
         n_shots, paths_per_shot: the trace's shot count and paths traced per shot.
         signal_photons: mean photons per shot from the reference plate.
+        exchangeable: the returns of a shot are already in random order (true for single-bounce
+            traces: one return per iid path), so its first ``k`` accepted returns are a random
+            ``k``-subset and no shuffle is needed. Multi-bounce traces put a path's returns
+            side by side and must leave this False.
 
     Returns:
         ``(return_index, mu, counts)``: (n_arrivals,) index of the chosen return per arrival,
@@ -94,8 +98,8 @@ def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths
     rank = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
 
     accepted = np.flatnonzero(rng.random(w.size) * w.max() < w)
-    # a uniformly random order within each shot, so that any k of them are a random k-subset
-    accepted = accepted[np.lexsort((rng.random(accepted.size), shot[accepted]))]
+    if not exchangeable:   # a uniformly random order within each shot (one float64 sort key)
+        accepted = accepted[np.argsort(shot[accepted] + rng.random(accepted.size), kind="stable")]
     n_acc = np.bincount(shot[accepted], minlength=n_shots)
     acc_start = np.cumsum(n_acc) - n_acc
     ok = rank < n_acc[arrival_shot]
@@ -193,7 +197,8 @@ def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
     idx, mu, counts = sample_arrivals(
         returns["shot"], returns["weight"], n_shots=n_shots,
         paths_per_shot=int(returns["paths_per_shot"]),
-        signal_photons=float(instrument.signal_photons), rng=rng)
+        signal_photons=float(instrument.signal_photons), rng=rng,
+        exchangeable="depth" in returns and not np.any(np.asarray(returns["depth"]) > 1))
     m = idx.size
     anode = rng.integers(0, instrument.anodes, m)
     kept = rng.random(m) < instrument.fill_factor

@@ -78,6 +78,20 @@ def test_arrivals_poisson_and_weighted(rng):
     assert np.all(shot[idx] == np.repeat(np.arange(n_shots), counts))
 
 
+def test_arrivals_exchangeable_fast_path(rng):
+    """Single-bounce traces are in iid order: the unshuffled fast path is just as unbiased."""
+    n_shots, k = 20000, 32
+    shot = np.repeat(np.arange(n_shots), k)
+    w = rng.choice([0.5, 1.5], shot.size)
+    idx, mu, counts = pmt.sample_arrivals(shot, w, n_shots=n_shots, paths_per_shot=k,
+                                          signal_photons=3.0, rng=rng, exchangeable=True)
+    frac = np.mean(w[idx] == 1.5)
+    p_heavy = 1.5 * np.mean(w == 1.5) / np.mean(w)     # weight share of the heavy returns
+    assert abs(frac - p_heavy) < Z * math.sqrt(p_heavy * (1 - p_heavy) / idx.size)
+    pairs = shot[idx] * shot.size + idx
+    assert np.unique(pairs).size == idx.size
+
+
 def test_arrivals_fallback_keeps_weights(rng):
     """More arrivals than paths: the fallback draws with replacement, still by weight."""
     n_shots, k = 5000, 2
