@@ -12,7 +12,12 @@ def main(argv=None) -> int:
     except ImportError as e:
         sys.stderr.write(f"lidar-mitsuba: error: {e}\n")
         return 1
-    return cli_main(argv)
+    try:
+        return cli_main(argv)
+    except BrokenPipeError:          # e.g. `lidar-mitsuba stats f.h5 | head`
+        import os
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
 
 
 if __name__ == "__main__":

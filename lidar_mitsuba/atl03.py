@@ -8,8 +8,8 @@ Layout (one beam per file)::
         heights/h_ph          (n,) float64  photon elevation [m]
         heights/delta_time    (n,) float64  transmit time of the photon's shot [s] from the first shot
         heights/dist_ph_along (n,) float64  along-track distance of the footprint centre [m]
-        heights/signal_conf_ph (n, 5) int8  ATL03 confidence per surface type; -1 = not
-                                            classified (no classifier runs in this version)
+        heights/signal_conf_ph (n, 5) int8  ATL03 confidence (0 noise, 2 low, 3 medium, 4 high)
+                                            from lidar_mitsuba.classify, same in all 5 columns
     /truth/photons/           per detected photon (n,): shot, channel, anode, is_signal,
                               time_ns [ns], return_index, hit_x_m/hit_y_m/hit_z_m [m]
     /truth/shots/             per shot (n_shots,): along_track_m, x_m, y_m [m], z_ref_m [m]
@@ -56,9 +56,9 @@ def write(result, path: str | os.PathLike) -> pathlib.Path:
                 "transmit time of the photon's shot since the first shot")
             _ds(g, "dist_ph_along", result.along_track_m[det.shot], "meters",
                 "along-track distance of the footprint centre from the first shot")
-            _ds(g, "signal_conf_ph", np.full((n, 5), -1, np.int8), "counts",
-                "ATL03 confidence (land, ocean, sea ice, land ice, inland water); "
-                "-1: not classified")
+            _ds(g, "signal_conf_ph", np.repeat(result.signal_conf[:, None], 5, axis=1), "counts",
+                "ATL03 confidence (land, ocean, sea ice, land ice, inland water; the same "
+                "histogram test in every column): 0 noise, 2 low, 3 medium, 4 high")
             tp = f.create_group("truth/photons")
             _ds(tp, "shot", det.shot, "1", "shot index")
             _ds(tp, "channel", det.channel, "1", "detector channel")
@@ -95,7 +95,8 @@ def _ds(group, name, data, units, description):
 
 
 def read(path: str | os.PathLike) -> dict:
-    """Read what ``stats`` needs: per photon ``h_m``, ``shot``, ``channel``, ``is_signal``;
+    """Read what ``stats`` needs: per photon ``h_m``, ``shot``, ``channel``, ``is_signal``,
+    ``signal_conf``;
     per shot ``z_ref_m``, ``along_track_m``, ``surface_z_m``; and ``config``, ``beam``,
     ``n_shots``, ``n_channels``. Raises ``ValueError`` for a file that is not ours."""
     with h5py.File(path, "r") as f:
@@ -110,6 +111,7 @@ def read(path: str | os.PathLike) -> dict:
             "shot": f["truth/photons/shot"][()],
             "channel": f["truth/photons/channel"][()],
             "is_signal": f["truth/photons/is_signal"][()].astype(bool),
+            "signal_conf": f[f"{beam}/heights/signal_conf_ph"][:, 3],
             "z_ref_m": f["truth/shots/z_ref_m"][()],
             "along_track_m": f["truth/shots/along_track_m"][()],
             "surface_z_m": f["truth/shots/surface_z_m"][()],

@@ -42,6 +42,17 @@ def _out_path(value: str, suffixes: tuple[str, ...], option: str = "--out") -> p
     return path
 
 
+def _dead_time(value: str) -> float:
+    from .instrument import DEAD_TIME_PRESETS_NS
+    if value in DEAD_TIME_PRESETS_NS:
+        return DEAD_TIME_PRESETS_NS[value]
+    try:
+        return float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"not a number or a preset ({', '.join(DEAD_TIME_PRESETS_NS)}): {value!r}") from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="Physically based simulation of a spaceborne "
                 "photon-counting lidar (ICESat-2/ATLAS-like) with Mitsuba 3.")
@@ -74,7 +85,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="mean photons/shot from a flat Lambertian 0.9 plate (8.17 strong, 2.04 weak)")
     i.add_argument("--channels", type=int, metavar="N",
                    help="channels the 16 anodes are summed into (16 strong, 4 weak)")
-    i.add_argument("--dead-time-ns", type=float, default=3.0, metavar="NS", help="dead time [ns] (3)")
+    i.add_argument("--dead-time-ns", type=_dead_time, default=3.0, metavar="NS",
+                   help="dead time [ns], or a preset: paper (3) or atlas (3.2) (default 3)")
+    i.add_argument("--paralyzable", action="store_true",
+                   help="extending (paralyzable) dead time instead of non-paralyzable")
+    i.add_argument("--background-mhz", type=float, default=0.0, metavar="MHZ",
+                   help="solar background photon rate on the whole detector [MHz] (0)")
+    i.add_argument("--dark-count-hz", type=float, default=0.0, metavar="HZ",
+                   help="dark count rate per channel [Hz] (0)")
+    i.add_argument("--range-gate-m", type=float, default=30.0, metavar="M",
+                   help="height window recorded around the surface [m] (30)")
     i.add_argument("--pde", type=float, default=0.5, metavar="X", help="detection efficiency (0.5)")
     i.add_argument("--fill-factor", type=float, default=0.8, metavar="X", help="fill factor (0.8)")
     i.add_argument("--ideal-detector", action="store_true", help="no dead time")
@@ -127,7 +147,9 @@ def _cmd_simulate(a) -> int:
 
     inst = Instrument(beam=a.beam, signal_photons=a.signal_photons, channels=a.channels,
                       dead_time_ns=a.dead_time_ns, pde=a.pde, fill_factor=a.fill_factor,
-                      ideal_detector=a.ideal_detector)
+                      ideal_detector=a.ideal_detector, paralyzable=a.paralyzable,
+                      background_mhz=a.background_mhz, dark_count_hz=a.dark_count_hz,
+                      range_gate_m=a.range_gate_m)
     surface = None
     if a.scene is None:
         kind = a.surface or ("slope" if a.slope_deg is not None else "fractal")
@@ -143,13 +165,15 @@ def _cmd_simulate(a) -> int:
     what = a.scene or f"{surface.kind} surface"
     print(format_report(rep, title=f"{inst.beam} beam, {res.n_shots} shots over {what} "
                                    f"({res.timings_s['total_s']:.1f} s)"))
+    if not res.detections.is_signal.all():
+        print(_rates_line(res.classification()))
     print(f"wrote {out}")
     if plot is not None:
         from .plotting import photon_cloud
         d = res.detections
         photon_cloud(along_track_m=res.along_track_m, surface_z_m=res.surface_z_m,
                      z_ref_m=res.z_ref_m, photon_along_m=res.along_track_m[d.shot],
-                     photon_h_m=res.h_m, path=plot,
+                     photon_h_m=res.h_m, is_signal=d.is_signal, path=plot,
                      title=f"{inst.beam} beam over {what}: bias {100 * rep.overall.bias_m:.1f} cm, "
                            f"precision {100 * rep.overall.std_m:.1f} cm")
         print(f"wrote {plot}")
@@ -171,13 +195,23 @@ def _cmd_stats(a) -> int:
     dh = d["h_m"] - d["z_ref_m"][d["shot"]]
     rep = elevation_report(dh_m=dh[sig], shot=d["shot"][sig], channel=d["channel"][sig],
                            n_shots=d["n_shots"], n_channels=d["n_channels"], window_shots=a.window)
+    from .classify import classification_rates
+    rates = classification_rates(d["signal_conf"], sig)
     if a.json:
         doc = rep.to_dict()
-        doc.update(beam=d["beam"], file=str(a.file))
+        doc.update(beam=d["beam"], file=str(a.file), classification=rates)
         print(json.dumps(_finite(doc), indent=1))
     else:
         print(format_report(rep, title=f"{a.file} ({d['beam']})"))
+        if rates["n_noise"]:
+            print(_rates_line(rates))
     return 0
+
+
+def _rates_line(r: dict) -> str:
+    return (f"classifier (signal_conf_ph >= {r['min_conf']}): hit rate {r['hit_rate']:.3f} of "
+            f"{r['n_signal']} signal photons, false alarms {r['false_alarm_rate']:.3f} of "
+            f"{r['n_noise']} noise photons")
 
 
 def _finite(obj):

@@ -39,6 +39,9 @@ class BeamPreset:
     channels: int
 
 
+DEAD_TIME_PRESETS_NS: dict[str, float] = {"paper": 3.0, "atlas": 3.2}
+"""Named dead times [ns]: the paper's 3 ns and ATLAS's ~3.2 ns."""
+
 BEAMS: dict[str, BeamPreset] = {
     "strong": BeamPreset(signal_photons=8.17, channels=16),
     "weak": BeamPreset(signal_photons=2.04, channels=4),
@@ -65,8 +68,16 @@ class Instrument:
         fov_diameter_m: receiver field of view on the ground [m].
         pde: photon detection efficiency, probability in [0, 1].
         fill_factor: probability in [0, 1] that a photon falls on an active anode area.
-        dead_time_ns: non-paralyzable dead time of each channel [ns].
+        dead_time_ns: dead time of each channel [ns] (see ``DEAD_TIME_PRESETS_NS``).
+        paralyzable: extending dead time (every arrival, detected or not, restarts it) instead
+            of the paper's non-paralyzable one (only detections start it).
         ideal_detector: no dead time (every photon that passes fill factor and PDE counts).
+        background_mhz: solar background photon rate reaching the whole detector [MHz], shared
+            evenly by the anodes and uniform in time; thinned by fill factor and PDE like signal.
+        dark_count_hz: dark count rate of each channel [Hz], uniform in time; these are
+            detector counts, so only dead time acts on them.
+        range_gate_m: height window recorded around each shot's reference surface [m]
+            (``z_ref +- range_gate_m / 2``); photons outside it, signal or noise, are not seen.
     """
     beam: str = "strong"
     signal_photons: float | None = None
@@ -82,7 +93,11 @@ class Instrument:
     pde: float = 0.5
     fill_factor: float = 0.8
     dead_time_ns: float = 3.0
+    paralyzable: bool = False
     ideal_detector: bool = False
+    background_mhz: float = 0.0
+    dark_count_hz: float = 0.0
+    range_gate_m: float = 30.0
 
     def __post_init__(self):
         _check("beam", self.beam, self.beam in BEAMS, f"must be one of {', '.join(BEAMS)}")
@@ -119,6 +134,12 @@ class Instrument:
             _check(name, value, f(value) and 0 <= value <= 1, "must be in [0, 1]")
         _check("dead_time_ns", self.dead_time_ns,
                f(self.dead_time_ns) and 0 <= self.dead_time_ns <= 1e6, "must be in [0, 1e6]")
+        _check("background_mhz", self.background_mhz,
+               f(self.background_mhz) and 0 <= self.background_mhz <= 1e4, "must be in [0, 1e4]")
+        _check("dark_count_hz", self.dark_count_hz,
+               f(self.dark_count_hz) and 0 <= self.dark_count_hz <= 1e9, "must be in [0, 1e9]")
+        _check("range_gate_m", self.range_gate_m,
+               f(self.range_gate_m) and 0 < self.range_gate_m <= 1e5, "must be in (0, 1e5]")
 
     # Derived quantities ------------------------------------------------------------------
     @property
@@ -139,6 +160,18 @@ class Instrument:
     def ranging_sigma_m(self) -> float:
         """Elevation spread of an ideal detector over a flat plate, c * sigma_t / 2 [m]."""
         return C_M_PER_NS * self.pulse_sigma_ns / 2.0
+
+    @property
+    def range_gate_ns(self) -> float:
+        """Duration of the range gate [ns] (two-way time of ``range_gate_m``)."""
+        return 2.0 * self.range_gate_m / C_M_PER_NS
+
+    @property
+    def noise_per_shot(self) -> tuple[float, float]:
+        """Mean (background photons reaching the detector, dark counts per channel) per shot
+        inside the range gate."""
+        gate_s = self.range_gate_ns * 1e-9
+        return self.background_mhz * 1e6 * gate_s, self.dark_count_hz * gate_s
 
     @property
     def effective_dead_time_ns(self) -> float:

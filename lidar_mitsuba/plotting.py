@@ -9,7 +9,8 @@ import numpy as np  # noqa: E402
 
 
 def photon_cloud(*, along_track_m: np.ndarray, surface_z_m: np.ndarray, z_ref_m: np.ndarray,
-                 photon_along_m: np.ndarray, photon_h_m: np.ndarray, title: str = "",
+                 photon_along_m: np.ndarray, photon_h_m: np.ndarray,
+                 is_signal: np.ndarray | None = None, title: str = "",
                  path=None, max_points: int = 200_000):
     """The paper's Fig. 10: detected photons over the along-track surface profile.
 
@@ -17,13 +18,20 @@ def photon_cloud(*, along_track_m: np.ndarray, surface_z_m: np.ndarray, z_ref_m:
         along_track_m, surface_z_m, z_ref_m: (n_shots,) footprint centres' along-track
             distance, surface height at the centre and reference elevation [m].
         photon_along_m, photon_h_m: (n_photons,) photon along-track position and elevation [m].
+        is_signal: (n_photons,) truth; noise photons are drawn in grey.
         path: PNG file to write (optional). Returns the matplotlib Figure.
     """
     fig, ax = plt.subplots(figsize=(10, 4), dpi=120)
     k = photon_h_m.size
-    sel = slice(None) if k <= max_points else np.random.default_rng(0).choice(k, max_points, False)
+    sel = np.arange(k) if k <= max_points else np.sort(np.random.default_rng(0).choice(k, max_points, False))
+    sig = np.ones(k, bool) if is_signal is None else np.asarray(is_signal, bool)
+    noise = sel[~sig[sel]]
+    if noise.size:
+        ax.plot(photon_along_m[noise], photon_h_m[noise], ".", ms=2, color="0.6",
+                label=f"noise photons ({int((~sig).sum())})")
+    sel = sel[sig[sel]]
     ax.plot(photon_along_m[sel], photon_h_m[sel], ".", ms=2, color="tab:red",
-            label=f"detected photons ({k})")
+            label=f"signal photons ({int(sig.sum())})")
     ax.plot(along_track_m, surface_z_m, "-", lw=1.0, color="tab:blue",
             label="surface along track")
     ax.plot(along_track_m, z_ref_m, "-", lw=1.0, color="k", alpha=0.6,

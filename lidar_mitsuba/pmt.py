@@ -9,8 +9,10 @@ Per shot ``s`` with traced returns of weights ``w`` (``paths_per_shot`` photon p
    drawn in proportion to their weights (rejection sampling; arrival times are unbiased);
 3. each arrival lands on a uniformly random anode, survives the fill factor, then the PDE;
 4. anodes are summed into channels (``anodes / channels`` consecutive anodes each);
-5. each channel is dead for ``dead_time_ns`` after every detection (non-paralyzable), unless
-   the detector is ideal.
+5. solar background and dark counts are added inside each shot's range gate (signal outside
+   the gate is lost too);
+6. each channel is dead for ``dead_time_ns`` after every detection (non-paralyzable) or after
+   every arrival (paralyzable), unless the detector is ideal.
 """
 from __future__ import annotations
 
@@ -182,18 +184,67 @@ def paralyzable_mask(group: np.ndarray, time_ns: np.ndarray, dead_time_ns: float
     return keep
 
 
+def noise_events(*, n_shots: int, gate_start_ns: np.ndarray, instrument: Instrument,
+                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Solar background photons and dark counts inside each shot's range gate.
+
+    Background: Poisson(``background_mhz * gate``) photons per shot on uniformly random anodes,
+    uniform in time, thinned by fill factor then PDE. Dark counts: Poisson(``dark_count_hz *
+    gate``) per channel per shot, uniform in time, on a random anode of that channel.
+
+    Args:
+        gate_start_ns: (n_shots,) opening time of each shot's range gate [ns].
+
+    Returns:
+        ``(shot, anode, time_ns, is_background)``, each (n_noise,).
+    """
+    gate_ns = instrument.range_gate_ns
+    bg_mean, dc_mean = instrument.noise_per_shot
+    shots, anodes, times, is_bg = [], [], [], []
+    if bg_mean > 0:
+        n = rng.poisson(bg_mean, n_shots)
+        s = np.repeat(np.arange(n_shots), n)
+        keep = rng.random(s.size) < instrument.fill_factor * instrument.pde
+        s = s[keep]
+        shots.append(s)
+        anodes.append(rng.integers(0, instrument.anodes, s.size))
+        times.append(gate_start_ns[s] + rng.random(s.size) * gate_ns)
+        is_bg.append(np.ones(s.size, bool))
+    if dc_mean > 0:
+        n = rng.poisson(dc_mean, (n_shots, instrument.channels))
+        s = np.repeat(np.arange(n_shots), n.sum(1))
+        ch = np.repeat(np.tile(np.arange(instrument.channels), n_shots), n.ravel())
+        shots.append(s)
+        anodes.append(ch * instrument.anodes_per_channel
+                      + rng.integers(0, instrument.anodes_per_channel, s.size))
+        times.append(gate_start_ns[s] + rng.random(s.size) * gate_ns)
+        is_bg.append(np.zeros(s.size, bool))
+    if not shots:
+        z = np.zeros(0, np.int64)
+        return z, z, np.zeros(0), np.zeros(0, bool)
+    return (np.concatenate(shots), np.concatenate(anodes), np.concatenate(times),
+            np.concatenate(is_bg))
+
+
 def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
-           paralyzable: bool = False) -> Detections:
-    """Turn traced returns into detected photon events.
+           gate_center_ns: np.ndarray | None = None) -> Detections:
+    """Turn traced returns into detected photon events, with noise and the range gate.
 
     Args:
         returns: output of ``PathLengthIntegrator.trace``: ``shot``, ``time_ns``, ``weight``
-            (shape (n_returns,), sorted by shot), ``n_shots`` and ``paths_per_shot``.
-        instrument: signal level, anodes, channels, fill factor, PDE, dead time.
+            (shape (n_returns,), sorted by shot), ``n_shots`` and ``paths_per_shot``
+            (and ``depth``, used to skip a shuffle when all returns are single-bounce).
+        instrument: signal level, anodes, channels, fill factor, PDE, dead time and its model,
+            noise rates and range gate.
         rng: numpy random generator (seed it for reproducible runs).
-        paralyzable: extending dead time instead of the paper's non-paralyzable one.
+        gate_center_ns: (n_shots,) round-trip time of each shot's reference surface [ns]; the
+            gate is ``gate_center_ns +- range_gate_ns / 2``. ``None``: no gate (then the
+            instrument must have no noise).
     """
     n_shots = int(returns["n_shots"])
+    bg_mean, dc_mean = instrument.noise_per_shot
+    if gate_center_ns is None and (bg_mean > 0 or dc_mean > 0):
+        raise ValueError("noise needs a range gate: pass gate_center_ns")
     idx, mu, counts = sample_arrivals(
         returns["shot"], returns["weight"], n_shots=n_shots,
         paths_per_shot=int(returns["paths_per_shot"]),
@@ -205,16 +256,29 @@ def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
     kept[kept] = rng.random(int(kept.sum())) < instrument.pde
     idx, anode = idx[kept], anode[kept]
     shot = np.asarray(returns["shot"], np.int64)[idx]
-    channel = anode // instrument.anodes_per_channel
     time_ns = np.asarray(returns["time_ns"], np.float64)[idx]
+    is_signal = np.ones(idx.size, bool)
+    if gate_center_ns is not None:
+        gate_start = np.asarray(gate_center_ns, np.float64) - instrument.range_gate_ns / 2.0
+        inside = (time_ns >= gate_start[shot]) & (time_ns < gate_start[shot] + instrument.range_gate_ns)
+        idx, anode, shot, time_ns, is_signal = (a[inside] for a in (idx, anode, shot, time_ns, is_signal))
+        n_shot, n_anode, n_time, _ = noise_events(n_shots=n_shots, gate_start_ns=gate_start,
+                                                  instrument=instrument, rng=rng)
+        if n_shot.size:
+            idx = np.concatenate([idx, np.full(n_shot.size, -1, np.int64)])
+            anode = np.concatenate([anode, n_anode])
+            shot = np.concatenate([shot, n_shot])
+            time_ns = np.concatenate([time_ns, n_time])
+            is_signal = np.concatenate([is_signal, np.zeros(n_shot.size, bool)])
+    channel = anode // instrument.anodes_per_channel
     dead = instrument.effective_dead_time_ns
     group = shot * instrument.channels + channel
-    mask_fn = paralyzable_mask if paralyzable else nonparalyzable_mask
+    mask_fn = paralyzable_mask if instrument.paralyzable else nonparalyzable_mask
     on = mask_fn(group, time_ns, dead) if dead > 0 else np.ones(idx.size, bool)
     order = np.lexsort((time_ns[on], shot[on]))
     sel = np.flatnonzero(on)[order]
     return Detections(shot=shot[sel], channel=channel[sel].astype(np.int16),
                       anode=anode[sel].astype(np.int16), time_ns=time_ns[sel],
                       return_index=idx[sel].astype(np.int64),
-                      is_signal=np.ones(sel.size, bool), arrivals_per_shot=counts,
+                      is_signal=is_signal[sel], arrivals_per_shot=counts,
                       mean_photons_per_shot=mu)

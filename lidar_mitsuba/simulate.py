@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass, field
 import mitsuba as mi
 import numpy as np
 
-from . import pmt, retrieval, scene as scn, terrain
+from . import classify, pmt, retrieval, scene as scn, terrain
 from .instrument import C_M_PER_NS, Instrument, ParameterError
 from .variant import set_variant
 
@@ -108,6 +108,8 @@ class SimulationResult:
         z_ref_m: reference elevation, the Gaussian-footprint-weighted mean height [m].
         detections: the detected photon events (:class:`~lidar_mitsuba.pmt.Detections`).
         h_m: elevation of each detected photon [m].
+        signal_conf: ATL03-style confidence of each photon, 0 (noise) to 4 (high), from
+            :func:`lidar_mitsuba.classify.signal_confidence`.
         returns: the traced returns (see ``PathLengthIntegrator.trace``).
         timings_s: wall time of each stage [s].
     """
@@ -120,6 +122,7 @@ class SimulationResult:
     z_ref_m: np.ndarray
     detections: pmt.Detections
     h_m: np.ndarray
+    signal_conf: np.ndarray
     returns: dict
     timings_s: dict = field(default_factory=dict)
 
@@ -131,6 +134,11 @@ class SimulationResult:
     def dh_m(self) -> np.ndarray:
         """(n_photons,) h - z_ref of every detected photon [m]."""
         return self.h_m - self.z_ref_m[self.detections.shot]
+
+    def classification(self, *, min_conf: int = 2) -> dict:
+        """Hit and false-alarm rates of ``signal_conf >= min_conf`` against the truth."""
+        return classify.classification_rates(self.signal_conf, self.detections.is_signal,
+                                             min_conf=min_conf)
 
     def report(self, *, window_shots: int = 1000) -> retrieval.StatsReport:
         """Bias and precision of the signal photons, overall, per window and per channel."""
@@ -245,8 +253,11 @@ def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | Non
 
     t2 = time.perf_counter()
     rng = np.random.default_rng([int(seed), 0x504D54])
-    det = pmt.detect(returns, instrument, rng)
+    gate_center_ns = 2.0 * (instrument.altitude_m - z_ref) / C_M_PER_NS
+    det = pmt.detect(returns, instrument, rng, gate_center_ns=gate_center_ns)
     h = retrieval.photon_heights_m(det.time_ns, altitude_m=instrument.altitude_m)
+    conf = classify.signal_confidence(shot=det.shot, h_m=h, gate_center_h_m=np.nan_to_num(z_ref),
+                                      range_gate_m=instrument.range_gate_m)
     timings["detect_s"] = time.perf_counter() - t2
     timings["total_s"] = time.perf_counter() - t0
 
@@ -255,4 +266,5 @@ def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | Non
               "variant": mi.variant()}
     return SimulationResult(instrument=instrument, config=config, along_track_m=along,
                             shot_x_m=x, shot_y_m=y, surface_z_m=surface_z, z_ref_m=z_ref,
-                            detections=det, h_m=h, returns=returns, timings_s=timings)
+                            detections=det, h_m=h, signal_conf=conf, returns=returns,
+                            timings_s=timings)
