@@ -1,0 +1,116 @@
+"""The BRDF comparison sweep: finite rows, the Lambertian closed form, plotting.
+
+The Lambertian 0.9 plate at nadir returns weight exactly 1 per traced path, so with an ideal
+detector each shot's detected photons are Poisson with mean signal_photons * fill_factor * pde:
+the sweep's photons per shot must match it within Z = 4.5 standard errors.
+"""
+import math
+
+import matplotlib.figure
+import numpy as np
+import pytest
+
+from lidar_mitsuba import compare
+from lidar_mitsuba.instrument import Instrument
+from lidar_mitsuba.simulate import SurfaceSpec
+
+Z = 4.5
+
+
+@pytest.fixture(scope="module")
+def rows():
+    surfaces = (compare.slope_surfaces(slopes_deg=(0, 20))
+                + compare.fractal_surfaces(ps=(1.8,), size_m=64.0, relief_m=2.0))
+    return compare.sweep(variants=compare.BRDF_VARIANTS, surfaces=surfaces, shots=60, seed=3,
+                         beam="strong")
+
+
+def test_rows_complete_and_finite(rows):
+    assert len(rows) == 3 * len(compare.BRDF_VARIANTS)
+    assert [r["variant"] for r in rows[:len(compare.BRDF_VARIANTS)]] == list(compare.BRDF_VARIANTS)
+    for r in rows:
+        assert r["shots"] == 60 and r["beam"] == "strong" and not r["ideal_detector"]
+        assert r["n_photons"] > 10, r
+        for key in compare.ROW_FIELDS:
+            assert math.isfinite(r[key]), (key, r)
+        for key in ("photons_per_shot_err", "bias_err_m", "std_err_m", "std_m", "return_weight"):
+            assert r[key] > 0, (key, r)
+    assert {r["kind"] for r in rows} == {"slope", "fractal"}
+    assert compare.select(rows, kind="fractal", variant="Lambertian")[0]["p"] == 1.8
+
+
+def test_nadir_return_weights(rows):
+    """Closed forms of the footprint-mean return weight on the flat plate at nadir."""
+    flat = {r["variant"]: r for r in compare.select(rows, kind="plane", slope_deg=0.0)}
+    assert flat["Lambertian"]["return_weight"] == pytest.approx(1.0, abs=1e-5)
+    # Ward at nadir, all normalisations: rho_d + rho_s / (4 alpha^2), over 0.9
+    ward = (0.9 + 0.05 / (4 * 0.3 ** 2)) / 0.9
+    for name in ("Ward ward1992", "Ward duer", "Ward balanced"):
+        assert flat[name]["return_weight"] == pytest.approx(ward, rel=1e-4)
+    # perfect conductor x 0.9: the Beckmann lobe peak pi * 0.9 / (4 pi alpha^2) / 0.9
+    assert flat["roughconductor"]["return_weight"] == pytest.approx(1 / (4 * 0.3 ** 2), rel=1e-4)
+    # on a 20 deg plane the Lambertian weight is cos(20 deg)
+    s20 = compare.select(rows, slope_deg=20.0, variant="Lambertian")[0]
+    assert s20["return_weight"] == pytest.approx(math.cos(math.radians(20)), rel=1e-4)
+
+
+def test_lambertian_flat_matches_closed_form():
+    inst = Instrument(beam="strong", ideal_detector=True)
+    shots = 1500
+    (row,) = compare.sweep(variants={"Lambertian": compare.BRDF_VARIANTS["Lambertian"]},
+                           surfaces=[SurfaceSpec(kind="flat")], shots=shots, seed=11, beam=inst)
+    mean = inst.signal_photons * inst.fill_factor * inst.pde
+    poisson_se = math.sqrt(mean / shots)
+    assert row["return_weight"] == pytest.approx(1.0, abs=1e-5)
+    assert abs(row["photons_per_shot"] - mean) < Z * poisson_se, (row, mean)
+    # the per-shot standard error is the Poisson one (to its own sampling error)
+    assert row["photons_per_shot_err"] == pytest.approx(poisson_se, rel=0.15)
+    # and the ideal detector's elevation statistics: unbiased, spread c sigma_t / 2
+    assert abs(row["bias_m"]) < Z * row["bias_err_m"]
+    assert abs(row["std_m"] - inst.ranging_sigma_m) < Z * row["std_err_m"]
+
+
+def test_table_and_plots(rows, tmp_path):
+    text = compare.format_table(rows, title="t")
+    assert text.count("\n") == len(rows) + 1 and "roughconductor" in text
+    for x in ("slope_deg", "p"):
+        fig = compare.plot_sweep(rows, x=x, title=x)
+        assert isinstance(fig, matplotlib.figure.Figure) and len(fig.axes) == 6
+    assert len(compare.plot_sweep(rows, x="p", reference=None).axes) == 3
+    compare.plot_sweep(rows, x="p", path=tmp_path / "p.png")
+    assert (tmp_path / "p.png").stat().st_size > 1000
+    with pytest.raises(ValueError):
+        compare.plot_sweep(rows, x="alpha")
+    with pytest.raises(ValueError):
+        compare.plot_sweep(compare.select(rows, kind="fractal"), x="slope_deg")
+
+
+def test_errors_scale_with_sample():
+    """summarize's standard errors: std / sqrt(n) and std / sqrt(2 (n - 1))."""
+    (r,) = compare.sweep(variants={"Lambertian": compare.BRDF_VARIANTS["Lambertian"]},
+                         surfaces=[SurfaceSpec(kind="flat")], shots=200, seed=5, beam="weak",
+                         ideal_detector=True)
+    n = r["n_photons"]
+    assert r["beam"] == "weak" and r["ideal_detector"]
+    assert r["bias_err_m"] == pytest.approx(r["std_m"] / np.sqrt(n))
+    assert r["std_err_m"] == pytest.approx(r["std_m"] / np.sqrt(2 * (n - 1)))
+    with pytest.raises(ValueError):
+        compare.sweep(variants={}, surfaces=[SurfaceSpec(kind="flat")], shots=10)
+
+
+def test_relative_and_conclusions(rows):
+    rel = compare.relative_to(rows, reference="Lambertian")
+    assert len(rel) == len(rows)
+    for d in rel:
+        if d["variant"] == "Lambertian":
+            assert d["photons_ratio"] == 1 and d["bias_diff_m"] == 0 and d["std_ratio"] == 1
+        else:
+            assert d["photons_ratio_err"] > 0 and d["bias_diff_err_m"] > 0
+    ideal = compare.sweep(variants=compare.BRDF_VARIANTS, surfaces=[SurfaceSpec(kind="flat")],
+                          shots=60, seed=3, beam="strong", ideal_detector=True)
+    text = compare.conclusions(rows, ideal_rows=ideal)
+    assert len(text) >= 5 and all(isinstance(s, str) and s for s in text)
+    joined = " ".join(text)
+    assert "flat plate" in joined and "Ward normalisations" in joined and "Precision" in joined
+    assert "×2.778 in return weight" in joined       # the roughconductor's nadir peak
+    assert text[-1].startswith("[ideal detector]")
