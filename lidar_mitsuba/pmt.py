@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import _deadtime
 from .instrument import Instrument
 
 
@@ -119,68 +120,29 @@ def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths
     return idx, mu, counts
 
 
-def _time_keys(group: np.ndarray, time_ns: np.ndarray, dead_time_ns: float):
-    """Exact integer sort keys ``group * stride + quantised time`` and the quantised dead time."""
-    t = time_ns - time_ns.min()
-    span = float(t.max()) + dead_time_ns
-    n_groups = int(group.max()) + 1
-    res_ns = 1e-6                                   # 1 fs
-    while (span / res_ns + 2) * n_groups > 2 ** 62:
-        res_ns *= 2.0
-    q = np.rint(t / res_ns).astype(np.int64)
-    dead_q = int(np.rint(dead_time_ns / res_ns))
-    stride = np.int64(int(span / res_ns) + dead_q + 2)
-    return group.astype(np.int64) * stride + q, dead_q
-
-
 def nonparalyzable_mask(group: np.ndarray, time_ns: np.ndarray, dead_time_ns: float) -> np.ndarray:
-    """Which events a non-paralyzable detector records.
-
-    Within each ``group`` (a channel of a shot), an event is recorded when it comes at least
-    ``dead_time_ns`` after the previous *recorded* event. Events need not be sorted.
-    Vectorised: one pass per recorded event of the busiest group, each a binary search.
-
-    Returns:
-        (n_events,) bool.
-    """
-    n = time_ns.size
-    keep = np.zeros(n, bool)
-    if n == 0:
-        return keep
-    if dead_time_ns <= 0:
-        keep[:] = True
-        return keep
-    order = np.lexsort((time_ns, group))
-    key, dead_q = _time_keys(np.asarray(group)[order], np.asarray(time_ns, float)[order], dead_time_ns)
-    if dead_q == 0:
-        keep[:] = True
-        return keep
-    g = np.asarray(group)[order]
-    ptr = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
-    hit = np.zeros(n, bool)
-    while ptr.size:
-        hit[ptr] = True
-        nxt = np.searchsorted(key, key[ptr] + dead_q, side="left")
-        ok = nxt < n
-        ok[ok] = g[nxt[ok]] == g[ptr[ok]]
-        ptr = nxt[ok]
-    keep[order] = hit
-    return keep
+    """Which events a non-paralyzable detector records: within each ``group`` (a channel of a
+    shot), those at least ``dead_time_ns`` after the previous *recorded* event. Events need not
+    be sorted. Returns (n_events,) bool."""
+    return _mask(group, time_ns, dead_time_ns, paralyzable=False)
 
 
 def paralyzable_mask(group: np.ndarray, time_ns: np.ndarray, dead_time_ns: float) -> np.ndarray:
     """Which events a paralyzable (extending) detector records: those at least
     ``dead_time_ns`` after the previous event of their group, recorded or not. (n_events,) bool."""
-    n = time_ns.size
-    keep = np.zeros(n, bool)
-    if n == 0:
-        return keep
-    order = np.lexsort((time_ns, group))
-    g = np.asarray(group)[order]
-    t = np.asarray(time_ns, float)[order]
-    first = np.r_[True, g[1:] != g[:-1]]
-    gap_ok = np.r_[True, np.diff(t) >= dead_time_ns]
-    keep[order] = first | gap_ok
+    return _mask(group, time_ns, dead_time_ns, paralyzable=True)
+
+
+def _mask(group, time_ns, dead_time_ns, *, paralyzable):
+    group = np.asarray(group, np.int64)
+    if group.size == 0:
+        return np.zeros(0, bool)
+    if dead_time_ns <= 0:
+        return np.ones(group.size, bool)
+    _, inverse = np.unique(group, return_inverse=True)   # compact ids for the counting sort
+    inverse = inverse.astype(np.int64)
+    keep, _ = _deadtime.record(inverse, np.zeros_like(inverse), np.asarray(time_ns, np.float64),
+                               int(inverse.max()) + 1, 1, float(dead_time_ns), paralyzable)
     return keep
 
 
@@ -201,11 +163,8 @@ def noise_events(*, n_shots: int, gate_start_ns: np.ndarray, instrument: Instrum
     gate_ns = instrument.range_gate_ns
     bg_mean, dc_mean = instrument.noise_per_shot
     shots, anodes, times, is_bg = [], [], [], []
-    if bg_mean > 0:
-        n = rng.poisson(bg_mean, n_shots)
-        s = np.repeat(np.arange(n_shots), n)
-        keep = rng.random(s.size) < instrument.fill_factor * instrument.pde
-        s = s[keep]
+    if bg_mean > 0:   # Poisson thinned by fill factor and PDE is Poisson
+        s = np.repeat(np.arange(n_shots), rng.poisson(bg_mean * instrument.fill_factor * instrument.pde, n_shots))
         shots.append(s)
         anodes.append(rng.integers(0, instrument.anodes, s.size))
         times.append(gate_start_ns[s] + rng.random(s.size) * gate_ns)
@@ -250,11 +209,9 @@ def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
         paths_per_shot=int(returns["paths_per_shot"]),
         signal_photons=float(instrument.signal_photons), rng=rng,
         exchangeable="depth" in returns and not np.any(np.asarray(returns["depth"]) > 1))
-    m = idx.size
-    anode = rng.integers(0, instrument.anodes, m)
-    kept = rng.random(m) < instrument.fill_factor
-    kept[kept] = rng.random(int(kept.sum())) < instrument.pde
-    idx, anode = idx[kept], anode[kept]
+    # fill factor then PDE: two independent thinnings, i.e. one with probability ff * pde
+    idx = idx[rng.random(idx.size) < instrument.fill_factor * instrument.pde]
+    anode = rng.integers(0, instrument.anodes, idx.size)
     shot = np.asarray(returns["shot"], np.int64)[idx]
     time_ns = np.asarray(returns["time_ns"], np.float64)[idx]
     is_signal = np.ones(idx.size, bool)
@@ -271,14 +228,12 @@ def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
             time_ns = np.concatenate([time_ns, n_time])
             is_signal = np.concatenate([is_signal, np.zeros(n_shot.size, bool)])
     channel = anode // instrument.anodes_per_channel
-    dead = instrument.effective_dead_time_ns
-    group = shot * instrument.channels + channel
-    mask_fn = paralyzable_mask if instrument.paralyzable else nonparalyzable_mask
-    on = mask_fn(group, time_ns, dead) if dead > 0 else np.ones(idx.size, bool)
-    order = np.lexsort((time_ns[on], shot[on]))
-    sel = np.flatnonzero(on)[order]
+    keep, order = _deadtime.record(shot, channel.astype(np.int64), time_ns, n_shots,
+                                   instrument.channels, float(instrument.effective_dead_time_ns),
+                                   instrument.paralyzable)
+    sel = order[keep[order]]                      # recorded events, by shot then time
     return Detections(shot=shot[sel], channel=channel[sel].astype(np.int16),
                       anode=anode[sel].astype(np.int16), time_ns=time_ns[sel],
-                      return_index=idx[sel].astype(np.int64),
+                      return_index=idx[sel],
                       is_signal=is_signal[sel], arrivals_per_shot=counts,
                       mean_photons_per_shot=mu)

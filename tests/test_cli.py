@@ -38,6 +38,10 @@ BAD = [
     (["--paths-per-shot", "0"], "--paths-per-shot"),
     (["--max-depth", "0"], "--max-depth"),
     (["--window", "0"], "--window"),
+    (["--background-mhz", "-1"], "--background-mhz"),
+    (["--dark-count-hz", "-1"], "--dark-count-hz"),
+    (["--range-gate-m", "0"], "--range-gate-m"),
+    (["--dead-time-ns", "fast"], "--dead-time-ns"),
 ]
 
 
