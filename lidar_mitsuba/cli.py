@@ -120,6 +120,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="shots per window (1000)")
     st.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
+    b = sub.add_parser("bench", help="throughput benchmarks (charts and bench.json)",
+                       description="Benchmarks: detector events/s, integrator vs the ray-cast "
+                       "ceiling, end-to-end shots/s. Medians of repeats; ratios within one run.")
+    b.add_argument("--out", required=True, metavar="DIR", help="folder for bench.json and PNGs")
+    b.add_argument("--quick", action="store_true", help="small sizes (what the tests run)")
+
     t = sub.add_parser("terrain", help="fractal terrain by Fourier synthesis (.npy or .ply)",
                        description="Synthesise a periodic 1/f^p fractal heightfield (paper eqs. 2-4).")
     t.add_argument("--p", type=float, required=True, metavar="P", help="1/f^p exponent")
@@ -226,6 +232,20 @@ def _finite(obj):
     return obj
 
 
+def _cmd_bench(a) -> int:
+    out = pathlib.Path(a.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError("--out", f"{a.out!r} exists and is not a folder")
+    parent = out.parent if str(out.parent) else pathlib.Path(".")
+    if not parent.is_dir():
+        raise UsageError("--out", f"folder {str(parent)!r} does not exist")
+    from . import bench
+    doc = bench.run(out_dir=out, quick=a.quick)
+    print(bench.format_summary(doc))
+    print(f"wrote {out / 'bench.json'} and {out / 'throughput.png'}")
+    return 0
+
+
 def _cmd_terrain(a) -> int:
     out = _out_path(a.out, (".npy", ".ply"))
     from . import terrain
@@ -260,7 +280,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         from .instrument import ParameterError
         try:
-            return {"simulate": _cmd_simulate, "stats": _cmd_stats,
+            return {"simulate": _cmd_simulate, "stats": _cmd_stats, "bench": _cmd_bench,
                     "terrain": _cmd_terrain}[args.command](args)
         except ParameterError as e:
             raise UsageError(_option(e.name), e.message) from None

@@ -1,0 +1,17 @@
+"""`bench --quick` runs and writes finite numbers and its chart (speed is not asserted here)."""
+import json
+import math
+
+from lidar_mitsuba.cli import main
+
+
+def test_bench_quick(tmp_path, capsys):
+    assert main(["bench", "--out", str(tmp_path / "b"), "--quick"]) == 0
+    doc = json.loads((tmp_path / "b" / "bench.json").read_text())
+    assert (tmp_path / "b" / "throughput.png").stat().st_size > 10_000
+    for row in doc["detector"]:
+        assert math.isfinite(row["events_per_s"]) and row["events_per_s"] > 0
+    assert doc["integrator"]["triangles"] > 100_000
+    assert 0 < doc["integrator"]["ratio_to_ceiling"] < 10
+    assert all(r["shots_per_s"] > 0 for r in doc["end_to_end"])
+    assert "M events/s" in capsys.readouterr().out
