@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-_INSERTION_MAX = 64      # longer shots are sorted with argsort
+_INSERTION_MAX = 160     # longer shots are sorted with argsort
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
@@ -76,3 +76,71 @@ def record(shot, channel, time_ns, n_shots, n_channels, dead_time_ns, paralyzabl
             elif paralyzable:
                 last[c] = t
     return keep, order
+
+
+@numba.njit(cache=True, nogil=True)
+def choose_returns(start, weight, w_max, need, exchangeable, seed):
+    """For each shot, ``need[s]`` distinct returns drawn in proportion to weight.
+
+    Rejection sampling: returns are visited in a uniformly random order (their own order when
+    ``exchangeable``, else a lazy partial Fisher-Yates shuffle) and accepted with probability
+    ``w / w_max`` until ``need[s]`` are accepted; accepted returns are iid draws from the
+    weighted distribution. If a shot runs out, its remaining picks are drawn with replacement
+    by weight. Work grows with the picks, not with the number of returns. Serial, seeded: the
+    same seed gives the same picks.
+
+    Args:
+        start: (n_shots + 1,) offsets of each shot's returns; weight: (n_returns,) float64.
+        need: (n_shots,) picks per shot. Returns (sum(need),) int64 return indices, by shot.
+    """
+    np.random.seed(seed)
+    n_shots = need.size
+    out = np.empty(need.sum(), np.int64)
+    pos = 0
+    scratch = np.empty(0, np.int64)
+    for s in range(n_shots):
+        k = need[s]
+        if k == 0:
+            continue
+        a, b = start[s], start[s + 1]
+        m = b - a
+        if not exchangeable:
+            if scratch.size < m:
+                scratch = np.empty(2 * m, np.int64)
+            for j in range(m):
+                scratch[j] = a + j
+        got = 0
+        j = 0
+        while got < k and j < m:
+            if exchangeable:
+                i = a + j
+            else:
+                r = j + np.random.randint(0, m - j)
+                i = scratch[r]
+                scratch[r] = scratch[j]
+                scratch[j] = i
+            j += 1
+            if np.random.random() * w_max < weight[i]:
+                out[pos] = i
+                pos += 1
+                got += 1
+        if got < k:                      # fallback: with replacement, by weight
+            total = 0.0
+            for i in range(a, b):
+                total += weight[i]
+            while got < k:
+                if total <= 0.0:
+                    out[pos] = a
+                else:
+                    u = np.random.random() * total
+                    acc = 0.0
+                    i = a
+                    while i < b - 1:
+                        acc += weight[i]
+                        if acc > u:
+                            break
+                        i += 1
+                    out[pos] = i
+                pos += 1
+                got += 1
+    return out

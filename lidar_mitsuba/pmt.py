@@ -58,19 +58,21 @@ def shot_weight_sums(shot: np.ndarray, weight: np.ndarray, n_shots: int) -> np.n
 
 
 def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths_per_shot: int,
-                    signal_photons: float, rng: np.random.Generator, exchangeable: bool = False
+                    signal_photons: float, rng: np.random.Generator, exchangeable: bool = False,
+                    keep_probability: float = 1.0
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Poisson photon arrivals per shot, each a distinct traced return drawn by weight.
 
     The traced paths of a shot are iid samples of its footprint and pulse; a path's weight
-    is its probability of returning to the receiver. Each return is accepted with probability
-    ``w / w_max`` (rejection sampling, ``w_max`` the largest weight of the track), so accepted
-    returns are iid draws from the weighted return distribution; a shot's ``k`` arrivals are a
-    uniformly random ``k``-subset of its accepted returns. Distinct paths matter: drawing with replacement would let two
-    arrivals share one path with probability ~1/paths_per_shot and bias the first-photon
-    statistics. Only when a shot has fewer accepted returns than arrivals (rare: it needs
-    ``k`` close to ``paths_per_shot * mean(w) / w_max``) are the extra arrivals drawn with
-    replacement, in proportion to weight.
+    is its probability of returning to the receiver. Per shot, ``N ~ Poisson(mu)`` photons
+    arrive, of which ``Binomial(N, keep_probability)`` survive (fill factor and PDE); each
+    survivor is a distinct return, accepted with probability ``w / w_max`` while the shot's
+    returns are visited in random order (rejection sampling, ``w_max`` the largest weight of
+    the track), so the picks are iid draws from the weighted return distribution. Distinct
+    paths matter: drawing with replacement would let two photons share one path with
+    probability ~1/paths_per_shot and bias the first-photon statistics. Only when a shot runs
+    out of returns (it needs about ``paths_per_shot * mean(w) / w_max`` picks) are its extra
+    picks drawn with replacement; trace more paths per shot than photons per shot.
 
     Args:
         shot: (n_returns,) shot index of each traced return, non-decreasing.
@@ -78,14 +80,14 @@ def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths
         n_shots, paths_per_shot: the trace's shot count and paths traced per shot.
         signal_photons: mean photons per shot from the reference plate.
         exchangeable: the returns of a shot are already in random order (true for single-bounce
-            traces: one return per iid path), so its first ``k`` accepted returns are a random
-            ``k``-subset and no shuffle is needed. Multi-bounce traces put a path's returns
-            side by side and must leave this False.
+            traces: one return per iid path), so no shuffle is needed. Multi-bounce traces put
+            a path's returns side by side and must leave this False.
+        keep_probability: probability that an arriving photon is kept (fill factor x PDE).
 
     Returns:
-        ``(return_index, mu, counts)``: (n_arrivals,) index of the chosen return per arrival,
+        ``(return_index, mu, counts)``: (n_kept,) index of the chosen return per kept photon,
         grouped by shot; (n_shots,) Poisson means ``signal_photons * sum(w) / paths_per_shot``;
-        (n_shots,) arrivals per shot.
+        (n_shots,) photons arriving per shot (before fill factor and PDE).
     """
     shot = np.asarray(shot, np.int64)
     if shot.size and np.any(np.diff(shot) < 0):
@@ -94,29 +96,12 @@ def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths
     w_sum = shot_weight_sums(shot, w, n_shots)
     mu = signal_photons * w_sum / paths_per_shot
     counts = rng.poisson(mu)
-    total = int(counts.sum())
-    if total == 0:
+    kept = rng.binomial(counts, keep_probability) if keep_probability < 1 else counts
+    if kept.sum() == 0:
         return np.zeros(0, np.int64), mu, counts
-    arrival_shot = np.repeat(np.arange(n_shots), counts)
-    rank = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
-
-    accepted = np.flatnonzero(rng.random(w.size) * w.max() < w)
-    if not exchangeable:   # a uniformly random order within each shot (one float64 sort key)
-        accepted = accepted[np.argsort(shot[accepted] + rng.random(accepted.size), kind="stable")]
-    n_acc = np.bincount(shot[accepted], minlength=n_shots)
-    acc_start = np.cumsum(n_acc) - n_acc
-    ok = rank < n_acc[arrival_shot]
-    idx = np.empty(total, np.int64)
-    idx[ok] = accepted[acc_start[arrival_shot[ok]] + rank[ok]]
-
-    if not ok.all():          # fallback: weighted draws with replacement within the shot
-        s = arrival_shot[~ok]
-        cw = np.cumsum(w)
-        first = np.searchsorted(shot, np.arange(n_shots), side="left")
-        last = np.searchsorted(shot, np.arange(n_shots), side="right") - 1
-        before = np.where(first > 0, cw[np.maximum(first - 1, 0)], 0.0)
-        target = before[s] + rng.random(s.size) * w_sum[s]
-        idx[~ok] = np.clip(np.searchsorted(cw, target, side="right"), first[s], last[s])
+    start = np.searchsorted(shot, np.arange(n_shots + 1), side="left").astype(np.int64)
+    idx = _deadtime.choose_returns(start, w, float(w.max()), kept.astype(np.int64),
+                                   bool(exchangeable), int(rng.integers(0, 2 ** 31 - 1)))
     return idx, mu, counts
 
 
@@ -204,13 +189,13 @@ def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
     bg_mean, dc_mean = instrument.noise_per_shot
     if gate_center_ns is None and (bg_mean > 0 or dc_mean > 0):
         raise ValueError("noise needs a range gate: pass gate_center_ns")
+    # fill factor then PDE: two independent thinnings, i.e. one with probability ff * pde
     idx, mu, counts = sample_arrivals(
         returns["shot"], returns["weight"], n_shots=n_shots,
         paths_per_shot=int(returns["paths_per_shot"]),
         signal_photons=float(instrument.signal_photons), rng=rng,
-        exchangeable="depth" in returns and not np.any(np.asarray(returns["depth"]) > 1))
-    # fill factor then PDE: two independent thinnings, i.e. one with probability ff * pde
-    idx = idx[rng.random(idx.size) < instrument.fill_factor * instrument.pde]
+        exchangeable="depth" in returns and not np.any(np.asarray(returns["depth"]) > 1),
+        keep_probability=instrument.fill_factor * instrument.pde)
     anode = rng.integers(0, instrument.anodes, idx.size)
     shot = np.asarray(returns["shot"], np.int64)[idx]
     time_ns = np.asarray(returns["time_ns"], np.float64)[idx]
