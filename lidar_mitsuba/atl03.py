@@ -38,7 +38,6 @@ def write(result, path: str | os.PathLike) -> pathlib.Path:
     path = pathlib.Path(path)
     inst = result.instrument
     det = result.detections
-    ret = result.returns
     n = len(det)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
     os.close(fd)
@@ -66,9 +65,9 @@ def write(result, path: str | os.PathLike) -> pathlib.Path:
             _ds(tp, "is_signal", det.is_signal.astype(np.int8), "1", "1 signal, 0 noise")
             _ds(tp, "time_ns", det.time_ns, "ns", "round-trip time from the pulse centre")
             _ds(tp, "return_index", det.return_index, "1", "index of the traced return")
-            for axis in ("x", "y", "z"):
-                vals = np.asarray(ret[f"{axis}_m"])[det.return_index] if n else np.zeros(0)
-                _ds(tp, f"hit_{axis}_m", vals, "meters", f"{axis} of the scattering point")
+            for j, axis in enumerate(("x", "y", "z")):
+                _ds(tp, f"hit_{axis}_m", result.hit_xyz_m[:, j], "meters",
+                    f"{axis} of the scattering point (NaN for noise)")
             ts = f.create_group("truth/shots")
             _ds(ts, "along_track_m", result.along_track_m, "meters", "along-track distance")
             _ds(ts, "x_m", result.shot_x_m, "meters", "footprint centre x")

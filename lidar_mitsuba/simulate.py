@@ -110,7 +110,9 @@ class SimulationResult:
         h_m: elevation of each detected photon [m].
         signal_conf: ATL03-style confidence of each photon, 0 (noise) to 4 (high), from
             :func:`lidar_mitsuba.classify.signal_confidence`.
-        returns: the traced returns (see ``PathLengthIntegrator.trace``).
+        hit_xyz_m: (n_photons, 3) float32 scattering point of each photon [m] (NaN for noise).
+        returns: the traced returns (see ``PathLengthIntegrator.trace``), with global shot
+            indices, or ``None`` when not kept (``keep_returns``).
         timings_s: wall time of each stage [s].
     """
     instrument: Instrument
@@ -123,7 +125,8 @@ class SimulationResult:
     detections: pmt.Detections
     h_m: np.ndarray
     signal_conf: np.ndarray
-    returns: dict
+    hit_xyz_m: np.ndarray
+    returns: dict | None
     timings_s: dict = field(default_factory=dict)
 
     @property
@@ -167,7 +170,8 @@ def _progress(total: int, desc: str, enabled: bool):
 def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | None = None,
              scene_file: str | None = None, bsdf: dict | None = None, shots: int = 1000,
              seed: int = 0, paths_per_shot: int = 128, max_depth: int = 1,
-             variant: str | None = None, progress: bool = True) -> SimulationResult:
+             variant: str | None = None, progress: bool = True, chunk_shots: int = 65536,
+             keep_returns: bool | None = None) -> SimulationResult:
     """Simulate ``shots`` laser shots along a ground track and detect their photons.
 
     Args:
@@ -182,6 +186,10 @@ def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | Non
         max_depth: surface interactions per photon path (1 = single bounce).
         variant: Mitsuba variant (default: the active one, ``llvm_ad_mono``).
         progress: show a progress bar on runs longer than ~2 s.
+        chunk_shots: shots traced and detected per chunk; memory stays bounded by the chunk
+            (plus the detected photons) for any track length.
+        keep_returns: keep every traced return in ``result.returns`` (default: only when the
+            run traces at most 2^24 paths, about 0.5 GB).
     """
     instrument = instrument or Instrument()
     if not isinstance(shots, (int, np.integer)) or not 1 <= shots <= 10 ** 8:
@@ -235,30 +243,66 @@ def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | Non
             surf_cfg["bsdf"] = repr(bsdf)
     timings["scene_s"] = time.perf_counter() - t0
 
-    t1 = time.perf_counter()
     integrator = mi.load_dict(instrument.integrator_dict(max_depth=max_depth))
-    bar, update = _progress(shots, "tracing", progress)
+    gate_center_ns = 2.0 * (instrument.altitude_m - z_ref) / C_M_PER_NS
+    if keep_returns is None:
+        keep_returns = shots * paths_per_shot * max_depth <= 2 ** 24
+    per_chunk = max(1, int(chunk_shots))
+    parts, kept_returns, n_returns = [], [], 0
+    timings["trace_s"] = timings["detect_s"] = 0.0
+    bar, update = _progress(shots, "simulating", progress)
     try:
-        returns = integrator.trace(scene, shot_x_m=x_loc, shot_y_m=y_loc,
-                                   paths_per_shot=int(paths_per_shot), seed=seed, progress=update)
+        for k, a in enumerate(range(0, shots, per_chunk)):
+            b = min(shots, a + per_chunk)
+            chunk_seed = int(np.random.SeedSequence([int(seed), k]).generate_state(1)[0])
+            t1 = time.perf_counter()
+            ret = integrator.trace(scene, shot_x_m=x_loc[a:b], shot_y_m=y_loc[a:b],
+                                   paths_per_shot=int(paths_per_shot), seed=chunk_seed)
+            if np.any(dz[a:b]):   # fold the exact plane offset back in (float64)
+                off = dz[a:b][ret["shot"]]
+                ret["time_ns"] = ret["time_ns"] - 2.0 * off / C_M_PER_NS
+                ret["z_m"] = (ret["z_m"] + off).astype(np.float32)
+                ret["x_m"] = (ret["x_m"] + (x - x_loc)[a:b][ret["shot"]]).astype(np.float32)
+            t2 = time.perf_counter()
+            rng = np.random.default_rng([int(seed), 0x504D54, k])
+            det = pmt.detect(ret, instrument, rng, gate_center_ns=gate_center_ns[a:b])
+            sig = det.return_index >= 0
+            hit = np.full((len(det), 3), np.nan, np.float32)
+            for j, axis in enumerate(("x_m", "y_m", "z_m")):
+                hit[sig, j] = ret[axis][det.return_index[sig]]
+            parts.append((det, a, n_returns, hit))
+            if keep_returns:
+                ret["shot"] = ret["shot"].astype(np.int64) + a
+                kept_returns.append(ret)
+            n_returns += int(ret["weight"].size)
+            timings["trace_s"] += t2 - t1
+            timings["detect_s"] += time.perf_counter() - t2
+            if update is not None:
+                update(b - a)
     finally:
         if bar is not None:
             bar.close()
-    if np.any(dz):   # fold the exact plane offset back in (float64)
-        off = dz[returns["shot"]]
-        returns["time_ns"] = returns["time_ns"] - 2.0 * off / C_M_PER_NS
-        returns["z_m"] = (returns["z_m"] + off).astype(np.float32)
-        returns["x_m"] = (returns["x_m"] + (x - x_loc)[returns["shot"]]).astype(np.float32)
-    timings["trace_s"] = time.perf_counter() - t1
-
-    t2 = time.perf_counter()
-    rng = np.random.default_rng([int(seed), 0x504D54])
-    gate_center_ns = 2.0 * (instrument.altitude_m - z_ref) / C_M_PER_NS
-    det = pmt.detect(returns, instrument, rng, gate_center_ns=gate_center_ns)
+    det = pmt.Detections(
+        shot=np.concatenate([d.shot + a for d, a, _, _ in parts]),
+        channel=np.concatenate([d.channel for d, *_ in parts]),
+        anode=np.concatenate([d.anode for d, *_ in parts]),
+        time_ns=np.concatenate([d.time_ns for d, *_ in parts]),
+        return_index=np.concatenate([np.where(d.return_index >= 0, d.return_index + off, -1)
+                                     for d, _, off, _ in parts]),
+        is_signal=np.concatenate([d.is_signal for d, *_ in parts]),
+        arrivals_per_shot=np.concatenate([d.arrivals_per_shot for d, *_ in parts]),
+        mean_photons_per_shot=np.concatenate([d.mean_photons_per_shot for d, *_ in parts]))
+    hit_xyz = np.concatenate([h for *_, h in parts])
+    returns = None
+    if keep_returns:
+        returns = {key: np.concatenate([r[key] for r in kept_returns])
+                   for key in ("shot", "time_ns", "weight", "x_m", "y_m", "z_m", "depth")}
+        returns.update(paths_per_shot=int(paths_per_shot), n_shots=int(shots))
+    t3 = time.perf_counter()
     h = retrieval.photon_heights_m(det.time_ns, altitude_m=instrument.altitude_m)
     conf = classify.signal_confidence(shot=det.shot, h_m=h, gate_center_h_m=np.nan_to_num(z_ref),
                                       range_gate_m=instrument.range_gate_m)
-    timings["detect_s"] = time.perf_counter() - t2
+    timings["detect_s"] += time.perf_counter() - t3
     timings["total_s"] = time.perf_counter() - t0
 
     config = {"instrument": instrument.to_dict(), "surface": surf_cfg, "shots": int(shots),
@@ -266,5 +310,5 @@ def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | Non
               "variant": mi.variant()}
     return SimulationResult(instrument=instrument, config=config, along_track_m=along,
                             shot_x_m=x, shot_y_m=y, surface_z_m=surface_z, z_ref_m=z_ref,
-                            detections=det, h_m=h, signal_conf=conf, returns=returns,
-                            timings_s=timings)
+                            detections=det, h_m=h, signal_conf=conf, hit_xyz_m=hit_xyz,
+                            returns=returns, timings_s=timings)

@@ -141,3 +141,28 @@ def test_atomic_write_leaves_nothing(tmp_path, monkeypatch):
     with pytest.raises(OSError):
         atl03.write(res, tmp_path / "x.h5")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_noise_options_and_segments(tmp_path, capsys):
+    out = tmp_path / "noisy.h5"
+    assert main(["simulate", "--surface", "fractal", "--size-m", "256", "--beam", "strong",
+                 "--shots", "3000", "--background-mhz", "5", "--dark-count-hz", "1e4",
+                 "--dead-time-ns", "atlas", "--paralyzable", "--out", str(out),
+                 "--no-progress"]) == 0
+    assert "false alarms" in capsys.readouterr().out
+    with h5py.File(out) as f:
+        cfg = json.loads(f.attrs["config"])["instrument"]
+        assert cfg["dead_time_ns"] == 3.2 and cfg["paralyzable"] and cfg["background_mhz"] == 5.0
+        sig = f["truth/photons/is_signal"][()]
+        assert 0 < sig.mean() < 1
+        assert set(np.unique(f["gt1l/heights/signal_conf_ph"][()])) <= {0, 2, 3, 4}
+    seg = tmp_path / "seg.h5"
+    assert main(["segments", str(out), "--json", "--out", str(seg)]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["n_segments"] > 50 and doc["n_good"] > 0.9 * doc["n_segments"]
+    assert abs(doc["mean_bckgrd"] - 5 * 0.8 * 0.5) < 0.2          # detected rate, 5 % of 2 MHz
+    with h5py.File(seg) as f:
+        for name in ("h_li", "h_li_sigma", "dh_fit_dx", "x_atc", "fpb_corr_m", "bckgrd"):
+            assert "units" in f[f"land_ice_segments/{name}"].attrs
+    assert call(["segments", str(tmp_path / "none.h5")]) == 2
+    assert call(["segments", str(out), "--out", str(tmp_path / "no" / "s.h5")]) == 2

@@ -174,3 +174,25 @@ def test_xml_scenes_load_and_simulate(name):
     st = res.report().overall
     assert st.n_photons > 100 and np.isfinite(st.bias_m)
     assert np.all(np.isfinite(res.z_ref_m))
+
+
+def test_chunked_run_keeps_statistics_and_bounds_memory():
+    """Shots traced and detected in chunks: every chunk has its own photons, the closed form
+    still holds, and the traced returns can be dropped."""
+    inst = Instrument(beam="weak", ideal_detector=True)
+    res = simulate(instrument=inst, surface=SurfaceSpec(kind="flat"), shots=6000, seed=4,
+                   chunk_shots=700, keep_returns=False, progress=False)
+    assert res.returns is None
+    st = res.report().overall
+    sd = inst.ranging_sigma_m
+    assert abs(st.bias_m) < Z * sd / math.sqrt(st.n_photons)
+    assert abs(st.std_m - sd) < Z * sd / math.sqrt(2 * st.n_photons)
+    # chunks do not repeat each other's photons
+    d = res.detections
+    first, second = d.time_ns[d.shot < 700], d.time_ns[(d.shot >= 700) & (d.shot < 1400)]
+    assert not np.intersect1d(first, second).size
+    assert np.all(np.isfinite(res.hit_xyz_m[d.is_signal]))
+    kept = simulate(instrument=inst, surface=SurfaceSpec(kind="flat"), shots=300, seed=4,
+                    chunk_shots=100, keep_returns=True, progress=False)
+    assert kept.returns["shot"].max() == 299
+    assert np.array_equal(kept.returns["z_m"][kept.detections.return_index], kept.hit_xyz_m[:, 2])
