@@ -9,8 +9,8 @@ Per shot ``s`` with traced returns of weights ``w`` (``paths_per_shot`` photon p
    drawn in proportion to their weights (rejection sampling; arrival times are unbiased);
 3. each arrival lands on a uniformly random anode, survives the fill factor, then the PDE;
 4. anodes are summed into channels (``anodes / channels`` consecutive anodes each);
-5. solar background and dark counts are added inside each shot's range gate (signal outside
-   the gate is lost too);
+5. solar background and dark counts are added inside each shot's range gate, uniform in time
+   and over the anodes (signal outside the gate is lost too);
 6. each channel is dead for ``dead_time_ns`` after every detection (non-paralyzable) or after
    every arrival (paralyzable), unless the detector is ideal.
 """
@@ -131,43 +131,13 @@ def _mask(group, time_ns, dead_time_ns, *, paralyzable):
     return keep
 
 
-def noise_events(*, n_shots: int, gate_start_ns: np.ndarray, instrument: Instrument,
-                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Solar background photons and dark counts inside each shot's range gate.
-
-    Background: Poisson(``background_mhz * gate``) photons per shot on uniformly random anodes,
-    uniform in time, thinned by fill factor then PDE. Dark counts: Poisson(``dark_count_hz *
-    gate``) per channel per shot, uniform in time, on a random anode of that channel.
-
-    Args:
-        gate_start_ns: (n_shots,) opening time of each shot's range gate [ns].
-
-    Returns:
-        ``(shot, anode, time_ns, is_background)``, each (n_noise,).
-    """
-    gate_ns = instrument.range_gate_ns
+def noise_counts(*, n_shots: int, instrument: Instrument, rng: np.random.Generator) -> np.ndarray:
+    """(n_shots,) noise events per shot inside the range gate: background photons reaching the
+    detector, Poisson(``background_mhz * gate``) thinned by fill factor and PDE (still Poisson),
+    plus dark counts, Poisson(``dark_count_hz * gate``) per channel, not thinned."""
     bg_mean, dc_mean = instrument.noise_per_shot
-    shots, anodes, times, is_bg = [], [], [], []
-    if bg_mean > 0:   # Poisson thinned by fill factor and PDE is Poisson
-        s = np.repeat(np.arange(n_shots), rng.poisson(bg_mean * instrument.fill_factor * instrument.pde, n_shots))
-        shots.append(s)
-        anodes.append(rng.integers(0, instrument.anodes, s.size))
-        times.append(gate_start_ns[s] + rng.random(s.size) * gate_ns)
-        is_bg.append(np.ones(s.size, bool))
-    if dc_mean > 0:
-        n = rng.poisson(dc_mean, (n_shots, instrument.channels))
-        s = np.repeat(np.arange(n_shots), n.sum(1))
-        ch = np.repeat(np.tile(np.arange(instrument.channels), n_shots), n.ravel())
-        shots.append(s)
-        anodes.append(ch * instrument.anodes_per_channel
-                      + rng.integers(0, instrument.anodes_per_channel, s.size))
-        times.append(gate_start_ns[s] + rng.random(s.size) * gate_ns)
-        is_bg.append(np.zeros(s.size, bool))
-    if not shots:
-        z = np.zeros(0, np.int64)
-        return z, z, np.zeros(0), np.zeros(0, bool)
-    return (np.concatenate(shots), np.concatenate(anodes), np.concatenate(times),
-            np.concatenate(is_bg))
+    mean = bg_mean * instrument.fill_factor * instrument.pde + dc_mean * instrument.channels
+    return rng.poisson(mean, n_shots).astype(np.int64) if mean > 0 else np.zeros(n_shots, np.int64)
 
 
 def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
@@ -197,28 +167,28 @@ def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
         exchangeable="depth" in returns and not np.any(np.asarray(returns["depth"]) > 1),
         keep_probability=instrument.fill_factor * instrument.pde)
     anode = rng.integers(0, instrument.anodes, idx.size)
-    shot = np.asarray(returns["shot"], np.int64)[idx]
-    time_ns = np.asarray(returns["time_ns"], np.float64)[idx]
-    is_signal = np.ones(idx.size, bool)
+    shot_sig = np.asarray(returns["shot"], np.int64)[idx]
+    sig_start = np.searchsorted(shot_sig, np.arange(n_shots + 1)).astype(np.int64)
     if gate_center_ns is not None:
         gate_start = np.asarray(gate_center_ns, np.float64) - instrument.range_gate_ns / 2.0
-        inside = (time_ns >= gate_start[shot]) & (time_ns < gate_start[shot] + instrument.range_gate_ns)
-        idx, anode, shot, time_ns, is_signal = (a[inside] for a in (idx, anode, shot, time_ns, is_signal))
-        n_shot, n_anode, n_time, _ = noise_events(n_shots=n_shots, gate_start_ns=gate_start,
-                                                  instrument=instrument, rng=rng)
-        if n_shot.size:
-            idx = np.concatenate([idx, np.full(n_shot.size, -1, np.int64)])
-            anode = np.concatenate([anode, n_anode])
-            shot = np.concatenate([shot, n_shot])
-            time_ns = np.concatenate([time_ns, n_time])
-            is_signal = np.concatenate([is_signal, np.zeros(n_shot.size, bool)])
-    channel = anode // instrument.anodes_per_channel
-    keep, order = _deadtime.record(shot, channel.astype(np.int64), time_ns, n_shots,
-                                   instrument.channels, float(instrument.effective_dead_time_ns),
-                                   instrument.paralyzable)
-    sel = order[keep[order]]                      # recorded events, by shot then time
-    return Detections(shot=shot[sel], channel=channel[sel].astype(np.int16),
-                      anode=anode[sel].astype(np.int16), time_ns=time_ns[sel],
-                      return_index=idx[sel],
-                      is_signal=is_signal[sel], arrivals_per_shot=counts,
+        gate_ns = instrument.range_gate_ns
+        noise = noise_counts(n_shots=n_shots, instrument=instrument, rng=rng)
+    else:
+        gate_start, gate_ns = np.zeros(n_shots), np.inf
+        noise = np.zeros(n_shots, np.int64)
+    # narrow types halve the memory the per-shot slots touch (the stage is memory-bound)
+    index_type = np.int32 if np.asarray(returns["shot"]).size < 2 ** 31 else np.int64
+    t_all, a_all, i_all, rec, start = _deadtime.detect_shots(
+        sig_start, np.asarray(returns["time_ns"], np.float64)[idx], anode.astype(np.int16),
+        idx.astype(index_type),
+        np.nan_to_num(gate_start, nan=np.inf), float(gate_ns), noise, instrument.anodes,
+        instrument.channels, float(instrument.effective_dead_time_ns), instrument.paralyzable,
+        int(rng.integers(0, 2 ** 62)))
+    sel = np.flatnonzero(rec)
+    shot = np.searchsorted(start, sel, side="right") - 1
+    anode = a_all[sel]
+    index = i_all[sel].astype(np.int64)
+    return Detections(shot=shot, channel=(anode // instrument.anodes_per_channel).astype(np.int16),
+                      anode=anode, time_ns=t_all[sel], return_index=index,
+                      is_signal=index >= 0, arrivals_per_shot=counts,
                       mean_photons_per_shot=mu)
