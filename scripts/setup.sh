@@ -5,9 +5,12 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-have_llvm() {
-  ls /usr/lib/*-linux-gnu/libLLVM-1[7-9].so* /usr/lib/*-linux-gnu/libLLVM-2[0-9].so* \
-     /usr/lib/llvm-1[7-9]/lib/libLLVM*.so* /usr/lib/llvm-2[0-9]/lib/libLLVM*.so* >/dev/null 2>&1
+have_llvm() {   # any libLLVM >= 17 (a glob that matches nothing stays literal and fails -e)
+  for f in /usr/lib/*-linux-gnu/libLLVM-1[7-9].so* /usr/lib/*-linux-gnu/libLLVM-2[0-9].so* \
+           /usr/lib/llvm-1[7-9]/lib/libLLVM*.so* /usr/lib/llvm-2[0-9]/lib/libLLVM*.so*; do
+    [ -e "$f" ] && return 0
+  done
+  return 1
 }
 if ! have_llvm; then
   SUDO=""
