@@ -78,7 +78,18 @@ def record(shot, channel, time_ns, n_shots, n_channels, dead_time_ns, paralyzabl
     return keep, order
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(inline="always")
+def _uniform(seed, shot, j):
+    """Counter-based uniform in [0, 1) (splitmix64 of seed, shot, j): parallel-safe."""
+    z = np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(shot) * np.uint64(0xD1B54A32D192ED03) \
+        + np.uint64(j) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    z = z ^ (z >> np.uint64(31))
+    return (z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
 def choose_returns(start, weight, w_max, need, exchangeable, seed):
     """For each shot, ``need[s]`` distinct returns drawn in proportion to weight.
 
@@ -86,41 +97,46 @@ def choose_returns(start, weight, w_max, need, exchangeable, seed):
     ``exchangeable``, else a lazy partial Fisher-Yates shuffle) and accepted with probability
     ``w / w_max`` until ``need[s]`` are accepted; accepted returns are iid draws from the
     weighted distribution. If a shot runs out, its remaining picks are drawn with replacement
-    by weight. Work grows with the picks, not with the number of returns. Serial, seeded: the
-    same seed gives the same picks.
+    by weight. Work grows with the picks, not with the number of returns. Shots run in
+    parallel with a counter-based RNG keyed by (seed, shot, j): the same seed gives the same
+    picks.
 
     Args:
-        start: (n_shots + 1,) offsets of each shot's returns; weight: (n_returns,) float64.
+        start: (n_shots + 1,) offsets of each shot's returns; weight: (n_returns,).
         need: (n_shots,) picks per shot. Returns (sum(need),) int64 return indices, by shot.
     """
-    np.random.seed(seed)
     n_shots = need.size
-    out = np.empty(need.sum(), np.int64)
-    pos = 0
-    scratch = np.empty(0, np.int64)
+    off = np.zeros(n_shots + 1, np.int64)
     for s in range(n_shots):
+        off[s + 1] = off[s] + need[s]
+    out = np.empty(off[n_shots], np.int64)
+    for s in numba.prange(n_shots):
         k = need[s]
         if k == 0:
             continue
         a, b = start[s], start[s + 1]
         m = b - a
+        scratch = np.empty(0 if exchangeable else m, np.int64)
         if not exchangeable:
-            if scratch.size < m:
-                scratch = np.empty(2 * m, np.int64)
             for j in range(m):
                 scratch[j] = a + j
+        pos = off[s]
         got = 0
         j = 0
+        r = 0
         while got < k and j < m:
             if exchangeable:
                 i = a + j
             else:
-                r = j + np.random.randint(0, m - j)
-                i = scratch[r]
-                scratch[r] = scratch[j]
+                pick = j + min(int(_uniform(seed, s, r) * (m - j)), m - j - 1)
+                r += 1
+                i = scratch[pick]
+                scratch[pick] = scratch[j]
                 scratch[j] = i
             j += 1
-            if np.random.random() * w_max < weight[i]:
+            u = _uniform(seed, s, r)
+            r += 1
+            if u * w_max < weight[i]:
                 out[pos] = i
                 pos += 1
                 got += 1
@@ -132,7 +148,8 @@ def choose_returns(start, weight, w_max, need, exchangeable, seed):
                 if total <= 0.0:
                     out[pos] = a
                 else:
-                    u = np.random.random() * total
+                    u = _uniform(seed, s, r) * total
+                    r += 1
                     acc = 0.0
                     i = a
                     while i < b - 1:
@@ -146,104 +163,176 @@ def choose_returns(start, weight, w_max, need, exchangeable, seed):
     return out
 
 
-@numba.njit(inline="always")
-def _uniform(seed, shot, j):
-    """Counter-based uniform in [0, 1) (splitmix64 of seed, shot, j): parallel-safe."""
-    z = np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(shot) * np.uint64(0xD1B54A32D192ED03) \
-        + np.uint64(j) * np.uint64(0xBF58476D1CE4E5B9)
-    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    z = z ^ (z >> np.uint64(31))
-    return (z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+@numba.njit(cache=True, nogil=True)
+def shot_stats(shot, weight, n_shots):
+    """One pass over traced returns: per-shot weight sums (float64), offsets (n_shots + 1),
+    the largest weight, and whether ``shot`` is non-decreasing."""
+    w_sum = np.zeros(n_shots, np.float64)
+    start = np.zeros(n_shots + 1, np.int64)
+    w_max = 0.0
+    ordered = True
+    prev = -1
+    for i in range(shot.size):
+        s = shot[i]
+        if s < prev:
+            ordered = False
+        prev = s
+        w = float(weight[i])
+        w_sum[s] += w
+        start[s + 1] += 1
+        if w > w_max:
+            w_max = w
+    for s in range(n_shots):
+        start[s + 1] += start[s]
+    return w_sum, start, w_max, ordered
+
+
+@numba.njit(cache=True, nogil=True)
+def _shot_events(s, sig_start, sig_time, sig_anode, sig_index, g0, gate_ns, noise_per_ns,
+                 anodes, n_channels, dead_time_ns, paralyzable, seed, t_buf, a_buf, i_buf, r_buf):
+    """One shot: signal in the gate plus Poisson noise at ``noise_per_ns`` over the gate,
+    time-sorted into the buffers, with ``r_buf`` marking what the detector records. Returns the
+    number of events, or -1 when the buffers are too short (the caller grows them and calls
+    again). Deterministic: the same arguments give the same events."""
+    cap = t_buf.size
+    per_ch = anodes // n_channels
+    n_sig = 0
+    for j in range(sig_start[s], sig_start[s + 1]):
+        t = sig_time[j]
+        if t >= g0 and t < g0 + gate_ns:
+            n_sig += 1
+    # signal inside the gate, insertion-sorted into the tail of the buffers
+    base = cap - n_sig
+    q = base
+    for j in range(sig_start[s], sig_start[s + 1]):
+        t = sig_time[j]
+        if t >= g0 and t < g0 + gate_ns:
+            k = q - 1
+            while k >= base and t_buf[k] > t:
+                t_buf[k + 1] = t_buf[k]
+                a_buf[k + 1] = a_buf[k]
+                i_buf[k + 1] = i_buf[k]
+                k -= 1
+            t_buf[k + 1] = t
+            a_buf[k + 1] = sig_anode[j]
+            i_buf[k + 1] = sig_index[j]
+            q += 1
+    # noise: a Poisson process over the gate (exponential gaps), merged forward with the
+    # sorted signal; the write position must stay behind the unread signal
+    w = 0
+    read = 0
+    j = 0
+    t = g0
+    if noise_per_ns > 0:
+        while True:
+            t -= np.log(1.0 - _uniform(seed, s, 2 * j)) / noise_per_ns
+            if t >= g0 + gate_ns:
+                break
+            while read < n_sig and t_buf[base + read] <= t:
+                t_buf[w], a_buf[w], i_buf[w] = t_buf[base + read], a_buf[base + read], i_buf[base + read]
+                w += 1
+                read += 1
+            if w >= base + read:
+                return -1
+            t_buf[w] = t
+            a_buf[w] = min(int(_uniform(seed, s, 2 * j + 1) * anodes), anodes - 1)
+            i_buf[w] = -1
+            w += 1
+            j += 1
+    while read < n_sig:
+        t_buf[w], a_buf[w], i_buf[w] = t_buf[base + read], a_buf[base + read], i_buf[base + read]
+        w += 1
+        read += 1
+    last = np.full(n_channels, -np.inf)
+    for j in range(w):
+        c = a_buf[j] // per_ch
+        t = t_buf[j]
+        if t - last[c] >= dead_time_ns:
+            r_buf[j] = True
+            last[c] = t
+        else:
+            r_buf[j] = False
+            if paralyzable:
+                last[c] = t
+    return w
+
+
+@numba.njit(cache=True, nogil=True)
+def _run_shot(s, sig_start, sig_time, sig_anode, sig_index, g0, gate_ns, noise_per_ns, anodes,
+              n_channels, dead_time_ns, paralyzable, seed):
+    mean = noise_per_ns * gate_ns if noise_per_ns > 0 else 0.0
+    cap = (sig_start[s + 1] - sig_start[s]) + int(mean + 8.0 * np.sqrt(mean) + 16.0)
+    while True:
+        t_buf = np.empty(cap, np.float64)
+        a_buf = np.empty(cap, sig_anode.dtype)
+        i_buf = np.empty(cap, sig_index.dtype)
+        r_buf = np.empty(cap, np.bool_)
+        w = _shot_events(s, sig_start, sig_time, sig_anode, sig_index, g0, gate_ns, noise_per_ns,
+                         anodes, n_channels, dead_time_ns, paralyzable, seed,
+                         t_buf, a_buf, i_buf, r_buf)
+        if w >= 0:
+            return w, t_buf, a_buf, i_buf, r_buf
+        cap *= 2
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def detect_shots(sig_start, sig_time, sig_anode, sig_index, gate_start, gate_ns, noise_count,
+def detect_shots(sig_start, sig_time, sig_anode, sig_index, gate_start, gate_ns, noise_per_ns,
                  anodes, n_channels, dead_time_ns, paralyzable, seed):
-    """The whole detector stage per shot, in one parallel pass, already in output order.
+    """The whole detector stage per shot, in parallel, writing only the recorded events.
 
-    For each shot: its signal photons inside the gate and ``noise_count[s]`` noise events
-    (background photons and dark counts: uniform in the gate and, since every channel has the
-    same dark rate, uniform over the anodes), in time order, then dead time per channel
-    (non-paralyzable or paralyzable). Noise times are generated sorted (normalised cumulative
-    exponential spacings) with a counter-based RNG keyed by (seed, shot, j), and merged with the
-    shot's few sorted signal photons; nothing is sorted globally.
+    For each shot: its signal photons inside the gate, and noise (background photons and dark
+    counts) as a Poisson process of rate ``noise_per_ns`` over the gate, uniform over the
+    anodes (every channel has the same dark rate), in time order; then dead time per channel
+    (non-paralyzable or paralyzable). Noise comes from a counter-based RNG keyed by
+    (seed, shot, j), so two passes see the same events: the first counts what each shot
+    records, the second writes it at its final offset. Memory traffic is the input plus the
+    output.
 
     Args:
         sig_start: (n_shots + 1,) offsets of each shot's signal photons in ``sig_*``.
         sig_time, sig_anode, sig_index: signal photons' time [ns], anode, traced-return index.
-        gate_start: (n_shots,) gate opening [ns]; gate_ns: gate length [ns] (inf: no gate).
-        noise_count: (n_shots,) noise events per shot.
+        gate_start: (n_shots,) gate opening [ns]; gate_ns: gate length [ns] (inf: no gate, and
+            then no noise).
+        noise_per_ns: rate of noise events inside the gate [1/ns].
     Returns:
-        ``(time_ns, anode, index, recorded, slot_start)``: per slot (by shot, then time),
-        ``index`` -1 for noise; ``recorded`` marks the events the detector records.
+        ``(shot, time_ns, anode, index, noise_per_shot)``: the recorded events by shot then
+        time (``index`` -1 for noise), and the noise events generated per shot.
     """
-    n_shots = noise_count.size
-    size = np.empty(n_shots + 1, np.int64)
-    size[0] = 0
-    for s in range(n_shots):
-        size[s + 1] = size[s] + (sig_start[s + 1] - sig_start[s]) + noise_count[s]
-    total = size[n_shots]
-    t_out = np.empty(total, np.float64)
-    a_out = np.empty(total, np.int16)
-    i_out = np.empty(total, sig_index.dtype)
-    rec = np.zeros(total, np.bool_)
-    per_ch = anodes // n_channels
+    n_shots = gate_start.size
+    counts = np.zeros(n_shots + 1, np.int64)
+    noise = np.zeros(n_shots, np.int64)
     for s in numba.prange(n_shots):
-        o, end = size[s], size[s + 1]
-        mn = noise_count[s]
-        g0 = gate_start[s]
-        # signal inside the gate, insertion-sorted into the tail of the shot's slots
-        q = o + mn
-        for j in range(sig_start[s], sig_start[s + 1]):
-            t = sig_time[j]
-            if t >= g0 and t < g0 + gate_ns:
-                k = q - 1
-                while k >= o + mn and t_out[k] > t:
-                    t_out[k + 1] = t_out[k]
-                    a_out[k + 1] = a_out[k]
-                    i_out[k + 1] = i_out[k]
-                    k -= 1
-                t_out[k + 1] = t
-                a_out[k + 1] = sig_anode[j]
-                i_out[k + 1] = sig_index[j]
-                q += 1
-        ms = q - (o + mn)
-        # sorted noise times: cumulative sums of mn + 1 exponentials, normalised
-        total_e = 0.0
-        for j in range(mn + 1):
-            total_e -= np.log(1.0 - _uniform(seed, s, 2 * j))
-        w = o            # write position; the unread signal starts at o + mn + read
-        read = 0
-        acc = 0.0
-        for j in range(mn):
-            acc -= np.log(1.0 - _uniform(seed, s, 2 * j))
-            t = g0 + gate_ns * (acc / total_e)
-            while read < ms and t_out[o + mn + read] <= t:
-                src = o + mn + read
-                t_out[w], a_out[w], i_out[w] = t_out[src], a_out[src], i_out[src]
-                w += 1
-                read += 1
-            t_out[w] = t
-            a_out[w] = min(int(_uniform(seed, s, 2 * j + 1) * anodes), anodes - 1)
-            i_out[w] = -1
-            w += 1
-        while read < ms:
-            src = o + mn + read
-            t_out[w], a_out[w], i_out[w] = t_out[src], a_out[src], i_out[src]
-            w += 1
-            read += 1
-        last = np.full(n_channels, -np.inf)
-        for j in range(o, w):
-            c = a_out[j] // per_ch
-            t = t_out[j]
-            if t - last[c] >= dead_time_ns:
-                rec[j] = True
-                last[c] = t
-            elif paralyzable:
-                last[c] = t
-        for j in range(w, end):   # slots of signal photons the gate dropped
-            t_out[j] = np.inf
-            a_out[j] = 0
-            i_out[j] = -1
-    return t_out, a_out, i_out, rec, size
+        w, t_buf, a_buf, i_buf, r_buf = _run_shot(
+            s, sig_start, sig_time, sig_anode, sig_index, gate_start[s], gate_ns, noise_per_ns,
+            anodes, n_channels, dead_time_ns, paralyzable, seed)
+        c = 0
+        nz = 0
+        for j in range(w):
+            if r_buf[j]:
+                c += 1
+            if i_buf[j] < 0:
+                nz += 1
+        counts[s + 1] = c
+        noise[s] = nz
+    for s in range(n_shots):
+        counts[s + 1] += counts[s]
+    total = counts[n_shots]
+    shot_out = np.empty(total, np.int64)
+    t_out = np.empty(total, np.float64)
+    a_out = np.empty(total, sig_anode.dtype)
+    i_out = np.empty(total, sig_index.dtype)
+    for s in numba.prange(n_shots):
+        if counts[s + 1] == counts[s]:
+            continue
+        w, t_buf, a_buf, i_buf, r_buf = _run_shot(
+            s, sig_start, sig_time, sig_anode, sig_index, gate_start[s], gate_ns, noise_per_ns,
+            anodes, n_channels, dead_time_ns, paralyzable, seed)
+        o = counts[s]
+        for j in range(w):
+            if r_buf[j]:
+                shot_out[o] = s
+                t_out[o] = t_buf[j]
+                a_out[o] = a_buf[j]
+                i_out[o] = i_buf[j]
+                o += 1
+    return shot_out, t_out, a_out, i_out, noise

@@ -52,11 +52,6 @@ class Detections:
         return int(self.shot.size)
 
 
-def shot_weight_sums(shot: np.ndarray, weight: np.ndarray, n_shots: int) -> np.ndarray:
-    """(n_shots,) sum of return weights per shot (float64)."""
-    return np.bincount(shot, weights=np.asarray(weight, np.float64), minlength=n_shots)
-
-
 def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths_per_shot: int,
                     signal_photons: float, rng: np.random.Generator, exchangeable: bool = False,
                     keep_probability: float = 1.0
@@ -89,19 +84,18 @@ def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths
         grouped by shot; (n_shots,) Poisson means ``signal_photons * sum(w) / paths_per_shot``;
         (n_shots,) photons arriving per shot (before fill factor and PDE).
     """
-    shot = np.asarray(shot, np.int64)
-    if shot.size and np.any(np.diff(shot) < 0):
+    shot = np.asarray(shot)
+    w = np.asarray(weight)
+    w_sum, start, w_max, ordered = _deadtime.shot_stats(shot, w, int(n_shots))
+    if not ordered:
         raise ValueError("returns must be sorted by shot")
-    w = np.asarray(weight, np.float64)
-    w_sum = shot_weight_sums(shot, w, n_shots)
     mu = signal_photons * w_sum / paths_per_shot
     counts = rng.poisson(mu)
     kept = rng.binomial(counts, keep_probability) if keep_probability < 1 else counts
     if kept.sum() == 0:
         return np.zeros(0, np.int64), mu, counts
-    start = np.searchsorted(shot, np.arange(n_shots + 1), side="left").astype(np.int64)
-    idx = _deadtime.choose_returns(start, w, float(w.max()), kept.astype(np.int64),
-                                   bool(exchangeable), int(rng.integers(0, 2 ** 31 - 1)))
+    idx = _deadtime.choose_returns(start, w, float(w_max), kept.astype(np.int64),
+                                   bool(exchangeable), int(rng.integers(0, 2 ** 62)))
     return idx, mu, counts
 
 
@@ -131,13 +125,12 @@ def _mask(group, time_ns, dead_time_ns, *, paralyzable):
     return keep
 
 
-def noise_counts(*, n_shots: int, instrument: Instrument, rng: np.random.Generator) -> np.ndarray:
-    """(n_shots,) noise events per shot inside the range gate: background photons reaching the
-    detector, Poisson(``background_mhz * gate``) thinned by fill factor and PDE (still Poisson),
-    plus dark counts, Poisson(``dark_count_hz * gate``) per channel, not thinned."""
-    bg_mean, dc_mean = instrument.noise_per_shot
-    mean = bg_mean * instrument.fill_factor * instrument.pde + dc_mean * instrument.channels
-    return rng.poisson(mean, n_shots).astype(np.int64) if mean > 0 else np.zeros(n_shots, np.int64)
+def noise_rate_per_ns(instrument: Instrument) -> float:
+    """Rate of noise events inside the range gate [1/ns]: background photons reaching the
+    detector (``background_mhz``) thinned by fill factor and PDE, plus the dark counts of every
+    channel (``dark_count_hz``, not thinned). Both are Poisson processes, and so is their sum."""
+    return (instrument.background_mhz * 1e-3 * instrument.fill_factor * instrument.pde
+            + instrument.dark_count_hz * 1e-9 * instrument.channels)
 
 
 def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
@@ -172,23 +165,18 @@ def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
     if gate_center_ns is not None:
         gate_start = np.asarray(gate_center_ns, np.float64) - instrument.range_gate_ns / 2.0
         gate_ns = instrument.range_gate_ns
-        noise = noise_counts(n_shots=n_shots, instrument=instrument, rng=rng)
+        noise_rate = noise_rate_per_ns(instrument)
     else:
-        gate_start, gate_ns = np.zeros(n_shots), np.inf
-        noise = np.zeros(n_shots, np.int64)
-    # narrow types halve the memory the per-shot slots touch (the stage is memory-bound)
+        gate_start, gate_ns, noise_rate = np.zeros(n_shots), np.inf, 0.0
+    # narrow types: less memory to touch (the stage is memory-bound)
     index_type = np.int32 if np.asarray(returns["shot"]).size < 2 ** 31 else np.int64
-    t_all, a_all, i_all, rec, start = _deadtime.detect_shots(
+    shot, time_ns, anode, index, _ = _deadtime.detect_shots(
         sig_start, np.asarray(returns["time_ns"], np.float64)[idx], anode.astype(np.int16),
-        idx.astype(index_type),
-        np.nan_to_num(gate_start, nan=np.inf), float(gate_ns), noise, instrument.anodes,
-        instrument.channels, float(instrument.effective_dead_time_ns), instrument.paralyzable,
-        int(rng.integers(0, 2 ** 62)))
-    sel = np.flatnonzero(rec)
-    shot = np.searchsorted(start, sel, side="right") - 1
-    anode = a_all[sel]
-    index = i_all[sel].astype(np.int64)
+        idx.astype(index_type), np.nan_to_num(gate_start, nan=np.inf), float(gate_ns), noise_rate,
+        instrument.anodes, instrument.channels, float(instrument.effective_dead_time_ns),
+        instrument.paralyzable, int(rng.integers(0, 2 ** 62)))
+    index = index.astype(np.int64)
     return Detections(shot=shot, channel=(anode // instrument.anodes_per_channel).astype(np.int16),
-                      anode=anode, time_ns=t_all[sel], return_index=index,
+                      anode=anode, time_ns=time_ns, return_index=index,
                       is_signal=index >= 0, arrivals_per_shot=counts,
                       mean_photons_per_shot=mu)
