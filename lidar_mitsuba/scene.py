@@ -64,29 +64,47 @@ class Plane:
         yl = np.mod(y_m, self.size_m)
         return xl, yl, self.height_m(x_m, y_m) - self.height_m(xl, yl)
 
-    def to_trimesh(self, *, margin_m: float) -> trimesh.Trimesh:
+    def to_trimesh(self, *, margin_m: float,
+                   bounds_m: tuple[float, float, float, float] | None = None) -> trimesh.Trimesh:
+        """Two triangles covering the tile plus ``margin_m``, or ``bounds_m`` (x0, x1, y0, y1)."""
         lo, hi = -margin_m, self.size_m + margin_m
-        xy = np.array([[lo, lo], [hi, lo], [lo, hi], [hi, hi]])
+        x0, x1, y0, y1 = bounds_m if bounds_m is not None else (lo, hi, lo, hi)
+        xy = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
         v = np.column_stack([xy, self.height_m(xy[:, 0], xy[:, 1])])
         return trimesh.Trimesh(v, np.array([[0, 1, 3], [0, 3, 2]]), process=False)
 
 
-def heightfield_to_trimesh(hf: Heightfield, *, margin_m: float = 0.0) -> trimesh.Trimesh:
+def heightfield_to_trimesh(hf: Heightfield, *, margin_m: float = 0.0,
+                           bounds_m: tuple[float, float, float, float] | None = None
+                           ) -> trimesh.Trimesh:
     """Triangulate a heightfield (two triangles per grid cell, normals up).
 
-    A periodic heightfield is extended by ``margin_m`` on every side with its own periodic
-    copy. Vertices: ``(ny+2p) * (nx+2p)`` with ``p = ceil(margin_m / grid_m) + 1`` when
-    ``margin_m > 0`` (else 0); triangles: twice the cells.
+    Args:
+        hf: the heightfield.
+        margin_m: extension beyond the tile on every side [m] (a periodic heightfield repeats
+            itself there; otherwise the edge heights are repeated).
+        bounds_m: ``(x0, x1, y0, y1)`` [m] to mesh instead of the whole tile plus margin, e.g.
+            the corridor around a ground track; may reach outside the tile (periodic wrap).
+
+    Vertices: one per grid node of the covered area, at x = ix * grid_m (ix may be negative);
+    triangles: twice the cells.
     """
-    pad = int(math.ceil(margin_m / hf.grid_m)) + 1 if margin_m > 0 else 0
-    z = np.pad(hf.z_m, pad, mode="wrap" if hf.periodic else "edge") if pad else hf.z_m
+    g = hf.grid_m
+    if bounds_m is None:
+        bounds_m = (-margin_m, hf.size_x_m + margin_m - g, -margin_m, hf.size_y_m + margin_m - g)
+        if margin_m == 0:
+            bounds_m = (0.0, hf.size_x_m - g, 0.0, hf.size_y_m - g)
+    x0, x1, y0, y1 = bounds_m
+    ix = np.arange(int(np.floor(x0 / g)), int(np.ceil(x1 / g)) + 1)
+    iy = np.arange(int(np.floor(y0 / g)), int(np.ceil(y1 / g)) + 1)
+    if hf.periodic:
+        z = hf.z_m[np.ix_(iy % hf.ny, ix % hf.nx)]
+    else:
+        z = hf.z_m[np.ix_(np.clip(iy, 0, hf.ny - 1), np.clip(ix, 0, hf.nx - 1))]
     ny, nx = z.shape
-    xs = (np.arange(nx) - pad) * hf.grid_m
-    ys = (np.arange(ny) - pad) * hf.grid_m
-    X, Y = np.meshgrid(xs, ys)
+    X, Y = np.meshgrid(ix * g, iy * g)
     vertices = np.column_stack([X.ravel(), Y.ravel(), z.ravel()])
-    i = np.arange(ny - 1)[:, None] * nx + np.arange(nx - 1)[None, :]
-    i = i.ravel()
+    i = (np.arange(ny - 1)[:, None] * nx + np.arange(nx - 1)[None, :]).ravel()
     a, b, c, d = i, i + 1, i + nx, i + nx + 1        # (x,y), (x+1,y), (x,y+1), (x+1,y+1)
     faces = np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
     return trimesh.Trimesh(vertices, faces, process=False)

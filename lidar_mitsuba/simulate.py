@@ -171,7 +171,7 @@ def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | Non
              scene_file: str | None = None, bsdf: dict | None = None, shots: int = 1000,
              seed: int = 0, paths_per_shot: int = 128, max_depth: int = 1,
              variant: str | None = None, progress: bool = True, chunk_shots: int = 65536,
-             keep_returns: bool | None = None) -> SimulationResult:
+             keep_returns: bool | None = None, crop_to_track: bool = True) -> SimulationResult:
     """Simulate ``shots`` laser shots along a ground track and detect their photons.
 
     Args:
@@ -190,6 +190,9 @@ def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | Non
             (plus the detected photons) for any track length.
         keep_returns: keep every traced return in ``result.returns`` (default: only when the
             run traces at most 2^24 paths, about 0.5 GB).
+        crop_to_track: mesh only the corridor the track's photons can reach (the footprints'
+            5 sigma, or the receiver's field of view when ``max_depth > 1``) instead of the
+            whole tile: the same answer from a much smaller mesh. ``False``: the full tile.
     """
     instrument = instrument or Instrument()
     if not isinstance(shots, (int, np.integer)) or not 1 <= shots <= 10 ** 8:
@@ -231,14 +234,25 @@ def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | Non
                                       centre_x_m=size / 2.0, y_m=size / 2.0)
         if isinstance(surf, scn.Plane):
             x_loc, y_loc, dz = surf.wrap(x, y)
-            tm = surf.to_trimesh(margin_m=margin)
         else:
             x_loc, y_loc, dz = scn.heightfield_wrap(surf, x, y)
-            tm = scn.heightfield_to_trimesh(surf, margin_m=margin)
+        # mesh only the corridor the photons can reach: footprints (5 sigma) for single
+        # bounce; the receiver's field of view when paths bounce on
+        reach = margin if max_depth == 1 else max(margin, instrument.fov_diameter_m / 2 + 5.0)
+        bounds = None
+        if crop_to_track:
+            bounds = (float(x_loc.min()) - reach, float(x_loc.max()) + reach,
+                      float(y_loc.min()) - reach, float(y_loc.max()) + reach)
+        if isinstance(surf, scn.Plane):
+            tm = surf.to_trimesh(margin_m=reach, bounds_m=bounds)
+        else:
+            tm = scn.heightfield_to_trimesh(surf, margin_m=reach, bounds_m=bounds)
         scene = scn.scene_from_trimesh(tm, bsdf=bsdf if bsdf is not None else surface.bsdf_dict())
         surface_z = surf.height_m(x, y)
         z_ref = surf.reference_elevation_m(x, y, sigma_m=sigma)
         surf_cfg = asdict(surface)
+        surf_cfg["mesh_triangles"] = int(len(tm.faces))
+        surf_cfg["crop_to_track"] = bool(crop_to_track)
         if bsdf is not None:
             surf_cfg["bsdf"] = repr(bsdf)
     timings["scene_s"] = time.perf_counter() - t0
