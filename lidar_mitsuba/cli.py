@@ -105,12 +105,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="photon paths traced per shot (128)")
     r.add_argument("--max-depth", type=int, default=1, metavar="N",
                    help="surface interactions per path (1: single bounce)")
+    r.add_argument("--full-tile", action="store_true",
+                   help="mesh the whole tile instead of the track's corridor (same photons)")
     o = s.add_argument_group("output")
     o.add_argument("--out", required=True, metavar="FILE.h5", help="ATL03-like HDF5 output")
     o.add_argument("--plot", metavar="FILE.png", help="also write the photon cloud (Fig. 10)")
     o.add_argument("--window", type=int, default=1000, metavar="SHOTS",
                    help="shots per statistics window (1000)")
     o.add_argument("--no-progress", action="store_true", help="no progress bar")
+    o.add_argument("--explain", action="store_true",
+                   help="print the modelling choices the run made (bounces, mesh, sampling)")
 
     st = sub.add_parser("stats", help="elevation bias and precision of a simulated file",
                         description="Bias and precision (mean and std of h - z_ref) of the "
@@ -174,7 +178,7 @@ def _cmd_simulate(a) -> int:
                               rho_d=a.rho_d, rho_s=a.rho_s, alpha=a.alpha)
     res = simulate(instrument=inst, surface=surface, scene_file=a.scene, shots=a.shots,
                    seed=a.seed, paths_per_shot=a.paths_per_shot, max_depth=a.max_depth,
-                   variant=a.variant, progress=not a.no_progress)
+                   variant=a.variant, progress=not a.no_progress, crop_to_track=not a.full_tile)
     atl03.write(res, out)
     rep = res.report(window_shots=a.window)
     what = a.scene or f"{surface.kind} surface"
@@ -182,6 +186,10 @@ def _cmd_simulate(a) -> int:
                                    f"({res.timings_s['total_s']:.1f} s)"))
     if not res.detections.is_signal.all():
         print(_rates_line(res.classification()))
+    if a.explain:
+        print("model:")
+        for line in res.config["choices"]:
+            print(f"  - {line}")
     print(f"wrote {out}")
     if plot is not None:
         from .plotting import photon_cloud

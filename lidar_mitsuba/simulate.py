@@ -319,10 +319,46 @@ def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | Non
     timings["detect_s"] += time.perf_counter() - t3
     timings["total_s"] = time.perf_counter() - t0
 
+    choices = _explain(instrument=instrument, surface=surface, scene_file=scene_file,
+                       max_depth=max_depth, paths_per_shot=paths_per_shot,
+                       crop_to_track=crop_to_track, surf_cfg=surf_cfg, det=det)
     config = {"instrument": instrument.to_dict(), "surface": surf_cfg, "shots": int(shots),
               "seed": int(seed), "paths_per_shot": int(paths_per_shot), "max_depth": int(max_depth),
-              "variant": mi.variant()}
+              "variant": mi.variant(), "choices": choices}
     return SimulationResult(instrument=instrument, config=config, along_track_m=along,
                             shot_x_m=x, shot_y_m=y, surface_z_m=surface_z, z_ref_m=z_ref,
                             detections=det, h_m=h, signal_conf=conf, hit_xyz_m=hit_xyz,
                             returns=returns, timings_s=timings)
+
+
+def _explain(*, instrument, surface, scene_file, max_depth, paths_per_shot, crop_to_track,
+             surf_cfg, det) -> list[str]:
+    """The modelling choices of a run, in words (``lidar-mitsuba simulate --explain``)."""
+    out = []
+    if max_depth == 1:
+        out.append("single bounce (max_depth 1): exact for opaque terrain seen at nadir, where "
+                   "a photon returns along its own incident ray; --max-depth N adds bounces")
+    else:
+        out.append(f"{max_depth} bounces per path with shadow-tested returns toward the receiver")
+    if scene_file is None and surface.kind != "fractal":
+        out.append("plane: two triangles; a track of any length folds into the tile exactly")
+    elif scene_file is None:
+        tri = surf_cfg.get("mesh_triangles")
+        if crop_to_track:
+            out.append(f"mesh cropped to the track corridor: {tri} triangles (the footprints' "
+                       f"5 sigma{'' if max_depth == 1 else ' / the field of view'}); "
+                       f"--full-tile meshes the whole {surface.size_m:g} m tile")
+        else:
+            out.append(f"whole {surface.size_m:g} m tile meshed: {tri} triangles")
+        ratio = instrument.footprint_sigma_m / surface.grid_m
+        out.append(f"mesh spacing {surface.grid_m:g} m = footprint sigma / {ratio:.1f}"
+                   + ("" if ratio >= 2 else ": coarser than the footprint resolves; "
+                      "use a finer --grid-m"))
+    peak = float(np.max(det.mean_photons_per_shot)) if det.mean_photons_per_shot.size else 0.0
+    kept = peak * instrument.fill_factor * instrument.pde
+    msg = (f"{paths_per_shot} paths per shot for up to {peak:.1f} photons per shot "
+           f"({kept:.1f} after fill factor and PDE)")
+    if paths_per_shot < 3 * max(kept, 1e-9):
+        msg += ": too few, photons share paths; raise --paths-per-shot above 3x the photons"
+    out.append(msg)
+    return out

@@ -170,3 +170,18 @@ def test_noise_options_and_segments(tmp_path, capsys):
             assert "units" in f[f"land_ice_segments/{name}"].attrs
     assert call(["segments", str(tmp_path / "none.h5")]) == 2
     assert call(["segments", str(out), "--out", str(tmp_path / "no" / "s.h5")]) == 2
+
+
+def test_explain_reports_choices_and_warns(tmp_path, capsys):
+    out = tmp_path / "e.h5"
+    assert main(["simulate", "--surface", "fractal", "--size-m", "256", "--shots", "200",
+                 "--explain", "--out", str(out), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "single bounce" in text and "corridor" in text and "footprint sigma / 2.5" in text
+    assert "too few" not in text
+    assert main(["simulate", "--surface", "flat", "--shots", "50", "--signal-photons", "300",
+                 "--explain", "--out", str(out), "--no-progress"]) == 0
+    assert "too few, photons share paths" in capsys.readouterr().out
+    assert main(["simulate", "--surface", "fractal", "--size-m", "128", "--shots", "100",
+                 "--full-tile", "--explain", "--out", str(out), "--no-progress"]) == 0
+    assert "whole 128 m tile" in capsys.readouterr().out
