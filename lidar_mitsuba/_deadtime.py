@@ -141,23 +141,18 @@ def choose_returns(start, weight, w_max, need, exchangeable, seed):
                 pos += 1
                 got += 1
         if got < k:                      # fallback: with replacement, by weight
-            total = 0.0
-            for i in range(a, b):
-                total += weight[i]
+            cw = np.empty(m, np.float64)
+            acc = 0.0
+            for i in range(m):
+                acc += weight[a + i]
+                cw[i] = acc
             while got < k:
-                if total <= 0.0:
+                if acc <= 0.0:
                     out[pos] = a
                 else:
-                    u = _uniform(seed, s, r) * total
+                    u = _uniform(seed, s, r) * acc
                     r += 1
-                    acc = 0.0
-                    i = a
-                    while i < b - 1:
-                        acc += weight[i]
-                        if acc > u:
-                            break
-                        i += 1
-                    out[pos] = i
+                    out[pos] = a + min(np.searchsorted(cw, u, side="right"), m - 1)
                 pos += 1
                 got += 1
     return out
@@ -201,14 +196,16 @@ def _shot_events(s, sig_start, sig_time, sig_anode, sig_index, g0, gate_ns, nois
         t = sig_time[j]
         if t >= g0 and t < g0 + gate_ns:
             n_sig += 1
-    # signal inside the gate, insertion-sorted into the tail of the buffers
+    # signal inside the gate, sorted into the tail of the buffers (insertion sort for the
+    # usual handful, argsort for saturating returns)
     base = cap - n_sig
     q = base
+    big = n_sig > _INSERTION_MAX
     for j in range(sig_start[s], sig_start[s + 1]):
         t = sig_time[j]
         if t >= g0 and t < g0 + gate_ns:
             k = q - 1
-            while k >= base and t_buf[k] > t:
+            while not big and k >= base and t_buf[k] > t:
                 t_buf[k + 1] = t_buf[k]
                 a_buf[k + 1] = a_buf[k]
                 i_buf[k + 1] = i_buf[k]
@@ -217,6 +214,11 @@ def _shot_events(s, sig_start, sig_time, sig_anode, sig_index, g0, gate_ns, nois
             a_buf[k + 1] = sig_anode[j]
             i_buf[k + 1] = sig_index[j]
             q += 1
+    if big:
+        perm = np.argsort(t_buf[base:cap], kind="mergesort")
+        t_buf[base:cap] = t_buf[base:cap][perm]
+        a_buf[base:cap] = a_buf[base:cap][perm]
+        i_buf[base:cap] = i_buf[base:cap][perm]
     # noise: a Poisson process over the gate (exponential gaps), merged forward with the
     # sorted signal; the write position must stay behind the unread signal
     w = 0

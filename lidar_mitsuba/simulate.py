@@ -152,6 +152,14 @@ class SimulationResult:
             n_channels=self.instrument.channels, window_shots=window_shots)
 
 
+def _tile_size(surf) -> float:
+    if isinstance(surf, terrain.Heightfield):
+        if surf.size_x_m != surf.size_y_m:
+            raise ParameterError("surface", "heightfields must be square tiles")
+        return float(surf.size_x_m)
+    return float(surf.size_m)
+
+
 def track_positions(n_shots: int, *, spacing_m: float, centre_x_m: float, y_m: float):
     """(along_track_m, x_m, y_m) of ``n_shots`` footprints along +x, centred on ``centre_x_m``."""
     along = np.arange(n_shots) * float(spacing_m)
@@ -167,7 +175,8 @@ def _progress(total: int, desc: str, enabled: bool):
     return bar, bar.update
 
 
-def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | None = None,
+def simulate(*, instrument: Instrument | None = None,
+             surface: SurfaceSpec | terrain.Heightfield | scn.Plane | None = None,
              scene_file: str | None = None, bsdf: dict | None = None, shots: int = 1000,
              seed: int = 0, paths_per_shot: int = 128, max_depth: int = 1,
              variant: str | None = None, progress: bool = True, chunk_shots: int = 65536,
@@ -176,7 +185,9 @@ def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | Non
 
     Args:
         instrument: the lidar (default: strong beam, the paper's parameters).
-        surface: a built-in surface (default: fractal p = 1.8, 10 m relief, Ward snow).
+        surface: a built-in surface (default: fractal p = 1.8, 10 m relief, Ward snow), or
+            a ready :class:`~lidar_mitsuba.terrain.Heightfield` (e.g. your own DEM; periodic or
+            not) or :class:`~lidar_mitsuba.scene.Plane` with the paper's Ward snow (or ``bsdf``).
         scene_file: a Mitsuba XML scene to use instead of ``surface`` (its own BSDFs; z up,
             metres); the track runs along +x through the centre of its bounding box.
         bsdf: a Mitsuba BSDF dict replacing the surface's Ward BSDF (any Mitsuba BSDF).
@@ -228,7 +239,14 @@ def simulate(*, instrument: Instrument | None = None, surface: SurfaceSpec | Non
         surf_cfg = {"scene_file": str(scene_file)}
     else:
         surface = surface or SurfaceSpec()
-        surf = surface.build()
+        if isinstance(surface, SurfaceSpec):
+            surf = surface.build()
+        else:   # a ready Heightfield or Plane
+            surf = surface
+            surface = SurfaceSpec(kind="fractal" if isinstance(surf, terrain.Heightfield)
+                                  else "slope", size_m=_tile_size(surf),
+                                  grid_m=getattr(surf, "grid_m", 1.0),
+                                  slope_deg=getattr(surf, "slope_deg", 0.0))
         size = surface.size_m
         along, x, y = track_positions(shots, spacing_m=instrument.shot_spacing_m,
                                       centre_x_m=size / 2.0, y_m=size / 2.0)

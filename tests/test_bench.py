@@ -9,6 +9,9 @@ def test_bench_quick(tmp_path, capsys):
     assert main(["bench", "--out", str(tmp_path / "b"), "--quick"]) == 0
     doc = json.loads((tmp_path / "b" / "bench.json").read_text())
     assert (tmp_path / "b" / "throughput.png").stat().st_size > 10_000
+    assert (tmp_path / "b" / "stability.png").stat().st_size > 10_000
+    for name, rows in doc["stability"].items():     # every row: a result or a stated status
+        assert rows and all("status" in r for r in rows), name
     for row in doc["detector"]:
         assert math.isfinite(row["events_per_s"]) and row["events_per_s"] > 0
     assert doc["integrator"]["triangles"] > 100_000
