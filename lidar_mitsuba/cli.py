@@ -1,4 +1,4 @@
-"""Command-line interface ``lidar-mitsuba`` (simulate, stats, terrain).
+"""Command-line interface ``lidar-mitsuba`` (simulate, stats, segments, bench, terrain, reproduce).
 
 Bad input is reported as one line naming the option, with exit code 2 and no output file.
 """
@@ -9,6 +9,7 @@ import json
 import os
 import pathlib
 import sys
+import time
 
 PROG = "lidar-mitsuba"
 
@@ -138,6 +139,22 @@ def build_parser() -> argparse.ArgumentParser:
                        "ceiling, end-to-end shots/s. Medians of repeats; ratios within one run.")
     b.add_argument("--out", required=True, metavar="DIR", help="folder for bench.json and PNGs")
     b.add_argument("--quick", action="store_true", help="small sizes (what the tests run)")
+
+    rp = sub.add_parser("reproduce", help="regenerate the paper's results (Figs. 3-13) and "
+                        "compare them with the paper",
+                        description="Rerun the paper's results section at its own sample counts "
+                        "(200,000 flat-plate shots, 50,000 per slope, 1000 per fractal track) and "
+                        "write the 11 figures, report.md and report.json: each figure's quantities, "
+                        "our values with Monte Carlo errors, the paper's values or trends, and "
+                        "whether they agree.")
+    rp.add_argument("--out", required=True, metavar="DIR",
+                    help="folder for the PNGs, report.md and report.json (created if missing; its "
+                    "parent must exist)")
+    rp.add_argument("--quick", action="store_true",
+                    help="fewer shots and configurations, same code (what the tests run)")
+    rp.add_argument("--profile", metavar="FILE",
+                    help="along-track profile to fit p on (Fig. 3): .npy of shape (n, 2) or a "
+                    "two-column text file, distance [m] and height [m]")
 
     t = sub.add_parser("terrain", help="fractal terrain by Fourier synthesis (.npy or .ply)",
                        description="Synthesise a periodic 1/f^p fractal heightfield (paper eqs. 2-4).")
@@ -292,7 +309,7 @@ def _cmd_bench(a) -> int:
     from . import bench
     doc = bench.run(out_dir=out, quick=a.quick)
     print(bench.format_summary(doc))
-    print(f"wrote {out / 'bench.json'} and {out / 'throughput.png'}")
+    print(f"wrote {out / 'bench.json'}, {out / 'throughput.png'} and {out / 'stability.png'}")
     return 0
 
 
@@ -324,6 +341,31 @@ def _cmd_terrain(a) -> int:
     return 0
 
 
+def _cmd_reproduce(a) -> int:
+    started = time.perf_counter()
+    out = pathlib.Path(a.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError("--out", f"{a.out!r} exists and is not a folder")
+    parent = out.parent if str(out.parent) else pathlib.Path(".")
+    if not parent.is_dir():
+        raise UsageError("--out", f"folder {str(parent)!r} does not exist")
+    if not os.access(out if out.exists() else parent, os.W_OK):
+        raise UsageError("--out", f"folder {str(out if out.exists() else parent)!r} is not writable")
+    from . import reproduce
+    profile = None
+    if a.profile is not None:
+        try:
+            profile = reproduce.load_profile(a.profile)
+        except ValueError as e:
+            raise UsageError("--profile", str(e)) from None
+    doc = reproduce.run(out, quick=a.quick, profile=profile,
+                        profile_name=pathlib.Path(a.profile).name if a.profile else None,
+                        log=lambda msg: print(msg, flush=True), started=started)
+    print(reproduce.format_summary(doc))
+    print(f"wrote {out / 'report.md'}, {out / 'report.json'} and {len(reproduce.PNG)} figures")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     prog = f"{PROG} {args.command}"
@@ -331,7 +373,8 @@ def main(argv: list[str] | None = None) -> int:
         from .instrument import ParameterError
         try:
             return {"simulate": _cmd_simulate, "stats": _cmd_stats, "segments": _cmd_segments,
-                    "bench": _cmd_bench, "terrain": _cmd_terrain}[args.command](args)
+                    "bench": _cmd_bench, "terrain": _cmd_terrain,
+                    "reproduce": _cmd_reproduce}[args.command](args)
         except ParameterError as e:
             raise UsageError(_option(e.name), e.message) from None
     except UsageError as e:
