@@ -309,7 +309,8 @@ def _cmd_bench(a) -> int:
     from . import bench
     doc = bench.run(out_dir=out, quick=a.quick)
     print(bench.format_summary(doc))
-    print(f"wrote {out / 'bench.json'}, {out / 'throughput.png'} and {out / 'stability.png'}")
+    print(f"wrote {out / 'bench.json'} and the charts throughput.png, stability.png, "
+          f"accuracy_vs_time.png in {out}")
     return 0
 
 

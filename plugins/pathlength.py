@@ -30,9 +30,11 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
 
      * - max_depth
        - |int|
-       - Number of surface interactions per photon (default 1: exact for opaque terrain seen
-         at nadir). With ``max_depth > 1`` each vertex adds a next-event return toward the
-         receiver (shadow-tested), and the path continues by BSDF sampling.
+       - Number of surface interactions per photon (default 1: the first-surface return,
+         which for opaque terrain seen at nadir comes back along its own incident ray). With
+         ``max_depth > 1`` each vertex adds a next-event return toward the receiver
+         (shadow-tested), and the path continues by BSDF sampling: multiple scattering between
+         terrain facets, on p = 1.8 fractal snow ~0.5 % of the return weight delayed by metres.
      * - altitude_m
        - |float|
        - Height of the spacecraft above the scene's z = 0 [m] (default 496 000).

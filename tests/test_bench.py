@@ -10,6 +10,10 @@ def test_bench_quick(tmp_path, capsys):
     doc = json.loads((tmp_path / "b" / "bench.json").read_text())
     assert (tmp_path / "b" / "throughput.png").stat().st_size > 10_000
     assert (tmp_path / "b" / "stability.png").stat().st_size > 10_000
+    assert (tmp_path / "b" / "accuracy_vs_time.png").stat().st_size > 10_000
+    for name, d in doc["accuracy_vs_time"].items():
+        errs = [r["error_m"] for r in d["rows"]]
+        assert errs and all(math.isfinite(e) and e >= 0 for e in errs), name
     for name, rows in doc["stability"].items():     # every row: a result or a stated status
         assert rows and all("status" in r for r in rows), name
     for row in doc["detector"]:
