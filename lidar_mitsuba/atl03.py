@@ -20,6 +20,7 @@ Files are written atomically: a temporary file in the same folder, renamed on su
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import pathlib
@@ -39,50 +40,59 @@ def write(result, path: str | os.PathLike) -> pathlib.Path:
     inst = result.instrument
     det = result.detections
     n = len(det)
+    with atomic_h5file(path) as f:
+        f.attrs["lidar_mitsuba_version"] = __version__
+        f.attrs["config"] = json.dumps(result.config)
+        f.attrs["description"] = ("Simulated ATL03-like photon data (lidar_mitsuba); "
+                                  "see /truth for the simulation truth.")
+        f.create_dataset("orbit_info/sc_orient", data=np.int8(0))
+        g = f.create_group(f"{BEAM_GROUPS[inst.beam]}/heights")
+        f[BEAM_GROUPS[inst.beam]].attrs["atlas_beam_type"] = inst.beam
+        _ds(g, "h_ph", result.h_m, "meters", "photon elevation: altitude - c t / 2")
+        _ds(g, "delta_time", det.shot / inst.prf_hz, "seconds",
+            "transmit time of the photon's shot since the first shot")
+        _ds(g, "dist_ph_along", result.along_track_m[det.shot], "meters",
+            "along-track distance of the footprint centre from the first shot")
+        _ds(g, "signal_conf_ph", np.repeat(result.signal_conf[:, None], 5, axis=1), "counts",
+            "ATL03 confidence (land, ocean, sea ice, land ice, inland water; the same "
+            "histogram test in every column): 0 noise, 2 low, 3 medium, 4 high")
+        tp = f.create_group("truth/photons")
+        _ds(tp, "shot", det.shot, "1", "shot index")
+        _ds(tp, "channel", det.channel, "1", "detector channel")
+        _ds(tp, "anode", det.anode, "1", "PMT anode segment")
+        _ds(tp, "is_signal", det.is_signal.astype(np.int8), "1", "1 signal, 0 noise")
+        _ds(tp, "time_ns", det.time_ns, "ns", "round-trip time from the pulse centre")
+        _ds(tp, "return_index", det.return_index, "1", "index of the traced return")
+        for j, axis in enumerate(("x", "y", "z")):
+            _ds(tp, f"hit_{axis}_m", result.hit_xyz_m[:, j], "meters",
+                f"{axis} of the scattering point (NaN for noise)")
+        ts = f.create_group("truth/shots")
+        _ds(ts, "along_track_m", result.along_track_m, "meters", "along-track distance")
+        _ds(ts, "x_m", result.shot_x_m, "meters", "footprint centre x")
+        _ds(ts, "y_m", result.shot_y_m, "meters", "footprint centre y")
+        _ds(ts, "z_ref_m", result.z_ref_m, "meters",
+            "reference elevation: Gaussian-footprint-weighted mean height")
+        _ds(ts, "surface_z_m", result.surface_z_m, "meters", "height at the footprint centre")
+        _ds(ts, "arrivals", det.arrivals_per_shot, "1", "photons reaching the detector")
+        _ds(ts, "mean_photons", det.mean_photons_per_shot, "1", "Poisson mean per shot")
+    return path
+
+
+@contextlib.contextmanager
+def atomic_h5file(path: str | os.PathLike):
+    """An ``h5py.File`` open for writing on a temporary file beside ``path``; renamed to
+    ``path`` when the block succeeds, removed when it fails, so a failed write leaves nothing."""
+    path = pathlib.Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
     os.close(fd)
     try:
         with h5py.File(tmp, "w") as f:
-            f.attrs["lidar_mitsuba_version"] = __version__
-            f.attrs["config"] = json.dumps(result.config)
-            f.attrs["description"] = ("Simulated ATL03-like photon data (lidar_mitsuba); "
-                                      "see /truth for the simulation truth.")
-            f.create_dataset("orbit_info/sc_orient", data=np.int8(0))
-            g = f.create_group(f"{BEAM_GROUPS[inst.beam]}/heights")
-            f[BEAM_GROUPS[inst.beam]].attrs["atlas_beam_type"] = inst.beam
-            _ds(g, "h_ph", result.h_m, "meters", "photon elevation: altitude - c t / 2")
-            _ds(g, "delta_time", det.shot / inst.prf_hz, "seconds",
-                "transmit time of the photon's shot since the first shot")
-            _ds(g, "dist_ph_along", result.along_track_m[det.shot], "meters",
-                "along-track distance of the footprint centre from the first shot")
-            _ds(g, "signal_conf_ph", np.repeat(result.signal_conf[:, None], 5, axis=1), "counts",
-                "ATL03 confidence (land, ocean, sea ice, land ice, inland water; the same "
-                "histogram test in every column): 0 noise, 2 low, 3 medium, 4 high")
-            tp = f.create_group("truth/photons")
-            _ds(tp, "shot", det.shot, "1", "shot index")
-            _ds(tp, "channel", det.channel, "1", "detector channel")
-            _ds(tp, "anode", det.anode, "1", "PMT anode segment")
-            _ds(tp, "is_signal", det.is_signal.astype(np.int8), "1", "1 signal, 0 noise")
-            _ds(tp, "time_ns", det.time_ns, "ns", "round-trip time from the pulse centre")
-            _ds(tp, "return_index", det.return_index, "1", "index of the traced return")
-            for j, axis in enumerate(("x", "y", "z")):
-                _ds(tp, f"hit_{axis}_m", result.hit_xyz_m[:, j], "meters",
-                    f"{axis} of the scattering point (NaN for noise)")
-            ts = f.create_group("truth/shots")
-            _ds(ts, "along_track_m", result.along_track_m, "meters", "along-track distance")
-            _ds(ts, "x_m", result.shot_x_m, "meters", "footprint centre x")
-            _ds(ts, "y_m", result.shot_y_m, "meters", "footprint centre y")
-            _ds(ts, "z_ref_m", result.z_ref_m, "meters",
-                "reference elevation: Gaussian-footprint-weighted mean height")
-            _ds(ts, "surface_z_m", result.surface_z_m, "meters", "height at the footprint centre")
-            _ds(ts, "arrivals", det.arrivals_per_shot, "1", "photons reaching the detector")
-            _ds(ts, "mean_photons", det.mean_photons_per_shot, "1", "Poisson mean per shot")
+            yield f
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
-    return path
 
 
 def _ds(group, name, data, units, description):

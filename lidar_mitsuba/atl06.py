@@ -89,7 +89,6 @@ import json
 import math
 import os
 import pathlib
-import tempfile
 from dataclasses import dataclass
 
 import numpy as np
@@ -660,29 +659,21 @@ def write(table: SegmentTable, path: str | os.PathLike, *, attrs: dict | None = 
     ``description``) to ``path`` atomically: a temporary file in the same folder, renamed on
     success and removed on failure. ``attrs``: extra root attributes (JSON-encoded if not
     str/number)."""
-    import h5py
     from . import __version__
+    from .atl03 import atomic_h5file
     path = pathlib.Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    os.close(fd)
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["lidar_mitsuba_version"] = __version__
-            f.attrs["description"] = ("ATL06-like land-ice segments (lidar_mitsuba.atl06): 40 m "
-                                      "segments every 20 m, first-photon-bias corrected")
-            f.attrs["flag_bits"] = json.dumps(FLAG_BITS)
-            for k, v in (attrs or {}).items():
-                f.attrs[k] = v if isinstance(v, (str, int, float)) else json.dumps(v)
-            g = f.create_group("land_ice_segments")
-            for name, (units, desc) in FIELDS.items():
-                ds = g.create_dataset(name, data=np.asarray(getattr(table, name)))
-                ds.attrs["units"] = units
-                ds.attrs["description"] = desc
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_h5file(path) as f:
+        f.attrs["lidar_mitsuba_version"] = __version__
+        f.attrs["description"] = ("ATL06-like land-ice segments (lidar_mitsuba.atl06): 40 m "
+                                  "segments every 20 m, first-photon-bias corrected")
+        f.attrs["flag_bits"] = json.dumps(FLAG_BITS)
+        for k, v in (attrs or {}).items():
+            f.attrs[k] = v if isinstance(v, (str, int, float)) else json.dumps(v)
+        g = f.create_group("land_ice_segments")
+        for name, (units, desc) in FIELDS.items():
+            ds = g.create_dataset(name, data=np.asarray(getattr(table, name)))
+            ds.attrs["units"] = units
+            ds.attrs["description"] = desc
     return path
 
 
