@@ -18,6 +18,7 @@ from scipy import integrate, stats
 
 from lidar_mitsuba import atl06, pmt
 from lidar_mitsuba.instrument import C_M_PER_NS, Instrument
+from reference_loops import loop_nonparalyzable, loop_paralyzable
 
 Z = 4.5
 T0 = 2 * 496e3 / C_M_PER_NS          # round-trip time to h = 0 [ns]
@@ -56,29 +57,6 @@ def paralyzable_detections_per_channel(lam, sigma, tau):
         return lam * stats.norm.pdf(t, scale=sigma) * math.exp(
             -lam * (stats.norm.cdf(t, scale=sigma) - stats.norm.cdf(t - tau, scale=sigma)))
     return integrate.quad(f, -12 * sigma, 12 * sigma + tau, epsabs=1e-13)[0]
-
-
-def loop_nonparalyzable(group, t, dead):
-    """Reference: walk each group's events in time order, one at a time."""
-    keep = np.zeros(t.size, bool)
-    last = {}
-    for i in np.lexsort((t, group)):
-        g = group[i]
-        if g not in last or t[i] >= last[g] + dead:
-            keep[i] = True
-            last[g] = t[i]
-    return keep
-
-
-def loop_paralyzable(group, t, dead):
-    keep = np.zeros(t.size, bool)
-    prev = {}
-    for i in np.lexsort((t, group)):
-        g = group[i]
-        if g not in prev or t[i] - prev[g] >= dead:
-            keep[i] = True
-        prev[g] = t[i]
-    return keep
 
 
 def loop_paralyzable_weights(t, dead, npc):

@@ -13,31 +13,9 @@ from scipy import integrate, stats
 
 from lidar_mitsuba import pmt
 from lidar_mitsuba.instrument import C_M_PER_NS, Instrument
+from reference_loops import loop_nonparalyzable, loop_paralyzable
 
 Z = 4.5
-
-
-def loop_nonparalyzable(group, t, dead):
-    """Reference: walk each group's events in time order, one at a time."""
-    keep = np.zeros(t.size, bool)
-    last = {}
-    for i in np.lexsort((t, group)):
-        g = group[i]
-        if g not in last or t[i] >= last[g] + dead:
-            keep[i] = True
-            last[g] = t[i]
-    return keep
-
-
-def loop_paralyzable(group, t, dead):
-    keep = np.zeros(t.size, bool)
-    prev = {}
-    for i in np.lexsort((t, group)):
-        g = group[i]
-        if g not in prev or t[i] - prev[g] >= dead:
-            keep[i] = True
-        prev[g] = t[i]
-    return keep
 
 
 @pytest.mark.parametrize("dead", [0.0, 0.5, 3.0, 20.0])
