@@ -1,10 +1,10 @@
-"""Compiled kernel of the detector stage (numba): dead time in one pass per shot.
+"""Compiled kernels of the detector stage (numba).
 
 The dead-time decision is sequential within a channel (a non-paralyzable detector is dead after
-each *recorded* event), which numpy can only do in many passes. Here events are sorted by
-(shot, time) with a counting sort on the shot and an insertion sort within it, then each shot is
-scanned once in time order, keeping the last relevant time of each channel; shots run in
-parallel on all cores. ``cache=True`` keeps the compiled code between runs.
+each *recorded* event), which numpy can only do in many passes. Here each shot's events are put
+in time order and scanned once, keeping the last relevant time of each channel; shots run in
+parallel on all cores, with a counter-based RNG so that parallel runs are reproducible.
+``cache=True`` keeps the compiled code between runs.
 """
 from __future__ import annotations
 
@@ -12,70 +12,6 @@ import numba
 import numpy as np
 
 _INSERTION_MAX = 160     # longer shots are sorted with argsort
-
-
-@numba.njit(cache=True, nogil=True, parallel=True)
-def _sort_by_shot_time(shot, time_ns, n_shots):
-    n = shot.size
-    start = np.zeros(n_shots + 1, np.int64)
-    for i in range(n):
-        start[shot[i] + 1] += 1
-    for s in range(n_shots):
-        start[s + 1] += start[s]
-    fill = start[:-1].copy()
-    order = np.empty(n, np.int64)
-    for i in range(n):
-        s = shot[i]
-        order[fill[s]] = i
-        fill[s] += 1
-    for s in numba.prange(n_shots):
-        a, b = start[s], start[s + 1]
-        if b - a > _INSERTION_MAX:
-            sub = order[a:b]
-            order[a:b] = sub[np.argsort(time_ns[sub], kind="mergesort")]
-            continue
-        for j in range(a + 1, b):
-            i = order[j]
-            t = time_ns[i]
-            k = j - 1
-            while k >= a and time_ns[order[k]] > t:
-                order[k + 1] = order[k]
-                k -= 1
-            order[k + 1] = i
-    return order, start
-
-
-@numba.njit(cache=True, nogil=True, parallel=True)
-def record(shot, channel, time_ns, n_shots, n_channels, dead_time_ns, paralyzable):
-    """Which events the detector records, and all events in (shot, time) order.
-
-    Non-paralyzable: an event is recorded when it comes at least ``dead_time_ns`` after the
-    previous *recorded* event of its channel in its shot. Paralyzable: at least
-    ``dead_time_ns`` after the previous event of its channel, recorded or not.
-
-    Args:
-        shot: (n,) int64 in [0, n_shots); channel: (n,) int64 in [0, n_channels);
-        time_ns: (n,) float64.
-    Returns:
-        ``(keep, order)``: (n,) bool, and (n,) int64 indices sorting events by (shot, time).
-    """
-    order, start = _sort_by_shot_time(shot, time_ns, n_shots)
-    keep = np.zeros(shot.size, np.bool_)
-    for s in numba.prange(n_shots):
-        a, b = start[s], start[s + 1]
-        if a == b:
-            continue
-        last = np.full(n_channels, -np.inf)
-        for j in range(a, b):
-            i = order[j]
-            c = channel[i]
-            t = time_ns[i]
-            if t - last[c] >= dead_time_ns:
-                keep[i] = True
-                last[c] = t
-            elif paralyzable:
-                last[c] = t
-    return keep, order
 
 
 @numba.njit(inline="always")

@@ -113,15 +113,24 @@ def paralyzable_mask(group: np.ndarray, time_ns: np.ndarray, dead_time_ns: float
 
 
 def _mask(group, time_ns, dead_time_ns, *, paralyzable):
+    """Both masks run on the detector's own kernel (one group = one 'shot' of one channel,
+    no gate, no noise), so the plain-loop tests of the masks test what ``detect`` uses."""
     group = np.asarray(group, np.int64)
+    time_ns = np.asarray(time_ns, np.float64)
     if group.size == 0:
         return np.zeros(0, bool)
     if dead_time_ns <= 0:
         return np.ones(group.size, bool)
-    _, inverse = np.unique(group, return_inverse=True)   # compact ids for the counting sort
-    inverse = inverse.astype(np.int64)
-    keep, _ = _deadtime.record(inverse, np.zeros_like(inverse), np.asarray(time_ns, np.float64),
-                               int(inverse.max()) + 1, 1, float(dead_time_ns), paralyzable)
+    _, inverse = np.unique(group, return_inverse=True)
+    order = np.argsort(inverse, kind="stable")        # grouped, input order kept for ties
+    n_groups = int(inverse.max()) + 1
+    start = np.searchsorted(inverse[order], np.arange(n_groups + 1)).astype(np.int64)
+    *_, index, _ = _deadtime.detect_shots(
+        start, time_ns[order], np.zeros(group.size, np.int16), order.astype(np.int64),
+        np.full(n_groups, float(time_ns.min())), np.inf, 0.0, 1, 1, float(dead_time_ns),
+        paralyzable, 0)
+    keep = np.zeros(group.size, bool)
+    keep[index] = True
     return keep
 
 
