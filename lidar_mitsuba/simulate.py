@@ -71,17 +71,14 @@ class SurfaceSpec:
             raise ParameterError("grid_m", f"must be > 0 (got {self.grid_m})")
         if self.kind == "fractal":
             try:   # the fractal's own checks, without building it
-                n = round(self.size_m / self.grid_m)
-                if not 8 <= n <= 8192:
-                    raise ValueError(f"size_m / grid_m must give 8 to 8192 grid points (got {n})")
-                if not (math.isfinite(self.p) and 0 < self.p <= 5):
-                    raise ValueError(f"p must be in (0, 5] (got {self.p})")
-                if not (math.isfinite(self.relief_m) and 0 <= self.relief_m <= 1e4):
-                    raise ValueError(f"relief_m must be in [0, 1e4] (got {self.relief_m})")
-            except ValueError as e:
-                name = str(e).split()[0]
-                name = "grid_m" if name == "size_m" else name
-                raise ParameterError(name, str(e).split(" ", 1)[1]) from None
+                terrain.check_fractal_parameters(p=self.p, size_m=self.size_m,
+                                                 grid_m=self.grid_m, relief_m=self.relief_m)
+            except ValueError as e:   # name the option: the grid count is set by --grid-m
+                text = str(e)
+                name = "grid_m" if text.startswith("size_m / grid_m") else text.split()[0]
+                raise ParameterError(name, text) from None
+            if self.relief_m > 1e4:
+                raise ParameterError("relief_m", f"must be in [0, 1e4] (got {self.relief_m})")
 
     def bsdf_dict(self) -> dict:
         return scn.ward_bsdf_dict(rho_d=self.rho_d, rho_s=self.rho_s, alpha=self.alpha)

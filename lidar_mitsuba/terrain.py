@@ -256,6 +256,19 @@ def flat(*, size_m: float = 1024.0, grid_m: float = 1.0, z_m: float = 0.0) -> He
     return Heightfield(z_m=z, grid_m=float(grid_m), periodic=True)
 
 
+def check_fractal_parameters(*, p: float, size_m: float, grid_m: float, relief_m: float) -> int:
+    """Validate the parameters of :func:`fractal` without building it; returns N (nodes per
+    side). Raises ``ValueError`` whose message starts with the parameter's name."""
+    pf = float(p)
+    if not (math.isfinite(pf) and 0.0 < pf <= 5.0):
+        raise ValueError(f"p must be in (0, 5] (got {p})")
+    n = _grid_count(size_m, grid_m)
+    rel = float(relief_m)
+    if not (math.isfinite(rel) and rel >= 0.0):
+        raise ValueError(f"relief_m must be >= 0 (got {relief_m})")
+    return n
+
+
 def fractal(
     *,
     p: float = 1.8,
@@ -293,13 +306,8 @@ def fractal(
     -------
     Heightfield with z_m of shape (N, N), zero mean, periodic=True.
     """
-    pf = float(p)
-    if not (math.isfinite(pf) and 0.0 < pf <= 5.0):
-        raise ValueError(f"p must be in (0, 5] (got {p})")
-    n = _grid_count(size_m, grid_m)
-    rel = float(relief_m)
-    if not (math.isfinite(rel) and rel >= 0.0):
-        raise ValueError(f"relief_m must be >= 0 (got {relief_m})")
+    n = check_fractal_parameters(p=p, size_m=size_m, grid_m=grid_m, relief_m=relief_m)
+    pf, rel = float(p), float(relief_m)
     if seed is not None and not isinstance(seed, (int, np.integer)):
         raise ValueError(f"seed must be an int or None (got {seed!r})")
 
