@@ -5,7 +5,9 @@ after a warm-up (kernel caches, numba), and ratios are taken within one run, sin
 machines are noisy; the detector also reports its best repetition, because on these VMs the
 cost of faulting in freshly allocated memory varies two- to threefold between identical runs.
 Also runs the stability sweeps of :mod:`lidar_mitsuba.stability` (``stability.png``) and the
-accuracy-against-time study of :mod:`lidar_mitsuba.pareto` (``accuracy_vs_time.png``). Writes ``DIR/bench.json`` and ``DIR/throughput.png`` and returns a summary.
+accuracy-against-time study and the simplification table of :mod:`lidar_mitsuba.pareto`
+(``accuracy_vs_time.png``), and the mitransient peer comparison of :mod:`lidar_mitsuba.peer`
+(``peer.png``; skipped with a note when mitransient is not installed). Writes ``DIR/bench.json`` and ``DIR/throughput.png`` and returns a summary.
 """
 from __future__ import annotations
 
@@ -178,13 +180,16 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False) -> dict:
            "machine": platform.platform(), "drjit": dr.__version__, "mitsuba": mi.__version__,
            "detector": bench_detector(quick=quick), "integrator": bench_integrator(quick=quick),
            "end_to_end": bench_end_to_end(quick=quick)}
-    from . import pareto, stability
+    from . import pareto, peer, stability
     doc["stability"] = stability.run_all(quick=quick)
     doc["accuracy_vs_time"] = pareto.run(quick=quick)
+    doc["simplifications"] = pareto.simplifications(quick=quick)
+    doc["peer"] = peer.run(quick=quick)
     (out / "bench.json").write_text(json.dumps(doc, indent=1, default=float))
     _chart(doc, out / "throughput.png")
     stability.chart(doc["stability"], out / "stability.png")
     pareto.chart(doc["accuracy_vs_time"], out / "accuracy_vs_time.png")
+    peer.chart(doc["peer"], out / "peer.png")
     return doc
 
 
@@ -204,11 +209,17 @@ def format_summary(doc: dict) -> str:
     for r in doc["end_to_end"]:
         lines.append(f"end to end, {r['beam']} beam: {r['shots_per_s']:.0f} shots/s "
                      f"({r['shots']} shots in {r['seconds']:.2f} s)")
+    from . import pareto
     from .pareto import pareto_front
     for name, d in doc.get("accuracy_vs_time", {}).items():
         front = ", ".join(f"{r['knob']}={r['value']:g}: {100 * r['error_m']:.2f} cm in "
                           f"{r['seconds']:.2f} s" for r in pareto_front(d["rows"]))
         lines.append(f"accuracy vs time, {name} (Pareto front): {front}")
+    if "simplifications" in doc:
+        lines.append(pareto.format_simplifications(doc["simplifications"]))
+    if "peer" in doc:
+        from .peer import format_summary as peer_summary
+        lines.append(peer_summary(doc["peer"]))
     for name, rows in doc.get("stability", {}).items():
         bad = [f"{r['value']:g}: {r['status']}" for r in rows
                if not str(r.get("status", "ok")).startswith("ok")]

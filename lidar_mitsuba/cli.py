@@ -136,7 +136,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("bench", help="throughput benchmarks (charts and bench.json)",
                        description="Benchmarks: detector events/s, integrator vs the ray-cast "
-                       "ceiling, end-to-end shots/s. Medians of repeats; ratios within one run.")
+                       "ceiling, end-to-end shots/s, accuracy against time, stability sweeps, "
+                       "the cost of each model simplification, and the mitransient peer "
+                       "comparison (pip install 'lidar_mitsuba[bench]'). Medians of repeats; "
+                       "ratios within one run.")
     b.add_argument("--out", required=True, metavar="DIR", help="folder for bench.json and PNGs")
     b.add_argument("--quick", action="store_true", help="small sizes (what the tests run)")
 
@@ -310,7 +313,8 @@ def _cmd_bench(a) -> int:
     doc = bench.run(out_dir=out, quick=a.quick)
     print(bench.format_summary(doc))
     print(f"wrote {out / 'bench.json'} and the charts throughput.png, stability.png, "
-          f"accuracy_vs_time.png in {out}")
+          f"accuracy_vs_time.png" + (", peer.png" if "rows" in doc.get("peer", {}) else "")
+          + f" in {out}")
     return 0
 
 

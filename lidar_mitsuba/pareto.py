@@ -150,3 +150,71 @@ def chart(results: dict, path) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+# --------------------------------------------------------------------------- simplifications
+SIMPLIFICATIONS = {
+    "corridor crop (vs the full tile)": {"crop_to_track": False},
+    "1 m mesh (vs 0.5 m)": {"grid_m": 0.5},
+    "single bounce (vs max_depth 2)": {"max_depth": 2},
+}
+
+
+def simplifications(*, quick: bool = False) -> dict:
+    """Each simplification the simulator makes by default, against the full model, on the
+    default run (the README demo: p = 1.8 fractal, weak beam, 1000 shots, real detector).
+
+    Paired design: for each seed the default and the full model see the same random numbers,
+    so the mean paired difference (with its standard error over seeds) is the error the
+    simplification adds, and the spread of the default run over seeds is its Monte Carlo
+    error. Verdict "below" when |mean difference| + 2 SE is under the Monte Carlo error of
+    bias and of precision, "above" when |mean difference| - 2 SE exceeds it, else "comparable".
+    """
+    seeds = range(1, 5 if quick else 13)
+    shots = 500 if quick else 1000
+    spec = SurfaceSpec()                            # the default surface, on a 0.5 m grid
+    fine = fractal(p=spec.p, size_m=spec.size_m, grid_m=0.5, relief_m=spec.relief_m, seed=0)
+    track = {"kind": "fractal", "fine": fine}
+
+    def one(seed, grid_m=1.0, max_depth=1, crop_to_track=True):
+        res = simulate(instrument=Instrument(beam="weak"), surface=_surface(track, grid_m),
+                       shots=shots, seed=seed, max_depth=max_depth, crop_to_track=crop_to_track,
+                       progress=False, keep_returns=False)
+        st = res.report().overall
+        return st.bias_m, st.std_m
+
+    one(0)                                          # warm-up (compilation)
+    base = np.array([one(s) for s in seeds])        # (seeds, 2): bias, std [m]
+    mc = base.std(axis=0, ddof=1)
+    rows = []
+    for name, full_cfg in SIMPLIFICATIONS.items():
+        d = np.array([one(s, **full_cfg) for s in seeds]) - base
+        mean, se = d.mean(axis=0), d.std(axis=0, ddof=1) / math.sqrt(len(seeds))
+        verdict = []
+        for k in range(2):
+            if abs(mean[k]) + 2 * se[k] < mc[k]:
+                verdict.append("below")
+            elif abs(mean[k]) - 2 * se[k] > mc[k]:
+                verdict.append("above")
+            else:
+                verdict.append("comparable")
+        rows.append({"simplification": name, "full_model": full_cfg,
+                     "d_bias_m": float(mean[0]), "d_bias_se_m": float(se[0]),
+                     "d_std_m": float(mean[1]), "d_std_se_m": float(se[1]),
+                     "verdict_bias": verdict[0], "verdict_std": verdict[1]})
+    return {"run": f"fractal p=1.8, 10 m relief on 1024 m (0.5 m terrain, decimated), weak "
+                   f"beam, {shots} shots, "
+                   f"{len(seeds)} seeds",
+            "mc_bias_m": float(mc[0]), "mc_std_m": float(mc[1]),
+            "bias_m": float(base[:, 0].mean()), "std_m": float(base[:, 1].mean()), "rows": rows}
+
+
+def format_simplifications(doc: dict) -> str:
+    lines = [f"simplifications of the default run ({doc['run']}): Monte Carlo error of one run "
+             f"{100 * doc['mc_bias_m']:.2f} cm (bias), {100 * doc['mc_std_m']:.2f} cm (precision)"]
+    for r in doc["rows"]:
+        lines.append(f"  {r['simplification']:<34} bias {100 * r['d_bias_m']:+.3f} "
+                     f"+- {100 * r['d_bias_se_m']:.3f} cm ({r['verdict_bias']}), precision "
+                     f"{100 * r['d_std_m']:+.3f} +- {100 * r['d_std_se_m']:.3f} cm "
+                     f"({r['verdict_std']})")
+    return "\n".join(lines)

@@ -21,4 +21,13 @@ def test_bench_quick(tmp_path, capsys):
     assert doc["integrator"]["triangles"] > 100_000
     assert 0 < doc["integrator"]["ratio_to_ceiling"] < 10
     assert all(r["shots_per_s"] > 0 for r in doc["end_to_end"])
-    assert "M events/s" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "M events/s" in out and "simplifications of the default run" in out
+    simp = doc["simplifications"]
+    assert simp["mc_std_m"] > 0 and len(simp["rows"]) == 3
+    crop = simp["rows"][0]        # the corridor crop is exact: photon for photon the same
+    assert crop["d_bias_m"] == 0.0 and crop["d_std_m"] == 0.0
+    if "rows" in doc["peer"]:     # mitransient installed (the test extra has it)
+        assert (tmp_path / "b" / "peer.png").stat().st_size > 10_000
+        assert all(math.isfinite(r["error"]) and r["seconds"] > 0 for r in doc["peer"]["rows"])
+        assert "peer comparison (mitransient)" in out
