@@ -209,17 +209,15 @@ def format_summary(doc: dict) -> str:
     for r in doc["end_to_end"]:
         lines.append(f"end to end, {r['beam']} beam: {r['shots_per_s']:.0f} shots/s "
                      f"({r['shots']} shots in {r['seconds']:.2f} s)")
-    from . import pareto
-    from .pareto import pareto_front
+    from . import pareto, peer
     for name, d in doc.get("accuracy_vs_time", {}).items():
         front = ", ".join(f"{r['knob']}={r['value']:g}: {100 * r['error_m']:.2f} cm in "
-                          f"{r['seconds']:.2f} s" for r in pareto_front(d["rows"]))
+                          f"{r['seconds']:.2f} s" for r in pareto.pareto_front(d["rows"]))
         lines.append(f"accuracy vs time, {name} (Pareto front): {front}")
     if "simplifications" in doc:
         lines.append(pareto.format_simplifications(doc["simplifications"]))
     if "peer" in doc:
-        from .peer import format_summary as peer_summary
-        lines.append(peer_summary(doc["peer"]))
+        lines.append(peer.format_summary(doc["peer"]))
     for name, rows in doc.get("stability", {}).items():
         bad = [f"{r['value']:g}: {r['status']}" for r in rows
                if not str(r.get("status", "ok")).startswith("ok")]

@@ -158,21 +158,36 @@ def _coarse(fine: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- the two tools
-class _Ours:
+class _Tool:
+    """The OPL window of one tool on one plate: ``n_fine`` impulse bins of ``FINE_BIN_M``
+    from ``lo`` [m], the coarse comparison ``edges`` [m], and the exact ``reference()``."""
+    geometry = ""
+
+    def __init__(self, slope_deg: float, *, range_m: float, centre_m: float,
+                 float32_start: bool = False):
+        self.slope_deg, self.range_m, self.centre_m = slope_deg, range_m, centre_m
+        half, _ = _window(slope_deg)
+        self.n_fine = int(round(2 * half / COARSE_BIN_M)) * FINE_PER_COARSE
+        lo = centre_m - half
+        self.lo = float(np.float32(lo)) if float32_start else lo
+        self.edges = self.lo + COARSE_BIN_M * np.arange(self.n_fine // FINE_PER_COARSE + 1)
+
+    def reference(self) -> np.ndarray:
+        return reference(self.edges, slope_deg=self.slope_deg, altitude_m=self.range_m,
+                         geometry=self.geometry)
+
+
+class _Ours(_Tool):
+    geometry = "parallel"
+
     def __init__(self, slope_deg: float, *, pulse: bool, z0_m: float = PLATE_Z0_M,
                  range_m: float = ORBIT_M):
+        super().__init__(slope_deg, range_m=range_m, centre_m=2.0 * range_m)
         self.scene = mi.load_dict({"type": "scene", "plate": _plate_mesh(slope_deg, z0_m)})
-        self.altitude_m = z0_m + range_m
-        self.integ = mi.load_dict({"type": "pathlength", "altitude_m": self.altitude_m,
+        self.integ = mi.load_dict({"type": "pathlength", "altitude_m": z0_m + range_m,
                                    "footprint_sigma_m": FOOTPRINT_SIGMA_M,
                                    "pulse_sigma_ns": PULSE_SIGMA_NS if pulse else 0.0})
         self.pulse = pulse
-        half, _ = _window(slope_deg)
-        self.center = 2.0 * range_m
-        n_fine = int(round(2 * half / COARSE_BIN_M)) * FINE_PER_COARSE
-        self.lo = self.center - half
-        self.n_fine = n_fine
-        self.edges = self.lo + COARSE_BIN_M * np.arange(n_fine // FINE_PER_COARSE + 1)
 
     def run(self, n_paths: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
         k = 256
@@ -186,28 +201,26 @@ class _Ours:
             return h / max(h.sum(), 1e-300), None
         pos = (opl - self.lo) / FINE_BIN_M - 0.5          # cloud-in-cell onto bin centres
         i0 = np.floor(pos).astype(np.int64)
-        f = pos - i0
-        fine = np.zeros(self.n_fine + 2)
         ok = (i0 >= -1) & (i0 < self.n_fine)
-        fine += np.bincount(i0[ok] + 1, w[ok] * (1 - f[ok]), minlength=self.n_fine + 2)
-        fine += np.bincount(i0[ok] + 2, w[ok] * f[ok], minlength=self.n_fine + 2)[:self.n_fine + 2]
-        fine = fine[1:self.n_fine + 1]
+        i0, f, w = i0[ok], pos[ok] - i0[ok], w[ok]
+        n = self.n_fine + 2                               # one guard bin at either end
+        fine = (np.bincount(i0 + 1, w * (1 - f), minlength=n)
+                + np.bincount(i0 + 2, w * f, minlength=n))[1:-1]
         return _coarse(fine), fine
 
 
-class _Mitransient:
+class _Mitransient(_Tool):
+    geometry = "projector"
+
     def __init__(self, slope_deg: float, *, altitude_m: float, z0_m: float = PLATE_Z0_M):
         _import_mitransient()
-        self.altitude_m = altitude_m
-        half, _ = _window(slope_deg)
+        # the film stores start_opl in float32
+        super().__init__(slope_deg, range_m=altitude_m, centre_m=2.0 * altitude_m - NEAR_CLIP_M,
+                         float32_start=True)
         fov = 2.0 * math.degrees(math.atan(WINDOW_SIGMAS * FOOTPRINT_SIGMA_M / altitude_m))
         npx = 1024
         u = ((np.arange(npx) + 0.5) / npx * 2 - 1) * WINDOW_SIGMAS
         g = np.exp(-0.5 * (u[:, None] ** 2 + u[None, :] ** 2)).astype(np.float32)
-        n_fine = int(round(2 * half / COARSE_BIN_M)) * FINE_PER_COARSE
-        center = 2.0 * altitude_m - NEAR_CLIP_M
-        self.lo = float(np.float32(center - half))     # the film stores start_opl in float32
-        self.n_fine = n_fine
         eye = [0.0, 0.0, z0_m + altitude_m]
         look = mi.ScalarTransform4f().look_at(origin=eye, target=[0.0, 0.0, z0_m],
                                               up=[0.0, 1.0, 0.0])
@@ -219,11 +232,10 @@ class _Mitransient:
             "sensor": {"type": "perspective", "fov": fov, "to_world": look,
                        "near_clip": NEAR_CLIP_M, "far_clip": 4.0 * altitude_m,
                        "film": {"type": "transient_hdr_film", "width": 1, "height": 1,
-                                "temporal_bins": n_fine, "bin_width_opl": FINE_BIN_M,
+                                "temporal_bins": self.n_fine, "bin_width_opl": FINE_BIN_M,
                                 "start_opl": self.lo, "rfilter": {"type": "box"}},
                        "sampler": {"type": "independent", "sample_count": 1}}})
         self.integ = mi.load_dict({"type": "transient_path", "max_depth": 2})
-        self.edges = self.lo + COARSE_BIN_M * np.arange(n_fine // FINE_PER_COARSE + 1)
 
     def run(self, n_paths: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
         _, transient = self.integ.render(self.scene, spp=int(n_paths), seed=seed)
@@ -259,9 +271,7 @@ def run(*, quick: bool = False, progress=None) -> dict:
         plate = f"{slope:g} deg plate"
         for name, make in tools.items():
             tool = make(slope)
-            geometry = "parallel" if name.startswith("lidar") else "projector"
-            alt = ORBIT_M if geometry == "parallel" else tool.altitude_m
-            ref = reference(tool.edges, slope_deg=slope, altitude_m=alt, geometry=geometry)
+            ref = tool.reference()
             tool.run(2 ** exps[0], 0)                      # compile
             for e in exps:
                 n = 2 ** e
@@ -282,9 +292,7 @@ def run(*, quick: bool = False, progress=None) -> dict:
                     progress(rows[-1])
             if slope > 0 and fine is not None:
                 waveforms[name] = {"lo_m": tool.lo, "bin_m": FINE_BIN_M,
-                                   "center_m": 2.0 * alt - (0 if geometry == "parallel"
-                                                            else NEAR_CLIP_M),
-                                   "fine": fine.tolist()}
+                                   "center_m": tool.centre_m, "fine": fine.tolist()}
     return {"rows": rows, "ratios": speed_ratios(rows), "waveforms": waveforms,
             "float32_sweep": float32_sweep(n_ranges=4 if quick else 12),
             "fine_bin_m": FINE_BIN_M, "coarse_bin_m": COARSE_BIN_M,
@@ -299,12 +307,10 @@ def float32_sweep(*, n_ranges: int = 12, paths: int = 2 ** 16) -> list[dict]:
     out = []
     for range_m in np.round(ORBIT_M + rng.uniform(0.0, 1000.0, n_ranges), 4):
         row = {"range_m": float(range_m)}
-        for key, tool, geometry in (
-                ("ours_bias_m", _Ours(0.0, pulse=False, range_m=range_m), "parallel"),
-                ("mitransient_bias_m", _Mitransient(0.0, altitude_m=range_m), "projector")):
-            ref = reference(tool.edges, slope_deg=0.0, altitude_m=range_m, geometry=geometry)
+        for key, tool in (("ours_bias_m", _Ours(0.0, pulse=False, range_m=range_m)),
+                          ("mitransient_bias_m", _Mitransient(0.0, altitude_m=range_m))):
             h, _ = tool.run(paths, 1)
-            row[key] = _error(h, ref, tool.edges)[1]
+            row[key] = _error(h, tool.reference(), tool.edges)[1]
         out.append(row)
     return out
 

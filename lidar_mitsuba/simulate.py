@@ -350,7 +350,8 @@ def _explain(*, instrument, surface, scene_file, max_depth, paths_per_shot, crop
              surf_cfg, det) -> list[str]:
     """The modelling choices of a run, in words (``lidar-mitsuba simulate --explain``)."""
     out = []
-    if max_depth == 1 and scene_file is None and surface.kind != "fractal":
+    plane = scene_file is None and surface.kind != "fractal"
+    if max_depth == 1 and plane:
         out.append("single bounce (max_depth 1): exact for a plane, where nothing bounces twice")
     elif max_depth == 1:
         out.append("single bounce (max_depth 1, the paper's model): each photon's first-surface "
@@ -362,7 +363,7 @@ def _explain(*, instrument, surface, scene_file, max_depth, paths_per_shot, crop
                    "--max-depth 2 adds it for ~1.3x the time")
     else:
         out.append(f"{max_depth} bounces per path with shadow-tested returns toward the receiver")
-    if scene_file is None and surface.kind != "fractal":
+    if plane:
         out.append("plane: two triangles; a track of any length folds into the tile exactly")
     elif scene_file is None:
         tri = surf_cfg.get("mesh_triangles")
