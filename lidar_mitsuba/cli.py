@@ -223,17 +223,22 @@ def _cmd_simulate(a) -> int:
     return 0
 
 
+def _read_input(path: str, reader):
+    """``reader(path)`` for the FILE argument; a missing or unreadable file is a usage error."""
+    if not pathlib.Path(path).is_file():
+        raise UsageError("FILE", f"{path!r} not found")
+    try:
+        return reader(path)
+    except (OSError, ValueError, KeyError) as e:
+        raise UsageError("FILE", f"cannot read {path!r} ({str(e).splitlines()[0]})") from None
+
+
 def _cmd_stats(a) -> int:
     if a.window < 1:
         raise UsageError("--window", f"must be >= 1 (got {a.window})")
-    if not pathlib.Path(a.file).is_file():
-        raise UsageError("FILE", f"{a.file!r} not found")
     from . import atl03
     from .retrieval import elevation_report, format_report
-    try:
-        d = atl03.read(a.file)
-    except (OSError, ValueError, KeyError) as e:
-        raise UsageError("FILE", f"cannot read {a.file!r} ({str(e).splitlines()[0]})") from None
+    d = _read_input(a.file, atl03.read)
     sig = d["is_signal"]
     dh = d["h_m"] - d["z_ref_m"][d["shot"]]
     rep = elevation_report(dh_m=dh[sig], shot=d["shot"][sig], channel=d["channel"][sig],
@@ -271,13 +276,8 @@ def _finite(obj):
 
 def _cmd_segments(a) -> int:
     out = _out_path(a.out, (".h5", ".hdf5")) if a.out else None
-    if not pathlib.Path(a.file).is_file():
-        raise UsageError("FILE", f"{a.file!r} not found")
     from . import atl06
-    try:
-        table = atl06.segments_from_atl03(a.file)
-    except (OSError, ValueError, KeyError) as e:
-        raise UsageError("FILE", f"cannot read {a.file!r} ({str(e).splitlines()[0]})") from None
+    table = _read_input(a.file, atl06.segments_from_atl03)
     summary = atl06.summarize(table)
     if out is not None:
         atl06.write(table, out)
