@@ -54,6 +54,15 @@ def _dead_time(value: str) -> float:
             f"not a number or a preset ({', '.join(DEAD_TIME_PRESETS_NS)}): {value!r}") from None
 
 
+def _max_depth(value: str):
+    if value == "auto":
+        return value
+    try:
+        return int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer or 'auto': {value!r}") from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="Physically based simulation of a spaceborne "
                 "photon-counting lidar (ICESat-2/ATLAS-like) with Mitsuba 3.")
@@ -104,8 +113,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Mitsuba variant: llvm_ad_mono (CPU, default) or cuda_ad_mono (GPU)")
     r.add_argument("--paths-per-shot", type=int, default=128, metavar="N",
                    help="photon paths traced per shot (128)")
-    r.add_argument("--max-depth", type=int, default=1, metavar="N",
-                   help="surface interactions per path (1: single bounce)")
+    r.add_argument("--max-depth", type=_max_depth, default="auto", metavar="N",
+                   help="surface interactions per path (1: single bounce), or auto: 1 on "
+                   "planes, elsewhere 2 unless a pilot shows single bounce keeps the answer "
+                   "(auto)")
     r.add_argument("--full-tile", action="store_true",
                    help="mesh the whole tile instead of the track's corridor (same photons)")
     o = s.add_argument_group("output")

@@ -131,7 +131,8 @@ def summarize(res: SimulationResult) -> dict:
 
 def sweep(*, variants: Mapping[str, dict], surfaces: Sequence[SurfaceSpec], shots: int,
           seed: int = 0, beam: str | Instrument = "strong", ideal_detector: bool | None = None,
-          paths_per_shot: int = 128, progress: bool = False) -> list[dict]:
+          paths_per_shot: int = 128, max_depth: int | str = 1,
+          progress: bool = False) -> list[dict]:
     """Simulate every BRDF variant on every surface and summarise each run.
 
     Args:
@@ -144,13 +145,18 @@ def sweep(*, variants: Mapping[str, dict], surfaces: Sequence[SurfaceSpec], shot
         beam: ``"strong"``, ``"weak"`` or an :class:`~lidar_mitsuba.instrument.Instrument`.
         ideal_detector: override the instrument's dead time (``True``: none); ``None`` keeps it.
         paths_per_shot: traced photon paths per shot.
+        max_depth: surface interactions per path. Default 1: every BRDF under one model (the
+            paper's single bounce), so that common random numbers pair the runs; 2 adds
+            multiple scattering; ``"auto"`` lets each run choose (see
+            :func:`~lidar_mitsuba.simulate.simulate`), which may differ between BRDFs.
         progress: print one line per run.
 
     Returns:
         ``len(surfaces) * len(variants)`` rows (surface-major), each a dict with ``variant``,
         ``bsdf`` (the BSDF's plugin type), ``beam``, ``ideal_detector``, ``dead_time_ns``
         [ns], ``kind``, ``slope_deg`` [deg], ``p`` (NaN off fractals), ``relief_m`` [m],
-        ``size_m`` [m], ``terrain_seed``, ``seed``, ``time_s`` [s] and the fields of
+        ``size_m`` [m], ``terrain_seed``, ``seed``, ``max_depth`` (the one used),
+        ``time_s`` [s] and the fields of
         :func:`summarize` (``shots``, ``n_photons``, ``photons_per_shot``,
         ``photons_per_shot_err``, ``return_weight``, ``bias_m``, ``bias_err_m``, ``std_m``,
         ``std_err_m``).
@@ -163,7 +169,8 @@ def sweep(*, variants: Mapping[str, dict], surfaces: Sequence[SurfaceSpec], shot
         for name, bsdf in variants.items():
             t0 = time.perf_counter()
             res = simulate(instrument=inst, surface=surface, bsdf=dict(bsdf), shots=shots,
-                           seed=seed, paths_per_shot=paths_per_shot, progress=False)
+                           seed=seed, paths_per_shot=paths_per_shot, max_depth=max_depth,
+                           progress=False)
             row = {"variant": name, "bsdf": str(bsdf.get("type", "")), "beam": inst.beam,
                    "ideal_detector": inst.ideal_detector,
                    "dead_time_ns": float(inst.effective_dead_time_ns), "kind": surface.kind,
@@ -171,7 +178,7 @@ def sweep(*, variants: Mapping[str, dict], surfaces: Sequence[SurfaceSpec], shot
                    "p": float(surface.p) if surface.kind == "fractal" else math.nan,
                    "relief_m": float(surface.relief_m) if surface.kind == "fractal" else 0.0,
                    "size_m": float(surface.size_m), "terrain_seed": int(surface.terrain_seed),
-                   "seed": int(seed)}
+                   "seed": int(seed), "max_depth": int(res.config["max_depth"])}
             row.update(summarize(res))
             row["time_s"] = time.perf_counter() - t0
             rows.append(row)

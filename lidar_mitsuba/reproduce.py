@@ -206,8 +206,11 @@ def redetect(res, instrument: Instrument, *, seed: int, chunk_shots: int = CHUNK
 
 
 def _simulate(**kw):
+    """``simulate`` with the paper's model: single bounce (photons that return along their own
+    incident ray; Sec. III), not ``max_depth="auto"``, which adds a second bounce on rough
+    fractals."""
     from .simulate import simulate
-    return simulate(progress=False, chunk_shots=CHUNK_SHOTS, keep_returns=True, **kw)
+    return simulate(progress=False, chunk_shots=CHUNK_SHOTS, keep_returns=True, max_depth=1, **kw)
 
 
 def return_offset_m(res) -> float:
@@ -396,6 +399,8 @@ def _cli_simulate(**kw) -> str:
     for key, v in kw.items():
         flag = "--" + key.replace("_", "-")
         parts.append(flag if v is True else f"{flag} {v:g}" if isinstance(v, float) else f"{flag} {v}")
+    if kw.get("surface") == "fractal":
+        parts.append("--max-depth 1")       # the paper's single bounce (planes: auto is 1)
     return " ".join(parts + ["--out run.h5"])
 
 

@@ -24,7 +24,8 @@ def test_bench_quick(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "M events/s" in out and "simplifications of the default run" in out
     simp = doc["simplifications"]
-    assert simp["mc_std_m"] > 0 and len(simp["rows"]) == 3
+    assert simp["mc_std_m"] > 0 and len(simp["rows"]) == 4
+    assert simp["auto_max_depth"] == [2]    # the default p = 1.8 snow needs the second bounce
     crop = simp["rows"][0]        # the corridor crop is exact: photon for photon the same
     assert crop["d_bias_m"] == 0.0 and crop["d_std_m"] == 0.0
     if "rows" in doc["peer"]:     # mitransient installed (the test extra has it)

@@ -37,6 +37,7 @@ BAD = [
     (["--beam", "medium"], "--beam"),
     (["--paths-per-shot", "0"], "--paths-per-shot"),
     (["--max-depth", "0"], "--max-depth"),
+    (["--max-depth", "two"], "--max-depth"),
     (["--window", "0"], "--window"),
     (["--background-mhz", "-1"], "--background-mhz"),
     (["--dark-count-hz", "-1"], "--dark-count-hz"),
@@ -177,7 +178,8 @@ def test_explain_reports_choices_and_warns(tmp_path, capsys):
     assert main(["simulate", "--surface", "fractal", "--size-m", "256", "--shots", "200",
                  "--explain", "--out", str(out), "--no-progress"]) == 0
     text = capsys.readouterr().out
-    assert "single bounce" in text and "corridor" in text and "footprint sigma / 2.5" in text
+    assert "max_depth 2 pilot on 200 shots" in text and "Monte Carlo error" in text
+    assert "corridor" in text and "footprint sigma / 2.5" in text
     assert "too few" not in text
     assert main(["simulate", "--surface", "flat", "--shots", "50", "--signal-photons", "300",
                  "--explain", "--out", str(out), "--no-progress"]) == 0
