@@ -463,7 +463,7 @@ def _explain(*, instrument, surface, scene_file, max_depth, pilot, paths_per_sho
                    f"return and moves the bias by {cm['d_bias_m']:+.2f} cm and the precision by "
                    f"{cm['d_std_m']:+.2f} cm, against this run's Monte Carlo error of "
                    f"{cm['mc_bias_m']:.2f} / {cm['mc_std_m']:.2f} cm ({pilot['n_photons']:.0f} "
-                   f"signal photons): {verdict}; --max-depth N fixes it")
+                   f"signal photons): {verdict}; --max-depth N sets it")
     elif max_depth == 1:
         out.append("single bounce (max_depth 1, the paper's model, as asked): each photon's "
                    "first-surface return, which at nadir comes back along its own incident ray; "
