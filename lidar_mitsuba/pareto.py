@@ -174,7 +174,8 @@ def simplifications(*, quick: bool = False) -> dict:
     when |mean difference| + 2 SE is under the Monte Carlo error of bias and of precision,
     "above" when |mean difference| - 2 SE exceeds it, else "comparable".
     """
-    seeds = range(1, 5 if quick else 49)   # the tail of twice-scattered photons makes precision noisy
+    # 48 seeds: the tail of twice-scattered photons makes the precision of one run noisy
+    seeds = range(1, 5 if quick else 49)
     shots = 500 if quick else 1000
     spec = SurfaceSpec()                            # the default surface, on a 0.5 m grid
     fine = fractal(p=spec.p, size_m=spec.size_m, grid_m=0.5, relief_m=spec.relief_m, seed=0)

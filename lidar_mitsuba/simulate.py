@@ -249,8 +249,13 @@ def _pilot(*, scene, instrument: Instrument, x_loc, y_loc, dz, z_ref, shots: int
     photons_per_shot = (instrument.signal_photons * ret["weight"].sum(dtype=np.float64)
                         / (idx.size * paths_per_shot))
     n_photons = shots * photons_per_shot * instrument.fill_factor * instrument.pde
-    out = single_bounce_error(dh_m=dh, weight=ret["weight"], depth=ret["depth"],
-                              n_photons=n_photons)
+    try:
+        out = single_bounce_error(dh_m=dh, weight=ret["weight"], depth=ret["depth"],
+                                  n_photons=n_photons)
+    except ValueError:      # nothing returned inside the gate: nothing to judge, trace both
+        out = dict.fromkeys(("d_bias_m", "d_std_m", "mc_bias_m", "mc_std_m",
+                             "depth2_weight_fraction"), math.nan)
+        out["single_bounce_enough"] = False
     out.update(pilot_shots=int(idx.size), n_photons=float(n_photons))
     return out
 
@@ -279,8 +284,9 @@ def simulate(*, instrument: Instrument | None = None,
             on up to 1024 of the shots (fixed random numbers: the choice depends on the scene
             and the run's size, not on ``seed``) decides: single bounce when leaving out the
             second bounce moves the bias and the precision by less than a quarter of this
-            run's Monte Carlo error (:func:`single_bounce_error`), else 2. The choice and its numbers are in
-            ``result.config["max_depth"]`` and ``result.config["bounce_pilot"]``.
+            run's Monte Carlo error (:func:`single_bounce_error`), else 2. The choice and
+            its numbers are in ``result.config["max_depth"]`` and
+            ``result.config["bounce_pilot"]``.
         variant: Mitsuba variant (default: the active one, ``llvm_ad_mono``).
         progress: show a progress bar on runs longer than ~2 s.
         chunk_shots: shots traced and detected per chunk; memory stays bounded by the chunk
@@ -297,7 +303,8 @@ def simulate(*, instrument: Instrument | None = None,
     if not isinstance(paths_per_shot, (int, np.integer)) or not 1 <= paths_per_shot <= 10 ** 6:
         raise ParameterError("paths_per_shot", f"must be an integer in [1, 1e6] (got {paths_per_shot!r})")
     auto_depth = isinstance(max_depth, str) and max_depth == "auto"
-    if not auto_depth and (isinstance(max_depth, bool) or not isinstance(max_depth, (int, np.integer))
+    if not auto_depth and (isinstance(max_depth, bool)
+                           or not isinstance(max_depth, (int, np.integer))
                            or not 1 <= max_depth <= 64):
         raise ParameterError("max_depth", f"must be 'auto' or an integer in [1, 64] "
                              f"(got {max_depth!r})")
@@ -454,6 +461,9 @@ def _explain(*, instrument, surface, scene_file, max_depth, pilot, paths_per_sho
     plane = scene_file is None and surface.kind != "fractal"
     if plane and max_depth == 1:
         out.append("single bounce (max_depth 1): exact for a plane, where nothing bounces twice")
+    elif pilot is not None and not math.isfinite(pilot["d_bias_m"]):
+        out.append(f"bounces: the max_depth 2 pilot on {pilot['pilot_shots']} shots saw no "
+                   "first-surface return inside the range gate, so max_depth 2 to be safe")
     elif pilot is not None:
         cm = {k: 100 * pilot[k] for k in ("d_bias_m", "d_std_m", "mc_bias_m", "mc_std_m")}
         verdict = ("below a quarter of it: single bounce (max_depth 1) keeps the answer"

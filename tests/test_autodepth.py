@@ -111,3 +111,16 @@ def test_auto_picks_two_bounces_on_the_default_fractal():
 def test_bad_max_depth(bad):
     with pytest.raises(ParameterError, match="max_depth"):
         simulate(surface=SurfaceSpec(kind="flat"), shots=5, max_depth=bad, progress=False)
+
+
+def test_pilot_without_returns_in_the_gate_traces_two_bounces(monkeypatch):
+    """If the pilot has nothing to judge (no first-surface return in the gate), auto takes the
+    fuller model and says so instead of failing."""
+    import lidar_mitsuba.simulate as sim
+
+    def nothing(**kw):
+        raise ValueError("the pilot has no first-surface returns")
+    monkeypatch.setattr(sim, "single_bounce_error", nothing)
+    res = simulate(surface=SurfaceSpec(p=3.0, size_m=128.0), shots=50, seed=1, progress=False)
+    assert res.config["max_depth"] == 2 and not res.config["bounce_pilot"]["single_bounce_enough"]
+    assert "no first-surface return" in res.config["choices"][0]
