@@ -43,6 +43,20 @@ def _out_path(value: str, suffixes: tuple[str, ...], option: str = "--out") -> p
     return path
 
 
+def _out_dir(value: str) -> pathlib.Path:
+    """An output folder (created by the command): not an existing file, inside a writable
+    existing folder."""
+    out = pathlib.Path(value)
+    if out.exists() and not out.is_dir():
+        raise UsageError("--out", f"{value!r} exists and is not a folder")
+    parent = out.parent if str(out.parent) else pathlib.Path(".")
+    if not parent.is_dir():
+        raise UsageError("--out", f"folder {str(parent)!r} does not exist")
+    if not os.access(out if out.exists() else parent, os.W_OK):
+        raise UsageError("--out", f"folder {str(out if out.exists() else parent)!r} is not writable")
+    return out
+
+
 def _dead_time(value: str) -> float:
     from .instrument import DEAD_TIME_PRESETS_NS
     if value in DEAD_TIME_PRESETS_NS:
@@ -314,12 +328,7 @@ def _cmd_segments(a) -> int:
 
 
 def _cmd_bench(a) -> int:
-    out = pathlib.Path(a.out)
-    if out.exists() and not out.is_dir():
-        raise UsageError("--out", f"{a.out!r} exists and is not a folder")
-    parent = out.parent if str(out.parent) else pathlib.Path(".")
-    if not parent.is_dir():
-        raise UsageError("--out", f"folder {str(parent)!r} does not exist")
+    out = _out_dir(a.out)
     from . import bench
     doc = bench.run(out_dir=out, quick=a.quick)
     print(bench.format_summary(doc))
@@ -359,14 +368,7 @@ def _cmd_terrain(a) -> int:
 
 def _cmd_reproduce(a) -> int:
     started = time.perf_counter()
-    out = pathlib.Path(a.out)
-    if out.exists() and not out.is_dir():
-        raise UsageError("--out", f"{a.out!r} exists and is not a folder")
-    parent = out.parent if str(out.parent) else pathlib.Path(".")
-    if not parent.is_dir():
-        raise UsageError("--out", f"folder {str(parent)!r} does not exist")
-    if not os.access(out if out.exists() else parent, os.W_OK):
-        raise UsageError("--out", f"folder {str(out if out.exists() else parent)!r} is not writable")
+    out = _out_dir(a.out)
     from . import reproduce
     profile = None
     if a.profile is not None:
