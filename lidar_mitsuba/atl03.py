@@ -39,7 +39,6 @@ def write(result, path: str | os.PathLike) -> pathlib.Path:
     path = pathlib.Path(path)
     inst = result.instrument
     det = result.detections
-    n = len(det)
     with atomic_h5file(path) as f:
         f.attrs["lidar_mitsuba_version"] = __version__
         f.attrs["config"] = json.dumps(result.config)
@@ -64,7 +63,7 @@ def write(result, path: str | os.PathLike) -> pathlib.Path:
         _ds(tp, "time_ns", det.time_ns, "ns", "round-trip time from the pulse centre")
         _ds(tp, "return_index", det.return_index, "1", "index of the traced return")
         for j, axis in enumerate(("x", "y", "z")):
-            _ds(tp, f"hit_{axis}_m", result.hit_xyz_m[:, j], "meters",
+            _ds(tp, f"hit_{axis}_m", det.hit_xyz_m[:, j], "meters",
                 f"{axis} of the scattering point (NaN for noise)")
         ts = f.create_group("truth/shots")
         _ds(ts, "along_track_m", result.along_track_m, "meters", "along-track distance")

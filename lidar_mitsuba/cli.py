@@ -207,7 +207,8 @@ def _cmd_simulate(a) -> int:
     from . import atl03
     from .instrument import Instrument
     from .retrieval import format_report
-    from .simulate import SurfaceSpec, simulate
+    from .simulate import simulate
+    from .surface import SurfaceSpec
 
     inst = Instrument(beam=a.beam, signal_photons=a.signal_photons, channels=a.channels,
                       dead_time_ns=a.dead_time_ns, pde=a.pde, fill_factor=a.fill_factor,
@@ -315,7 +316,7 @@ def _cmd_segments(a) -> int:
         print(f"{a.file}: {summary['n_segments']} segments, {summary['n_good']} good, "
               f"{summary['n_flagged']} flagged")
         print(f"  h_li - h_ref    mean {cm('h_li_minus_ref_mean_m')} "
-              f"(± {cm('h_li_minus_ref_stderr_m', '')}), std {cm('h_li_minus_ref_std_m', '')}")
+              f"(± {cm('h_li_minus_ref_se_m', '')}), std {cm('h_li_minus_ref_std_m', '')}")
         print(f"  uncorrected     mean {cm('h_mean_minus_ref_mean_m')}")
         print(f"  mean first-photon-bias correction {cm('mean_fpb_corr_m')}, "
               f"mean h_li_sigma {cm('mean_h_li_sigma', '')}")
@@ -329,7 +330,7 @@ def _cmd_segments(a) -> int:
 
 def _cmd_bench(a) -> int:
     out = _out_dir(a.out)
-    from . import bench
+    from .studies import bench
     doc = bench.run(out_dir=out, quick=a.quick)
     print(bench.format_summary(doc))
     print(f"wrote {out / 'bench.json'} and the charts throughput.png, stability.png, "
@@ -341,13 +342,8 @@ def _cmd_bench(a) -> int:
 def _cmd_terrain(a) -> int:
     out = _out_path(a.out, (".npy", ".ply"))
     from . import terrain
-    try:
-        hf = terrain.fractal(p=a.p, size_m=a.size_m, grid_m=a.grid_m, relief_m=a.relief_m,
-                             seed=a.seed)
-    except ValueError as e:
-        name = str(e).split()[0]
-        raise UsageError(_option("grid_m" if name == "size_m/grid_m" else name),
-                         str(e).split(" ", 1)[1]) from None
+    hf = terrain.fractal(p=a.p, size_m=a.size_m, grid_m=a.grid_m, relief_m=a.relief_m,
+                         seed=a.seed)
     tmp = out.with_name(f".{out.name}.tmp{out.suffix}")
     try:
         if out.suffix.lower() == ".npy":
@@ -355,7 +351,7 @@ def _cmd_terrain(a) -> int:
                 import numpy as np
                 np.save(fh, hf.z_m)
         else:
-            from .scene import export_ply, heightfield_to_trimesh
+            from .surface import export_ply, heightfield_to_trimesh
             export_ply(heightfield_to_trimesh(hf), tmp)
         os.replace(tmp, out)
     finally:
@@ -369,7 +365,7 @@ def _cmd_terrain(a) -> int:
 def _cmd_reproduce(a) -> int:
     started = time.perf_counter()
     out = _out_dir(a.out)
-    from . import reproduce
+    from .studies import reproduce
     profile = None
     if a.profile is not None:
         try:
@@ -388,7 +384,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     prog = f"{PROG} {args.command}"
     try:
-        from .instrument import ParameterError
+        from .constants import ParameterError
         try:
             return {"simulate": _cmd_simulate, "stats": _cmd_stats, "segments": _cmd_segments,
                     "bench": _cmd_bench, "terrain": _cmd_terrain,

@@ -6,30 +6,16 @@ a 16-anode PMT read as 16 channels (strong beam, 8.17 signal photons per shot) o
 4 channels of 4 summed anodes (weak beam, 2.04), PDE 0.5, fill factor 0.8, dead time 3 ns.
 
 Field names match the CLI options (``dead_time_ns`` is ``--dead-time-ns``), and every
-out-of-range value raises :class:`ParameterError` naming the field.
+out-of-range value raises :class:`~lidar_mitsuba.constants.ParameterError` naming the field.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-C_M_PER_NS = 0.299792458
-FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))   # 2.3548
-
-
-class ParameterError(ValueError):
-    """An out-of-range parameter. ``name`` is the parameter (a dataclass field / CLI option)."""
-
-    def __init__(self, name: str, message: str):
-        super().__init__(f"{name}: {message}")
-        self.name = name
-        self.message = message
-
-
-def _check(name: str, value, ok: bool, expect: str) -> None:
-    if not ok:
-        raise ParameterError(name, f"{expect} (got {value!r})")
+from . import constants as K
+from .constants import C_M_PER_NS, FWHM_PER_SIGMA, check as _check
 
 
 @dataclass(frozen=True)
@@ -79,20 +65,20 @@ class Instrument:
         range_gate_m: height window recorded around each shot's reference surface [m]
             (``z_ref +- range_gate_m / 2``); photons outside it, signal or noise, are not seen.
     """
-    beam: str = "strong"
+    beam: str = field(default="strong", metadata={"choices": ("strong", "weak")})
     signal_photons: float | None = None
     channels: int | None = None
     anodes: int = 16
     wavelength_nm: float = 532.0
-    pulse_fwhm_ns: float = 1.0
-    footprint_diameter_m: float = 10.0
-    altitude_m: float = 496e3
+    pulse_fwhm_ns: float = K.PULSE_FWHM_NS
+    footprint_diameter_m: float = K.FOOTPRINT_DIAMETER_M
+    altitude_m: float = K.ALTITUDE_M
     prf_hz: float = 10e3
     shot_spacing_m: float = 0.7
-    fov_diameter_m: float = 41.3
+    fov_diameter_m: float = K.FOV_DIAMETER_M
     pde: float = 0.5
     fill_factor: float = 0.8
-    dead_time_ns: float = 3.0
+    dead_time_ns: float = field(default=3.0, metadata={"presets": DEAD_TIME_PRESETS_NS})
     paralyzable: bool = False
     ideal_detector: bool = False
     background_mhz: float = 0.0

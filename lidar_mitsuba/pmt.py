@@ -16,40 +16,11 @@ Per shot ``s`` with traced returns of weights ``w`` (``paths_per_shot`` photon p
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from . import _deadtime
 from .instrument import Instrument
-
-
-@dataclass(frozen=True)
-class Detections:
-    """Detected photon events, sorted by shot then time. All arrays have shape (n_events,).
-
-    Attributes:
-        shot: shot index (int64).
-        channel: detector channel (int16), ``anode // anodes_per_channel``.
-        anode: anode segment (int16).
-        time_ns: round-trip time [ns] (float64).
-        return_index: index of the traced return the photon came from (int64; -1 for noise).
-        is_signal: True for laser photons (bool).
-        arrivals_per_shot: (n_shots,) photons that reached the detector (before fill factor,
-            PDE and dead time).
-        mean_photons_per_shot: (n_shots,) the Poisson mean ``mu_s`` of each shot.
-    """
-    shot: np.ndarray
-    channel: np.ndarray
-    anode: np.ndarray
-    time_ns: np.ndarray
-    return_index: np.ndarray
-    is_signal: np.ndarray
-    arrivals_per_shot: np.ndarray
-    mean_photons_per_shot: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.shot.size)
+from .photons import Detections, Returns
 
 
 def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths_per_shot: int,
@@ -142,14 +113,12 @@ def noise_rate_per_ns(instrument: Instrument) -> float:
             + instrument.dark_count_hz * 1e-9 * instrument.channels)
 
 
-def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
+def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *,
            gate_center_ns: np.ndarray | None = None) -> Detections:
     """Turn traced returns into detected photon events, with noise and the range gate.
 
     Args:
-        returns: output of ``PathLengthIntegrator.trace``: ``shot``, ``time_ns``, ``weight``
-            (shape (n_returns,), sorted by shot), ``n_shots`` and ``paths_per_shot``
-            (and ``depth``, used to skip a shuffle when all returns are single-bounce).
+        returns: the traced returns (``PathLengthIntegrator.trace``), sorted by shot.
         instrument: signal level, anodes, channels, fill factor, PDE, dead time and its model,
             noise rates and range gate.
         rng: numpy random generator (seed it for reproducible runs).
@@ -157,19 +126,19 @@ def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
             gate is ``gate_center_ns +- range_gate_ns / 2``. ``None``: no gate (then the
             instrument must have no noise).
     """
-    n_shots = int(returns["n_shots"])
+    n_shots = int(returns.n_shots)
     bg_mean, dc_mean = instrument.noise_per_shot
     if gate_center_ns is None and (bg_mean > 0 or dc_mean > 0):
         raise ValueError("noise needs a range gate: pass gate_center_ns")
     # fill factor then PDE: two independent thinnings, i.e. one with probability ff * pde
     idx, mu, counts = sample_arrivals(
-        returns["shot"], returns["weight"], n_shots=n_shots,
-        paths_per_shot=int(returns["paths_per_shot"]),
+        returns.shot, returns.weight, n_shots=n_shots,
+        paths_per_shot=int(returns.paths_per_shot),
         signal_photons=float(instrument.signal_photons), rng=rng,
-        exchangeable="depth" in returns and not np.any(np.asarray(returns["depth"]) > 1),
+        exchangeable=returns.single_bounce,
         keep_probability=instrument.fill_factor * instrument.pde)
     anode = rng.integers(0, instrument.anodes, idx.size)
-    shot_sig = np.asarray(returns["shot"], np.int64)[idx]
+    shot_sig = np.asarray(returns.shot, np.int64)[idx]
     sig_start = np.searchsorted(shot_sig, np.arange(n_shots + 1)).astype(np.int64)
     if gate_center_ns is not None:
         gate_start = np.asarray(gate_center_ns, np.float64) - instrument.range_gate_ns / 2.0
@@ -178,14 +147,17 @@ def detect(returns: dict, instrument: Instrument, rng: np.random.Generator, *,
     else:
         gate_start, gate_ns, noise_rate = np.zeros(n_shots), np.inf, 0.0
     # narrow types: less memory to touch (the stage is memory-bound)
-    index_type = np.int32 if np.asarray(returns["shot"]).size < 2 ** 31 else np.int64
+    index_type = np.int32 if len(returns) < 2 ** 31 else np.int64
     shot, time_ns, anode, index, _ = _deadtime.detect_shots(
-        sig_start, np.asarray(returns["time_ns"], np.float64)[idx], anode.astype(np.int16),
+        sig_start, np.asarray(returns.time_ns, np.float64)[idx], anode.astype(np.int16),
         idx.astype(index_type), np.nan_to_num(gate_start, nan=np.inf), float(gate_ns), noise_rate,
         instrument.anodes, instrument.channels, float(instrument.effective_dead_time_ns),
         instrument.paralyzable, int(rng.integers(0, 2 ** 62)))
     index = index.astype(np.int64)
+    sig = index >= 0
+    hit = np.full((index.size, 3), np.nan, np.float32)
+    for j, axis in enumerate((returns.x_m, returns.y_m, returns.z_m)):
+        hit[sig, j] = axis[index[sig]]
     return Detections(shot=shot, channel=(anode // instrument.anodes_per_channel).astype(np.int16),
-                      anode=anode, time_ns=time_ns, return_index=index,
-                      is_signal=index >= 0, arrivals_per_shot=counts,
-                      mean_photons_per_shot=mu)
+                      anode=anode, time_ns=time_ns, return_index=index, is_signal=sig,
+                      hit_xyz_m=hit, arrivals_per_shot=counts, mean_photons_per_shot=mu)

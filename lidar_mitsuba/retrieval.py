@@ -7,11 +7,12 @@ bias* is the mean of ``h - z_ref`` and the *precision* its standard deviation.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .instrument import C_M_PER_NS
+from .constants import C_M_PER_NS
 
 
 def photon_heights_m(time_ns: np.ndarray, *, altitude_m: float) -> np.ndarray:
@@ -21,19 +22,22 @@ def photon_heights_m(time_ns: np.ndarray, *, altitude_m: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ElevationStats:
-    """Bias and precision of ``h - z_ref`` over a set of photons.
+    """Bias and precision of ``h - z_ref`` over a set of photons, with their Monte Carlo
+    standard errors (the ``_se`` suffix marks a standard error throughout the package).
 
     Attributes:
         bias_m: mean of h - z_ref [m] (NaN without photons).
-        std_m: sample standard deviation (ddof=1) [m] (NaN with < 2 photons).
-        bias_stderr_m: Monte Carlo standard error of ``bias_m``, std / sqrt(n) [m].
+        bias_se_m: standard error of ``bias_m``, std / sqrt(n) [m].
+        std_m: precision, the sample standard deviation (ddof=1) [m] (NaN with < 2 photons).
+        std_se_m: standard error of ``std_m``, std / sqrt(2 (n - 1)) (normal approximation) [m].
         n_photons: photons used.
         shots: shots spanned.
         photons_per_shot: n_photons / shots.
     """
     bias_m: float
+    bias_se_m: float
     std_m: float
-    bias_stderr_m: float
+    std_se_m: float
     n_photons: int
     shots: int
     photons_per_shot: float
@@ -46,12 +50,12 @@ def elevation_stats(dh_m: np.ndarray, *, shots: int) -> ElevationStats:
     """Bias, precision and counts of the elevation residuals ``dh_m`` (shape (n,)) over ``shots``."""
     dh = np.asarray(dh_m, np.float64)
     n = dh.size
-    bias = float(dh.mean()) if n else float("nan")
-    std = float(dh.std(ddof=1)) if n > 1 else float("nan")
-    return ElevationStats(bias_m=bias, std_m=std,
-                          bias_stderr_m=std / np.sqrt(n) if n > 1 else float("nan"),
+    bias = float(dh.mean()) if n else math.nan
+    std = float(dh.std(ddof=1)) if n > 1 else math.nan
+    return ElevationStats(bias_m=bias, bias_se_m=std / math.sqrt(n) if n > 1 else math.nan,
+                          std_m=std, std_se_m=std / math.sqrt(2.0 * (n - 1)) if n > 1 else math.nan,
                           n_photons=int(n), shots=int(shots),
-                          photons_per_shot=n / shots if shots else float("nan"))
+                          photons_per_shot=n / shots if shots else math.nan)
 
 
 @dataclass(frozen=True)
@@ -100,7 +104,7 @@ def format_report(report: StatsReport, *, title: str = "") -> str:
     """A plain-text table of a :class:`StatsReport` (cm, like the paper)."""
     def line(label, s):
         return (f"{label:<12}{s['n_photons']:>10}{s['photons_per_shot']:>10.3f}"
-                f"{100 * s['bias_m']:>11.2f}{100 * s['bias_stderr_m']:>9.2f}{100 * s['std_m']:>11.2f}")
+                f"{100 * s['bias_m']:>11.2f}{100 * s['bias_se_m']:>9.2f}{100 * s['std_m']:>11.2f}")
     head = f"{'':<12}{'photons':>10}{'per shot':>10}{'bias [cm]':>11}{'± [cm]':>9}{'std [cm]':>11}"
     rows = [title] if title else []
     rows.append(head)

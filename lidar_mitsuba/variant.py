@@ -22,8 +22,7 @@ _registered: set[str] = set()
 def _register_plugins(variant: str | None) -> None:
     if variant is None or variant.startswith("scalar") or variant in _registered:
         return
-    from . import plugins   # the top-level plugins/ folder, installed as lidar_mitsuba.plugins
-    plugin_dir = pathlib.Path(plugins.__file__).parent
+    plugin_dir = pathlib.Path(__file__).parent / "plugins"
     for name in PLUGIN_FILES:
         path = plugin_dir / f"{name}.py"
         spec = importlib.util.spec_from_file_location(

@@ -17,7 +17,10 @@ import pytest
 from scipy import integrate, stats
 
 from lidar_mitsuba import atl06, pmt
-from lidar_mitsuba.instrument import C_M_PER_NS, Instrument
+from lidar_mitsuba.photons import Returns
+from lidar_mitsuba.studies import fpb_matrix
+from lidar_mitsuba.constants import C_M_PER_NS
+from lidar_mitsuba.instrument import Instrument
 from reference_loops import loop_nonparalyzable, loop_paralyzable
 
 Z = 4.5
@@ -26,10 +29,7 @@ T0 = 2 * 496e3 / C_M_PER_NS          # round-trip time to h = 0 [ns]
 
 def gaussian_returns(rng, n_shots, sigma_ns, k=48):
     """Synthetic traced returns: ``k`` paths per shot, weight 1, Gaussian times about T0."""
-    return {"shot": np.repeat(np.arange(n_shots), k),
-            "time_ns": T0 + sigma_ns * rng.standard_normal(n_shots * k),
-            "weight": np.ones(n_shots * k), "n_shots": n_shots, "paths_per_shot": k,
-            "depth": np.ones(n_shots * k, np.int8)}
+    return Returns.at_times(T0 + sigma_ns * rng.standard_normal(n_shots * k), paths_per_shot=k)
 
 
 def first_photon_moments(lam, sigma):
@@ -223,7 +223,7 @@ def check_matrix(rows, *, per_cell_5pct: bool):
     background estimate is within Z Poisson errors of the truth, and pooled over all cells
     within 5 % (asserted to be > 10 Poisson sigma); with ``per_cell_5pct`` also per cell,
     after asserting that each cell's sample makes 5 % more than 4 standard errors."""
-    print("\n" + atl06.format_matrix(rows))
+    print("\n" + fpb_matrix.format_matrix(rows))
     tested = 0
     for r in rows:
         assert r["n_good"] >= 0.7 * r["n_segments"], r
@@ -247,7 +247,7 @@ def check_matrix(rows, *, per_cell_5pct: bool):
 def test_fpb_matrix_fast():
     """A corner of the matrix (smooth and 3 pulse widths rough; 3 and 12 photons; 4 and 16
     channels; both dead-time models), 150 segments a cell: the claims still hold."""
-    rows = atl06.fpb_test_matrix(roughness_pulse_widths=(0, 3), signal_photons=(3, 12),
+    rows = fpb_matrix.fpb_test_matrix(roughness_pulse_widths=(0, 3), signal_photons=(3, 12),
                                  segments=150, seed=1)
     check_matrix(rows, per_cell_5pct=False)
     big = [r for r in rows if r["signal_photons"] == 12 and r["channels"] == 4]
@@ -260,7 +260,7 @@ def test_fpb_matrix_fast():
 def test_fpb_matrix_full():
     """The whole matrix: roughness 0, 1, 3, 6, 12 pulse widths; 1, 3, 6, 12 photons; 4 and
     16 channels; both models; 400 segments a cell at 5 MHz."""
-    rows = atl06.fpb_test_matrix(segments=400, seed=2)
+    rows = fpb_matrix.fpb_test_matrix(segments=400, seed=2)
     check_matrix(rows, per_cell_5pct=True)
 
 
@@ -268,7 +268,8 @@ def test_fpb_matrix_full():
 
 @pytest.fixture(scope="module")
 def fractal_tracks():
-    from lidar_mitsuba.simulate import SurfaceSpec, simulate
+    from lidar_mitsuba.simulate import simulate
+    from lidar_mitsuba.surface import SurfaceSpec
     out = {}
     for k, bg in enumerate((1.0, 5.0, 10.0)):
         out[bg] = simulate(instrument=Instrument(beam="strong", background_mhz=bg),

@@ -129,7 +129,8 @@ def test_terrain_command(tmp_path, capsys):
 
 def test_atomic_write_leaves_nothing(tmp_path, monkeypatch):
     from lidar_mitsuba import atl03
-    from lidar_mitsuba.simulate import SurfaceSpec, simulate
+    from lidar_mitsuba.simulate import simulate
+    from lidar_mitsuba.surface import SurfaceSpec
     res = simulate(surface=SurfaceSpec(kind="flat"), shots=20, progress=False)
     real = atl03._ds
 

@@ -11,8 +11,10 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from lidar_mitsuba.instrument import C_M_PER_NS, Instrument
-from lidar_mitsuba.simulate import SurfaceSpec, simulate
+from lidar_mitsuba.constants import C_M_PER_NS
+from lidar_mitsuba.instrument import Instrument
+from lidar_mitsuba.simulate import simulate
+from lidar_mitsuba.surface import SurfaceSpec
 
 Z = 4.5
 SCENES = pathlib.Path(__file__).resolve().parents[1] / "scenes"
@@ -32,13 +34,13 @@ def integrator(**kw):
 def test_lambertian_plate_weighs_one_and_ward_closed_form():
     xs = np.linspace(-50, 50, 11)
     out = integrator().trace(plate(), shot_x_m=xs, shot_y_m=np.zeros(11), paths_per_shot=64)
-    assert out["weight"].size == 11 * 64
-    assert np.allclose(out["weight"], 1.0, atol=1e-5)
+    assert out.weight.size == 11 * 64
+    assert np.allclose(out.weight, 1.0, atol=1e-5)
     rho_d, rho_s, alpha = 0.8, 0.1, 0.25
     ward = {"type": "ward", "rho_d": rho_d, "rho_s": rho_s, "alpha": alpha}
     out = integrator().trace(plate(bsdf=ward), shot_x_m=xs, shot_y_m=np.zeros(11), paths_per_shot=64)
     expect = math.pi * (rho_d / math.pi + rho_s / (4 * math.pi * alpha ** 2)) / 0.9   # eq. 9, h = n
-    assert np.allclose(out["weight"], expect, rtol=1e-4)
+    assert np.allclose(out.weight, expect, rtol=1e-4)
 
 
 @pytest.mark.parametrize("z0", [0.0, 0.0005, 1234.567, -85.25])
@@ -50,25 +52,25 @@ def test_path_length_exact_at_orbit(z0):
     out = integrator(footprint_sigma_m=0.0, pulse_sigma_ns=0.0, altitude_m=H).trace(
         plate(z0), shot_x_m=xs, shot_y_m=xs[::-1], paths_per_shot=4)
     z_exact = np.float64(np.float32(z0))       # the plate sits at z0 rounded to float32
-    err_m = C_M_PER_NS * out["time_ns"] / 2 - (H - z_exact)
+    err_m = C_M_PER_NS * out.time_ns / 2 - (H - z_exact)
     assert np.max(np.abs(err_m)) < 1e-3
     # in fact the error is one float32 rounding of the hit point's scene coordinates
     assert np.max(np.abs(err_m)) < 2 * np.spacing(np.float32(abs(z0) + 150.0)) + 1e-6
     out = integrator(footprint_sigma_m=2.5, pulse_sigma_ns=0.0, altitude_m=H).trace(
         plate(z0), shot_x_m=xs, shot_y_m=xs[::-1], paths_per_shot=256)
-    sx = xs[out["shot"]]
-    sy = xs[::-1][out["shot"]]
-    leg = np.sqrt((out["x_m"] - sx) ** 2 + (out["y_m"] - sy) ** 2 + (H - z_exact) ** 2)
-    assert np.max(np.abs(C_M_PER_NS * out["time_ns"] / 2 - leg)) < 1e-3
+    sx = xs[out.shot]
+    sy = xs[::-1][out.shot]
+    leg = np.sqrt((out.x_m - sx) ** 2 + (out.y_m - sy) ** 2 + (H - z_exact) ** 2)
+    assert np.max(np.abs(C_M_PER_NS * out.time_ns / 2 - leg)) < 1e-3
 
 
 def test_footprint_and_pulse_are_gaussian():
     """Hit offsets ~ N(0, sigma_fp) per axis; times ~ N(2H/c, sigma_t): sample mean and sd."""
     out = integrator().trace(plate(), shot_x_m=np.zeros(2000), shot_y_m=np.zeros(2000),
                              paths_per_shot=64, seed=3)
-    n = out["x_m"].size
-    for v, sd in ((out["x_m"], 2.5), (out["y_m"], 2.5),
-                  (out["time_ns"] - 2 * 496e3 / C_M_PER_NS, 1 / 2.3548200450309493)):
+    n = out.x_m.size
+    for v, sd in ((out.x_m, 2.5), (out.y_m, 2.5),
+                  (out.time_ns - 2 * 496e3 / C_M_PER_NS, 1 / 2.3548200450309493)):
         assert abs(v.mean()) < Z * sd / math.sqrt(n)
         assert abs(v.std() - sd) < Z * sd / math.sqrt(2 * n)
 
@@ -81,7 +83,7 @@ def test_occlusion_first_surface_wins():
         "type": "rectangle", "bsdf": {"type": "diffuse", "reflectance": 0.9},
         "to_world": mi.ScalarTransform4f().scale(100)}, "ledge": ledge})
     out = integrator().trace(scene, shot_x_m=np.zeros(500), shot_y_m=np.zeros(500), paths_per_shot=64)
-    x, z = out["x_m"], out["z_m"]
+    x, z = out.x_m, out.z_m
     assert np.all(np.isclose(z[x > 1e-3], 5.0))
     assert np.all(np.isclose(z[x < -1e-3], 0.0))
     frac = np.mean(z > 2.5)
@@ -94,7 +96,7 @@ def test_max_depth_adds_only_real_bounces():
     xs = np.zeros(300)
     a = integrator(max_depth=1).trace(plate(), shot_x_m=xs, shot_y_m=xs, paths_per_shot=64, seed=5)
     b = integrator(max_depth=3).trace(plate(), shot_x_m=xs, shot_y_m=xs, paths_per_shot=64, seed=5)
-    assert np.array_equal(a["time_ns"], b["time_ns"]) and b["depth"].max() == 1
+    assert np.array_equal(a.time_ns, b.time_ns) and b.depth.max() == 1
     v = {"type": "scene"}
     for name, angle in (("left", 60), ("right", -60)):
         v[name] = {"type": "rectangle", "bsdf": {"type": "diffuse", "reflectance": 0.9},
@@ -104,22 +106,22 @@ def test_max_depth_adds_only_real_bounces():
     v["right"]["to_world"] = mi.ScalarTransform4f().translate([10, 0, 17.32]).rotate([0, 1, 0], -60).scale([20, 50, 1])
     trench = mi.load_dict(v)
     out = integrator(max_depth=2).trace(trench, shot_x_m=xs, shot_y_m=xs, paths_per_shot=64, seed=5)
-    d1, d2 = out["depth"] == 1, out["depth"] == 2
+    d1, d2 = out.depth == 1, out.depth == 2
     assert d1.any() and d2.any()
-    assert np.all(np.isfinite(out["weight"])) and np.all(out["weight"] >= 0)
-    assert np.median(out["time_ns"][d2]) > np.median(out["time_ns"][d1])
+    assert np.all(np.isfinite(out.weight)) and np.all(out.weight >= 0)
+    assert np.median(out.time_ns[d2]) > np.median(out.time_ns[d1])
 
 
 def test_any_mitsuba_bsdf_and_seeds():
     xs = np.zeros(50)
     for bsdf in ({"type": "roughplastic"}, {"type": "roughconductor"}, {"type": "diffuse"}):
         out = integrator().trace(plate(bsdf=bsdf), shot_x_m=xs, shot_y_m=xs, paths_per_shot=32)
-        assert out["weight"].size > 0 and np.all(np.isfinite(out["weight"]))
+        assert out.weight.size > 0 and np.all(np.isfinite(out.weight))
     a = integrator().trace(plate(), shot_x_m=xs, shot_y_m=xs, paths_per_shot=32, seed=1)
     b = integrator().trace(plate(), shot_x_m=xs, shot_y_m=xs, paths_per_shot=32, seed=1)
     c = integrator().trace(plate(), shot_x_m=xs, shot_y_m=xs, paths_per_shot=32, seed=2)
-    assert np.array_equal(a["time_ns"], b["time_ns"])
-    assert not np.array_equal(a["time_ns"], c["time_ns"])
+    assert np.array_equal(a.time_ns, b.time_ns)
+    assert not np.array_equal(a.time_ns, c.time_ns)
 
 
 def test_chunking_matches_one_launch():
@@ -127,8 +129,8 @@ def test_chunking_matches_one_launch():
     one = integrator().trace(plate(), shot_x_m=xs, shot_y_m=0 * xs, paths_per_shot=16, seed=4)
     many = integrator(max_lanes=16 * 7).trace(plate(), shot_x_m=xs, shot_y_m=0 * xs,
                                                 paths_per_shot=16, seed=4)
-    assert np.array_equal(one["shot"], many["shot"])
-    assert many["shot"].max() == 99
+    assert np.array_equal(one.shot, many.shot)
+    assert many.shot.max() == 99
 
 
 def test_flat_plate_ideal_detector_unbiased():
@@ -191,11 +193,11 @@ def test_chunked_run_keeps_statistics_and_bounds_memory():
     d = res.detections
     first, second = d.time_ns[d.shot < 700], d.time_ns[(d.shot >= 700) & (d.shot < 1400)]
     assert not np.intersect1d(first, second).size
-    assert np.all(np.isfinite(res.hit_xyz_m[d.is_signal]))
+    assert np.all(np.isfinite(res.detections.hit_xyz_m[d.is_signal]))
     kept = simulate(instrument=inst, surface=SurfaceSpec(kind="flat"), shots=300, seed=4,
                     chunk_shots=100, keep_returns=True, progress=False)
-    assert kept.returns["shot"].max() == 299
-    assert np.array_equal(kept.returns["z_m"][kept.detections.return_index], kept.hit_xyz_m[:, 2])
+    assert kept.returns.shot.max() == 299
+    assert np.array_equal(kept.returns.z_m[kept.detections.return_index], kept.detections.hit_xyz_m[:, 2])
 
 
 @pytest.mark.parametrize("shots,size_m", [(400, 1024.0), (1500, 256.0)])

@@ -52,8 +52,8 @@ import pytest
 import trimesh
 from scipy import stats
 
-from lidar_mitsuba.instrument import C_M_PER_NS
-from lidar_mitsuba.scene import scene_from_trimesh
+from lidar_mitsuba.constants import C_M_PER_NS
+from lidar_mitsuba.scene import scene_from_mesh
 
 Z = 4.5
 H = 496e3                      # altitude [m] (the integrator's default)
@@ -117,12 +117,13 @@ def diffuse(rho: float) -> dict:
 @functools.lru_cache(maxsize=None)
 def traced(beta_deg: float, rho: float) -> dict:
     """Depth-2 trace of the open sawtooth, pulse of zero width (time = path length / c)."""
-    scene = scene_from_trimesh(sawtooth(beta_deg), bsdf=diffuse(rho))
+    tm = sawtooth(beta_deg)
+    scene = scene_from_mesh(tm.vertices, tm.faces, bsdf=diffuse(rho))
     integ = mi.load_dict({"type": INTEGRATOR, "max_depth": 2, "altitude_m": H,
                           "pulse_sigma_ns": 0.0, "footprint_sigma_m": FOOTPRINT})
     sx, sy = np.zeros(N_SHOTS), np.zeros(N_SHOTS)   # see "Spawn offset" above
     out = integ.trace(scene, shot_x_m=sx, shot_y_m=sy, paths_per_shot=PATHS, seed=int(beta_deg))
-    out["shot_x"], out["shot_y"] = sx[out["shot"]], sy[out["shot"]]
+    out.shot_x, out.shot_y = sx[out.shot], sy[out.shot]
     return out
 
 
@@ -193,42 +194,42 @@ def depth2_pairs(out: dict) -> tuple[np.ndarray, np.ndarray]:
     """Indices of (depth-1, depth-2) returns of the same photon. trace() writes a photon's
     returns consecutively, and in the open sawtooth every depth-1 return has weight > 0 and
     is kept, so a depth-2 return's first vertex is the entry just before it."""
-    i2 = np.nonzero(out["depth"] == 2)[0]
+    i2 = np.nonzero(out.depth == 2)[0]
     i1 = i2 - 1
-    assert np.all(out["depth"][i1] == 1) and np.array_equal(out["shot"][i1], out["shot"][i2])
+    assert np.all(out.depth[i1] == 1) and np.array_equal(out.shot[i1], out.shot[i2])
     return i1, i2
 
 
 def leg_m(out: dict, i: np.ndarray) -> np.ndarray:
     """Float64 distance from the spacecraft above the shot centre to vertex i."""
-    return np.sqrt((out["x_m"][i] - out["shot_x"][i]) ** 2 + (out["y_m"][i] - out["shot_y"][i]) ** 2
-                   + (H - out["z_m"][i].astype(np.float64)) ** 2)
+    return np.sqrt((out.x_m[i] - out.shot_x[i]) ** 2 + (out.y_m[i] - out.shot_y[i]) ** 2
+                   + (H - out.z_m[i].astype(np.float64)) ** 2)
 
 
 # ----------------------------------------------------------------------------------- tests
 @pytest.mark.parametrize("beta_deg,rho", CONFIGS)
 def test_weights_per_photon_closed_form(beta_deg, rho):
     out = traced(beta_deg, rho)
-    n = out["n_shots"] * out["paths_per_shot"]
+    n = out.n_shots * out.paths_per_shot
     b = math.radians(beta_deg)
-    d1, d2 = out["depth"] == 1, out["depth"] == 2
-    assert out["depth"].max() == 2
+    d1, d2 = out.depth == 1, out.depth == 2
+    assert out.depth.max() == 2
 
     # Depth 1: every photon, each with rho cos(beta) / 0.9. Deterministic up to the receiver
     # direction's tilt (<= 3 m / 496 km = 6e-6 rad: relative change <= tan(beta) 6e-6).
     w1 = rho * math.cos(b) / 0.9
     assert d1.sum() == n
-    assert np.allclose(out["weight"][d1], w1, rtol=1e-4, atol=0)
+    assert np.allclose(out.weight[d1], w1, rtol=1e-4, atol=0)
     # ... landing heights uniform over [0, h]: delay of a depth-1 return -2 z / c, mean -h / c
     # (sd h / (c sqrt 3)); the footprint's r^2 / 2H adds ~3e-6 ns.
     h = groove_depth(beta_deg)
-    t1 = out["time_ns"][d1] - 2 * H / C_M_PER_NS
+    t1 = out.time_ns[d1] - 2 * H / C_M_PER_NS
     assert abs(t1.mean() + h / C_M_PER_NS) < Z * h / (C_M_PER_NS * math.sqrt(3 * n)) + 1e-5
 
     # Depth 2: mean weight per traced photon against the view-factor closed form. SE from the
     # sample: per-photon weights, zeros for the photons without a depth-2 return.
     alpha = math.pi - 2 * b
-    w2 = out["weight"][d2]
+    w2 = out.weight[d2]
     expect = rho ** 2 * math.cos(b) * (1 - math.sin(alpha / 2)) / 0.9
     mean, se = w2.sum() / n, per_photon_se(w2, n)
     assert se < 0.005 * expect                   # the check is tight: <= 0.4 % (1 SE)
@@ -240,7 +241,7 @@ def test_weights_per_photon_closed_form(beta_deg, rho):
     # Every second vertex lies on the opposite face of the same groove: the groove bottom
     # nearest the midpoint of the two vertices lies between them, each within a face width.
     i1, i2 = depth2_pairs(out)
-    xa, xb = out["x_m"][i1].astype(np.float64), out["x_m"][i2].astype(np.float64)
+    xa, xb = out.x_m[i1].astype(np.float64), out.x_m[i2].astype(np.float64)
     bottom = (np.round((xa + xb) / 2 / PERIOD - 0.5) + 0.5) * PERIOD
     assert np.all((xa - bottom) * (xb - bottom) <= 1e-9)
     assert np.all(np.abs(xa - bottom) <= PERIOD / 2 + 1e-5)
@@ -264,12 +265,12 @@ def test_double_bounce_delay_matches_reference(beta_deg, rho):
     out = traced(beta_deg, rho)
     i1, i2 = depth2_pairs(out)
     leg_a, leg_b = leg_m(out, i1), leg_m(out, i2)
-    path_m = C_M_PER_NS * out["time_ns"][i2]       # zero-width pulse: time = path / c
+    path_m = C_M_PER_NS * out.time_ns[i2]       # zero-width pulse: time = path / c
 
     # Bookkeeping: the two-way path is spacecraft -> A, A -> B, B -> spacecraft, each once,
     # up to float32 vertex coordinates (~1 um; the inner leg is measured vertex to vertex).
-    a = np.column_stack([out[k][i1] for k in ("x_m", "y_m", "z_m")]).astype(np.float64)
-    b = np.column_stack([out[k][i2] for k in ("x_m", "y_m", "z_m")]).astype(np.float64)
+    a = np.column_stack([getattr(out, k)[i1] for k in ("x_m", "y_m", "z_m")]).astype(np.float64)
+    b = np.column_stack([getattr(out, k)[i2] for k in ("x_m", "y_m", "z_m")]).astype(np.float64)
     ab = np.linalg.norm(b - a, axis=1)
     offset_m = (1 + np.abs(a).max(axis=1)) * float(mi.math.RayEpsilon)
     err_m = path_m - leg_a - ab - leg_b
@@ -278,7 +279,7 @@ def test_double_bounce_delay_matches_reference(beta_deg, rho):
 
     # Extra two-way path over a nadir return from z = 0, with the legs made vertical (the
     # horizontal offsets from the shot centre add r^2 / 2H, ~1e-6 m, removed exactly here).
-    za, zb = out["z_m"][i1].astype(np.float64), out["z_m"][i2].astype(np.float64)
+    za, zb = out.z_m[i1].astype(np.float64), out.z_m[i2].astype(np.float64)
     extra_ns = (path_m - (leg_a - (H - za)) - (leg_b - (H - zb)) - 2 * H) / C_M_PER_NS
     hit, ref_m, _ = groove_reference(beta_deg, N_REF, np.random.default_rng(int(beta_deg) + 100))
     ref_ns = ref_m[hit] / C_M_PER_NS
@@ -288,7 +289,7 @@ def test_double_bounce_delay_matches_reference(beta_deg, rho):
     # The extra path has a power-law tail (rays grazing along the groove: density ~ s^-4, so
     # the fourth moment diverges and the raw sd converges badly): moments are compared on the
     # delay clipped at CAP_NS (0.3 .. 0.6 % of the returns), which has all moments finite.
-    m_i, sd_i, sem_i, sesd_i = weighted_mean_sd_se(np.minimum(extra_ns, CAP_NS), out["weight"][i2])
+    m_i, sd_i, sem_i, sesd_i = weighted_mean_sd_se(np.minimum(extra_ns, CAP_NS), out.weight[i2])
     m_r, sd_r, sem_r, sesd_r = weighted_mean_sd_se(np.minimum(ref_ns, CAP_NS))
     assert abs(m_i - m_r) < Z * math.hypot(sem_i, sem_r), (m_i, m_r, sem_i, sem_r)
     assert abs(sd_i - sd_r) < Z * math.hypot(sesd_i, sesd_r), (sd_i, sd_r, sesd_i, sesd_r)
@@ -300,7 +301,7 @@ def test_double_bounce_delay_matches_reference(beta_deg, rho):
     # the two, and the 45 deg groove piles 1 % of its delays within 0.15 mm of zero (a 90 deg
     # corner returns light with no extra path), where float32 rounding of the time at 496 km
     # would dominate.
-    assert weighted_ks_pvalue(ab - za - zb, out["weight"][i2], ref_m[hit]) > 1e-5
+    assert weighted_ks_pvalue(ab - za - zb, out.weight[i2], ref_m[hit]) > 1e-5
 
 
 def test_shadowed_second_vertex_returns_nothing():
@@ -316,24 +317,25 @@ def test_shadowed_second_vertex_returns_nothing():
     bound asserted below holds for any offset up to that."""
     rho, beta_deg = 0.9, 45.0
     h = groove_depth(beta_deg)
-    scene = scene_from_trimesh(sawtooth(beta_deg, lid=True), bsdf=diffuse(rho))
+    tm = sawtooth(beta_deg, lid=True)
+    scene = scene_from_mesh(tm.vertices, tm.faces, bsdf=diffuse(rho))
     integ = mi.load_dict({"type": INTEGRATOR, "max_depth": 2, "altitude_m": H,
                           "pulse_sigma_ns": 0.0, "footprint_sigma_m": FOOTPRINT})
     n_shots = 1000
     out = integ.trace(scene, shot_x_m=np.zeros(n_shots), shot_y_m=np.zeros(n_shots),
                       paths_per_shot=PATHS, seed=5)
     n = n_shots * PATHS
-    d1, d2 = out["depth"] == 1, out["depth"] == 2
+    d1, d2 = out.depth == 1, out.depth == 2
     assert d1.sum() == n
-    w2 = out["weight"][d2]
+    w2 = out.weight[d2]
     assert w2.sum() / n < 1e-3                  # vs 0.093 with no shadow test
     # the leaks, if any, are B points whose spawned shadow ray starts above the lid
-    p = np.column_stack([out[k][d2] for k in ("x_m", "y_m", "z_m")]).astype(np.float64)
+    p = np.column_stack([getattr(out, k)[d2] for k in ("x_m", "y_m", "z_m")]).astype(np.float64)
     offset_m = (1 + np.abs(p).max(axis=1)) * float(mi.math.RayEpsilon)
-    assert np.all(h - out["z_m"][d2] < offset_m * math.cos(math.radians(beta_deg)) + 1e-5)
+    assert np.all(h - out.z_m[d2] < offset_m * math.cos(math.radians(beta_deg)) + 1e-5)
     # depth 1: lid (weight rho / 0.9) or face A (rho cos(beta) / 0.9), each with probability 1/2
-    on_lid = np.isclose(out["weight"][d1], rho / 0.9, rtol=1e-4)
-    on_face = np.isclose(out["weight"][d1], rho * math.cos(math.radians(beta_deg)) / 0.9, rtol=1e-4)
+    on_lid = np.isclose(out.weight[d1], rho / 0.9, rtol=1e-4)
+    on_face = np.isclose(out.weight[d1], rho * math.cos(math.radians(beta_deg)) / 0.9, rtol=1e-4)
     assert np.all(on_lid | on_face)
     assert abs(on_lid.mean() - 0.5) < Z * math.sqrt(0.25 / n)
 
@@ -348,24 +350,24 @@ def test_far_from_origin_double_bounce():
     beta_deg, rho, x0, y0 = 45.0, 0.9, 1000.0, 512.0
     tm = sawtooth(beta_deg)
     tm.vertices = tm.vertices + np.array([x0, y0, 0.0])
-    scene = scene_from_trimesh(tm, bsdf=diffuse(rho))
+    scene = scene_from_mesh(tm.vertices, tm.faces, bsdf=diffuse(rho))
     integ = mi.load_dict({"type": INTEGRATOR, "max_depth": 2, "altitude_m": H,
                           "pulse_sigma_ns": 0.0})
     sx, sy = np.full(N_SHOTS, x0), np.full(N_SHOTS, y0)
     out = integ.trace(scene, shot_x_m=sx, shot_y_m=sy, paths_per_shot=PATHS, seed=45)
-    out["shot_x"], out["shot_y"] = sx[out["shot"]], sy[out["shot"]]
+    out.shot_x, out.shot_y = sx[out.shot], sy[out.shot]
     n = N_SHOTS * PATHS
     b = math.radians(beta_deg)
-    w2 = out["weight"][out["depth"] == 2]
+    w2 = out.weight[out.depth == 2]
     expect = rho ** 2 * math.cos(b) * (1 - math.sin((math.pi - 2 * b) / 2)) / 0.9
     weight_ok = abs(w2.sum() / n - expect) < Z * per_photon_se(w2, n)
     i1, i2 = depth2_pairs(out)
     leg_a, leg_b = leg_m(out, i1), leg_m(out, i2)
-    za, zb = out["z_m"][i1].astype(np.float64), out["z_m"][i2].astype(np.float64)
-    extra_ns = (C_M_PER_NS * out["time_ns"][i2] - (leg_a - (H - za)) - (leg_b - (H - zb))
+    za, zb = out.z_m[i1].astype(np.float64), out.z_m[i2].astype(np.float64)
+    extra_ns = (C_M_PER_NS * out.time_ns[i2] - (leg_a - (H - za)) - (leg_b - (H - zb))
                 - 2 * H) / C_M_PER_NS
     hit, ref_m, _ = groove_reference(beta_deg, N_REF, np.random.default_rng(1))
-    m_i, _, sem_i, _ = weighted_mean_sd_se(np.minimum(extra_ns, CAP_NS), out["weight"][i2])
+    m_i, _, sem_i, _ = weighted_mean_sd_se(np.minimum(extra_ns, CAP_NS), out.weight[i2])
     m_r, _, sem_r, _ = weighted_mean_sd_se(np.minimum(ref_m[hit] / C_M_PER_NS, CAP_NS))
     delay_ok = abs(m_i - m_r) < Z * math.hypot(sem_i, sem_r)
     assert weight_ok and delay_ok, (w2.sum() / n, expect, m_i, m_r)

@@ -10,17 +10,16 @@ import pytest
 from scipy import stats
 
 from lidar_mitsuba import classify, pmt
-from lidar_mitsuba.instrument import C_M_PER_NS, Instrument
+from lidar_mitsuba.photons import Returns
+from lidar_mitsuba.constants import C_M_PER_NS
+from lidar_mitsuba.instrument import Instrument
 
 Z = 4.5
 T0 = 2 * 496e3 / C_M_PER_NS
 
 
 def flat_returns(rng, n_shots, k=32, sigma_ns=0.4247):
-    return {"shot": np.repeat(np.arange(n_shots), k),
-            "time_ns": T0 + sigma_ns * rng.standard_normal(n_shots * k),
-            "weight": np.ones(n_shots * k), "n_shots": n_shots, "paths_per_shot": k,
-            "depth": np.ones(n_shots * k, np.uint8)}
+    return Returns.at_times(T0 + sigma_ns * rng.standard_normal(n_shots * k), paths_per_shot=k)
 
 
 def test_background_and_dark_counts_match_rates(rng):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.special import ndtr
 
-from lidar_mitsuba import peer
+from lidar_mitsuba.studies import peer
 
 
 @pytest.mark.parametrize("slope_deg", [0.0, 5.0])

@@ -12,7 +12,9 @@ import pytest
 from scipy import integrate, stats
 
 from lidar_mitsuba import pmt
-from lidar_mitsuba.instrument import C_M_PER_NS, Instrument
+from lidar_mitsuba.photons import Returns
+from lidar_mitsuba.constants import C_M_PER_NS
+from lidar_mitsuba.instrument import Instrument
 from reference_loops import loop_nonparalyzable, loop_paralyzable
 
 Z = 4.5
@@ -107,9 +109,7 @@ def test_first_photon_statistics_closed_form(rng, channels):
     n_shots, k = 60000, 48
     sigma_ns = inst.pulse_sigma_ns
     t0 = 2 * inst.altitude_m / C_M_PER_NS
-    returns = {"shot": np.repeat(np.arange(n_shots), k),
-               "time_ns": t0 + sigma_ns * rng.standard_normal(n_shots * k),
-               "weight": np.ones(n_shots * k), "n_shots": n_shots, "paths_per_shot": k}
+    returns = Returns.at_times(t0 + sigma_ns * rng.standard_normal(n_shots * k), paths_per_shot=k)
     det = pmt.detect(returns, inst, rng)
     lam = inst.signal_photons * inst.fill_factor * inst.pde / channels
     p_det, mean, sd, kurt = first_photon_moments(lam, sigma_ns)
@@ -127,8 +127,7 @@ def test_first_photon_statistics_closed_form(rng, channels):
 def test_ideal_detector_keeps_every_photon(rng):
     inst = Instrument(beam="weak", ideal_detector=True)
     n_shots, k = 30000, 16
-    returns = {"shot": np.repeat(np.arange(n_shots), k), "time_ns": np.zeros(n_shots * k),
-               "weight": np.ones(n_shots * k), "n_shots": n_shots, "paths_per_shot": k}
+    returns = Returns.at_times(np.zeros(n_shots * k), paths_per_shot=k)
     det = pmt.detect(returns, inst, rng)
     expect = inst.signal_photons * inst.fill_factor * inst.pde     # Poisson thinning
     assert abs(len(det) / n_shots - expect) < Z * math.sqrt(expect / n_shots)

@@ -6,7 +6,8 @@ import sys
 import pytest
 
 from lidar_mitsuba import _llvm
-from lidar_mitsuba.instrument import Instrument, ParameterError
+from lidar_mitsuba.constants import ParameterError
+from lidar_mitsuba.instrument import Instrument
 
 
 @pytest.mark.parametrize("path,major", [

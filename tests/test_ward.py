@@ -539,12 +539,12 @@ def test_xml_scene_renders_through_pathlength(normalization):
     assert type(integrator).__name__ == "PathLengthIntegrator"
     xs = np.linspace(-60.0, 60.0, 7)
     out = integrator.trace(scene, shot_x_m=xs, shot_y_m=np.zeros_like(xs), paths_per_shot=64)
-    assert out["weight"].size == xs.size * 64
+    assert out.weight.size == xs.size * 64
     # Nadir in, nadir out: h = 2n, the exponent vanishes and all three normalisations reduce
     # to rho_s / (4 pi alpha^2) (the paper's eq. 9 with i = o = n). The receiver direction is
     # nadir to ~1e-4 rad at 496 km, a relative change far below float32 rounding (rtol 1e-5).
     expect = math.pi * (rho_d / math.pi + rho_s / (4 * math.pi * alpha ** 2)) / 0.9
-    np.testing.assert_allclose(out["weight"], expect, rtol=1e-5)
+    np.testing.assert_allclose(out.weight, expect, rtol=1e-5)
 
 
 # --------------------------------------------------------------------------------------------

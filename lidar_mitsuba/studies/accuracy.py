@@ -21,9 +21,10 @@ import time
 
 import numpy as np
 
-from .instrument import Instrument
-from .simulate import SurfaceSpec, simulate
-from .terrain import Heightfield, fractal
+from ..instrument import Instrument
+from ..simulate import simulate
+from ..surface import SurfaceSpec
+from ..terrain import Heightfield, fractal
 
 DEFAULT = {"shots": 8000, "paths_per_shot": 128, "grid_m": 1.0, "max_depth": "auto",
            "chunk_shots": 65536}
@@ -123,7 +124,7 @@ def pareto_front(rows: list[dict]) -> list[dict]:
 
 def chart(results: dict, path) -> None:
     """Error against wall time per track, one marker per knob, the Pareto front drawn."""
-    from .plotting import plt
+    from ..plotting import plt
     markers = {"shots": "o", "paths_per_shot": "s", "grid_m": "^", "max_depth": "D",
                "chunk_shots": "x"}
     fig, axes = plt.subplots(1, len(results), figsize=(5.2 * len(results), 4.4), dpi=110)

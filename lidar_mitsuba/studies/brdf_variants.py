@@ -25,8 +25,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .instrument import Instrument  # noqa: E402
-from .simulate import SimulationResult, SurfaceSpec, simulate  # noqa: E402
+from ..instrument import Instrument  # noqa: E402
+from ..simulate import SimulationResult, simulate  # noqa: E402
+from ..surface import SurfaceSpec  # noqa: E402
 
 _WARD = {"type": "ward", "rho_d": 0.9, "rho_s": 0.05, "alpha": 0.3}
 
@@ -71,8 +72,8 @@ STYLES: dict[str, tuple[str, str]] = {
 }
 
 #: Numeric fields of a row that :func:`sweep` fills (all floats; see :func:`summarize`).
-ROW_FIELDS = ("photons_per_shot", "photons_per_shot_err", "return_weight", "bias_m", "bias_err_m",
-              "std_m", "std_err_m")
+ROW_FIELDS = ("photons_per_shot", "photons_per_shot_se", "return_weight", "bias_m", "bias_se_m",
+              "std_m", "std_se_m")
 
 
 def slope_surfaces(*, slopes_deg: Iterable[float] = (0, 5, 10, 15, 20, 25, 30),
@@ -103,12 +104,12 @@ def summarize(res: SimulationResult) -> dict:
 
     Returns a dict of floats (NaN where undefined):
         photons_per_shot: detected signal photons / shots [photons/shot].
-        photons_per_shot_err: its standard error, std(per-shot counts, ddof=1) / sqrt(shots).
+        photons_per_shot_se: its standard error, std(per-shot counts, ddof=1) / sqrt(shots).
         return_weight: footprint-averaged return weight, mean over shots of the Poisson mean
             arrivals / ``signal_photons`` (1 for the flat Lambertian 0.9 plate at nadir;
             before fill factor, PDE and dead time) [-].
-        bias_m, bias_err_m: mean of h - z_ref [m] and its standard error std / sqrt(n) [m].
-        std_m, std_err_m: precision, the standard deviation of h - z_ref [m], and its standard
+        bias_m, bias_se_m: mean of h - z_ref [m] and its standard error std / sqrt(n) [m].
+        std_m, std_se_m: precision, the standard deviation of h - z_ref [m], and its standard
             error std / sqrt(2 (n - 1)) (normal approximation) [m].
     Also ``n_photons`` (int) and ``shots`` (int).
     """
@@ -120,12 +121,12 @@ def summarize(res: SimulationResult) -> dict:
     return {
         "shots": int(res.n_shots), "n_photons": int(n),
         "photons_per_shot": float(st.photons_per_shot),
-        "photons_per_shot_err": float(counts.std(ddof=1) / math.sqrt(res.n_shots))
+        "photons_per_shot_se": float(counts.std(ddof=1) / math.sqrt(res.n_shots))
         if res.n_shots > 1 else math.nan,
         "return_weight": float(np.mean(d.mean_photons_per_shot) / sp) if sp > 0 else math.nan,
-        "bias_m": float(st.bias_m), "bias_err_m": float(st.bias_stderr_m),
+        "bias_m": float(st.bias_m), "bias_se_m": float(st.bias_se_m),
         "std_m": float(st.std_m),
-        "std_err_m": float(st.std_m / math.sqrt(2.0 * (n - 1))) if n > 1 else math.nan,
+        "std_se_m": float(st.std_m / math.sqrt(2.0 * (n - 1))) if n > 1 else math.nan,
     }
 
 
@@ -158,8 +159,8 @@ def sweep(*, variants: Mapping[str, dict], surfaces: Sequence[SurfaceSpec], shot
         ``size_m`` [m], ``terrain_seed``, ``seed``, ``max_depth`` (the one used),
         ``time_s`` [s] and the fields of
         :func:`summarize` (``shots``, ``n_photons``, ``photons_per_shot``,
-        ``photons_per_shot_err``, ``return_weight``, ``bias_m``, ``bias_err_m``, ``std_m``,
-        ``std_err_m``).
+        ``photons_per_shot_se``, ``return_weight``, ``bias_m``, ``bias_se_m``, ``std_m``,
+        ``std_se_m``).
     """
     inst = _instrument(beam, ideal_detector)
     if not variants:
@@ -222,9 +223,9 @@ def format_table(rows: Sequence[dict], *, title: str = "") -> str:
     out.append(head)
     for r in rows:
         out.append(f"{_surface_label(r):<15}{r['variant']:<23}{r['return_weight']:>7.3f}"
-                   f"{r['photons_per_shot']:>8.3f} ±{r['photons_per_shot_err']:>5.3f}"
-                   f"{100 * r['bias_m']:>9.2f} ±{100 * r['bias_err_m']:>5.2f}"
-                   f"{100 * r['std_m']:>10.2f} ±{100 * r['std_err_m']:>5.2f}")
+                   f"{r['photons_per_shot']:>8.3f} ±{r['photons_per_shot_se']:>5.3f}"
+                   f"{100 * r['bias_m']:>9.2f} ±{100 * r['bias_se_m']:>5.2f}"
+                   f"{100 * r['std_m']:>10.2f} ±{100 * r['std_se_m']:>5.2f}")
     return "\n".join(out)
 
 
@@ -242,10 +243,10 @@ def relative_to(rows: Sequence[dict], *, reference: str = "Lambertian") -> list[
     Returns one dict per row that has a reference (the reference's own rows included: ratio 1,
     difference 0), with the row's identifying fields (``variant``, ``beam``,
     ``ideal_detector``, ``kind``, ``slope_deg``, ``p``) and
-        photons_ratio, photons_ratio_err: photons per shot / the reference's [-];
+        photons_ratio, photons_ratio_se: photons per shot / the reference's [-];
         weight_ratio: return weight / the reference's [-];
-        bias_diff_m, bias_diff_err_m: bias - the reference's bias [m];
-        std_ratio, std_ratio_err: precision / the reference's precision [-].
+        bias_diff_m, bias_diff_se_m: bias - the reference's bias [m];
+        std_ratio, std_ratio_se: precision / the reference's precision [-].
     Errors combine both rows' standard errors as if independent; the runs share their random
     numbers (same seed), which correlates them positively, so the errors are conservative.
     """
@@ -262,26 +263,26 @@ def relative_to(rows: Sequence[dict], *, reference: str = "Lambertian") -> list[
             e = 0.0 if same else v * math.hypot(r[err] / r[key], b[err] / b[key])
             return v, e
 
-        pr, pre = ratio("photons_per_shot", "photons_per_shot_err")
-        sr, sre = ratio("std_m", "std_err_m")
+        pr, pre = ratio("photons_per_shot", "photons_per_shot_se")
+        sr, sre = ratio("std_m", "std_se_m")
         out.append({k: r[k] for k in ("variant", "beam", "ideal_detector", "kind", "slope_deg", "p")}
-                   | {"photons_ratio": pr, "photons_ratio_err": pre,
+                   | {"photons_ratio": pr, "photons_ratio_se": pre,
                       "weight_ratio": r["return_weight"] / b["return_weight"],
                       "bias_diff_m": r["bias_m"] - b["bias_m"],
-                      "bias_diff_err_m": 0.0 if same else math.hypot(r["bias_err_m"], b["bias_err_m"]),
-                      "std_ratio": sr, "std_ratio_err": sre})
+                      "bias_diff_se_m": 0.0 if same else math.hypot(r["bias_se_m"], b["bias_se_m"]),
+                      "std_ratio": sr, "std_ratio_se": sre})
     return out
 
 
 _PANELS = (
     # (row key, error key, scale, absolute label,
     #  relative key, its error, its scale, its label, shift subtracted before scaling)
-    ("photons_per_shot", "photons_per_shot_err", 1.0, "photons per shot",
-     "photons_ratio", "photons_ratio_err", 1.0, "photons per shot ÷ {ref}'s", 0.0),
-    ("bias_m", "bias_err_m", 100.0, "elevation bias [cm]",
-     "bias_diff_m", "bias_diff_err_m", 100.0, "bias − {ref}'s [cm]", 0.0),
-    ("std_m", "std_err_m", 100.0, "precision (std) [cm]",
-     "std_ratio", "std_ratio_err", 100.0, "precision ÷ {ref}'s − 1 [%]", 1.0),
+    ("photons_per_shot", "photons_per_shot_se", 1.0, "photons per shot",
+     "photons_ratio", "photons_ratio_se", 1.0, "photons per shot ÷ {ref}'s", 0.0),
+    ("bias_m", "bias_se_m", 100.0, "elevation bias [cm]",
+     "bias_diff_m", "bias_diff_se_m", 100.0, "bias − {ref}'s [cm]", 0.0),
+    ("std_m", "std_se_m", 100.0, "precision (std) [cm]",
+     "std_ratio", "std_ratio_se", 100.0, "precision ÷ {ref}'s − 1 [%]", 1.0),
 )
 
 
@@ -436,13 +437,13 @@ def conclusions(rows: Sequence[dict], *, ideal_rows: Sequence[dict] = (),
                     continue
                 label = _join(groups[key])
                 parts.append(f"{label} ×{d['weight_ratio']:.3f} in return weight and "
-                             f"×{d['photons_ratio']:.2f} ± {d['photons_ratio_err']:.2f} in "
+                             f"×{d['photons_ratio']:.2f} ± {d['photons_ratio_se']:.2f} in "
                              f"detected photons")
             s = (f"{tag}On the flat plate, against the {reference} 0.9 plate "
-                 f"({b['photons_per_shot']:.2f} ± {b['photons_per_shot_err']:.2f} detected "
+                 f"({b['photons_per_shot']:.2f} ± {b['photons_per_shot_se']:.2f} detected "
                  f"photons/shot): {'; '.join(parts)}.")
             squeezed = [d for d in flat if d["weight_ratio"] - d["photons_ratio"]
-                        > z * d["photons_ratio_err"]]
+                        > z * d["photons_ratio_se"]]
             if squeezed:
                 s += (f" Dead time compresses the brightest return"
                       f"{'s' if len(squeezed) > 1 else ''} "
@@ -499,8 +500,8 @@ def conclusions(rows: Sequence[dict], *, ideal_rows: Sequence[dict] = (),
                     for j in range(i + 1, len(rs)):
                         a, c = rs[i], rs[j]
                         wmax = max(wmax, abs(a["return_weight"] / c["return_weight"] - 1))
-                        for m, e in (("photons_per_shot", "photons_per_shot_err"),
-                                     ("bias_m", "bias_err_m"), ("std_m", "std_err_m")):
+                        for m, e in (("photons_per_shot", "photons_per_shot_se"),
+                                     ("bias_m", "bias_se_m"), ("std_m", "std_se_m")):
                             zz = abs(a[m] - c[m]) / math.hypot(a[e], c[e])
                             if zz > zmax:
                                 zmax, where = zz, (f"{m.replace('_m', '').replace('_', ' ')} "
@@ -515,7 +516,7 @@ def conclusions(rows: Sequence[dict], *, ideal_rows: Sequence[dict] = (),
         # 4. bias against the reference
         sig = {}
         for d in rel:
-            if abs(d["bias_diff_m"]) > z * d["bias_diff_err_m"]:
+            if abs(d["bias_diff_m"]) > z * d["bias_diff_se_m"]:
                 sig.setdefault(d["variant"], []).append(d)
         n_surf = len({_loc(r) for r in mine if r["variant"] == reference})
         if sig:
@@ -530,15 +531,15 @@ def conclusions(rows: Sequence[dict], *, ideal_rows: Sequence[dict] = (),
                  f"{_join(parts)}.")
             if rest:
                 big = max((d for d in rel if d["variant"] in rest),
-                          key=lambda d: abs(d["bias_diff_m"]) / max(d["bias_diff_err_m"], 1e-12))
+                          key=lambda d: abs(d["bias_diff_m"]) / max(d["bias_diff_se_m"], 1e-12))
                 s += (f" {_join(rest)} never do (largest: {100 * big['bias_diff_m']:+.2f} ± "
-                      f"{100 * big['bias_diff_err_m']:.2f} cm, {big['variant']} on "
+                      f"{100 * big['bias_diff_se_m']:.2f} cm, {big['variant']} on "
                       f"{_fmt_surface(big)}).")
         else:
-            big = max(rel, key=lambda d: abs(d["bias_diff_m"]) / max(d["bias_diff_err_m"], 1e-12))
+            big = max(rel, key=lambda d: abs(d["bias_diff_m"]) / max(d["bias_diff_se_m"], 1e-12))
             s = (f"{tag}No variant's elevation bias differs from {reference}'s by more than "
                  f"{z:g} s.e. on any surface (largest: {100 * big['bias_diff_m']:+.2f} ± "
-                 f"{100 * big['bias_diff_err_m']:.2f} cm, {big['variant']} on "
+                 f"{100 * big['bias_diff_se_m']:.2f} cm, {big['variant']} on "
                  f"{_fmt_surface(big)}).")
         bias_ref = [r["bias_m"] for r in mine if r["variant"] == reference]
         s += (f" {reference}'s own bias ranges over {100 * min(bias_ref):+.2f} to "
@@ -547,7 +548,7 @@ def conclusions(rows: Sequence[dict], *, ideal_rows: Sequence[dict] = (),
 
         # 5. precision against the reference
         worst = max(rel, key=lambda d: abs(d["std_ratio"] - 1))
-        zs = max(abs(d["std_ratio"] - 1) / max(d["std_ratio_err"], 1e-12) for d in rel)
+        zs = max(abs(d["std_ratio"] - 1) / max(d["std_ratio_se"], 1e-12) for d in rel)
         std_ref = [r["std_m"] for r in mine if r["variant"] == reference]
         dev = abs(worst["std_ratio"] - 1)
         spread = max(std_ref) / min(std_ref) - 1
@@ -563,20 +564,20 @@ def conclusions(rows: Sequence[dict], *, ideal_rows: Sequence[dict] = (),
         rel_i = [d for d in relative_to(ideal_rows, reference=reference)
                  if d["variant"] != reference]
         if rel_i:
-            big = max(rel_i, key=lambda d: abs(d["bias_diff_m"]) / max(d["bias_diff_err_m"], 1e-12))
-            zi = abs(big["bias_diff_m"]) / max(big["bias_diff_err_m"], 1e-12)
+            big = max(rel_i, key=lambda d: abs(d["bias_diff_m"]) / max(d["bias_diff_se_m"], 1e-12))
+            zi = abs(big["bias_diff_m"]) / max(big["bias_diff_se_m"], 1e-12)
             surf = _join(list(dict.fromkeys(_fmt_surface(d) for d in rel_i)))
             beams_i = _join(list(dict.fromkeys(d["beam"] for d in rel_i)))
             s = (f"[ideal detector] Without dead time ({beams_i} beam, {surf}) the largest bias "
                  f"difference from {reference} is {100 * big['bias_diff_m']:+.2f} ± "
-                 f"{100 * big['bias_diff_err_m']:.2f} cm ({big['variant']} on "
+                 f"{100 * big['bias_diff_se_m']:.2f} cm ({big['variant']} on "
                  f"{_fmt_surface(big)}, {zi:.1f} s.e.)")
             # the same surfaces and beam with dead time
             locs = {_loc(d) for d in rel_i}
             with_dt = [d for d in relative_to(rows, reference=reference)
                        if d["variant"] != reference and not d["ideal_detector"]
                        and _loc(d) in locs]
-            sig_dt = [d for d in with_dt if abs(d["bias_diff_m"]) > z * d["bias_diff_err_m"]]
+            sig_dt = [d for d in with_dt if abs(d["bias_diff_m"]) > z * d["bias_diff_se_m"]]
             if zi <= z and sig_dt:
                 s += (f", within {z:g} s.e., whereas with dead time "
                       f"{_join(list(dict.fromkeys(d['variant'] for d in sig_dt)))} differ"

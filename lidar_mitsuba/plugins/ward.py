@@ -8,7 +8,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-NORMALIZATIONS = ("ward1992", "duer", "balanced")
+from lidar_mitsuba.constants import WARD_NORMALIZATIONS as NORMALIZATIONS
 
 
 def _param_error(name: str, message: str) -> ValueError:

@@ -12,8 +12,10 @@ import time
 import mitsuba as mi
 import numpy as np
 
-from .instrument import C_M_PER_NS, Instrument, ParameterError
-from .simulate import SurfaceSpec, simulate
+from ..constants import C_M_PER_NS, ParameterError
+from ..instrument import Instrument
+from ..simulate import simulate
+from ..surface import SurfaceSpec
 
 
 def _row(value, res=None, *, t0: float, **extra) -> dict:
@@ -21,7 +23,7 @@ def _row(value, res=None, *, t0: float, **extra) -> dict:
     if res is not None:
         st = res.report().overall
         row.update(photons_per_shot=st.photons_per_shot, bias_m=st.bias_m, std_m=st.std_m,
-                   bias_stderr_m=st.bias_stderr_m, n_photons=st.n_photons)
+                   bias_se_m=st.bias_se_m, n_photons=st.n_photons)
         if "status" not in row:
             row["status"] = "ok" if st.n_photons > 1 else "no photons detected"
     return row
@@ -121,7 +123,7 @@ def sweep_grid(*, quick: bool) -> list[dict]:
     """Mesh spacing 0.25-16 m against the 10 m footprint (sigma 2.5 m): ONE 512 m terrain made
     at 0.25 m and decimated, so only the resolution changes. The error columns are against the
     finest mesh; spacing coarser than ~sigma/2 no longer resolves what the footprint sees."""
-    from .terrain import Heightfield, fractal
+    from ..terrain import Heightfield, fractal
     shots = 300 if quick else 2000
     fine = fractal(p=1.8, size_m=512.0, grid_m=0.25, relief_m=10.0, seed=0)
     rows = []
@@ -154,12 +156,12 @@ def sweep_altitude(*, quick: bool) -> list[dict]:
         t0 = time.perf_counter()
         integ = mi.load_dict({"type": "pathlength", "altitude_m": h, "pulse_sigma_ns": 0.0})
         out = integ.trace(scene, shot_x_m=xs, shot_y_m=xs[::-1], paths_per_shot=64)
-        leg = np.sqrt((out["x_m"] - xs[out["shot"]]) ** 2
-                      + (out["y_m"] - xs[::-1][out["shot"]]) ** 2 + (h - z_exact) ** 2)
-        err = float(np.max(np.abs(C_M_PER_NS * out["time_ns"] / 2 - leg)))
+        leg = np.sqrt((out.x_m - xs[out.shot]) ** 2
+                      + (out.y_m - xs[::-1][out.shot]) ** 2 + (h - z_exact) ** 2)
+        err = float(np.max(np.abs(C_M_PER_NS * out.time_ns / 2 - leg)))
         f = np.float32       # the same leg in float32, as a naive pipeline would compute it
-        leg32 = np.sqrt((f(out["x_m"]) - f(xs[out["shot"]])) ** 2
-                        + (f(out["y_m"]) - f(xs[::-1][out["shot"]])) ** 2 + (f(h) - f(z_exact)) ** 2)
+        leg32 = np.sqrt((f(out.x_m) - f(xs[out.shot])) ** 2
+                        + (f(out.y_m) - f(xs[::-1][out.shot])) ** 2 + (f(h) - f(z_exact)) ** 2)
         rows.append({"value": h, "seconds": time.perf_counter() - t0, "max_error_m": err,
                      "float32_error_m": float(np.max(np.abs(leg32.astype(np.float64) - leg))),
                      "status": "ok" if err < 1e-3 else "path length error >= 1 mm"})
@@ -182,7 +184,7 @@ def sweep_lanes(*, quick: bool) -> list[dict]:
         t0 = time.perf_counter()
         out = integ.trace(scene, shot_x_m=xs, shot_y_m=xs, paths_per_shot=k)
         sec = time.perf_counter() - t0
-        ok = out["weight"].size == n_shots * k
+        ok = len(out) == n_shots * k
         rows.append({"value": lanes, "seconds": sec, "paths": n_shots * k,
                      "paths_per_s": n_shots * k / sec, "status": "ok" if ok else "lost paths"})
     return rows
@@ -202,7 +204,7 @@ def run_all(*, quick: bool) -> dict[str, list[dict]]:
 
 def chart(results: dict[str, list[dict]], path) -> None:
     """One panel per sweep: the main quantity against the swept value; refused values marked."""
-    from .plotting import plt
+    from ..plotting import plt
     panels = [
         ("slope_deg", "std_m", "expected_std_m", "slope [deg]", "precision [m]", "log"),
         ("ward_alpha", "mean_photons_per_shot", "expected_photons_per_shot", "Ward alpha",

@@ -4,17 +4,14 @@ Registered in every JIT variant by ``import lidar_mitsuba``.
 """
 from __future__ import annotations
 
-import math
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from lidar_mitsuba import constants as K
+from lidar_mitsuba.constants import C_M_PER_NS, REFERENCE_ALBEDO
+from lidar_mitsuba.photons import Returns
 from lidar_mitsuba.scene import scene_bounds
-
-C_M_PER_NS = 0.299792458          # speed of light [m/ns]
-REFERENCE_ALBEDO = 0.9            # a flat Lambertian plate of this albedo returns weight 1
-FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 
 
 class PathLengthIntegrator(mi.SamplingIntegrator):
@@ -82,10 +79,12 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
     def __init__(self, props: mi.Properties):
         super().__init__(props)
         self.max_depth = int(props.get("max_depth", 1))
-        self.altitude_m = float(props.get("altitude_m", 496e3))
-        self.footprint_sigma_m = float(props.get("footprint_sigma_m", 2.5))
-        self.pulse_sigma_ns = float(props.get("pulse_sigma_ns", 1.0 / FWHM_PER_SIGMA))
-        self.fov_radius_m = float(props.get("fov_radius_m", 20.65))
+        self.altitude_m = float(props.get("altitude_m", K.ALTITUDE_M))
+        self.footprint_sigma_m = float(props.get("footprint_sigma_m",
+                                                 K.FOOTPRINT_DIAMETER_M / 4.0))
+        self.pulse_sigma_ns = float(props.get("pulse_sigma_ns",
+                                              K.PULSE_FWHM_NS / K.FWHM_PER_SIGMA))
+        self.fov_radius_m = float(props.get("fov_radius_m", K.FOV_DIAMETER_M / 2.0))
         self.max_lanes = int(props.get("max_lanes", 2 ** 23))
         for name, value, ok in (
             ("max_depth", self.max_depth, 1 <= self.max_depth <= 64),
@@ -200,7 +199,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
     # ---------------------------------------------------------------- public
     def trace(self, scene: mi.Scene, *, shot_x_m: np.ndarray, shot_y_m: np.ndarray,
               paths_per_shot: int = 128, seed: int = 0, keep_zero_weight: bool = False,
-              progress=None) -> dict[str, np.ndarray]:
+              progress=None) -> Returns:
         """Trace ``paths_per_shot`` photons for every shot.
 
         Args:
@@ -212,12 +211,11 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
             progress: optional callable ``progress(n_shots_done)`` called after each chunk.
 
         Returns:
-            dict of numpy arrays, one entry per photon return (at most
-            ``n_shots * paths_per_shot * max_depth``):
-            ``shot`` (uint32 shot index), ``time_ns`` (float64 round-trip time [ns] from the
-            pulse centre's emission), ``weight`` (float32), ``x_m``, ``y_m``, ``z_m`` (float32
-            vertex position [m]), ``depth`` (uint8, 1 = first surface), and the scalars
-            ``paths_per_shot`` and ``n_shots``.
+            :class:`~lidar_mitsuba.photons.Returns`, one entry per photon return (at most
+            ``n_shots * paths_per_shot * max_depth``), sorted by shot: ``shot`` (uint32),
+            ``time_ns`` (float64 round-trip time [ns] from the pulse centre's emission),
+            ``weight`` (float32), ``x_m``, ``y_m``, ``z_m`` (float32 vertex position [m]),
+            ``depth`` (uint8, 1 = first surface).
         """
         shot_x_m = np.ascontiguousarray(shot_x_m, dtype=np.float32).ravel()
         shot_y_m = np.ascontiguousarray(shot_y_m, dtype=np.float32).ravel()
@@ -232,7 +230,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
             raise ValueError(f"altitude_m ({self.altitude_m}) must be above the scene top "
                              f"({float(hi[2])})")
         per_chunk = max(1, self.max_lanes // (paths_per_shot * self.max_depth))
-        parts: list[dict[str, np.ndarray]] = []
+        parts: list[tuple[Returns, int]] = []
         for k, start in enumerate(range(0, n_shots, per_chunk)):
             stop = min(n_shots, start + per_chunk)
             chunk_seed = dr.opaque(mi.UInt32, _mix_seed(seed, k))
@@ -244,17 +242,19 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
             t_np = t.numpy()
             keep = (w_np > 0) if not keep_zero_weight else (t_np > 0)
             depth = (np.arange(w_np.size) % self.max_depth + 1).astype(np.uint8)
-            parts.append({
-                "shot": shot.numpy()[keep] + np.uint32(start),
-                "time_ns": t_np[keep], "weight": w_np[keep],
-                "x_m": x.numpy()[keep], "y_m": y.numpy()[keep], "z_m": z.numpy()[keep],
-                "depth": depth[keep]})
+            parts.append((Returns(
+                shot=shot.numpy()[keep], time_ns=t_np[keep], weight=w_np[keep],
+                x_m=x.numpy()[keep], y_m=y.numpy()[keep], z_m=z.numpy()[keep],
+                depth=depth[keep], n_shots=stop - start, paths_per_shot=int(paths_per_shot)),
+                start))
             if progress is not None:
                 progress(stop - start)
-        out = {key: np.concatenate([p[key] for p in parts]) if parts else np.zeros(0)
-               for key in ("shot", "time_ns", "weight", "x_m", "y_m", "z_m", "depth")}
-        out["paths_per_shot"] = int(paths_per_shot)
-        out["n_shots"] = int(n_shots)
+        if not parts:
+            return Returns.empty(n_shots=0, paths_per_shot=paths_per_shot)
+        if len(parts) == 1:
+            return parts[0][0]
+        out = Returns.concatenate(parts, n_shots=n_shots)
+        out.shot = out.shot.astype(np.uint32)
         return out
 
     def to_string(self):

@@ -4,9 +4,9 @@ Speed is measured here, never in tests. Every figure is the median of several re
 after a warm-up (kernel caches, numba), and ratios are taken within one run, since these
 machines are noisy; the detector also reports its best repetition, because on these VMs the
 cost of faulting in freshly allocated memory varies two- to threefold between identical runs.
-Also runs the stability sweeps of :mod:`lidar_mitsuba.stability` (``stability.png``) and the
-accuracy-against-time study and the simplification table of :mod:`lidar_mitsuba.pareto`
-(``accuracy_vs_time.png``), and the mitransient peer comparison of :mod:`lidar_mitsuba.peer`
+Also runs the stability sweeps of :mod:`.breaking_points` (``stability.png``) and the
+accuracy-against-time study and the simplification table of :mod:`.accuracy`
+(``accuracy_vs_time.png``), and the mitransient peer comparison of :mod:`.peer`
 (``peer.png``; skipped with a note when mitransient is not installed). Writes ``DIR/bench.json`` and ``DIR/throughput.png`` and returns a summary.
 """
 from __future__ import annotations
@@ -22,9 +22,13 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from . import pmt, scene as scn, terrain
-from .instrument import C_M_PER_NS, Instrument
-from .simulate import SurfaceSpec, simulate
+from .. import pmt, scene as scn, terrain
+from ..constants import C_M_PER_NS
+from ..instrument import Instrument
+from ..photons import Returns
+from ..simulate import simulate
+from ..surface import SurfaceSpec, heightfield_to_trimesh
+from . import accuracy, breaking_points, peer
 
 
 def _times(fn, *, repeats: int) -> list[float]:
@@ -41,12 +45,9 @@ def _median_time(fn, *, repeats: int) -> float:
     return statistics.median(_times(fn, repeats=repeats))
 
 
-def _synthetic_returns(rng, n_shots: int, k: int = 64) -> dict:
+def _synthetic_returns(rng, n_shots: int, k: int = 64) -> Returns:
     t0 = 2 * 496e3 / C_M_PER_NS
-    return {"shot": np.repeat(np.arange(n_shots), k),
-            "time_ns": t0 + 0.4247 * rng.standard_normal(n_shots * k),
-            "weight": np.ones(n_shots * k, np.float32), "n_shots": n_shots,
-            "paths_per_shot": k, "depth": np.ones(n_shots * k, np.uint8)}
+    return Returns.at_times(t0 + 0.4247 * rng.standard_normal(n_shots * k), paths_per_shot=k)
 
 
 def bench_detector(*, quick: bool) -> list[dict]:
@@ -89,7 +90,7 @@ def bench_detector(*, quick: bool) -> list[dict]:
         rows.append({"case": name, "shots": n_shots, "paths_per_shot": k, "events": float(events),
                      "detected": len(det), "seconds": sec, "best_seconds": best,
                      "events_per_s": events / sec, "best_events_per_s": events / best,
-                     "returns_per_s": ret["weight"].size / sec})
+                     "returns_per_s": len(ret) / sec})
     return rows
 
 
@@ -99,8 +100,8 @@ def bench_integrator(*, quick: bool) -> dict:
     size = 256.0 if quick else 1024.0
     hf = terrain.fractal(p=1.8, size_m=size, grid_m=1.0, relief_m=10.0, seed=0)
     t = time.perf_counter()
-    tm = scn.heightfield_to_trimesh(hf, margin_m=13.5)
-    scene = scn.scene_from_trimesh(tm)
+    tm = heightfield_to_trimesh(hf, margin_m=13.5)
+    scene = scn.scene_from_mesh(tm.vertices, tm.faces)
     build_s = time.perf_counter() - t
     integ = mi.load_dict(Instrument().integrator_dict())
     n_shots, k = (2000, 128) if quick else (20000, 256)
@@ -148,7 +149,7 @@ def bench_end_to_end(*, quick: bool) -> list[dict]:
 
 
 def _chart(doc: dict, path: pathlib.Path) -> None:
-    from .plotting import plt
+    from ..plotting import plt
     det = doc["detector"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), dpi=110)
     ax = axes[0]
@@ -180,15 +181,14 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False) -> dict:
            "machine": platform.platform(), "drjit": dr.__version__, "mitsuba": mi.__version__,
            "detector": bench_detector(quick=quick), "integrator": bench_integrator(quick=quick),
            "end_to_end": bench_end_to_end(quick=quick)}
-    from . import pareto, peer, stability
-    doc["stability"] = stability.run_all(quick=quick)
-    doc["accuracy_vs_time"] = pareto.run(quick=quick)
-    doc["simplifications"] = pareto.simplifications(quick=quick)
+    doc["stability"] = breaking_points.run_all(quick=quick)
+    doc["accuracy_vs_time"] = accuracy.run(quick=quick)
+    doc["simplifications"] = accuracy.simplifications(quick=quick)
     doc["peer"] = peer.run(quick=quick)
     (out / "bench.json").write_text(json.dumps(doc, indent=1, default=float))
     _chart(doc, out / "throughput.png")
-    stability.chart(doc["stability"], out / "stability.png")
-    pareto.chart(doc["accuracy_vs_time"], out / "accuracy_vs_time.png")
+    breaking_points.chart(doc["stability"], out / "stability.png")
+    accuracy.chart(doc["accuracy_vs_time"], out / "accuracy_vs_time.png")
     peer.chart(doc["peer"], out / "peer.png")
     return doc
 
@@ -209,13 +209,12 @@ def format_summary(doc: dict) -> str:
     for r in doc["end_to_end"]:
         lines.append(f"end to end, {r['beam']} beam: {r['shots_per_s']:.0f} shots/s "
                      f"({r['shots']} shots in {r['seconds']:.2f} s)")
-    from . import pareto, peer
     for name, d in doc.get("accuracy_vs_time", {}).items():
         front = ", ".join(f"{r['knob']}={r['value']:g}: {100 * r['error_m']:.2f} cm in "
-                          f"{r['seconds']:.2f} s" for r in pareto.pareto_front(d["rows"]))
+                          f"{r['seconds']:.2f} s" for r in accuracy.pareto_front(d["rows"]))
         lines.append(f"accuracy vs time, {name} (Pareto front): {front}")
     if "simplifications" in doc:
-        lines.append(pareto.format_simplifications(doc["simplifications"]))
+        lines.append(accuracy.format_simplifications(doc["simplifications"]))
     if "peer" in doc:
         lines.append(peer.format_summary(doc["peer"]))
     for name, rows in doc.get("stability", {}).items():

@@ -35,8 +35,12 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from . import pmt, retrieval, terrain
-from .instrument import C_M_PER_NS, Instrument
+import mitsuba as mi
+
+from .. import chunks, retrieval, spectra, terrain
+from ..instrument import Instrument
+from ..surface import SurfaceSpec
+from ..track import Track as TrackLine
 
 P_VALUES = (1.5, 1.6, 1.7, 1.8, 1.9, 2.0)
 SLOPES_DEG = (0.0, 2.0, 4.0, 6.0, 8.0, 10.0)
@@ -45,7 +49,7 @@ NORMALIZATIONS = ("ward1992", "duer", "balanced")
 PIXELS = (16, 4, 1)               # Fig. 7 detectors besides the ideal one
 SEGMENT_M = 16                    # Fig. 5: along-track segment length [m], about one footprint
 RMS_LENGTHS_M = (16, 64, 256, 1024)
-CHUNK_SHOTS = 65536               # simulate()'s shot chunk; redetect() splits the same way
+CHUNK_SHOTS = chunks.CHUNK_SHOTS  # simulate()'s shot chunk; redetect() splits the same way
 ATM_SPACING_M = 1.68              # the paper's ATM profile: 512 points over ~860 m
 ATM_POINTS = 512
 SEEDS = {"fig7": 7, "fig9": 9, "fig12": 1200, "fig13": 1300}
@@ -126,15 +130,9 @@ def counts_for(quick: bool) -> Counts:
 
 
 def elevation_stats(dh_m, *, shots: int) -> dict:
-    """Bias and precision of residuals ``dh_m`` [m] with their Monte Carlo standard errors:
-    bias SE = std / sqrt(n), std SE = std / sqrt(2 (n - 1)) (Gaussian approximation)."""
-    dh = np.asarray(dh_m, np.float64)
-    n = int(dh.size)
-    bias = float(dh.mean()) if n else math.nan
-    std = float(dh.std(ddof=1)) if n > 1 else math.nan
-    return {"n_photons": n, "shots": int(shots), "photons_per_shot": n / shots if shots else math.nan,
-            "bias_m": bias, "bias_se_m": std / math.sqrt(n) if n > 1 else math.nan,
-            "std_m": std, "std_se_m": std / math.sqrt(2.0 * (n - 1)) if n > 1 else math.nan}
+    """Bias and precision of residuals ``dh_m`` [m] with their Monte Carlo standard errors
+    (:func:`lidar_mitsuba.retrieval.elevation_stats`), as a dict."""
+    return retrieval.elevation_stats(dh_m, shots=shots).to_dict()
 
 
 @dataclass
@@ -167,9 +165,9 @@ def track_of(res) -> Track:
 def redetect(res, instrument: Instrument, *, seed: int, chunk_shots: int = CHUNK_SHOTS) -> Track:
     """Run another detector on a simulation's traced returns (``simulate(keep_returns=True)``).
 
-    Only the PMT runs again; the chunks and the detector's random streams are those of
-    :func:`~lidar_mitsuba.simulate.simulate`, so the result is exactly what
-    ``simulate(instrument=instrument, <same surface>, seed=seed, chunk_shots=chunk_shots)``
+    Only the PMT runs again, through the same chunk loop (:mod:`lidar_mitsuba.chunks`) and
+    detector streams as :func:`~lidar_mitsuba.simulate.simulate`, so the result is exactly
+    what ``simulate(instrument=instrument, <same surface>, seed=seed, chunk_shots=chunk_shots)``
     gives, at the cost of the detector alone. ``instrument`` must share the run's geometry
     (altitude, footprint, pulse, field of view); signal level, channels, dead time and noise
     may differ.
@@ -179,37 +177,26 @@ def redetect(res, instrument: Instrument, *, seed: int, chunk_shots: int = CHUNK
     if instrument.integrator_dict() != res.instrument.integrator_dict():
         raise ValueError("the instrument's geometry (altitude, footprint, pulse, field of view) "
                          "differs from the traced run's")
-    r = res.returns
-    n = res.n_shots
-    gate = 2.0 * (instrument.altitude_m - res.z_ref_m) / C_M_PER_NS
-    shots, chans, times, sig, mu = [], [], [], [], []
-    edges = np.searchsorted(r["shot"], np.arange(0, n + chunk_shots, chunk_shots).clip(max=n))
-    for k, a in enumerate(range(0, n, chunk_shots)):
-        b = min(n, a + chunk_shots)
-        i0, i1 = int(edges[k]), int(edges[k + 1])
-        ret = {"shot": (r["shot"][i0:i1] - a).astype(np.uint32), "time_ns": r["time_ns"][i0:i1],
-               "weight": r["weight"][i0:i1], "depth": r["depth"][i0:i1],
-               "n_shots": b - a, "paths_per_shot": r["paths_per_shot"]}
-        rng = np.random.default_rng([int(seed), 0x504D54, k])
-        det = pmt.detect(ret, instrument, rng, gate_center_ns=gate[a:b])
-        shots.append(det.shot + a)
-        chans.append(det.channel)
-        times.append(det.time_ns)
-        sig.append(det.is_signal)
-        mu.append(det.mean_photons_per_shot)
-    shot, is_sig = np.concatenate(shots), np.concatenate(sig)
-    h = retrieval.photon_heights_m(np.concatenate(times), altitude_m=instrument.altitude_m)
-    dh = h - res.z_ref_m[shot]
-    return Track(n_shots=n, n_channels=instrument.channels, shot=shot[is_sig],
-                 channel=np.concatenate(chans)[is_sig], dh_m=dh[is_sig],
-                 mean_photons_per_shot=float(np.mean(np.concatenate(mu))))
+    run = chunks.run(source=chunks.replayed(res.returns), detectors={"redetect": instrument},
+                     z_ref_m=res.z_ref_m, seed=seed, chunk_shots=chunk_shots)
+    return _track(run.detections["redetect"], instrument, res.z_ref_m)
+
+
+def _track(det, instrument: Instrument, z_ref_m: np.ndarray) -> Track:
+    """The signal photons of detections ``det`` as a :class:`Track`."""
+    sig = det.is_signal
+    h = retrieval.photon_heights_m(det.time_ns[sig], altitude_m=instrument.altitude_m)
+    shot = det.shot[sig]
+    return Track(n_shots=int(z_ref_m.size), n_channels=instrument.channels, shot=shot,
+                 channel=det.channel[sig], dh_m=h - z_ref_m[shot],
+                 mean_photons_per_shot=float(np.mean(det.mean_photons_per_shot)))
 
 
 def _simulate(**kw):
     """``simulate`` with the paper's model: single bounce (photons that return along their own
     incident ray; Sec. III), not ``max_depth="auto"``, which adds a second bounce on rough
     fractals."""
-    from .simulate import simulate
+    from ..simulate import simulate
     return simulate(progress=False, chunk_shots=CHUNK_SHOTS, keep_returns=True, max_depth=1, **kw)
 
 
@@ -221,57 +208,38 @@ def return_offset_m(res) -> float:
     traced paths (same seed) differ here only through the weights, so differences between
     BRDFs are nearly exact."""
     r = res.returns
-    h = retrieval.photon_heights_m(r["time_ns"], altitude_m=res.instrument.altitude_m)
-    w = np.asarray(r["weight"], np.float64)
-    return float(np.sum(w * (h - res.z_ref_m[r["shot"]])) / np.sum(w))
+    h = retrieval.photon_heights_m(r.time_ns, altitude_m=res.instrument.altitude_m)
+    w = np.asarray(r.weight, np.float64)
+    return float(np.sum(w * (h - res.z_ref_m[r.shot])) / np.sum(w))
 
 
 def flat_plate_tracks(instruments: dict, *, shots: int, seed: int, paths_per_shot: int = 128,
                       chunk_shots: int = CHUNK_SHOTS) -> dict:
     """Several detectors on ONE trace of a flat plate (the paper's snow), chunk by chunk, without
     keeping the traced returns: ``{name: Track}`` for ``instruments = {name: Instrument}``
-    (same geometry). Mirrors :func:`~lidar_mitsuba.simulate.simulate`'s chunks and random
-    streams, so each Track is exactly what ``simulate(instrument=..., surface=SurfaceSpec(
-    kind="flat"), shots=shots, seed=seed)`` detects (a test checks this)."""
-    import mitsuba as mi
-    from . import scene as scn
-    from .simulate import SurfaceSpec, track_positions
+    (same geometry). The chunk loop and random streams are :func:`~lidar_mitsuba.simulate.
+    simulate`'s (:mod:`lidar_mitsuba.chunks`), so each Track is exactly what
+    ``simulate(instrument=..., surface=SurfaceSpec(kind="flat"), shots=shots, seed=seed)``
+    detects (a test checks this)."""
     insts = list(instruments.values())
     geom = insts[0].integrator_dict()
     if any(i.integrator_dict() != geom for i in insts):
         raise ValueError("the instruments must share altitude, footprint, pulse and field of view")
     inst0 = insts[0]
-    surface = SurfaceSpec(kind="flat")
-    plane = surface.build()
+    spec = SurfaceSpec(kind="flat")
+    plane = spec.build()
     sigma = inst0.footprint_sigma_m
-    _, x, y = track_positions(shots, spacing_m=inst0.shot_spacing_m,
-                              centre_x_m=surface.size_m / 2.0, y_m=surface.size_m / 2.0)
-    x_loc, y_loc, dz = plane.wrap(x, y)
-    assert not np.any(dz)
-    scene = scn.scene_from_trimesh(plane.to_trimesh(margin_m=5.0 * sigma + 1.0),
-                                   bsdf=surface.bsdf_dict())
+    _, x, y = TrackLine().positions(shots, spacing_m=inst0.shot_spacing_m,
+                                    centre_xy_m=plane.centre_xy_m())
+    x_loc, y_loc, dz = plane.fold(x, y)
+    scene, _ = plane.mitsuba_scene(bsdf=spec.bsdf_dict(), margin_m=5.0 * sigma + 1.0,
+                                   bounds_m=None)
     z_ref = plane.reference_elevation_m(x, y, sigma_m=sigma)
     integrator = mi.load_dict(inst0.integrator_dict(max_depth=1))
-    parts = {name: [] for name in instruments}
-    for k, a in enumerate(range(0, shots, chunk_shots)):
-        b = min(shots, a + chunk_shots)
-        chunk_seed = int(np.random.SeedSequence([int(seed), k]).generate_state(1)[0])
-        ret = integrator.trace(scene, shot_x_m=x_loc[a:b], shot_y_m=y_loc[a:b],
-                               paths_per_shot=int(paths_per_shot), seed=chunk_seed)
-        for name, inst in instruments.items():
-            gate = 2.0 * (inst.altitude_m - z_ref[a:b]) / C_M_PER_NS
-            det = pmt.detect(ret, inst, np.random.default_rng([int(seed), 0x504D54, k]),
-                             gate_center_ns=gate)
-            sig = det.is_signal
-            shot = det.shot[sig] + a
-            h = retrieval.photon_heights_m(det.time_ns[sig], altitude_m=inst.altitude_m)
-            parts[name].append((shot, det.channel[sig], h - z_ref[shot], det.mean_photons_per_shot))
-        del ret
-    return {name: Track(n_shots=shots, n_channels=instruments[name].channels,
-                        shot=np.concatenate([q[0] for q in ps]), channel=np.concatenate([q[1] for q in ps]),
-                        dh_m=np.concatenate([q[2] for q in ps]),
-                        mean_photons_per_shot=float(np.mean(np.concatenate([q[3] for q in ps]))))
-            for name, ps in parts.items()}
+    run = chunks.run(source=chunks.traced(integrator, scene, x_m=x_loc, y_m=y_loc,
+                                          paths_per_shot=paths_per_shot, dz_m=dz),
+                     detectors=instruments, z_ref_m=z_ref, seed=seed, chunk_shots=chunk_shots)
+    return {name: _track(run.detections[name], instruments[name], z_ref) for name in instruments}
 
 
 # ------------------------------------------------------------------------------ profiles
@@ -312,14 +280,14 @@ def load_profile(path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fit_profile(distance_m, height_m) -> dict:
-    """Fit the fractal exponent p of an along-track profile (:func:`terrain.fit_p`).
+    """Fit the fractal exponent p of an along-track profile (:func:`spectra.fit_p`).
 
     The profile is resampled by linear interpolation to its median spacing when the spacing is
     not uniform (to 1e-6 relative), and end-matched (the line through its first and last points
     is subtracted, so that the periodogram sees no jump where the profile wraps around; a plain
     linear detrend leaves the jump and biases p low by up to 0.3 on 512-point profiles).
 
-    Returns p, p_stderr, the spacing [m], the number of points, whether it was resampled, and
+    Returns p, p_se, the spacing [m], the number of points, whether it was resampled, and
     the spectrum (f [1/m], psd [m^3]) and fitted line for plotting.
     """
     d = np.asarray(distance_m, np.float64)
@@ -333,9 +301,9 @@ def fit_profile(distance_m, height_m) -> dict:
         z = np.interp(x, d, z)
     n = z.size
     z = z - (z[0] + (z[-1] - z[0]) * np.arange(n) / (n - 1))
-    fit = terrain.fit_p(z, grid_m=dx)
-    f, psd = terrain.profile_power_spectrum(z, grid_m=dx)
-    return {"p": fit.p, "p_stderr": fit.p_stderr, "spacing_m": dx, "n_points": int(n),
+    fit = spectra.fit_p(z, grid_m=dx)
+    f, psd = spectra.profile_power_spectrum(z, grid_m=dx)
+    return {"p": fit.p, "p_se": fit.p_se, "spacing_m": dx, "n_points": int(n),
             "resampled": resampled, "f_min_per_m": fit.f_min_per_m, "f_max_per_m": fit.f_max_per_m,
             "_f": f, "_psd": psd, "_slope": fit.slope}
 
@@ -414,15 +382,15 @@ def fig3_spectra(*, terrain_seed: int = 0, profile: tuple[np.ndarray, np.ndarray
     rows = []
     for p in P_VALUES:
         hf = _fractal(p, terrain_seed)
-        f, psd = terrain.profile_power_spectrum(hf.z_m)         # all rows along x, averaged
+        f, psd = spectra.profile_power_spectrum(hf.z_m)         # all rows along x, averaged
         mid = hf.ny // 2
-        row = terrain.fit_p(hf.z_m[mid], grid_m=hf.grid_m)
+        row = spectra.fit_p(hf.z_m[mid], grid_m=hf.grid_m)
         x = 50.0 + ATM_SPACING_M * np.arange(ATM_POINTS)
         atm = fit_profile(x, hf.profile(y_m=mid * hf.grid_m, x_m=x))
-        allrows = terrain.fit_p(hf.z_m, grid_m=hf.grid_m, axis=1)
-        rows.append({"p": p, "row_fit_p": row.p, "row_fit_p_stderr": row.p_stderr,
-                     "atm_like_fit_p": atm["p"], "atm_like_fit_p_stderr": atm["p_stderr"],
-                     "all_rows_fit_p": allrows.p, "all_rows_fit_p_stderr": allrows.p_stderr,
+        allrows = spectra.fit_p(hf.z_m, grid_m=hf.grid_m, axis=1)
+        rows.append({"p": p, "row_fit_p": row.p, "row_fit_p_se": row.p_se,
+                     "atm_like_fit_p": atm["p"], "atm_like_fit_p_se": atm["p_se"],
+                     "all_rows_fit_p": allrows.p, "all_rows_fit_p_se": allrows.p_se,
                      "_f": f, "_psd": psd})
     out = {"terrain_seed": terrain_seed, "profiles": rows, "atm_data_available": False}
     if profile is not None:
@@ -480,7 +448,7 @@ def fig5_rms(*, terrain_seeds: int) -> dict:
 def fig6_brdf() -> dict:
     """Fig. 6: the Ward BRDF over the outgoing hemisphere for theta_i = 0 and 20 deg, from the
     simulator's Mitsuba plugin, checked against the independent numpy formula."""
-    from . import brdf
+    from .. import brdf
     out = {"rho_d": 0.9, "rho_s": 0.05, "alpha": 0.3, "panels": []}
     for ti in (0.0, 20.0):
         phi_e, th_e, f = brdf.ward_polar_grid(ti)
@@ -528,7 +496,7 @@ def fig8_9_slopes(*, shots: int, seed: int = SEEDS["fig9"], slopes_deg=SLOPES_DE
     """Figs. 8-9: strong beam over planes sloped 0-10 deg along track: histograms, bias and
     precision, with an ideal detector on the same photons and the closed-form spread
     sqrt(sigma_range^2 + (sigma_footprint tan(slope))^2)."""
-    from .simulate import SurfaceSpec
+    from ..simulate import SurfaceSpec
     inst = Instrument(beam="strong")
     ideal = inst.replace(ideal_detector=True)
     edges = np.linspace(-1.5, 1.5, 301)
@@ -597,7 +565,7 @@ def fig10_12_complex(*, shots: int, terrain_seeds: int, p_values=P_VALUES,
     """Figs. 10-12: 1000-shot tracks over fractal snow for p = 1.5 ... 2.0, strong beam
     (``simulate``) and weak beam and ideal detector on the same traced photons (``redetect``),
     on ``terrain_seeds`` fractal realisations (seed 0 is the primary track)."""
-    from .simulate import SurfaceSpec
+    from ..simulate import SurfaceSpec
     strong, weak = Instrument(beam="strong"), Instrument(beam="weak")
     ideal = strong.replace(ideal_detector=True)
     runs = []
@@ -702,8 +670,8 @@ def fig13_albedo(*, shots: int, terrain_seeds: int, resolve_shots: int = 0, albe
     rho_d = 0.9), which separate the dead-time and BRDF-weighting parts of the albedo trend.
     ``resolve_shots`` > 0 adds a long-track run per albedo (ward1992, terrain seed 0, photon
     seed ``seed + 100``) that resolves the effect the 1000-shot tracks cannot."""
-    from .scene import ward_bsdf_dict
-    from .simulate import SurfaceSpec
+    from ..scene import ward_bsdf_dict
+    from ..simulate import SurfaceSpec
     strong = Instrument(beam="strong")
     runs = []
     for s in range(terrain_seeds):
@@ -799,7 +767,7 @@ def _summarize_albedo(d: dict) -> dict:
 
 # ------------------------------------------------------------------------------ figures
 def _plt():
-    from .plotting import plt
+    from ..plotting import plt
     return plt
 
 
@@ -819,7 +787,7 @@ def plot_fig3(d: dict, path=None):
     up = d.get("user_profile")
     if up is not None:
         ax.loglog(up["_f"], up["_psd"], color="k", lw=1.0, alpha=0.8,
-                  label=f"{up['name']}: p = {up['p']:.2f} ± {up['p_stderr']:.2f}")
+                  label=f"{up['name']}: p = {up['p']:.2f} ± {up['p_se']:.2f}")
     ax.set_xlabel("spatial frequency f [1/m]")
     ax.set_ylabel("power spectral density [m³]")
     ax.set_title("(a) along-track profile spectra (all 1024 rows averaged);\n"
@@ -830,11 +798,11 @@ def plot_fig3(d: dict, path=None):
     for key, lab, mk, dx in (("row_fit_p", "one 1024 m profile (1 m)", "o", -0.006),
                              ("atm_like_fit_p", "ATM-like: 512 points at 1.68 m", "s", 0.006)):
         bx.errorbar(ps + dx, [r[key] for r in d["profiles"]],
-                    yerr=[2 * r[key + "_stderr"] for r in d["profiles"]], fmt=mk, ms=5,
+                    yerr=[2 * r[key + "_se"] for r in d["profiles"]], fmt=mk, ms=5,
                     capsize=3, label=lab + " (±2 SE)")
     bx.plot([1.45, 2.05], [1.45, 2.05], "k-", lw=0.8, alpha=0.6, label="fitted = true")
     if up is not None:
-        bx.axhspan(up["p"] - 2 * up["p_stderr"], up["p"] + 2 * up["p_stderr"], color="0.5", alpha=0.25)
+        bx.axhspan(up["p"] - 2 * up["p_se"], up["p"] + 2 * up["p_se"], color="0.5", alpha=0.25)
         bx.axhline(up["p"], color="k", ls=":", label=f"{up['name']} (±2 SE band)")
     bx.set_xlabel("p of the synthetic surface")
     bx.set_ylabel("p fitted from the profile's spectrum")
@@ -898,7 +866,7 @@ def plot_fig5(d: dict, path=None):
 
 
 def plot_fig6(path=None):
-    from . import brdf
+    from .. import brdf
     return brdf.ward_polar_figure(path=path)
 
 
@@ -978,7 +946,7 @@ def plot_fig9(d: dict, path=None):
 
 
 def plot_fig10(d: dict, path=None):
-    from .plotting import photon_cloud
+    from ..plotting import photon_cloud
     c = d["_cloud"]
     st = c["stats"]
     return photon_cloud(along_track_m=c["along_track_m"], surface_z_m=c["surface_z_m"],
@@ -1146,11 +1114,11 @@ def rows_fig3(d: dict) -> list[dict]:
     rows = []
     for key, what in (("row_fit_p", "one 1024 m synthetic profile (1 m spacing)"),
                       ("atm_like_fit_p", "one ATM-like synthetic profile (512 points, 1.68 m)")):
-        z = [abs(r[key] - r["p"]) / r[key + "_stderr"] for r in d["profiles"]]
+        z = [abs(r[key] - r["p"]) / r[key + "_se"] for r in d["profiles"]]
         ok = max(z) <= 3.0
         rows.append(_row(
             f"p fitted back from {what}, for p = 1.5 … 2.0",
-            ", ".join(f"{r[key]:.2f} ± {r[key + '_stderr']:.2f}" for r in d["profiles"]),
+            ", ".join(f"{r[key]:.2f} ± {r[key + '_se']:.2f}" for r in d["profiles"]),
             "the simulated spectrum is the 1/f^p filter times white noise (1-D slope −(2p−1))",
             "agrees" if ok else "disagrees",
             f"largest deviation {max(z):.1f} standard errors" + (
@@ -1163,15 +1131,15 @@ def rows_fig3(d: dict) -> list[dict]:
                      "with --profile FILE (distance [m], height [m]) to fit it the same way"))
     up = d.get("user_profile")
     if up is not None:
-        lo, hi = up["p"] - 2 * up["p_stderr"], up["p"] + 2 * up["p_stderr"]
+        lo, hi = up["p"] - 2 * up["p_se"], up["p"] + 2 * up["p_se"]
         inside = hi >= 1.5 and lo <= 2.0
         rows.append(_row(
             f"p fitted from {up['name']}",
-            f"{up['p']:.3f} ± {up['p_stderr']:.3f} ({up['n_points']} points at "
+            f"{up['p']:.3f} ± {up['p_se']:.3f} ({up['n_points']} points at "
             f"{up['spacing_m']:.3g} m{', resampled' if up['resampled'] else ''}, end-matched)",
             "1.5–2.0 for the ATM ice-sheet profile",
             "within the paper's range" if inside else "outside the paper's range",
-            "fit over f = 3/L … 1/(4 Δx) as terrain.fit_p", p=up["p"], p_stderr=up["p_stderr"]))
+            "fit over f = 3/L … 1/(4 Δx) as spectra.fit_p", p=up["p"], p_se=up["p_se"]))
     return rows
 
 
@@ -1637,7 +1605,7 @@ def format_report(doc: dict) -> str:
     """report.md from the report document (``report.json``'s content)."""
     c, h, t = doc["counts"], doc["headline"], doc["timings_s"]
     S = h["terrain_seeds"]
-    L = [f"# Reproducing Zhang & Kerekes, results section (Figs. 3–13)", "",
+    L = ["# Reproducing Zhang & Kerekes, results section (Figs. 3–13)", "",
          f"Mode **{doc['mode']}**: {c['flat_shots']:,} shots on the flat plate (paper 200,000), "
          f"{c['slope_shots']:,} per slope (paper 50,000), {c['complex_shots']:,} per fractal track "
          f"(paper 1000), {c['terrain_seeds']} fractal realisations per configuration (paper: one), "

@@ -49,7 +49,8 @@ import numpy as np
 from scipy.signal import fftconvolve
 from scipy.special import ndtr
 
-from .instrument import C_M_PER_NS
+from ..constants import C_M_PER_NS
+from ..scene import mitsuba_mesh
 
 PULSE_SIGMA_NS = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
 PULSE_SIGMA_M = C_M_PER_NS * PULSE_SIGMA_NS          # pulse sigma in OPL [m]
@@ -78,16 +79,13 @@ def _import_mitransient():
 
 # --------------------------------------------------------------------------- geometry
 def _plate_mesh(slope_deg: float, z0_m: float = PLATE_Z0_M) -> mi.Mesh:
-    import trimesh
-
-    from .scene import mitsuba_mesh
     t = math.tan(math.radians(slope_deg))
     h = PLATE_HALF_M
     v = np.array([[-h, -h, z0_m - h * t], [h, -h, z0_m + h * t],
                   [h, h, z0_m + h * t], [-h, h, z0_m - h * t]])
-    tm = trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False)
-    return mitsuba_mesh(tm, bsdf={"type": "diffuse",
-                                  "reflectance": {"type": "spectrum", "value": ALBEDO}})
+    return mitsuba_mesh(v, [[0, 1, 2], [0, 2, 3]],
+                        bsdf={"type": "diffuse", "reflectance": {"type": "spectrum",
+                                                                 "value": ALBEDO}})
 
 
 def _window(slope_deg: float) -> tuple[float, float]:
@@ -194,8 +192,8 @@ class _Ours(_Tool):
         shots = max(1, n_paths // k)
         z = np.zeros(shots)
         r = self.integ.trace(self.scene, shot_x_m=z, shot_y_m=z, paths_per_shot=k, seed=seed)
-        opl = r["time_ns"] * C_M_PER_NS
-        w = r["weight"].astype(np.float64)
+        opl = r.time_ns * C_M_PER_NS
+        w = r.weight.astype(np.float64)
         if self.pulse:     # the photons as the detector sees them: histogram directly
             h, _ = np.histogram(opl, bins=self.edges, weights=w)
             return h / max(h.sum(), 1e-300), None
@@ -353,7 +351,7 @@ def speed_ratios(rows: list[dict], *, top: int = 3) -> list[dict]:
 
 def chart(doc: dict, path) -> None:
     """Error against wall time for both plates, and the impulse responses at orbital range."""
-    from .plotting import plt
+    from ..plotting import plt
     if "rows" not in doc:
         return
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.3), dpi=110)

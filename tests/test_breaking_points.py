@@ -9,9 +9,11 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from lidar_mitsuba.instrument import Instrument, ParameterError
-from lidar_mitsuba.simulate import SurfaceSpec, simulate
-from lidar_mitsuba import stability
+from lidar_mitsuba.constants import ParameterError
+from lidar_mitsuba.instrument import Instrument
+from lidar_mitsuba.simulate import simulate
+from lidar_mitsuba.surface import SurfaceSpec
+from lidar_mitsuba.studies import breaking_points as stability
 
 Z = 4.5
 
@@ -68,7 +70,7 @@ def test_photons_per_launch_edges():
         "type": "rectangle", "to_world": mi.ScalarTransform4f().scale(50)}})
     out = mi.load_dict({"type": "pathlength", "max_lanes": 1}).trace(
         scene, shot_x_m=np.zeros(20), shot_y_m=np.zeros(20), paths_per_shot=1)
-    assert out["weight"].size == 20
+    assert out.weight.size == 20
     with pytest.raises(RuntimeError, match="max_lanes"):
         mi.load_dict({"type": "pathlength", "max_lanes": 2 ** 30 + 1})
 
@@ -81,6 +83,6 @@ def test_saturated_signal_first_photon_bias_grows():
         st = simulate(instrument=Instrument(signal_photons=sig), surface=SurfaceSpec(kind="flat"),
                       shots=400, seed=2, paths_per_shot=int(max(128, 4 * sig)),
                       progress=False).report().overall
-        biases.append((st.bias_m, st.bias_stderr_m))
+        biases.append((st.bias_m, st.bias_se_m))
     assert biases[0][0] + Z * biases[0][1] < biases[1][0] - Z * biases[1][1]
     assert biases[1][0] + Z * biases[1][1] < biases[2][0] - Z * biases[2][1]

@@ -10,9 +10,9 @@ import matplotlib.figure
 import numpy as np
 import pytest
 
-from lidar_mitsuba import compare
+from lidar_mitsuba.studies import brdf_variants as compare
 from lidar_mitsuba.instrument import Instrument
-from lidar_mitsuba.simulate import SurfaceSpec
+from lidar_mitsuba.surface import SurfaceSpec
 
 Z = 4.5
 
@@ -33,7 +33,7 @@ def test_rows_complete_and_finite(rows):
         assert r["n_photons"] > 10, r
         for key in compare.ROW_FIELDS:
             assert math.isfinite(r[key]), (key, r)
-        for key in ("photons_per_shot_err", "bias_err_m", "std_err_m", "std_m", "return_weight"):
+        for key in ("photons_per_shot_se", "bias_se_m", "std_se_m", "std_m", "return_weight"):
             assert r[key] > 0, (key, r)
     assert {r["kind"] for r in rows} == {"slope", "fractal"}
     assert compare.select(rows, kind="fractal", variant="Lambertian")[0]["p"] == 1.8
@@ -64,10 +64,10 @@ def test_lambertian_flat_matches_closed_form():
     assert row["return_weight"] == pytest.approx(1.0, abs=1e-5)
     assert abs(row["photons_per_shot"] - mean) < Z * poisson_se, (row, mean)
     # the per-shot standard error is the Poisson one (to its own sampling error)
-    assert row["photons_per_shot_err"] == pytest.approx(poisson_se, rel=0.15)
+    assert row["photons_per_shot_se"] == pytest.approx(poisson_se, rel=0.15)
     # and the ideal detector's elevation statistics: unbiased, spread c sigma_t / 2
-    assert abs(row["bias_m"]) < Z * row["bias_err_m"]
-    assert abs(row["std_m"] - inst.ranging_sigma_m) < Z * row["std_err_m"]
+    assert abs(row["bias_m"]) < Z * row["bias_se_m"]
+    assert abs(row["std_m"] - inst.ranging_sigma_m) < Z * row["std_se_m"]
 
 
 def test_table_and_plots(rows, tmp_path):
@@ -92,8 +92,8 @@ def test_errors_scale_with_sample():
                          ideal_detector=True)
     n = r["n_photons"]
     assert r["beam"] == "weak" and r["ideal_detector"]
-    assert r["bias_err_m"] == pytest.approx(r["std_m"] / np.sqrt(n))
-    assert r["std_err_m"] == pytest.approx(r["std_m"] / np.sqrt(2 * (n - 1)))
+    assert r["bias_se_m"] == pytest.approx(r["std_m"] / np.sqrt(n))
+    assert r["std_se_m"] == pytest.approx(r["std_m"] / np.sqrt(2 * (n - 1)))
     with pytest.raises(ValueError):
         compare.sweep(variants={}, surfaces=[SurfaceSpec(kind="flat")], shots=10)
 
@@ -105,7 +105,7 @@ def test_relative_and_conclusions(rows):
         if d["variant"] == "Lambertian":
             assert d["photons_ratio"] == 1 and d["bias_diff_m"] == 0 and d["std_ratio"] == 1
         else:
-            assert d["photons_ratio_err"] > 0 and d["bias_diff_err_m"] > 0
+            assert d["photons_ratio_se"] > 0 and d["bias_diff_se_m"] > 0
     ideal = compare.sweep(variants=compare.BRDF_VARIANTS, surfaces=[SurfaceSpec(kind="flat")],
                           shots=60, seed=3, beam="strong", ideal_detector=True)
     text = compare.conclusions(rows, ideal_rows=ideal)

@@ -12,8 +12,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from lidar_mitsuba.instrument import Instrument, ParameterError
-from lidar_mitsuba.simulate import SurfaceSpec, simulate, single_bounce_error
+from lidar_mitsuba.constants import ParameterError
+from lidar_mitsuba.instrument import Instrument
+from lidar_mitsuba.bounce_pilot import single_bounce_error
+from lidar_mitsuba.simulate import simulate
+from lidar_mitsuba.surface import SurfaceSpec
 
 
 def _gaussian_nodes(n, sigma):
@@ -104,7 +107,7 @@ def test_auto_picks_two_bounces_on_the_default_fractal():
     assert res.config["max_depth"] == 2 and not pilot["single_bounce_enough"]
     assert -pilot["d_bias_m"] > 0.5 * pilot["mc_bias_m"] > 0 and pilot["d_std_m"] > 0
     assert 1e-4 < pilot["depth2_weight_fraction"] < 0.02
-    assert (res.returns["depth"] == 2).any()
+    assert (res.returns.depth == 2).any()
 
 
 @pytest.mark.parametrize("bad", [0, 65, 1.5, True, "two"])
@@ -116,7 +119,7 @@ def test_bad_max_depth(bad):
 def test_pilot_without_returns_in_the_gate_traces_two_bounces(monkeypatch):
     """If the pilot has nothing to judge (no first-surface return in the gate), auto takes the
     fuller model and says so instead of failing."""
-    import lidar_mitsuba.simulate as sim
+    import lidar_mitsuba.bounce_pilot as sim
 
     def nothing(**kw):
         raise ValueError("the pilot has no first-surface returns")

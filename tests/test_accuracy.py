@@ -1,5 +1,5 @@
 """The Pareto front helper, and what the accuracy-vs-time study must show on closed forms."""
-from lidar_mitsuba.pareto import pareto_front
+from lidar_mitsuba.studies.accuracy import pareto_front
 
 
 def test_pareto_front_keeps_only_undominated_settings():

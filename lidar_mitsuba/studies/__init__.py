@@ -1,0 +1,14 @@
+"""Studies built on the pipeline: they call it, the pipeline never calls them.
+
+- :mod:`.reproduce`: the paper's Figs. 3-13 and an agreement report (``lidar-mitsuba reproduce``).
+- :mod:`.bench`: throughput benchmarks (``lidar-mitsuba bench``), which also run:
+- :mod:`.accuracy`: accuracy against time for every knob, the Pareto front, the cost of each
+  default simplification;
+- :mod:`.breaking_points`: each model swept to where it fails;
+- :mod:`.peer`: the comparison with mitransient.
+- :mod:`.brdf_variants`: Ward normalisations and Mitsuba BSDFs compared (notebook 01).
+- :mod:`.fpb_matrix`: the first-photon-bias correction's test matrix, without rendering.
+
+Each exposes ``run(...) -> dict`` (its numbers, JSON-serialisable) and, where it draws, a
+``chart``/``plot_*`` function that takes that dict.
+"""
