@@ -16,7 +16,14 @@ Layout (one beam per file)::
                               (Gaussian-footprint mean height), surface_z_m [m], arrivals,
                               mean_photons
 
-Files are written atomically: a temporary file in the same folder, renamed on success.
+Every position of /truth is in one frame: the scene's coordinates [m] of the track as flown
+(a track longer than a built-in tile is traced folded into the tile, and its scattering points
+are moved back), so ``hit_x_m`` of a photon lies within a few footprint sigmas of ``x_m`` of
+its shot. Heights are measured from the scene's z = 0 (``h_ph`` = altitude - c t / 2, the
+spacecraft at ``altitude_m`` above z = 0).
+
+Files are written atomically (a temporary file in the same folder, renamed on success) with
+the permissions of any new file (0666 less the umask).
 """
 from __future__ import annotations
 
@@ -87,11 +94,18 @@ def atomic_h5file(path: str | os.PathLike):
     try:
         with h5py.File(tmp, "w") as f:
             yield f
+        os.chmod(tmp, 0o666 & ~_umask())      # mkstemp makes 0600; a new file follows the umask
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def _ds(group, name, data, units, description):

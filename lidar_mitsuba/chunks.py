@@ -38,10 +38,25 @@ def detector_rng(seed: int, chunk: int) -> np.random.Generator:
     return np.random.default_rng([int(seed), _DETECTOR_STREAM, int(chunk)])
 
 
+def gate_heights_m(z_ref_m: np.ndarray) -> np.ndarray:
+    """(n_shots,) height [m] the range gate of each shot is centred on: its reference
+    elevation; for shots with no surface under them (NaN), interpolated along the track from
+    the shots that have one (the nearest end's beyond them; 0 when no shot has one), so that
+    their gates still record noise."""
+    z = np.asarray(z_ref_m, np.float64)
+    ok = np.isfinite(z)
+    if ok.all():
+        return z
+    if not ok.any():
+        return np.zeros_like(z)
+    i = np.arange(z.size)
+    return np.interp(i, i[ok], z[ok])
+
+
 def gate_center_ns(instrument: Instrument, z_ref_m: np.ndarray) -> np.ndarray:
-    """(n_shots,) round-trip time of each shot's reference surface [ns]: the range gate's
-    centre."""
-    return 2.0 * (instrument.altitude_m - np.asarray(z_ref_m, np.float64)) / C_M_PER_NS
+    """(n_shots,) round-trip time [ns] of the height each shot's range gate is centred on
+    (:func:`gate_heights_m`)."""
+    return 2.0 * (instrument.altitude_m - gate_heights_m(z_ref_m)) / C_M_PER_NS
 
 
 def traced(integrator, scene, *, x_m: np.ndarray, y_m: np.ndarray, paths_per_shot: int,
@@ -92,7 +107,8 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
         source: gives the returns of a chunk (:func:`traced`, :func:`replayed`).
         detectors: name -> instrument; all must share the traced geometry. Each detects every
             chunk with the chunk's detector stream, inside its range gate around ``z_ref_m``.
-        z_ref_m: (n_shots,) reference elevation of each shot [m] (centres the range gate).
+        z_ref_m: (n_shots,) reference elevation of each shot [m] (centres the range gate;
+            NaN where there is no surface: see :func:`gate_heights_m`).
         seed: the run's seed (see the module docstring).
         chunk_shots: shots per chunk.
         keep_returns: keep every traced return in ``ChunkedRun.returns``.

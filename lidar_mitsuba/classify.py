@@ -23,7 +23,7 @@ conf  ATL03 meaning    rule
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
+from scipy import special
 from scipy.ndimage import uniform_filter1d
 
 
@@ -59,16 +59,24 @@ def signal_confidence(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.
         total = uniform_filter1d((counts * noise_bins).sum(1).astype(float), pool_blocks, mode="nearest")
         used = uniform_filter1d(noise_bins.sum(1).astype(float), pool_blocks, mode="nearest")
         lam = total / np.maximum(used, 1e-12)
-        noise_bins = ~(stats.poisson.sf(counts - 1, np.maximum(lam, 1e-12)[:, None]) < 1e-3)
+        noise_bins = ~(_poisson_sf(counts - 1, np.maximum(lam, 1e-12)[:, None]) < 1e-3)
     padded = np.pad(counts, ((0, 0), (1, 1)))
     neighbourhood = padded[:, :-2] + padded[:, 1:-1] + padded[:, 2:]
     k = neighbourhood[block, b]
     mean = 3.0 * lam[block]
-    p = np.where(mean > 0, stats.poisson.sf(k - 1, np.maximum(mean, 1e-300)), 0.0)
+    p = np.where(mean > 0, _poisson_sf(k - 1, np.maximum(mean, 1e-300)), 0.0)
     conf[p < 1e-2] = 2
     conf[p < 1e-4] = 3
     conf[p < 1e-6] = 4
     return conf
+
+
+def _poisson_sf(k, mu):
+    """P(K >= k + 1) for K ~ Poisson(mu), elementwise; 1 for k < 0 (what
+    ``scipy.stats.poisson.sf`` gives, from the same ``special.pdtrc``, without importing
+    scipy.stats, which costs most of a second)."""
+    k = np.asarray(k)
+    return np.where(k < 0, 1.0, special.pdtrc(np.maximum(k, 0), mu))
 
 
 def classification_rates(conf: np.ndarray, is_signal: np.ndarray, *, min_conf: int = 2) -> dict:

@@ -1,17 +1,31 @@
-"""Command-line interface ``lidar-mitsuba`` (simulate, stats, segments, bench, terrain, reproduce).
+"""Command-line interface ``lidar-mitsuba`` (simulate, stats, segments, terrain, bench, reproduce).
 
 Bad input is reported as one line naming the option, with exit code 2 and no output file.
+The options of ``simulate`` and ``terrain`` are generated from the API (:mod:`.cli_options`):
+an option per field of :class:`~lidar_mitsuba.instrument.Instrument`,
+:class:`~lidar_mitsuba.surface.SurfaceSpec` and :class:`~lidar_mitsuba.track.Track` and per
+keyword of :func:`~lidar_mitsuba.simulate.simulate`, with their defaults and descriptions.
 """
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import pathlib
 import sys
+import tempfile
 import time
+import warnings
+
+from . import cli_options as opts
+from .constants import ParameterError, SimulationWarning
+from .instrument import DEAD_TIME_PRESETS_NS, Instrument
+from .track import Track
 
 PROG = "lidar-mitsuba"
+#: simulate() keywords that are CLI options of their own (the rest are composed objects)
+RUN_OPTIONS = ("shots", "seed", "paths_per_shot", "max_depth", "variant", "chunk_shots")
 
 
 class UsageError(Exception):
@@ -23,23 +37,29 @@ class UsageError(Exception):
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message):   # one line, exit 2 (argparse would also print the usage)
+        if message.startswith("argument "):      # "argument --shots: ..." -> "--shots: ..."
+            message = message[len("argument "):]
         sys.stderr.write(f"{self.prog}: error: {message}\n")
         raise SystemExit(2)
 
 
-def _option(name: str) -> str:
-    return {"scene": "--scene", "surface": "--surface"}.get(name, "--" + name.replace("_", "-"))
-
-
 def _out_path(value: str, suffixes: tuple[str, ...], option: str = "--out") -> pathlib.Path:
+    """An output file: the right suffix, not a folder, in an existing folder where a file can
+    be created (tried, not guessed from permissions: root passes every permission check)."""
     path = pathlib.Path(value)
     if suffixes and path.suffix.lower() not in suffixes:
         raise UsageError(option, f"must end with {' or '.join(suffixes)} (got {value!r})")
+    if path.is_dir():
+        raise UsageError(option, f"{value!r} is a folder")
     parent = path.parent if str(path.parent) else pathlib.Path(".")
     if not parent.is_dir():
         raise UsageError(option, f"folder {str(parent)!r} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise UsageError(option, f"folder {str(parent)!r} is not writable")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".probe", dir=parent)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise UsageError(option, f"cannot write in {str(parent)!r} ({e.strerror})") from None
     return path
 
 
@@ -58,7 +78,6 @@ def _out_dir(value: str) -> pathlib.Path:
 
 
 def _dead_time(value: str) -> float:
-    from .instrument import DEAD_TIME_PRESETS_NS
     if value in DEAD_TIME_PRESETS_NS:
         return DEAD_TIME_PRESETS_NS[value]
     try:
@@ -77,66 +96,74 @@ def _max_depth(value: str):
         raise argparse.ArgumentTypeError(f"not an integer or 'auto': {value!r}") from None
 
 
+def _positive_int(value: str) -> int:
+    try:
+        v = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {value!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1 (got {v})")
+    return v
+
+
+def _define(value: str) -> tuple[str, str]:
+    name, eq, v = value.partition("=")
+    if not eq or not name.strip():
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE (got {value!r})")
+    return name.strip(), v
+
+
+def _version() -> str:
+    from importlib import metadata
+
+    from . import __version__
+
+    def v(pkg):
+        try:
+            return metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            return "?"
+    return f"{PROG} {__version__} (mitsuba {v('mitsuba')}, drjit {v('drjit')})"
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from . import terrain
+    from .simulate import simulate
+    from .surface import SURFACES, SurfaceSpec
+
     p = _Parser(prog=PROG, description="Physically based simulation of a spaceborne "
                 "photon-counting lidar (ICESat-2/ATLAS-like) with Mitsuba 3.")
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    p.add_argument("--version", action="version", version=_version())
+    sub = p.add_subparsers(dest="command", parser_class=_Parser, metavar="COMMAND")
 
     s = sub.add_parser("simulate", help="simulate a ground track and write ATL03-like HDF5",
                        description="Simulate laser shots over a surface, detect their photons "
                        "and write an ATL03-like HDF5 file; prints bias and precision.")
-    src = s.add_mutually_exclusive_group()
-    src.add_argument("--scene", metavar="FILE.xml", help="Mitsuba XML scene (z up, metres)")
-    src.add_argument("--surface", choices=("flat", "slope", "fractal"),
-                     help="built-in surface (default fractal; slope if --slope-deg is given)")
-    g = s.add_argument_group("surface")
-    g.add_argument("--slope-deg", type=float, metavar="D", help="slope of --surface slope [deg]")
-    g.add_argument("--slope-azimuth-deg", type=float, default=0.0, metavar="D",
-                   help="direction of steepest ascent [deg], 0 = along track (default 0)")
-    g.add_argument("--p", type=float, default=1.8, metavar="P", help="fractal 1/f^p exponent (1.8)")
-    g.add_argument("--relief-m", type=float, default=10.0, metavar="M", help="fractal relief [m] (10)")
-    g.add_argument("--size-m", type=float, default=1024.0, metavar="M", help="tile side [m] (1024)")
-    g.add_argument("--grid-m", type=float, default=1.0, metavar="M", help="fractal grid [m] (1)")
-    g.add_argument("--terrain-seed", type=int, default=0, metavar="S", help="fractal seed (0)")
-    g.add_argument("--rho-d", type=float, default=0.9, metavar="X", help="Ward diffuse albedo (0.9)")
-    g.add_argument("--rho-s", type=float, default=0.05, metavar="X", help="Ward specular (0.05)")
-    g.add_argument("--alpha", type=float, default=0.3, metavar="X", help="Ward roughness (0.3)")
+    src = s.add_argument_group("scene (a built-in surface or your own Mitsuba XML)")
+    src.add_argument("--scene", metavar="FILE.xml",
+                     help="Mitsuba XML scene (z up, metres, its own BSDFs); a <integrator "
+                     "type=\"pathlength\"> in it sets max_depth, altitude, footprint, pulse "
+                     "and field of view")
+    src.add_argument("-D", dest="define", action="append", type=_define, metavar="NAME=VALUE",
+                     help="set the XML's <default name=\"NAME\"> parameter (repeatable)")
+    g = s.add_argument_group("built-in surface (--surface; slope if --slope-deg is given)")
+    surface_opts = opts.add_options(g, SurfaceSpec, metavars={"kind": None})
+    s.set_defaults(_surface_opts=surface_opts)
+    g._group_actions[0].choices = SURFACES
     i = s.add_argument_group("instrument")
-    i.add_argument("--beam", choices=("strong", "weak"), default="strong", help="beam (strong)")
-    i.add_argument("--shots", type=int, default=1000, metavar="N", help="laser shots (1000)")
-    i.add_argument("--seed", type=int, default=0, metavar="S", help="Monte Carlo seed (0)")
-    i.add_argument("--signal-photons", type=float, metavar="MEAN",
-                   help="mean photons/shot from a flat Lambertian 0.9 plate (8.17 strong, 2.04 weak)")
-    i.add_argument("--channels", type=int, metavar="N",
-                   help="channels the 16 anodes are summed into (16 strong, 4 weak)")
-    i.add_argument("--dead-time-ns", type=_dead_time, default=3.0, metavar="NS",
-                   help="dead time [ns], or a preset: paper (3) or atlas (3.2) (default 3)")
-    i.add_argument("--paralyzable", action="store_true",
-                   help="extending (paralyzable) dead time instead of non-paralyzable")
-    i.add_argument("--background-mhz", type=float, default=0.0, metavar="MHZ",
-                   help="solar background photon rate on the whole detector [MHz] (0)")
-    i.add_argument("--dark-count-hz", type=float, default=0.0, metavar="HZ",
-                   help="dark count rate per channel [Hz] (0)")
-    i.add_argument("--range-gate-m", type=float, default=30.0, metavar="M",
-                   help="height window recorded around the surface [m] (30)")
-    i.add_argument("--pde", type=float, default=0.5, metavar="X", help="detection efficiency (0.5)")
-    i.add_argument("--fill-factor", type=float, default=0.8, metavar="X", help="fill factor (0.8)")
-    i.add_argument("--ideal-detector", action="store_true", help="no dead time")
+    s.set_defaults(_instrument_opts=opts.add_options(
+        i, Instrument, types_={"dead_time_ns": _dead_time}))
+    t = s.add_argument_group("track (default: along +x through the middle of the surface)")
+    s.set_defaults(_track_opts=opts.add_options(t, Track, metavars={"start_xy_m": ("X", "Y")}))
     r = s.add_argument_group("rendering")
-    r.add_argument("--variant", default="llvm_ad_mono", metavar="NAME",
-                   help="Mitsuba variant: llvm_ad_mono (CPU, default) or cuda_ad_mono (GPU)")
-    r.add_argument("--paths-per-shot", type=int, default=128, metavar="N",
-                   help="photon paths traced per shot (128)")
-    r.add_argument("--max-depth", type=_max_depth, default="auto", metavar="N",
-                   help="surface interactions per path (1: single bounce), or auto: 1 on "
-                   "planes, elsewhere 2 unless a pilot shows single bounce keeps the answer "
-                   "(auto)")
+    opts.add_options(r, simulate, only=RUN_OPTIONS, types_={"max_depth": _max_depth},
+                     metavars={"max_depth": "N|auto", "variant": "NAME"})
     r.add_argument("--full-tile", action="store_true",
                    help="mesh the whole tile instead of the track's corridor (same photons)")
     o = s.add_argument_group("output")
     o.add_argument("--out", required=True, metavar="FILE.h5", help="ATL03-like HDF5 output")
     o.add_argument("--plot", metavar="FILE.png", help="also write the photon cloud (Fig. 10)")
-    o.add_argument("--window", type=int, default=1000, metavar="SHOTS",
+    o.add_argument("--window", type=_positive_int, default=1000, metavar="SHOTS",
                    help="shots per statistics window (1000)")
     o.add_argument("--no-progress", action="store_true", help="no progress bar")
     o.add_argument("--explain", action="store_true",
@@ -146,7 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
                         description="Bias and precision (mean and std of h - z_ref) of the "
                         "signal photons: overall, per window and per channel.")
     st.add_argument("file", metavar="FILE.h5")
-    st.add_argument("--window", type=int, default=1000, metavar="SHOTS",
+    st.add_argument("--window", type=_positive_int, default=1000, metavar="SHOTS",
                     help="shots per window (1000)")
     st.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
@@ -186,11 +213,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     t = sub.add_parser("terrain", help="fractal terrain by Fourier synthesis (.npy or .ply)",
                        description="Synthesise a periodic 1/f^p fractal heightfield (paper eqs. 2-4).")
-    t.add_argument("--p", type=float, required=True, metavar="P", help="1/f^p exponent")
-    t.add_argument("--size-m", type=float, default=1024.0, metavar="M", help="tile side [m] (1024)")
-    t.add_argument("--grid-m", type=float, default=1.0, metavar="M", help="grid spacing [m] (1)")
-    t.add_argument("--relief-m", type=float, default=10.0, metavar="M", help="max - min [m] (10)")
-    t.add_argument("--seed", type=int, default=0, metavar="S", help="seed (0)")
+    opts.add_options(t, terrain.fractal, metavars={"p": "P"})
     t.add_argument("--out", required=True, metavar="FILE.npy",
                    help=".npy (heights [m], shape (N, N)) or .ply (mesh for XML scenes)")
     return p
@@ -200,34 +223,37 @@ def build_parser() -> argparse.ArgumentParser:
 def _cmd_simulate(a) -> int:
     out = _out_path(a.out, (".h5", ".hdf5"))
     plot = _out_path(a.plot, (".png",), "--plot") if a.plot else None
-    if a.window < 1:
-        raise UsageError("--window", f"must be >= 1 (got {a.window})")
-    if a.scene is not None and not pathlib.Path(a.scene).is_file():
-        raise UsageError("--scene", f"file {a.scene!r} not found")
     from . import atl03
-    from .instrument import Instrument
     from .retrieval import format_report
     from .simulate import simulate
     from .surface import SurfaceSpec
 
-    inst = Instrument(beam=a.beam, signal_photons=a.signal_photons, channels=a.channels,
-                      dead_time_ns=a.dead_time_ns, pde=a.pde, fill_factor=a.fill_factor,
-                      ideal_detector=a.ideal_detector, paralyzable=a.paralyzable,
-                      background_mhz=a.background_mhz, dark_count_hz=a.dark_count_hz,
-                      range_gate_m=a.range_gate_m)
-    surface = None
-    if a.scene is None:
-        kind = a.surface or ("slope" if a.slope_deg is not None else "fractal")
-        surface = SurfaceSpec(kind=kind, slope_deg=a.slope_deg or 0.0,
-                              slope_azimuth_deg=a.slope_azimuth_deg, p=a.p, relief_m=a.relief_m,
-                              size_m=a.size_m, grid_m=a.grid_m, terrain_seed=a.terrain_seed,
-                              rho_d=a.rho_d, rho_s=a.rho_s, alpha=a.alpha)
-    res = simulate(instrument=inst, surface=surface, scene_file=a.scene, shots=a.shots,
-                   seed=a.seed, paths_per_shot=a.paths_per_shot, max_depth=a.max_depth,
-                   variant=a.variant, progress=not a.no_progress, crop_to_track=not a.full_tile)
+    surface_given = opts.given(a, a._surface_opts)
+    params = dict(a.define or [])
+    if a.scene is not None:
+        if surface_given:
+            raise UsageError(opts.option_name(next(iter(surface_given))),
+                             "does not apply to --scene (set it in the XML; -D NAME=VALUE "
+                             "sets its <default> parameters)")
+    else:
+        if params:
+            raise UsageError("-D", "only applies to --scene")
+        if "kind" not in surface_given and "slope_deg" in surface_given:
+            surface_given["kind"] = "slope"
+    inst = Instrument(**opts.given(a, a._instrument_opts))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SimulationWarning)     # printed below, our way
+        res = simulate(instrument=inst, surface=None if a.scene else SurfaceSpec(**surface_given),
+                       scene_file=a.scene, params=params or None,
+                       track=Track(**opts.given(a, a._track_opts)),
+                       progress=not a.no_progress, crop_to_track=not a.full_tile,
+                       **opts.given(a, RUN_OPTIONS))
+    inst = res.instrument           # as run (an XML <integrator> may set its geometry)
+    for w in res.config["warnings"]:
+        sys.stderr.write(f"{PROG} simulate: warning: {w}\n")
     atl03.write(res, out)
     rep = res.report(window_shots=a.window)
-    what = a.scene or f"{surface.kind} surface"
+    what = a.scene or f"{res.config['surface']['kind']} surface"
     print(format_report(rep, title=f"{inst.beam} beam, {res.n_shots} shots over {what} "
                                    f"({res.timings_s['total_s']:.1f} s)"))
     if not res.detections.is_signal.all():
@@ -260,8 +286,6 @@ def _read_input(path: str, reader):
 
 
 def _cmd_stats(a) -> int:
-    if a.window < 1:
-        raise UsageError("--window", f"must be >= 1 (got {a.window})")
     from . import atl03
     from .retrieval import elevation_report, format_report
     d = _read_input(a.file, atl03.read)
@@ -341,24 +365,27 @@ def _cmd_bench(a) -> int:
 
 def _cmd_terrain(a) -> int:
     out = _out_path(a.out, (".npy", ".ply"))
+    import numpy as np
+
     from . import terrain
-    hf = terrain.fractal(p=a.p, size_m=a.size_m, grid_m=a.grid_m, relief_m=a.relief_m,
-                         seed=a.seed)
+    from .surface import export_ply, heightfield_to_trimesh
+    kw = inspect.signature(terrain.fractal).bind(
+        **opts.given(a, ("p", "size_m", "grid_m", "relief_m", "seed")))
+    kw.apply_defaults()
+    hf = terrain.fractal(**kw.arguments)
     tmp = out.with_name(f".{out.name}.tmp{out.suffix}")
     try:
         if out.suffix.lower() == ".npy":
             with open(tmp, "wb") as fh:
-                import numpy as np
                 np.save(fh, hf.z_m)
         else:
-            from .surface import export_ply, heightfield_to_trimesh
             export_ply(heightfield_to_trimesh(hf), tmp)
         os.replace(tmp, out)
     finally:
         if tmp.exists():
             tmp.unlink()
     print(f"wrote {out} ({hf.z_m.shape[0]}x{hf.z_m.shape[1]} grid, {hf.grid_m} m, "
-          f"relief {hf.relief_m:.3f} m, p {a.p})")
+          f"relief {hf.relief_m:.3f} m, p {kw.arguments['p']:g}, seed {kw.arguments['seed']})")
     return 0
 
 
@@ -381,16 +408,19 @@ def _cmd_reproduce(a) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:             # no command: say what there is
+        parser.print_help()
+        return 0
     prog = f"{PROG} {args.command}"
     try:
-        from .constants import ParameterError
         try:
             return {"simulate": _cmd_simulate, "stats": _cmd_stats, "segments": _cmd_segments,
                     "bench": _cmd_bench, "terrain": _cmd_terrain,
                     "reproduce": _cmd_reproduce}[args.command](args)
         except ParameterError as e:
-            raise UsageError(_option(e.name), e.message) from None
+            raise UsageError(opts.option_name(e.name), e.message) from None
     except UsageError as e:
         sys.stderr.write(f"{prog}: error: {e}\n")
         return 2

@@ -49,3 +49,9 @@ def check(name: str, value, ok: bool, expect: str) -> None:
     """Raise :class:`ParameterError` ``name: <expect> (got <value>)`` unless ``ok``."""
     if not ok:
         raise ParameterError(name, f"{expect} (got {value!r})")
+
+
+class SimulationWarning(UserWarning):
+    """A run that completed but whose answer deserves a second look (no photons, too few
+    paths per shot, a mesh coarser than the footprint resolves, shots with no surface under
+    them). ``simulate`` also lists them in ``result.config["warnings"]``."""

@@ -54,7 +54,7 @@ class Instrument:
         fov_diameter_m: receiver field of view on the ground [m].
         pde: photon detection efficiency, probability in [0, 1].
         fill_factor: probability in [0, 1] that a photon falls on an active anode area.
-        dead_time_ns: dead time of each channel [ns] (see ``DEAD_TIME_PRESETS_NS``).
+        dead_time_ns: dead time of each channel [ns]. Presets: ``DEAD_TIME_PRESETS_NS``.
         paralyzable: extending dead time (every arrival, detected or not, restarts it) instead
             of the paper's non-paralyzable one (only detections start it).
         ideal_detector: no dead time (every photon that passes fill factor and PDE counts).
@@ -66,8 +66,9 @@ class Instrument:
             (``z_ref +- range_gate_m / 2``); photons outside it, signal or noise, are not seen.
     """
     beam: str = field(default="strong", metadata={"choices": ("strong", "weak")})
-    signal_photons: float | None = None
-    channels: int | None = None
+    signal_photons: float | None = field(default=None,
+                                         metadata={"default_help": "8.17 strong, 2.04 weak"})
+    channels: int | None = field(default=None, metadata={"default_help": "16 strong, 4 weak"})
     anodes: int = 16
     wavelength_nm: float = 532.0
     pulse_fwhm_ns: float = K.PULSE_FWHM_NS

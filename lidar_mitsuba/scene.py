@@ -7,6 +7,8 @@ Coordinates are scene coordinates in metres, z up.
 from __future__ import annotations
 
 import math
+import pathlib
+import re
 
 import drjit as dr
 import mitsuba as mi
@@ -55,10 +57,12 @@ def scene_bounds(scene: mi.Scene) -> tuple[np.ndarray, np.ndarray]:
 
     Meshes are bounded by their vertex buffers: when Mitsuba merges meshes that share a BSDF,
     the merged mesh keeps the bounding box of the first one. Other shapes use ``bbox()``.
-    Raises ``ValueError`` for a scene without (finite) shapes.
+    Raises ``ValueError`` for a scene without shapes, or whose shapes all have non-finite
+    coordinates (e.g. a NaN in a transform).
     """
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
+    n_bad = 0
     for shape in scene.shapes():
         if shape.is_mesh():
             if not shape.vertex_count():
@@ -67,22 +71,79 @@ def scene_bounds(scene: mi.Scene) -> tuple[np.ndarray, np.ndarray]:
             blo, bhi = v.min(0), v.max(0)
         else:
             b = shape.bbox()
-            if not b.valid():
-                continue
             blo = np.array([float(c) for c in b.min])
             bhi = np.array([float(c) for c in b.max])
-        if np.all(np.isfinite(blo)) and np.all(np.isfinite(bhi)):
+        if np.all(np.isfinite(blo)) and np.all(np.isfinite(bhi)) and np.all(blo <= bhi):
             lo, hi = np.minimum(lo, blo), np.maximum(hi, bhi)
+        else:
+            n_bad += 1
     if not np.all(np.isfinite(lo)):
-        raise ValueError("the scene has no shapes to trace (none, or only ones with "
-                         "non-finite coordinates)")
+        if n_bad:
+            raise ValueError(f"the scene's {n_bad} shape(s) have non-finite coordinates "
+                             "(a NaN or inf in a transform or a vertex?)")
+        raise ValueError("the scene has no shapes to trace")
     return lo, hi
 
 
-def cast_heights_m(scene: mi.Scene, x_m, y_m) -> np.ndarray:
-    """Height [m] of the first surface below each (x, y) (NaN where a vertical ray misses).
+def load_scene(source, *, params: dict | None = None) -> tuple[mi.Scene, str]:
+    """Load a Mitsuba scene from an XML file (``str`` or path), a dict or a ``mi.Scene``.
 
-    ``x_m``, ``y_m``: arrays of the same shape [m]; returns float64 of that shape.
+    ``params``: values of the XML's ``<default name="...">`` parameters (files only).
+    Returns ``(scene, label)``, the label naming the source. Raises ``ValueError`` with one
+    line (file, line and column, and Mitsuba's own message) for anything Mitsuba refuses, and
+    for a scene without finite shapes.
+    """
+    if isinstance(source, mi.Scene):
+        scene, label = source, "mi.Scene"
+        if params:
+            raise ValueError("params only apply to an XML scene file")
+    elif isinstance(source, dict):
+        if params:
+            raise ValueError("params only apply to an XML scene file")
+        scene, label = _load(lambda: mi.load_dict(source), "the scene dict"), "dict"
+    elif isinstance(source, (str, pathlib.PurePath)):
+        path = pathlib.Path(source)
+        if not path.is_file():
+            raise ValueError(f"file {str(path)!r} not found")
+        kw = {str(k): str(v) for k, v in (params or {}).items()}
+        scene, label = _load(lambda: mi.load_file(str(path), **kw), str(path)), str(path)
+    else:
+        raise ValueError(f"must be a Mitsuba XML file, a scene dict or a mitsuba.Scene "
+                         f"(got {type(source).__name__})")
+    if not isinstance(scene, mi.Scene):
+        raise ValueError(f"{label} holds a {type(scene).__name__}, not a <scene>")
+    scene_bounds(scene)                      # no shapes / non-finite shapes: say so now
+    return scene, label
+
+
+def _load(fn, where: str):
+    try:
+        return fn()
+    except RuntimeError as e:       # Mitsuba's parser: "[parser.cpp:N] At FILE (line L, col C): ..."
+        raise ValueError(_one_line(str(e), where)) from None
+
+
+def _one_line(message: str, where: str) -> str:
+    """Mitsuba's (possibly multi-line) error as one line: its location and the innermost
+    message (the last line of an embedded Python traceback)."""
+    lines = [ln.strip() for ln in message.strip().splitlines() if ln.strip()]
+    first = re.sub(r"^\[[\w.]+:\d+\]\s*", "", lines[0]) if lines else "unknown error"
+    if "Traceback (most recent call last)" in message:
+        first = first.split("Traceback")[0].rstrip(": ") + ": " + lines[-1]
+    elif len(lines) > 1:
+        first = first.rstrip(":") + ": " + "; ".join(lines[1:])
+    first = re.sub(r"^(At|While loading) ", "", first)
+    if where not in first and "XML file" not in first:
+        first = f"{where}: {first}"
+    return first
+
+
+def cast_down(scene: mi.Scene, x_m, y_m) -> tuple[np.ndarray, np.ndarray]:
+    """Cast vertical rays down from above the scene at each (x, y) [m].
+
+    Returns ``(z_m, normal_z)``, float64 arrays of the inputs' broadcast shape: the height of
+    the first surface hit and the z component of its geometric normal (NaN where the ray
+    misses; a negative ``normal_z`` means the surface faces down, away from the lidar).
     """
     x = np.asarray(x_m, np.float32)
     y = np.asarray(y_m, np.float32)
@@ -92,17 +153,29 @@ def cast_heights_m(scene: mi.Scene, x_m, y_m) -> np.ndarray:
     ray = mi.Ray3f(mi.Point3f(mi.Float(x), mi.Float(y), top), mi.Vector3f(0, 0, -1))
     si = scene.ray_intersect(ray)
     z = dr.select(si.is_valid(), si.p.z, dr.nan)
-    return z.numpy().astype(np.float64).reshape(shape)
+    nz = dr.select(si.is_valid(), si.n.z, dr.nan)
+    return (z.numpy().astype(np.float64).reshape(shape),
+            nz.numpy().astype(np.float64).reshape(shape))
+
+
+def cast_heights_m(scene: mi.Scene, x_m, y_m) -> np.ndarray:
+    """Height [m] of the first surface below each (x, y) (NaN where a vertical ray misses).
+
+    ``x_m``, ``y_m``: arrays of the same shape [m]; returns float64 of that shape.
+    """
+    return cast_down(scene, x_m, y_m)[0]
 
 
 def raycast_reference_elevation_m(scene: mi.Scene, x_m, y_m, *, sigma_m: float,
-                                  step_sigma: float = 0.25, radius_sigma: float = 3.5,
+                                  step_sigma: float = 0.25, radius_sigma: float = 5.0,
                                   max_rays: int = 2 ** 22) -> np.ndarray:
     """Gaussian-footprint-weighted mean height around each (x, y) for any scene.
 
     Deterministic midpoint quadrature: vertical rays on a square grid of spacing
     ``step_sigma * sigma_m`` within ``radius_sigma * sigma_m``, weighted by
-    ``exp(-r^2 / (2 sigma^2))``; misses are left out of the average. Shapes as inputs.
+    ``exp(-r^2 / (2 sigma^2))``; misses are left out of the average. Shapes as inputs. The
+    disc leaves out exp(-radius_sigma^2 / 2) of the footprint's weight (4e-6 at 5 sigma: at
+    3.5 sigma the 0.2 % left out moved the mean of a 45-degree ridge by up to 1 cm).
     """
     x_m, y_m = np.broadcast_arrays(np.asarray(x_m, float), np.asarray(y_m, float))
     if sigma_m <= 0:

@@ -14,16 +14,20 @@ detect chunk by chunk (:mod:`.chunks`), and finally place and classify the photo
 """
 from __future__ import annotations
 
+import math
+import pathlib
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import mitsuba as mi
 import numpy as np
 
-from . import bounce_pilot, chunks, classify, retrieval, surface as surfaces
-from .constants import ParameterError
+from . import bounce_pilot, chunks, classify, retrieval, scene as scn, surface as surfaces
+from .constants import FWHM_PER_SIGMA, ParameterError, SimulationWarning
 from .instrument import Instrument
 from .photons import Detections, Returns
+from .resources import check_memory
 from .surface import SceneSurface, SurfaceSpec
 from .track import Track
 from .variant import set_variant
@@ -86,24 +90,106 @@ class SimulationResult:
             n_channels=self.instrument.channels, window_shots=window_shots)
 
 
-def _check_run(shots, paths_per_shot, max_depth) -> None:
-    if isinstance(shots, bool) or not isinstance(shots, (int, np.integer)) or not 1 <= shots <= 10 ** 8:
+def _check_run(shots, seed, paths_per_shot, max_depth) -> None:
+    def is_int(v):
+        return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+    if not is_int(shots) or not 1 <= shots <= 10 ** 8:
         raise ParameterError("shots", f"must be an integer in [1, 1e8] (got {shots!r})")
-    if (isinstance(paths_per_shot, bool) or not isinstance(paths_per_shot, (int, np.integer))
-            or not 1 <= paths_per_shot <= 10 ** 6):
+    if not is_int(seed) or not 0 <= seed < 2 ** 63:
+        raise ParameterError("seed", f"must be an integer >= 0 (got {seed!r})")
+    if not is_int(paths_per_shot) or not 1 <= paths_per_shot <= 10 ** 6:
         raise ParameterError("paths_per_shot", f"must be an integer in [1, 1e6] "
                              f"(got {paths_per_shot!r})")
-    if max_depth != "auto" and (isinstance(max_depth, bool)
-                                or not isinstance(max_depth, (int, np.integer))
-                                or not 1 <= max_depth <= 64):
+    if max_depth != "auto" and (not is_int(max_depth) or not 1 <= max_depth <= 64):
         raise ParameterError("max_depth", f"must be 'auto' or an integer in [1, 64] "
                              f"(got {max_depth!r})")
 
 
+#: bytes a run holds per shot (track, reference, gate, folding and per-shot detector arrays,
+#: float64) and per detected photon (the Detections, heights, confidence, and the copies made
+#: when chunks are joined and the output is written)
+BYTES_PER_SHOT = 160
+BYTES_PER_PHOTON = 150
+
+
+def estimate_memory_bytes(instrument: Instrument, shots: int) -> float:
+    """Peak memory of a run of ``shots`` shots [bytes], from the photons it expects to detect
+    (signal at up to 1.5 times the flat plate's return, plus noise in the range gate)."""
+    bg, dark = instrument.noise_per_shot
+    photons = ((1.5 * instrument.signal_photons + bg) * instrument.fill_factor * instrument.pde
+               + dark * instrument.channels)
+    return shots * (BYTES_PER_SHOT + BYTES_PER_PHOTON * photons)
+
+
+# pathlength parameters a scene's <integrator> may set -> (Instrument field, factor to it)
+_XML_GEOMETRY = {"altitude_m": ("altitude_m", 1.0),
+                 "footprint_sigma_m": ("footprint_diameter_m", 4.0),
+                 "pulse_sigma_ns": ("pulse_fwhm_ns", FWHM_PER_SIGMA),
+                 "fov_radius_m": ("fov_diameter_m", 2.0)}
+
+
+def _scene_settings(scene: mi.Scene, instrument: Instrument, max_depth):
+    """Honour a ``<integrator type="pathlength">`` in the scene: the parameters it sets become
+    the run's unless the instrument or ``max_depth`` set another value (refused: one place).
+    Returns ``(instrument, max_depth, max_lanes, honoured)``."""
+    explicit = getattr(scene.integrator(), "explicit", None)
+    if not explicit:                 # no integrator, another one (for mi.render), or defaults
+        return instrument, max_depth, None, {}
+    nominal = Instrument(beam=instrument.beam)
+    changes = {}
+    for key, (name, factor) in _XML_GEOMETRY.items():
+        if key not in explicit:
+            continue
+        value, given = explicit[key] * factor, getattr(instrument, name)
+        if given != getattr(nominal, name) and not math.isclose(given, value, rel_tol=1e-9):
+            raise ParameterError(name, f"the scene's <integrator type=\"pathlength\"> sets "
+                                 f"{key} = {explicit[key]:g}, i.e. {name} = {value:g}, and "
+                                 f"{given:g} was given too: set it in one place")
+        changes[name] = value
+    if "max_depth" in explicit:
+        if max_depth == "auto":
+            max_depth = int(explicit["max_depth"])
+        elif max_depth != explicit["max_depth"]:
+            raise ParameterError("max_depth", f"the scene's <integrator type=\"pathlength\"> "
+                                 f"sets max_depth = {explicit['max_depth']} and {max_depth} "
+                                 f"was given too: set it in one place")
+    if changes:
+        instrument = instrument.replace(**changes)
+    return instrument, max_depth, explicit.get("max_lanes"), dict(explicit)
+
+
+def _resolve_surface(*, surface, scene, scene_file, params, bsdf):
+    """The run's :class:`~lidar_mitsuba.surface.Surface`, default BSDF and config."""
+    given = [n for n, v in (("surface", surface), ("scene", scene), ("scene_file", scene_file))
+             if v is not None]
+    if len(given) > 1:
+        raise ParameterError(given[1], f"give one of surface, scene and scene_file "
+                             f"(got {' and '.join(given)})")
+    if scene_file is not None and not isinstance(scene_file, (str, pathlib.PurePath)):
+        raise ParameterError("scene_file", f"must be the path of a Mitsuba XML file (got a "
+                             f"{type(scene_file).__name__}; pass a loaded scene as scene=)")
+    source = scene if scene is not None else scene_file
+    if source is not None:
+        try:
+            mi_scene, label = scn.load_scene(source, params=params)
+        except ValueError as e:
+            raise ParameterError("scene_file" if scene_file is not None else "scene",
+                                 str(e)) from None
+        surface = SceneSurface(mi_scene, source=label)
+    elif params:
+        raise ParameterError("params", "only apply to an XML scene (scene= or scene_file=)")
+    surf, default_bsdf, cfg = surfaces.resolve(surface)
+    if bsdf is not None and not surf.takes_bsdf:
+        raise ParameterError("bsdf", "does not apply to a Mitsuba scene: it has its own BSDFs "
+                             "(set them in the scene)")
+    return surf, default_bsdf, cfg
+
+
 def simulate(*, instrument: Instrument | None = None,
              surface: SurfaceSpec | surfaces.Surface | None = None,
-             scene_file: str | None = None, bsdf: dict | None = None, shots: int = 1000,
-             seed: int = 0, paths_per_shot: int = 128, max_depth: int | str = "auto",
+             scene=None, scene_file: str | None = None, params: dict | None = None,
+             bsdf: dict | None = None, shots: int = 1000, seed: int = 0,
+             paths_per_shot: int = 128, max_depth: int | str = "auto",
              track: Track | None = None, variant: str | None = None, progress: bool = True,
              chunk_shots: int = chunks.CHUNK_SHOTS, keep_returns: bool | None = None,
              crop_to_track: bool = True) -> SimulationResult:
@@ -115,15 +201,20 @@ def simulate(*, instrument: Instrument | None = None,
             a ready :class:`~lidar_mitsuba.terrain.Heightfield` (e.g. your own DEM; periodic or
             not), :class:`~lidar_mitsuba.surface.Plane` (with the paper's Ward snow, or
             ``bsdf``) or :class:`~lidar_mitsuba.surface.SceneSurface`.
-        scene_file: a Mitsuba XML scene to use instead of ``surface`` (its own BSDFs; z up,
-            metres).
-        bsdf: a Mitsuba BSDF dict replacing the surface's Ward BSDF (any Mitsuba BSDF).
-        shots: number of laser shots (>= 1).
-        seed: seed of the photon Monte Carlo and the detector (same seed, same photons).
+        scene: a Mitsuba scene instead of ``surface``: a loaded ``mi.Scene``, a scene dict or
+            the path of an XML file (z up, metres; its own BSDFs). A ``<integrator
+            type="pathlength">`` in it sets the run's max_depth, altitude, footprint, pulse
+            and field of view wherever it gives them (giving another value here too is
+            refused).
+        scene_file: the path of a Mitsuba XML scene (the same as ``scene=`` with a path).
+        params: values of the XML's ``<default name=...>`` parameters, e.g. ``{"slope_deg": 8}``.
+        bsdf: a Mitsuba BSDF dict replacing a built-in surface's Ward BSDF.
+        shots: number of laser shots (>= 1; as many as fit in memory, which is checked).
+        seed: seed of the photon Monte Carlo and the detector (>= 0; same seed, same photons).
         paths_per_shot: photon paths traced per shot to sample its return.
-        max_depth: surface interactions per photon path (1 = single bounce), or ``"auto"``:
-            1 on a plane (exact: nothing bounces twice); elsewhere a two-bounce pilot decides
-            (:mod:`lidar_mitsuba.bounce_pilot`). The choice and its numbers are in
+        max_depth: surface interactions per photon path (1 = single bounce), or ``"auto"``
+            (1 on a plane, where it is exact, elsewhere a two-bounce pilot decides: see
+            :mod:`lidar_mitsuba.bounce_pilot`). The choice and its numbers are in
             ``result.config["max_depth"]`` and ``result.config["bounce_pilot"]``.
         track: where the shots go (:class:`~lidar_mitsuba.track.Track`; default: along +x
             through the middle of the surface).
@@ -136,11 +227,17 @@ def simulate(*, instrument: Instrument | None = None,
         crop_to_track: mesh only the corridor the track's photons can reach (the footprints'
             5 sigma, or the receiver's field of view when ``max_depth > 1``) instead of the
             whole tile: the same answer from a much smaller mesh. ``False``: the full tile.
+
+    Raises:
+        ParameterError: a bad value, named (``.name``), before anything is traced.
+
+    Warns:
+        SimulationWarning: the run completed but deserves a look (no photons and why, shots
+        with no surface under them, too few paths per shot, a mesh coarser than the footprint
+        resolves); also listed in ``result.config["warnings"]``.
     """
     instrument = instrument or Instrument()
-    _check_run(shots, paths_per_shot, max_depth)
-    if scene_file is not None and surface is not None:
-        raise ParameterError("scene", "give either a scene file or a built-in surface, not both")
+    _check_run(shots, seed, paths_per_shot, max_depth)
     if variant is not None:
         try:
             set_variant(variant)
@@ -148,9 +245,15 @@ def simulate(*, instrument: Instrument | None = None,
             raise ParameterError("variant", str(e)) from None
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    if scene_file is not None:
-        surface = SceneSurface(mi.load_file(str(scene_file)), source=str(scene_file))
-    surf, default_bsdf, surf_cfg = surfaces.resolve(surface)
+    surf, default_bsdf, surf_cfg = _resolve_surface(surface=surface, scene=scene,
+                                                    scene_file=scene_file, params=params,
+                                                    bsdf=bsdf)
+    max_lanes, honoured = None, {}
+    if isinstance(surf, SceneSurface):
+        instrument, max_depth, max_lanes, honoured = _scene_settings(surf.scene, instrument,
+                                                                     max_depth)
+    check_memory("shots", estimate_memory_bytes(instrument, shots), f"a run of {shots} shots",
+                 "split the track into several runs")
     sigma = instrument.footprint_sigma_m
     margin = 5.0 * sigma + 1.0
     track = track or Track()
@@ -166,8 +269,12 @@ def simulate(*, instrument: Instrument | None = None,
     if crop_to_track:
         bounds = (float(x_loc.min()) - reach, float(x_loc.max()) + reach,
                   float(y_loc.min()) - reach, float(y_loc.max()) + reach)
-    scene, triangles = surf.mitsuba_scene(bsdf=bsdf if bsdf is not None else default_bsdf,
-                                          margin_m=reach, bounds_m=bounds)
+    scene_, triangles = surf.mitsuba_scene(bsdf=bsdf if bsdf is not None else default_bsdf,
+                                           margin_m=reach, bounds_m=bounds)
+    top = float(scn.scene_bounds(scene_)[1][2] + np.max(np.abs(dz), initial=0.0))
+    if top + 1.0 >= instrument.altitude_m:
+        raise ParameterError("altitude_m", f"the spacecraft ({instrument.altitude_m:g} m) must "
+                             f"be above the scene, which reaches z = {top:g} m")
     surface_z = surf.height_m(x, y)
     z_ref = surf.reference_elevation_m(x, y, sigma_m=sigma)
     if surf.takes_bsdf:
@@ -177,17 +284,19 @@ def simulate(*, instrument: Instrument | None = None,
     timings["scene_s"] = time.perf_counter() - t0
 
     pilot = None
+    lanes = {} if max_lanes is None else {"max_lanes": int(max_lanes)}
     if max_depth == "auto":
         t1 = time.perf_counter()
-        pilot = bounce_pilot.run_pilot(scene=scene, instrument=instrument, x_m=x_loc, y_m=y_loc,
+        pilot = bounce_pilot.run_pilot(scene=scene_, instrument=instrument, x_m=x_loc, y_m=y_loc,
                                        dz_m=dz, z_ref_m=z_ref, paths_per_shot=int(paths_per_shot))
         max_depth = 1 if pilot["single_bounce_enough"] else 2
         timings["pilot_s"] = time.perf_counter() - t1
-    integrator = mi.load_dict(instrument.integrator_dict(max_depth=max_depth))
+    integrator = mi.load_dict(instrument.integrator_dict(max_depth=max_depth, **lanes))
     if keep_returns is None:
         keep_returns = shots * paths_per_shot * max_depth <= 2 ** 24
+    gate_z = chunks.gate_heights_m(z_ref)
     run = chunks.run(
-        source=chunks.traced(integrator, scene, x_m=x_loc, y_m=y_loc,
+        source=chunks.traced(integrator, scene_, x_m=x_loc, y_m=y_loc,
                              paths_per_shot=int(paths_per_shot), dx_m=x - x_loc,
                              dy_m=y - y_loc, dz_m=dz),
         detectors={"run": instrument}, z_ref_m=z_ref, seed=seed, chunk_shots=chunk_shots,
@@ -196,18 +305,22 @@ def simulate(*, instrument: Instrument | None = None,
     det = run.detections["run"]
     t3 = time.perf_counter()
     h = retrieval.photon_heights_m(det.time_ns, altitude_m=instrument.altitude_m)
-    conf = classify.signal_confidence(shot=det.shot, h_m=h, gate_center_h_m=np.nan_to_num(z_ref),
+    conf = classify.signal_confidence(shot=det.shot, h_m=h, gate_center_h_m=gate_z,
                                       range_gate_m=instrument.range_gate_m)
     timings["detect_s"] += time.perf_counter() - t3
     timings["total_s"] = time.perf_counter() - t0
 
-    choices = _explain(instrument=instrument, surf=surf, max_depth=max_depth, pilot=pilot,
-                       paths_per_shot=paths_per_shot, crop=crop_to_track, triangles=triangles,
-                       det=det)
+    choices, warns = _explain(instrument=instrument, surf=surf, max_depth=max_depth,
+                              pilot=pilot, paths_per_shot=paths_per_shot, crop=crop_to_track,
+                              triangles=triangles, det=det)
+    warns += _diagnose(surf=surf, scene=scene_, x_m=x_loc, y_m=y_loc, surface_z=surface_z,
+                       n_returns=run.n_returns, det=det, instrument=instrument)
+    for w in warns:
+        warnings.warn(w, SimulationWarning, stacklevel=2)
     config = {"instrument": instrument.to_dict(), "surface": surf_cfg, "track": track.to_dict(),
               "shots": int(shots), "seed": int(seed), "paths_per_shot": int(paths_per_shot),
               "max_depth": int(max_depth), "bounce_pilot": pilot, "variant": mi.variant(),
-              "choices": choices}
+              "scene_integrator": honoured, "choices": choices, "warnings": warns}
     return SimulationResult(instrument=instrument, config=config, along_track_m=along,
                             shot_x_m=x, shot_y_m=y, surface_z_m=surface_z, z_ref_m=z_ref,
                             detections=det, h_m=h, signal_conf=conf, returns=run.returns,
@@ -215,8 +328,9 @@ def simulate(*, instrument: Instrument | None = None,
 
 
 def _explain(*, instrument, surf, max_depth, pilot, paths_per_shot, crop, triangles,
-             det) -> list[str]:
-    """The modelling choices of a run, in words (``lidar-mitsuba simulate --explain``)."""
+             det) -> tuple[list[str], list[str]]:
+    """The modelling choices of a run in words (``lidar-mitsuba simulate --explain``), and
+    the ones that deserve a warning."""
     out = []
     if surf.exact_single_bounce and max_depth == 1:
         out.append("single bounce (max_depth 1): exact for a plane, where nothing bounces twice")
@@ -230,11 +344,49 @@ def _explain(*, instrument, surf, max_depth, pilot, paths_per_shot, crop, triang
     else:
         out.append(f"{max_depth} bounces per path with shadow-tested returns toward the receiver")
     out += surf.notes(instrument=instrument, max_depth=max_depth, crop=crop, triangles=triangles)
+    warns = surf.warnings(instrument=instrument)
     peak = float(np.max(det.mean_photons_per_shot)) if det.mean_photons_per_shot.size else 0.0
     kept = peak * instrument.fill_factor * instrument.pde
     msg = (f"{paths_per_shot} paths per shot for up to {peak:.1f} photons per shot "
            f"({kept:.1f} after fill factor and PDE)")
     if paths_per_shot < 3 * max(kept, 1e-9):
         msg += ": too few, photons share paths; raise --paths-per-shot above 3x the photons"
+        warns.append(msg)
     out.append(msg)
+    return out, warns
+
+
+def _diagnose(*, surf, scene, x_m, y_m, surface_z, n_returns, det, instrument) -> list[str]:
+    """Warnings for shots with no surface under them and for a run that detected no signal
+    photon, with the likely cause."""
+    out = []
+    missing = ~np.isfinite(surface_z)
+    n = surface_z.size
+    if missing.all():
+        lo, hi = scn.scene_bounds(scene)
+        return [f"no surface under any of the {n} footprint centres: the track (x "
+                f"{np.min(x_m):g} .. {np.max(x_m):g} m, y {np.min(y_m):g} .. {np.max(y_m):g} m) "
+                f"misses the geometry (x {lo[0]:g} .. {hi[0]:g} m, y {lo[1]:g} .. {hi[1]:g} m); "
+                "its shots record background noise only"]
+    if missing.any():
+        out.append(f"{int(missing.sum())} of the {n} shots have no surface under their footprint "
+                   "centre: they record background noise only")
+    if det.is_signal.any():
+        return out
+    if n_returns == 0:
+        _, nz = scn.cast_down(scene, x_m[~missing], y_m[~missing])
+        if np.nanmean(nz < 0) > 0.5:
+            out.append("no photon came back: the surfaces under the track face down, away from "
+                       "the lidar (a face-down rectangle, or a mesh whose triangles wind the "
+                       "other way); Mitsuba's BSDFs are one-sided and return nothing from the "
+                       "back: flip the shape (rotate it, or reverse its faces)")
+        else:
+            out.append("no photon came back: the surfaces' BSDF sends no light back toward the "
+                       "receiver (e.g. a smooth conductor or dielectric reflects only in the "
+                       "mirror direction); use a rough or diffuse BSDF")
+    else:
+        mu = float(np.mean(det.mean_photons_per_shot))
+        out.append(f"returns were traced but no signal photon was detected: {mu:.3g} photons "
+                   f"per shot reach the detector on average ({instrument.signal_photons:g} "
+                   f"from the reference plate); raise --signal-photons or the shot count")
     return out

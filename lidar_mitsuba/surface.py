@@ -29,9 +29,13 @@ import trimesh
 
 from . import scene as scn, terrain
 from .constants import ParameterError, check
+from .resources import check_memory
 from .terrain import Heightfield
 
 SURFACES = ("flat", "slope", "fractal")
+#: peak memory of meshing a heightfield per vertex [bytes]: grid temporaries, the trimesh
+#: (float64 vertices, int64 faces) and Mitsuba's float32 / uint32 copies
+MESH_BYTES_PER_VERTEX = 200
 
 
 class Surface:
@@ -78,6 +82,10 @@ class Surface:
         """What ``--explain`` says about the surface's modelling choices."""
         return []
 
+    def warnings(self, *, instrument) -> list[str]:
+        """Modelling choices that may cost accuracy (shown without ``--explain`` too)."""
+        return []
+
 
 # --------------------------------------------------------------------------- meshes
 def heightfield_to_trimesh(hf: Heightfield, *, margin_m: float = 0.0,
@@ -103,6 +111,9 @@ def heightfield_to_trimesh(hf: Heightfield, *, margin_m: float = 0.0,
     x0, x1, y0, y1 = bounds_m
     ix = np.arange(int(np.floor(x0 / g)), int(np.ceil(x1 / g)) + 1)
     iy = np.arange(int(np.floor(y0 / g)), int(np.ceil(y1 / g)) + 1)
+    check_memory("grid_m", MESH_BYTES_PER_VERTEX * ix.size * iy.size,
+                 f"a mesh of {ix.size} x {iy.size} nodes ({x1 - x0:g} x {y1 - y0:g} m at "
+                 f"{g:g} m)", "use a coarser grid_m or a shorter track")
     if hf.periodic:
         z = hf.z_m[np.ix_(iy % hf.ny, ix % hf.nx)]
     else:
@@ -247,9 +258,16 @@ class HeightfieldSurface(Surface):
             out = [f"whole {size:g} m tile meshed: {triangles} triangles"]
         ratio = instrument.footprint_sigma_m / self.hf.grid_m
         out.append(f"mesh spacing {self.hf.grid_m:g} m = footprint sigma / {ratio:.1f}"
-                   + ("" if ratio >= 2 else ": coarser than the footprint resolves; "
-                      "use a finer --grid-m"))
+                   + ("" if ratio >= 2 else ": coarser than the footprint resolves"))
         return out
+
+    def warnings(self, *, instrument) -> list[str]:
+        ratio = instrument.footprint_sigma_m / self.hf.grid_m
+        if ratio >= 2:
+            return []
+        return [f"the mesh spacing ({self.hf.grid_m:g} m) is coarser than half the footprint "
+                f"sigma ({instrument.footprint_sigma_m:g} m): the terrain inside each footprint "
+                f"is not resolved; use a finer --grid-m (<= {instrument.footprint_sigma_m / 2:g} m)"]
 
 
 # --------------------------------------------------------------------------- Mitsuba scenes
@@ -307,8 +325,10 @@ class SurfaceSpec:
         relief_m: max - min height of the fractal tile [m].
         size_m: side of the square tile [m].
         grid_m: fractal grid spacing [m].
-        terrain_seed: seed of the fractal's white noise.
-        rho_d, rho_s, alpha: Ward diffuse albedo, specular reflectance, roughness.
+        terrain_seed: seed of the fractal's white noise (>= 0).
+        rho_d: Ward diffuse albedo.
+        rho_s: Ward specular reflectance.
+        alpha: Ward roughness (RMS slope of the specular lobe).
     """
     kind: str = "fractal"
     slope_deg: float = 0.0

@@ -33,6 +33,7 @@ import numpy as np
 from scipy import ndimage
 
 from .constants import ParameterError
+from .resources import check_memory
 
 __all__ = [
     "Heightfield",
@@ -43,6 +44,9 @@ __all__ = [
 
 _N_MIN = 8
 _N_MAX = 8192
+#: peak memory of :func:`fractal` per grid node [bytes]: noise, its half spectrum, the filter,
+#: the heights, and the footprint-smoothed grid a run caches
+FRACTAL_BYTES_PER_NODE = 48
 
 
 # --------------------------------------------------------------------------- #
@@ -286,25 +290,24 @@ def fractal(
     The 2-D power spectrum then falls as |f|^(-2p) and a straight profile's
     1-D spectrum as f^-(2p-1); larger p gives a smoother surface.
 
-    Parameters
-    ----------
-    p : float
-        Spectral exponent of the amplitude filter, 0 < p <= 5 (paper: 1.5-2.0).
-    size_m, grid_m : float
-        Tile side and grid spacing [m]; 8 <= N <= 8192.
-    relief_m : float
-        Total elevation range [m] (>= 0; 0 gives a flat surface at 0 m).
-    seed : int or None
-        Seed for ``np.random.default_rng``; same seed -> identical surface.
+    Args:
+        p: spectral exponent of the 1/f^p amplitude filter, in (0, 5] (paper: 1.5-2.0).
+        size_m: side of the square tile [m].
+        grid_m: grid spacing [m] (8 <= size_m / grid_m <= 8192 nodes per side).
+        relief_m: total elevation range, max - min [m] (>= 0; 0 gives a flat surface).
+        seed: seed of the white noise (``np.random.default_rng``); same seed, same surface.
 
-    Returns
-    -------
-    Heightfield with z_m of shape (N, N), zero mean, periodic=True.
+    Returns:
+        Heightfield with z_m of shape (N, N), zero mean, periodic=True.
     """
     n = check_fractal_parameters(p=p, size_m=size_m, grid_m=grid_m, relief_m=relief_m)
+    check_memory("grid_m", FRACTAL_BYTES_PER_NODE * n * n,
+                 f"a {n} x {n} fractal (size_m / grid_m = {n})",
+                 "use a coarser grid_m or a smaller size_m")
     pf, rel = float(p), float(relief_m)
-    if seed is not None and not isinstance(seed, (int, np.integer)):
-        raise ParameterError("seed", f"must be an int or None (got {seed!r})")
+    if seed is not None and (not isinstance(seed, (int, np.integer)) or isinstance(seed, bool)
+                             or seed < 0):
+        raise ParameterError("seed", f"must be an integer >= 0 or None (got {seed!r})")
 
     rng = np.random.default_rng(seed)
     w = rng.standard_normal((n, n))

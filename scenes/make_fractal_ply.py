@@ -6,7 +6,7 @@
 import pathlib
 
 from lidar_mitsuba import terrain
-from lidar_mitsuba.scene import export_ply, heightfield_to_trimesh
+from lidar_mitsuba.surface import export_ply, heightfield_to_trimesh
 
 hf = terrain.fractal(p=1.8, size_m=1024.0, grid_m=1.0, relief_m=10.0, seed=0)
 rows = slice(512 - 20, 512 + 21)                 # y = 492 ... 532 m of the tile, 41 rows

@@ -59,10 +59,11 @@ def test_altitude_edges():
     rows = stability.sweep_altitude(quick=True)
     assert all(r["max_error_m"] < 1e-6 for r in rows)
     assert rows[3]["float32_error_m"] > 1e-3      # what float32 legs would cost at 496 km
-    with pytest.raises(ValueError, match="above the scene top"):
+    with pytest.raises(ParameterError, match="must be above the scene, which reaches") as e:
         simulate(instrument=Instrument(altitude_m=10.0),
                  surface=SurfaceSpec(kind="fractal", size_m=64.0, relief_m=30.0), shots=2,
                  progress=False)
+    assert e.value.name == "altitude_m"
 
 
 def test_photons_per_launch_edges():

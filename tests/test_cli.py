@@ -17,23 +17,28 @@ def run(*args, cwd=None):
                           capture_output=True, text=True, timeout=300)
 
 
+# Bad input, each refused with one line naming the option, exit 2, no traceback and no output
+# file. "{in}/NAME.xml" are the scene files of BAD_XML (written to a folder of their own).
 BAD = [
     (["--shots", "0"], "--shots"),
     (["--shots", "ten"], "--shots"),
+    (["--shots", "1e8"], "--shots"),
     (["--pde", "1.5"], "--pde"),
     (["--fill-factor", "-0.1"], "--fill-factor"),
     (["--dead-time-ns", "-3"], "--dead-time-ns"),
+    (["--dead-time-ns", "fast"], "--dead-time-ns"),
     (["--channels", "3"], "--channels"),
     (["--signal-photons", "-1"], "--signal-photons"),
     (["--surface", "slope", "--slope-deg", "95"], "--slope-deg"),
+    (["--surface", "fractal", "--slope-deg", "5"], "--slope-deg"),
     (["--surface", "fractal", "--p", "-1"], "--p"),
     (["--surface", "fractal", "--grid-m", "0"], "--grid-m"),
     (["--surface", "fractal", "--relief-m", "-2"], "--relief-m"),
+    (["--surface", "hill"], "--surface"),
     (["--rho-d", "0.99", "--rho-s", "0.05"], "--rho-d"),
     (["--alpha", "0"], "--alpha"),
     (["--variant", "cuda_ad_mono"], "--variant"),
     (["--variant", "nonsense"], "--variant"),
-    (["--scene", "missing.xml"], "--scene"),
     (["--beam", "medium"], "--beam"),
     (["--paths-per-shot", "0"], "--paths-per-shot"),
     (["--max-depth", "0"], "--max-depth"),
@@ -42,8 +47,71 @@ BAD = [
     (["--background-mhz", "-1"], "--background-mhz"),
     (["--dark-count-hz", "-1"], "--dark-count-hz"),
     (["--range-gate-m", "0"], "--range-gate-m"),
-    (["--dead-time-ns", "fast"], "--dead-time-ns"),
-]
+    (["--seed", "-1"], "--seed"),
+    (["--terrain-seed", "-1"], "--terrain-seed"),
+    (["--altitude-m", "5"], "--altitude-m"),
+    (["--footprint-diameter-m", "-10"], "--footprint-diameter-m"),
+    (["--heading-deg", "nan"], "--heading-deg"),
+    (["--start-xy-m", "1"], "--start-xy-m"),
+    (["--out", "{out}/x.txt"], "--out"),
+    (["--out", "{out}"], "--out"),
+    (["--out", "/proc/lidar_mitsuba_test.h5"], "--out"),
+    (["--out", "{out}/missing/x.h5"], "--out"),
+    (["--plot", "{out}"], "--plot"),
+    (["--plot", "/proc/lidar_mitsuba_test.png"], "--plot"),
+    (["--surface", "fractal", "--grid-m", "1e-3", "--size-m", "8"], "--grid-m"),
+    (["-D", "roof_m=20"], "-D"),
+    (["--scene", "{in}/building.xml", "-D", "roof_m"], "-D"),
+    (["--scene", "{in}/building.xml", "-D", "nope=1"], "--scene"),
+    (["--scene", "{in}/building.xml", "--rho-d", "0.5"], "--rho-d"),
+    (["--scene", "{in}/building.xml", "--p", "2.0"], "--p"),
+    (["--scene", "{in}/building.xml", "--surface", "flat"], "--surface"),
+    (["--scene", "{in}/integrator.xml", "--altitude-m", "400000"], "--altitude-m"),
+    (["--scene", "{in}/integrator.xml", "--max-depth", "2"], "--max-depth"),
+    (["--scene", "{in}/building.xml", "--shots", "2000"], "--shots"),
+    (["--scene", "missing.xml"], "--scene"),
+    (["--scene", "{in}"], "--scene"),
+    (["--scene", "{in}/above_spacecraft.xml"], "--altitude-m"),
+] + [(["--scene", f"{{in}}/{name}.xml"], "--scene") for name in (
+    "malformed", "empty", "notxml", "noversion", "unknown_plugin", "unknown_parameter",
+    "missing_ply", "rho_d_1_2", "alpha_0", "no_shapes", "nan_transform")]
+
+BAD_XML = {
+    "malformed": '<scene version="3.0.0"><shape type="rectangle"</scene>',
+    "empty": "",
+    "notxml": "this is not XML",
+    "noversion": '<scene><shape type="rectangle"/></scene>',
+    "unknown_plugin": '<scene version="3.0.0"><shape type="nosuch"/></scene>',
+    "unknown_parameter": '<scene version="3.0.0"><shape type="rectangle"><float name="bogus" '
+                         'value="1"/></shape></scene>',
+    "missing_ply": '<scene version="3.0.0"><shape type="ply"><string name="filename" '
+                   'value="missing.ply"/></shape></scene>',
+    "rho_d_1_2": '<scene version="3.0.0"><shape type="rectangle"><bsdf type="ward"><float '
+                 'name="rho_d" value="1.2"/></bsdf></shape></scene>',
+    "alpha_0": '<scene version="3.0.0"><shape type="rectangle"><bsdf type="ward"><float '
+               'name="alpha" value="0"/></bsdf></shape></scene>',
+    "no_shapes": '<scene version="3.0.0"></scene>',
+    "nan_transform": '<scene version="3.0.0"><shape type="rectangle"><transform name="to_world">'
+                     '<scale value="500"/><translate z="nan"/></transform></shape></scene>',
+    "above_spacecraft": '<scene version="3.0.0"><shape type="rectangle"><transform '
+                        'name="to_world"><scale value="500"/><translate z="600000"/></transform>'
+                        '</shape></scene>',
+    "integrator": '<scene version="3.0.0"><integrator type="pathlength"><integer name="max_depth" '
+                  'value="1"/><float name="altitude_m" value="300000"/></integrator><shape '
+                  'type="rectangle"><transform name="to_world"><scale value="500"/></transform>'
+                  '<bsdf type="ward"/></shape></scene>',
+}
+SCENES = __import__("pathlib").Path(__file__).resolve().parents[1] / "scenes"
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    """The bad scene files, and a copy of scenes/building.xml, in a folder of their own."""
+    d = tmp_path_factory.mktemp("inputs")
+    for name, text in BAD_XML.items():
+        (d / f"{name}.xml").write_text(text)
+    (d / "building.xml").write_text((SCENES / "building.xml").read_text())
+    return d
 
 
 def call(argv):
@@ -54,16 +122,25 @@ def call(argv):
         return e.code
 
 
+def test_the_catalogue_is_large():
+    assert len(BAD) >= 40
+
+
 @pytest.mark.parametrize("args,option", BAD, ids=[o + ":" + " ".join(a) for a, o in BAD])
-def test_bad_simulate_input(tmp_path, capsys, args, option):
-    out = tmp_path / "out.h5"
-    # a later --shots in args overrides this one
-    code = call(["simulate", "--shots", "5", *args, "--out", str(out), "--no-progress"])
+def test_bad_simulate_input(tmp_path, capsys, inputs, monkeypatch, args, option):
+    from lidar_mitsuba import resources
+    monkeypatch.setattr(resources, "available_memory_bytes", lambda: 8 * 2 ** 30)   # 8 GB
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    out = out_dir / "out.h5"
+    args = [a.replace("{in}", str(inputs)).replace("{out}", str(out_dir)) for a in args]
+    # a later --shots or --out in args overrides these
+    code = call(["simulate", "--shots", "5", "--out", str(out), *args, "--no-progress"])
     err = capsys.readouterr().err.strip()
     assert code == 2
     assert len(err.splitlines()) == 1, err
-    assert option in err and "Traceback" not in err
-    assert not out.exists() and list(tmp_path.iterdir()) == []
+    assert f"error: {option}" in err and "Traceback" not in err
+    assert list(out_dir.iterdir()) == []
 
 
 def test_bad_input_real_process(tmp_path):
@@ -188,3 +265,87 @@ def test_explain_reports_choices_and_warns(tmp_path, capsys):
     assert main(["simulate", "--surface", "fractal", "--size-m", "128", "--shots", "100",
                  "--full-tile", "--explain", "--out", str(out), "--no-progress"]) == 0
     assert "whole 128 m tile" in capsys.readouterr().out
+
+
+def test_no_command_lists_the_commands_and_version(capsys):
+    assert call([]) == 0
+    out = capsys.readouterr().out
+    for name in ("simulate", "stats", "segments", "terrain", "bench", "reproduce"):
+        assert name in out
+    assert call(["--version"]) == 0
+    assert capsys.readouterr().out.startswith("lidar-mitsuba 0.1.0 (mitsuba ")
+
+
+def test_generated_options_show_the_api_defaults(capsys):
+    """Options come from the dataclasses and simulate(): the help shows their defaults."""
+    from lidar_mitsuba.instrument import Instrument
+    from lidar_mitsuba.surface import SurfaceSpec
+    assert call(["simulate", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"(default {Instrument().altitude_m:g})" in text
+    assert f"--grid-m M fractal grid spacing [m] (default {SurfaceSpec().grid_m:g})" in text
+    assert "(default: 8.17 strong, 2.04 weak)" in text and "--heading-deg DEG" in text
+
+
+def test_warnings_are_printed_without_explain(tmp_path, capsys):
+    out = tmp_path / "w.h5"
+    assert main(["simulate", "--surface", "flat", "--shots", "50", "--signal-photons", "300",
+                 "--out", str(out), "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: " in err and "too few, photons share paths" in err
+    assert main(["simulate", "--surface", "fractal", "--size-m", "64", "--grid-m", "2",
+                 "--shots", "50", "--max-depth", "1", "--out", str(out), "--no-progress"]) == 0
+    assert "coarser than half the footprint sigma" in capsys.readouterr().err
+
+
+def test_outputs_follow_the_umask(tmp_path, capsys):
+    """New and replaced .h5 files get 0666 less the umask (mkstemp alone gave 0600)."""
+    import os
+    old = os.umask(0o022)
+    try:
+        out, seg = tmp_path / "p.h5", tmp_path / "s.h5"
+        assert main(["simulate", "--surface", "flat", "--shots", "400", "--out", str(out),
+                     "--no-progress"]) == 0
+        assert (out.stat().st_mode & 0o777) == 0o644
+        out.chmod(0o644)
+        assert main(["simulate", "--surface", "flat", "--shots", "400", "--out", str(out),
+                     "--no-progress"]) == 0
+        assert (out.stat().st_mode & 0o777) == 0o644
+        assert main(["segments", str(out), "--out", str(seg)]) == 0
+        assert (seg.stat().st_mode & 0o777) == 0o644
+        os.umask(0o027)
+        assert main(["simulate", "--surface", "flat", "--shots", "400", "--out",
+                     str(tmp_path / "q.h5"), "--no-progress"]) == 0
+        assert ((tmp_path / "q.h5").stat().st_mode & 0o777) == 0o640
+    finally:
+        os.umask(old)
+    capsys.readouterr()
+
+
+def test_terrain_refuses_what_memory_cannot_hold(tmp_path, capsys, monkeypatch):
+    from lidar_mitsuba import resources
+    monkeypatch.setattr(resources, "available_memory_bytes", lambda: 2 * 2 ** 30)    # 2 GB
+    for args, option in ((["--size-m", "8192", "--out", str(tmp_path / "x.ply")], "--grid-m"),
+                         (["--size-m", "8", "--grid-m", "1e-3", "--out", str(tmp_path / "x.npy")],
+                          "--grid-m"), (["--seed", "-1", "--out", str(tmp_path / "x.npy")],
+                                        "--seed")):
+        assert call(["terrain", *args]) == 2
+        err = capsys.readouterr().err
+        assert f"error: {option}" in err and len(err.strip().splitlines()) == 1
+        if "8192" in args:
+            assert "GB of memory" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_xml_scene_with_parameters_and_track_from_the_cli(tmp_path, capsys):
+    out = tmp_path / "b.h5"
+    assert main(["simulate", "--scene", str(SCENES / "building.xml"), "-D", "roof_m=25",
+                 "--heading-deg", "90", "--offset-m", "80", "--shots", "100", "--ideal-detector",
+                 "--out", str(out), "--no-progress"]) == 0
+    capsys.readouterr()
+    with h5py.File(out) as f:
+        x = f["truth/shots/x_m"][()]
+        h = f["gt1l/heights/h_ph"][()]
+        cfg = json.loads(f.attrs["config"])
+    np.testing.assert_allclose(x, -80.0, atol=1e-9)                # across the roof, along y
+    assert abs(np.median(h) - 25.0) < 0.1 and cfg["track"]["heading_deg"] == 90.0

@@ -76,6 +76,9 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
             {'type': 'pathlength', 'max_depth': 1, 'altitude_m': 496e3}
     """
 
+    PARAMETERS = ("max_depth", "altitude_m", "footprint_sigma_m", "pulse_sigma_ns",
+                  "fov_radius_m", "max_lanes")
+
     def __init__(self, props: mi.Properties):
         super().__init__(props)
         self.max_depth = int(props.get("max_depth", 1))
@@ -86,6 +89,8 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
                                               K.PULSE_FWHM_NS / K.FWHM_PER_SIGMA))
         self.fov_radius_m = float(props.get("fov_radius_m", K.FOV_DIAMETER_M / 2.0))
         self.max_lanes = int(props.get("max_lanes", 2 ** 23))
+        #: the parameters the scene description set (simulate() honours them, see there)
+        self.explicit = {name: getattr(self, name) for name in self.PARAMETERS if name in props}
         for name, value, ok in (
             ("max_depth", self.max_depth, 1 <= self.max_depth <= 64),
             ("altitude_m", self.altitude_m, 0 < self.altitude_m <= 1e8),

@@ -22,28 +22,32 @@ def _is_color(value) -> bool:
 
 
 def _texture_range(texture) -> tuple[float, float]:
-    """(min, max) over all channels of a texture given as rho_d, for validation.
+    """(min, max) of a texture given as rho_d, as the BSDF sees it, for validation.
 
-    ``Texture.max()`` is not implemented for bitmaps or procedural textures in Mitsuba 3.9, so:
-    a bitmap's (bilinearly interpolated, hence bounded) ``data`` tensor is read directly, and any
-    other texture is evaluated on a 256 x 256 grid of uv cell centres (which samples every
-    square of a ``checkerboard`` unless its ``to_uv`` tiles it finer than that); a texture that
-    cannot be evaluated there is not checked, with a warning."""
+    ``Texture.max()`` is not implemented for bitmaps or procedural textures in Mitsuba 3.9, so
+    the texture is evaluated: a bitmap at the centre of every texel (its values there are the
+    stored texels after the bitmap's own conversion, 8-bit to [0, 1] and sRGB to linear unless
+    ``raw``; bilinear interpolation stays between them), any other texture on a 256 x 256 grid
+    of uv cell centres (which samples every square of a ``checkerboard`` unless its ``to_uv``
+    tiles it finer than that). A texture that cannot be evaluated there is not checked, with
+    a warning."""
     params = mi.traverse(texture)
     tensors = [params[k] for k in params.keys() if k == "data" or k.endswith(".data")]
-    if tensors:
-        values = np.concatenate([np.asarray(t, dtype=np.float64).ravel() for t in tensors])
-    else:
-        n = 256
-        u = (np.arange(n, dtype=np.float32) + 0.5) / n
-        uu, vv = np.meshgrid(u, u, indexing="ij")
-        si = dr.zeros(mi.SurfaceInteraction3f, n * n)
-        si.uv = mi.Point2f(uu.ravel(), vv.ravel())
-        try:
-            values = np.asarray(texture.eval(si), dtype=np.float64).ravel()
-        except RuntimeError as exc:    # a texture that cannot be evaluated off a shape
-            mi.Log(mi.LogLevel.Warn, f"ward: rho_d texture not checked for range ({exc})")
-            return 0.0, 0.0
+    nu = nv = 256
+    if tensors:                      # (height, width, channels): one sample per texel
+        nv, nu = (int(d) for d in tensors[0].shape[:2])
+        while nu * nv > 2 ** 24:     # very large bitmaps: every other texel (still bounded)
+            nu, nv = max(1, nu // 2), max(1, nv // 2)
+    u = (np.arange(nu, dtype=np.float32) + 0.5) / nu
+    v = (np.arange(nv, dtype=np.float32) + 0.5) / nv
+    uu, vv = np.meshgrid(u, v, indexing="ij")
+    si = dr.zeros(mi.SurfaceInteraction3f, nu * nv)
+    si.uv = mi.Point2f(uu.ravel(), vv.ravel())
+    try:
+        values = np.asarray(texture.eval(si), dtype=np.float64).ravel()
+    except RuntimeError as exc:    # a texture that cannot be evaluated off a shape
+        mi.Log(mi.LogLevel.Warn, f"ward: rho_d texture not checked for range ({exc})")
+        return 0.0, 0.0
     return float(values.min()), float(values.max())
 
 

@@ -12,3 +12,12 @@
 Each exposes ``run(...) -> dict`` (its numbers, JSON-serialisable) and, where it draws, a
 ``chart``/``plot_*`` function that takes that dict.
 """
+
+import warnings as _warnings
+
+from ..constants import SimulationWarning as _SimulationWarning
+
+# The studies run degenerate settings on purpose (too few paths, coarse meshes, near-mirror
+# BRDFs, to find where methods fail): their SimulationWarnings are expected, and the studies
+# record what matters in their own rows.
+_warnings.filterwarnings("ignore", category=_SimulationWarning, module=r"lidar_mitsuba\.studies\.")

@@ -1,0 +1,40 @@
+"""Memory the machine can give a run, and refusals that name the option before a run would
+exhaust it (a one-line error instead of a MemoryError or the kernel's OOM killer)."""
+from __future__ import annotations
+
+import os
+
+from .constants import ParameterError
+
+#: fraction of the available memory a run may plan to use
+MEMORY_FRACTION = 0.8
+
+
+def available_memory_bytes() -> int:
+    """Memory available to new allocations [bytes]: ``MemAvailable`` of /proc/meminfo, or the
+    free physical pages where that file does not exist."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return 2 ** 62          # unknown: do not refuse
+
+
+def check_memory(name: str, need_bytes: float, what: str, hint: str) -> None:
+    """Raise :class:`ParameterError` naming ``name`` when ``need_bytes`` exceeds
+    ``MEMORY_FRACTION`` of the available memory. ``what`` says what needs it, ``hint`` what
+    to do instead."""
+    have = available_memory_bytes()
+    if need_bytes > MEMORY_FRACTION * have:
+        raise ParameterError(name, f"{what} needs about {_gb(need_bytes)} of memory and "
+                             f"{_gb(have)} is available; {hint}")
+
+
+def _gb(n: float) -> str:
+    return f"{n / 2 ** 30:.1f} GB" if n >= 2 ** 28 else f"{n / 2 ** 20:.0f} MB"
