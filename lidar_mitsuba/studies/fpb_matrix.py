@@ -12,8 +12,8 @@ import math
 import numpy as np
 
 from .. import pmt
-from ..atl06 import (FLAG_BITS, HALF_C, SegmentTable, corrected_background_mhz,
-                     fit_segments)
+from ..atl06 import FLAG_BITS, HALF_C, SegmentTable, fit_segments
+from ..fpb import corrected_background_mhz
 from ..constants import C_M_PER_NS
 from ..instrument import Instrument
 from ..photons import Returns
