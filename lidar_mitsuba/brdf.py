@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-NORMALIZATIONS = ("ward1992", "duer", "balanced")
+from .constants import WARD_NORMALIZATIONS as NORMALIZATIONS
 
 
 def ward_brdf_numpy(wi, wo, *, rho_d: float = 0.9, rho_s: float = 0.05, alpha_u: float = 0.3,
