@@ -1,16 +1,57 @@
-"""`bench --quick` runs and writes finite numbers and its chart (speed is not asserted here)."""
+"""`bench --quick` runs and writes finite numbers and its charts (speed is not asserted here);
+each chart shows the numbers of bench.json: the Figures the run drew (captured as the chart
+functions return them) are read back, data and labels, and compared exactly with the
+JSON-loaded document (floats survive JSON exactly)."""
+import contextlib
+import io
 import json
 import math
 
+import numpy as np
+import pytest
+
 from lidar_mitsuba.cli import main
+from lidar_mitsuba.studies import accuracy, bench, breaking_points, peer
 
 
-def test_bench_quick(tmp_path, capsys):
-    assert main(["bench", "--out", str(tmp_path / "b"), "--quick"]) == 0
-    doc = json.loads((tmp_path / "b" / "bench.json").read_text())
-    assert (tmp_path / "b" / "throughput.png").stat().st_size > 10_000
-    assert (tmp_path / "b" / "stability.png").stat().st_size > 10_000
-    assert (tmp_path / "b" / "accuracy_vs_time.png").stat().st_size > 10_000
+@pytest.fixture(scope="module")
+def bench_run(tmp_path_factory):
+    """One quick bench through the CLI; the chart functions are wrapped to keep the Figures
+    they return (same functions, same arguments: what the PNGs show)."""
+    out = tmp_path_factory.mktemp("bench") / "b"
+    figs = {}
+    mp = pytest.MonkeyPatch()
+    for key, module, name in (("throughput", bench, "_chart"),
+                              ("stability", breaking_points, "chart"),
+                              ("accuracy", accuracy, "chart"), ("peer", peer, "chart")):
+        def wrapper(*args, _fn=getattr(module, name), _key=key, **kw):
+            figs[_key] = _fn(*args, **kw)
+            return figs[_key]
+        mp.setattr(module, name, wrapper)
+    printed = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(printed):
+            code = main(["bench", "--out", str(out), "--quick"])
+    finally:
+        mp.undo()
+    assert code == 0
+    doc = json.loads((out / "bench.json").read_text())
+    return {"out": out, "doc": doc, "figs": figs, "printed": printed.getvalue()}
+
+
+def lines_by_label(ax):
+    return {ln.get_label(): ln for ln in ax.get_lines() if not ln.get_label().startswith("_")}
+
+
+def xy(line):
+    return np.asarray(line.get_xdata(), float), np.asarray(line.get_ydata(), float)
+
+
+def test_bench_quick(bench_run):
+    out, doc, printed = bench_run["out"], bench_run["doc"], bench_run["printed"]
+    assert (out / "throughput.png").stat().st_size > 10_000
+    assert (out / "stability.png").stat().st_size > 10_000
+    assert (out / "accuracy_vs_time.png").stat().st_size > 10_000
     for name, d in doc["accuracy_vs_time"].items():
         errs = [r["error_m"] for r in d["rows"]]
         assert errs and all(math.isfinite(e) and e >= 0 for e in errs), name
@@ -21,14 +62,140 @@ def test_bench_quick(tmp_path, capsys):
     assert doc["integrator"]["triangles"] > 100_000
     assert 0 < doc["integrator"]["ratio_to_ceiling"] < 10
     assert all(r["shots_per_s"] > 0 for r in doc["end_to_end"])
-    out = capsys.readouterr().out
-    assert "M events/s" in out and "simplifications of the default run" in out
+    assert "M events/s" in printed and "simplifications of the default run" in printed
     simp = doc["simplifications"]
     assert simp["mc_std_m"] > 0 and len(simp["rows"]) == 4
     assert simp["auto_max_depth"] == [2]    # the default p = 1.8 snow needs the second bounce
     crop = simp["rows"][0]        # the corridor crop is exact: photon for photon the same
     assert crop["d_bias_m"] == 0.0 and crop["d_std_m"] == 0.0
     if "rows" in doc["peer"]:     # mitransient installed (the test extra has it)
-        assert (tmp_path / "b" / "peer.png").stat().st_size > 10_000
+        assert (out / "peer.png").stat().st_size > 10_000
         assert all(math.isfinite(r["error"]) and r["seconds"] > 0 for r in doc["peer"]["rows"])
-        assert "peer comparison (mitransient)" in out
+        assert "peer comparison (mitransient)" in printed
+
+
+def test_throughput_chart_shows_the_measured_rates(bench_run):
+    """Left: one bar per detector case, its length the case's events/s in millions, named by
+    the case; right: ray_intersect and the integrator in million paths/s."""
+    doc, fig = bench_run["doc"], bench_run["figs"]["throughput"]
+    ax, ax2 = fig.axes
+    det = doc["detector"]
+    np.testing.assert_array_equal([p.get_width() for p in ax.patches],
+                                  [r["events_per_s"] / 1e6 for r in det])
+    assert [t.get_text() for t in ax.get_yticklabels()] == [r["case"] for r in det]
+    assert "million photon events / s" in ax.get_xlabel()
+    (target,) = [ln for ln in ax.get_lines() if ln.get_label() == "target 20 M/s"]
+    assert list(target.get_xdata()) == [20, 20]
+    integ = doc["integrator"]
+    np.testing.assert_array_equal([p.get_width() for p in ax2.patches],
+                                  [integ["rays_per_s"] / 1e6, integ["paths_per_s"] / 1e6])
+    assert [t.get_text() for t in ax2.get_yticklabels()] == ["ray_intersect (ceiling)",
+                                                             "pathlength integrator"]
+    assert "million paths / s" in ax2.get_xlabel()
+    assert f"{integ['triangles'] / 1e6:.1f} M triangles" in ax2.get_xlabel()
+    assert f"ratio {integ['ratio_to_ceiling']:.2f}" in ax2.get_xlabel()
+    assert "throughput" in fig.get_suptitle() and doc["variant"] in fig.get_suptitle()
+
+
+def test_accuracy_chart_shows_every_setting_and_the_front(bench_run):
+    """One panel per track: each knob's points are its rows' (seconds, 100 * error_m) [cm]
+    (errors floored at 1e-5 m for the log axis), labelled with the knob's values; the black
+    line is the Pareto front of the rows."""
+    doc, fig = bench_run["doc"]["accuracy_vs_time"], bench_run["figs"]["accuracy"]
+    assert len(fig.axes) == len(doc)
+    for ax, (name, d) in zip(fig.axes, doc.items()):
+        rows = d["rows"]
+        assert ax.get_title().startswith(name) and d["reference"]["source"] in ax.get_title()
+        assert ax.get_xlabel() == "wall time of the run [s]"
+        assert ax.get_ylabel() == "error of (bias, precision) [cm]"
+        assert ax.get_xscale() == ax.get_yscale() == "log"
+        lines = lines_by_label(ax)
+        knobs = list(dict.fromkeys(r["knob"] for r in rows))
+        assert set(lines) == set(knobs) | {"Pareto front"}
+        for knob in knobs:
+            sel = [r for r in rows if r["knob"] == knob]
+            x, y = xy(lines[knob])
+            np.testing.assert_array_equal(x, [r["seconds"] for r in sel])
+            np.testing.assert_array_equal(y, [100 * max(r["error_m"], 1e-5) for r in sel])
+        x, y = xy(lines["Pareto front"])
+        front = accuracy.pareto_front(rows)
+        np.testing.assert_array_equal(x, [r["seconds"] for r in front])
+        np.testing.assert_array_equal(y, [100 * max(r["error_m"], 1e-5) for r in front])
+        assert sorted(t.get_text() for t in ax.texts) == sorted(f"{r['value']:g}" for r in rows)
+
+
+# the stability panels: sweep, y key, closed-form key, words the x and y labels must contain
+STABILITY_PANELS = [
+    ("slope_deg", "std_m", "expected_std_m", "slope", "precision"),
+    ("ward_alpha", "mean_photons_per_shot", "expected_photons_per_shot", "Ward alpha",
+     "photons/shot"),
+    ("signal_photons", "bias_m", None, "signal photons", "bias"),
+    ("dead_time_ns", "bias_m", None, "dead time [ns]", "bias"),
+    ("p", "std_m", None, "fractal p", "precision"),
+    ("grid_m", "std_m", None, "mesh spacing [m]", "precision"),
+    ("altitude_m", "float32_error_m", "max_error_m", "altitude [m]", "path error [m]"),
+    ("photons_per_launch", "paths_per_s", None, "photons per launch", "paths / s"),
+]
+
+
+def test_stability_chart_plots_the_sweeps(bench_run):
+    """Each panel: the sweep's finite results against the swept value (and the closed form
+    where there is one, dashed); every refused or degraded row is marked by a red line at
+    its value."""
+    doc, fig = bench_run["doc"]["stability"], bench_run["figs"]["stability"]
+    assert set(doc) == {p[0] for p in STABILITY_PANELS}
+    for ax, (name, key, exp_key, xword, yword) in zip(fig.axes, STABILITY_PANELS):
+        rows = doc[name]
+        assert xword in ax.get_xlabel() and yword in ax.get_ylabel(), (name, ax.get_xlabel())
+        ok = [r for r in rows if r.get(key) is not None and np.isfinite(r[key])]
+        assert ok, name
+        lines = ax.get_lines()
+        x, y = xy(lines[0])
+        np.testing.assert_array_equal(x, [r["value"] for r in ok], err_msg=name)
+        np.testing.assert_array_equal(y, [r[key] for r in ok], err_msg=name)
+        if exp_key:
+            x, y = xy(lines[1])
+            assert lines[1].get_linestyle() == "--"
+            np.testing.assert_array_equal(x, [r["value"] for r in ok], err_msg=name)
+            np.testing.assert_array_equal(y, [r[exp_key] for r in ok], err_msg=name)
+        bad = [r["value"] for r in rows if not str(r.get("status", "ok")).startswith("ok")]
+        marks = [ln.get_xdata()[0] for ln in lines
+                 if ln.get_color() == "tab:red" and len(ln.get_xdata()) == 2]
+        assert sorted(marks) == sorted(bad), name
+    # the sweeps with a refusal by design show it
+    for name in ("slope_deg", "ward_alpha", "p", "grid_m"):
+        assert any(str(r["status"]).startswith("refused") for r in doc[name]), name
+
+
+def test_peer_chart_plots_both_tools(bench_run):
+    doc = bench_run["doc"]["peer"]
+    fig = bench_run["figs"]["peer"]
+    if "rows" not in doc:
+        assert fig is None
+        pytest.skip(doc["skipped"])
+    axes = fig.axes
+    for ax, plate in zip(axes[:2], ("0 deg plate", "5 deg plate")):
+        assert ax.get_title() == plate
+        assert "wall time" in ax.get_xlabel() and "L2 error" in ax.get_ylabel()
+        lines = lines_by_label(ax)
+        tools = {r["tool"] for r in doc["rows"] if r["plate"] == plate}
+        assert set(lines) == tools and len(tools) == 4
+        for tool in tools:
+            rr = sorted((r for r in doc["rows"] if r["plate"] == plate and r["tool"] == tool),
+                        key=lambda r: r["paths"])
+            x, y = xy(lines[tool])
+            np.testing.assert_array_equal(x, [r["seconds"] for r in rr])
+            np.testing.assert_array_equal(y, [max(r["error"], 1e-6) for r in rr])
+    ax = axes[2]
+    assert "range from the plate centre [m]" in ax.get_xlabel()
+    assert ax.get_ylabel() == "fraction of the return"
+    lines = lines_by_label(ax)
+    assert set(lines) == set(doc["waveforms"])
+    for name, wf in doc["waveforms"].items():
+        fine = np.asarray(wf["fine"])
+        n = fine.size // 20
+        coarse = fine[:n * 20].reshape(n, 20).sum(1)      # 1 cm of OPL = 5 mm of range
+        x, y = xy(lines[name])
+        np.testing.assert_allclose(y, coarse / coarse.sum(), rtol=1e-12)
+        assert y.sum() == pytest.approx(1.0)
+        np.testing.assert_allclose(np.diff(x), wf["bin_m"] * 20 / 2, rtol=1e-6)

@@ -77,12 +77,52 @@ def test_table_and_plots(rows, tmp_path):
         fig = compare.plot_sweep(rows, x=x, title=x)
         assert isinstance(fig, matplotlib.figure.Figure) and len(fig.axes) == 6
     assert len(compare.plot_sweep(rows, x="p", reference=None).axes) == 3
+    check_sweep_figure(compare.plot_sweep(rows, x="slope_deg"), rows)
     compare.plot_sweep(rows, x="p", path=tmp_path / "p.png")
     assert (tmp_path / "p.png").stat().st_size > 1000
     with pytest.raises(ValueError):
         compare.plot_sweep(rows, x="alpha")
     with pytest.raises(ValueError):
         compare.plot_sweep(compare.select(rows, kind="fractal"), x="slope_deg")
+
+
+def check_sweep_figure(fig, rows):
+    """What plot_sweep(x="slope_deg") shows: per variant and panel, points at the rows'
+    slopes (spread by at most 1 % of the slope span so the error bars do not overlap; not at
+    all for the absolute precision) with the rows' values and +-1 standard-error bars; top row
+    photons per shot, bias [cm], precision [cm]; bottom row the same against Lambertian
+    (relative_to): ratio, difference [cm], relative difference [%]."""
+    planes = compare.select(rows, kind="plane")
+    rel = compare.relative_to(planes, reference="Lambertian")
+    slopes = sorted({r["slope_deg"] for r in planes})
+    dodge = 0.01 * (slopes[-1] - slopes[0]) * (len(compare.BRDF_VARIANTS) - 1) / 2
+    panels = [[("photons_per_shot", "photons_per_shot_se", 1.0, 0.0, "photons per shot"),
+               ("bias_m", "bias_se_m", 100.0, 0.0, "elevation bias [cm]"),
+               ("std_m", "std_se_m", 100.0, 0.0, "precision (std) [cm]")],
+              [("photons_ratio", "photons_ratio_se", 1.0, 0.0, "÷ Lambertian's"),
+               ("bias_diff_m", "bias_diff_se_m", 100.0, 0.0, "− Lambertian's [cm]"),
+               ("std_ratio", "std_ratio_se", 100.0, 1.0, "÷ Lambertian's − 1 [%]")]]
+    axes = np.array(fig.axes[:6]).reshape(2, 3)
+    for i, source in enumerate((planes, rel)):
+        for j, (key, err, scale, shift, ylabel) in enumerate(panels[i]):
+            ax = axes[i, j]
+            assert ylabel in ax.get_ylabel(), (ax.get_ylabel(), ylabel)
+            if i == 1:
+                assert ax.get_xlabel() == "surface slope [deg]"
+            bars = {c.get_label(): c for c in ax.containers}
+            assert set(bars) == set(compare.BRDF_VARIANTS)
+            for name, c in bars.items():
+                rs = sorted((r for r in source if r["variant"] == name), key=lambda r: r["slope_deg"])
+                x, y = (np.asarray(v, float) for v in c.lines[0].get_data())
+                np.testing.assert_allclose(y, scale * (np.array([r[key] for r in rs]) - shift),
+                                           rtol=1e-12)
+                dx = x - np.array([r["slope_deg"] for r in rs])
+                assert np.all(np.abs(dx) <= dodge + 1e-12) and np.ptp(dx) < 1e-12
+                if (i, j) == (0, 2):
+                    assert np.all(dx == 0)
+                half = [abs(seg[1, 1] - seg[0, 1]) / 2 for seg in c.lines[2][0].get_segments()]
+                np.testing.assert_allclose(half, scale * np.array([r[err] for r in rs]),
+                                           rtol=1e-9, atol=1e-12)
 
 
 def test_errors_scale_with_sample():

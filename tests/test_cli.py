@@ -9,6 +9,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from lidar_mitsuba import plotting
 from lidar_mitsuba.cli import main
 
 
@@ -156,14 +157,38 @@ def test_bad_input_real_process(tmp_path):
     assert r.returncode == 2 and r.stderr.count("\n") == 1
 
 
-def test_simulate_then_stats(tmp_path, capsys):
+def test_simulate_then_stats(tmp_path, capsys, monkeypatch):
     out = tmp_path / "run.h5"
     png = tmp_path / "run.png"
+    figs = []
+    photon_cloud = plotting.photon_cloud
+
+    def keep_figure(**kw):                        # the Figure that --plot draws
+        figs.append(photon_cloud(**kw))
+        return figs[-1]
+    monkeypatch.setattr(plotting, "photon_cloud", keep_figure)
     assert main(["simulate", "--surface", "fractal", "--p", "1.8", "--beam", "weak",
                  "--shots", "300", "--seed", "3", "--out", str(out), "--plot", str(png),
                  "--no-progress", "--size-m", "256"]) == 0
     printed = capsys.readouterr().out
     assert "bias [cm]" in printed and png.stat().st_size > 10_000
+    # the figure (paper's Fig. 10) shows the file's photons over the file's surface profile
+    (fig,) = figs
+    (ax,) = fig.axes
+    lines = {ln.get_label().split(" (")[0]: ln for ln in ax.get_lines()}
+    with h5py.File(out) as f:
+        sig = f["truth/photons/is_signal"][()].astype(bool)
+        along, h = f["gt1r/heights/dist_ph_along"][()], f["gt1r/heights/h_ph"][()]
+        shots = {k: f[f"truth/shots/{k}"][()] for k in ("along_track_m", "surface_z_m", "z_ref_m")}
+    assert sig.all() and "noise photons" not in lines           # no background: all signal
+    assert lines["signal photons"].get_label() == f"signal photons ({sig.size})"
+    np.testing.assert_array_equal(lines["signal photons"].get_xdata(), along)
+    np.testing.assert_array_equal(lines["signal photons"].get_ydata(), h)
+    for label, key in (("surface along track", "surface_z_m"), ("reference elevation", "z_ref_m")):
+        np.testing.assert_array_equal(lines[label].get_xdata(), shots["along_track_m"])
+        np.testing.assert_array_equal(lines[label].get_ydata(), shots[key])
+    assert ax.get_xlabel() == "along-track distance [m]" and ax.get_ylabel() == "elevation [m]"
+    title = ax.get_title()
     with h5py.File(out) as f:
         assert f["gt1r"].attrs["atlas_beam_type"] == "weak"
         for name in ("h_ph", "delta_time", "dist_ph_along", "signal_conf_ph"):
@@ -180,6 +205,9 @@ def test_simulate_then_stats(tmp_path, capsys):
         assert key in doc
     assert doc["shots"] == 300 and len(doc["windows"]) == 3 and len(doc["channels"]) == 4
     assert abs(doc["bias_m"]) < 0.1 and 0.05 < doc["std_m"] < 0.5
+    assert title.startswith("weak beam over fractal surface")   # the plot's title: the stats
+    assert (f"bias {100 * doc['bias_m']:.1f} cm" in title
+            and f"precision {100 * doc['std_m']:.1f} cm" in title), title
     # same seed, same numbers
     out2 = tmp_path / "run2.h5"
     main(["simulate", "--surface", "fractal", "--p", "1.8", "--beam", "weak", "--shots", "300",

@@ -554,9 +554,21 @@ def test_fig6_polar_plot(tmp_path):
     path = tmp_path / "fig6.png"
     fig = ward_polar_figure(path=path)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 10_000
-    assert len([ax for ax in fig.axes if ax.name == "polar"]) == 2
-    for theta_i in (0, 20):
+    polar = [ax for ax in fig.axes if ax.name == "polar"]
+    assert len(polar) == 2
+    (cbar,) = [ax for ax in fig.axes if ax.name != "polar"]
+    assert cbar.get_ylabel() == "f_r [1/sr]"
+    for ax, theta_i in zip(polar, (0, 20)):
         phi_e, th_e, f = ward_polar_grid(theta_i)
+        # the figure shows this grid: colour = f_r over (phi_o, theta_o) cells, the incident
+        # direction at (0, theta_i), the mirror direction at (180 deg, theta_i)
+        (mesh,) = ax.collections
+        np.testing.assert_array_equal(np.asarray(mesh.get_array()).reshape(f.shape), f)
+        marks = {ln.get_label(): ln.get_data() for ln in ax.get_lines()}
+        assert marks["incident direction"] == ([0.0], [theta_i])
+        if theta_i:
+            assert marks["mirror direction"] == ([np.pi], [theta_i])
+        assert f"θi = {theta_i:g}°" in ax.get_title() and f"max {f.max():.3f}" in ax.get_title()
         assert np.all(np.isfinite(f)) and f.shape == (th_e.size - 1, phi_e.size - 1)
         assert np.all(f >= 0.9 / np.pi * (1 - 1e-6))           # never below the Lambertian part
         # The same grid from the numpy reference (float32 plugin: rtol 1e-4).

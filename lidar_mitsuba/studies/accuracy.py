@@ -122,8 +122,9 @@ def pareto_front(rows: list[dict]) -> list[dict]:
     return best
 
 
-def chart(results: dict, path) -> None:
-    """Error against wall time per track, one marker per knob, the Pareto front drawn."""
+def chart(results: dict, path):
+    """Error against wall time per track, one marker per knob, the Pareto front drawn; saved
+    to ``path``. Returns the (closed) matplotlib Figure."""
     from ..plotting import plt
     markers = {"shots": "o", "paths_per_shot": "s", "grid_m": "^", "max_depth": "D",
                "chunk_shots": "x"}
@@ -153,6 +154,7 @@ def chart(results: dict, path) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+    return fig
 
 
 # --------------------------------------------------------------------------- simplifications

@@ -148,7 +148,9 @@ def bench_end_to_end(*, quick: bool) -> list[dict]:
     return rows
 
 
-def _chart(doc: dict, path: pathlib.Path) -> None:
+def _chart(doc: dict, path: pathlib.Path):
+    """Throughput bars (detector cases; integrator against its ray-cast ceiling), saved to
+    ``path``. Returns the (closed) matplotlib Figure."""
     from ..plotting import plt
     det = doc["detector"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), dpi=110)
@@ -171,6 +173,7 @@ def _chart(doc: dict, path: pathlib.Path) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+    return fig
 
 
 def run(*, out_dir: str | os.PathLike, quick: bool = False) -> dict:

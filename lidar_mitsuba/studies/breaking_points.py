@@ -202,8 +202,9 @@ def run_all(*, quick: bool) -> dict[str, list[dict]]:
     return {name: fn(quick=quick) for name, fn in SWEEPS.items()}
 
 
-def chart(results: dict[str, list[dict]], path) -> None:
-    """One panel per sweep: the main quantity against the swept value; refused values marked."""
+def chart(results: dict[str, list[dict]], path):
+    """One panel per sweep: the main quantity against the swept value; refused values marked.
+    Saved to ``path``; returns the (closed) matplotlib Figure."""
     from ..plotting import plt
     panels = [
         ("slope_deg", "std_m", "expected_std_m", "slope [deg]", "precision [m]", "log"),
@@ -244,3 +245,4 @@ def chart(results: dict[str, list[dict]], path) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+    return fig

@@ -349,11 +349,13 @@ def speed_ratios(rows: list[dict], *, top: int = 3) -> list[dict]:
     return out
 
 
-def chart(doc: dict, path) -> None:
-    """Error against wall time for both plates, and the impulse responses at orbital range."""
+def chart(doc: dict, path):
+    """Error against wall time for both plates, and the impulse responses at orbital range.
+    Saved to ``path``; returns the (closed) matplotlib Figure, or ``None`` (nothing drawn)
+    when the comparison was skipped."""
     from ..plotting import plt
     if "rows" not in doc:
-        return
+        return None
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.3), dpi=110)
     styles = {"lidar_mitsuba (impulse + pulse)": ("tab:orange", "o-"),
               "lidar_mitsuba (photons, pulse sampled)": ("tab:red", "s--"),
@@ -393,6 +395,7 @@ def chart(doc: dict, path) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+    return fig
 
 
 def format_summary(doc: dict) -> str:
