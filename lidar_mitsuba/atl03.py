@@ -51,7 +51,8 @@ def write(result, path: str | os.PathLike) -> pathlib.Path:
         f.attrs["config"] = json.dumps(result.config)
         f.attrs["description"] = ("Simulated ATL03-like photon data (lidar_mitsuba); "
                                   "see /truth for the simulation truth.")
-        f.create_dataset("orbit_info/sc_orient", data=np.int8(0))
+        _ds(f.require_group("orbit_info"), "sc_orient", np.int8(0), "1",
+            "spacecraft orientation: 0 backward (left beams strong), 1 forward, 2 transition")
         g = f.create_group(f"{BEAM_GROUPS[inst.beam]}/heights")
         f[BEAM_GROUPS[inst.beam]].attrs["atlas_beam_type"] = inst.beam
         _ds(g, "h_ph", result.h_m, "meters", "photon elevation: altitude - c t / 2")

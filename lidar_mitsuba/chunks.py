@@ -90,7 +90,7 @@ class ChunkedRun:
         detections: detector name -> its :class:`Detections` over the whole track.
         returns: every traced return (global shot indices), or ``None`` when not kept.
         n_returns: traced returns in all.
-        trace_s, detect_s: wall time of tracing and of detecting [s].
+        timings_s: ``trace_s`` and ``detect_s``, wall time of tracing and of detecting [s].
     """
     detections: dict[str, Detections]
     returns: Returns | None
@@ -115,7 +115,9 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
         progress: show a progress bar on runs longer than ~2 s.
     """
     n_shots = int(np.asarray(z_ref_m).size)
-    per = max(1, int(chunk_shots))
+    if not (isinstance(chunk_shots, (int, np.integer)) and chunk_shots >= 1):
+        raise ValueError(f"chunk_shots must be an integer >= 1 (got {chunk_shots!r})")
+    per = int(chunk_shots)
     gates = {name: gate_center_ns(inst, z_ref_m) for name, inst in detectors.items()}
     parts: dict[str, list] = {name: [] for name in detectors}
     kept: list[tuple[Returns, int]] = []

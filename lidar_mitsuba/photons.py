@@ -62,8 +62,11 @@ class Returns:
         ``paths_per_shot`` paths per shot, one return each, with round-trip times ``time_ns``
         ((n_shots * paths_per_shot,) shot by shot [ns]), weights 1 unless given, scattering
         points at the origin."""
-        t = np.asarray(time_ns, np.float64)
+        t = np.asarray(time_ns, np.float64).ravel()
         k = int(paths_per_shot)
+        if k < 1 or t.size % k:
+            raise ValueError(f"time_ns holds {t.size} times: not a whole number of shots of "
+                             f"{k} paths")
         n_shots = t.size // k
         zero = np.zeros(t.size, np.float32)
         return cls(shot=np.repeat(np.arange(n_shots), k), time_ns=t,

@@ -83,7 +83,14 @@ def elevation_report(*, dh_m: np.ndarray, shot: np.ndarray, channel: np.ndarray,
     """
     if window_shots < 1:
         raise ValueError(f"window must be >= 1 shot (got {window_shots})")
+    dh_m = np.asarray(dh_m, np.float64)
     shot = np.asarray(shot, np.int64)
+    channel = np.asarray(channel)
+    if shot.size and (shot.min() < 0 or shot.max() >= n_shots):
+        raise ValueError(f"shot indices must lie in [0, {n_shots}) (got {shot.min()} .. {shot.max()})")
+    if channel.size and (channel.min() < 0 or channel.max() >= n_channels):
+        raise ValueError(f"channels must lie in [0, {n_channels}) "
+                         f"(got {channel.min()} .. {channel.max()})")
     windows = []
     for k, start in enumerate(range(0, n_shots, window_shots)):
         stop = min(n_shots, start + window_shots)

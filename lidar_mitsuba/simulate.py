@@ -90,7 +90,7 @@ class SimulationResult:
             n_channels=self.instrument.channels, window_shots=window_shots)
 
 
-def _check_run(shots, seed, paths_per_shot, max_depth) -> None:
+def _check_run(shots, seed, paths_per_shot, max_depth, chunk_shots) -> None:
     def is_int(v):
         return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
     if not is_int(shots) or not 1 <= shots <= 10 ** 8:
@@ -100,6 +100,8 @@ def _check_run(shots, seed, paths_per_shot, max_depth) -> None:
     if not is_int(paths_per_shot) or not 1 <= paths_per_shot <= 10 ** 6:
         raise ParameterError("paths_per_shot", f"must be an integer in [1, 1e6] "
                              f"(got {paths_per_shot!r})")
+    if not is_int(chunk_shots) or chunk_shots < 1:
+        raise ParameterError("chunk_shots", f"must be an integer >= 1 (got {chunk_shots!r})")
     if max_depth != "auto" and (not is_int(max_depth) or not 1 <= max_depth <= 64):
         raise ParameterError("max_depth", f"must be 'auto' or an integer in [1, 64] "
                              f"(got {max_depth!r})")
@@ -237,7 +239,7 @@ def simulate(*, instrument: Instrument | None = None,
         resolves); also listed in ``result.config["warnings"]``.
     """
     instrument = instrument or Instrument()
-    _check_run(shots, seed, paths_per_shot, max_depth)
+    _check_run(shots, seed, paths_per_shot, max_depth, chunk_shots)
     if variant is not None:
         try:
             set_variant(variant)

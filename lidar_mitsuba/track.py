@@ -32,14 +32,16 @@ class Track:
 
     def __post_init__(self):
         if self.start_xy_m is not None:
-            xy = tuple(float(v) for v in self.start_xy_m)
-            check("start_xy_m", self.start_xy_m,
-                  len(xy) == 2 and all(map(math.isfinite, xy)), "must be two finite numbers")
+            xy = _numbers(self.start_xy_m)
+            check("start_xy_m", self.start_xy_m, xy is not None and len(xy) == 2,
+                  "must be two finite numbers (x, y)")
             object.__setattr__(self, "start_xy_m", xy)
-        check("heading_deg", self.heading_deg, math.isfinite(self.heading_deg),
-              "must be finite")
-        check("offset_m", self.offset_m, math.isfinite(self.offset_m) and
-              abs(self.offset_m) <= 1e7, "must be finite, |offset| <= 1e7")
+        for name, bound in (("heading_deg", math.inf), ("offset_m", 1e7)):
+            v = _numbers([getattr(self, name)])
+            check(name, getattr(self, name), v is not None and abs(v[0]) <= bound,
+                  "must be a finite number" + (f" of magnitude <= {bound:g}"
+                                               if math.isfinite(bound) else ""))
+            object.__setattr__(self, name, v[0])
 
     @property
     def direction(self) -> tuple[float, float]:
@@ -66,3 +68,12 @@ class Track:
     def to_dict(self) -> dict:
         return {"start_xy_m": None if self.start_xy_m is None else list(self.start_xy_m),
                 "heading_deg": float(self.heading_deg), "offset_m": float(self.offset_m)}
+
+
+def _numbers(values) -> tuple[float, ...] | None:
+    """``values`` as a tuple of finite floats, or None when any is not one."""
+    try:
+        out = tuple(float(v) for v in values)
+    except (TypeError, ValueError):
+        return None
+    return out if all(math.isfinite(v) for v in out) else None

@@ -41,15 +41,16 @@ def set_variant(name: str = DEFAULT_VARIANT) -> str:
 
     Raises ``ValueError`` naming the variant when it is unknown or its backend (CUDA) is absent.
     """
-    if name not in mi.variants():
-        raise ValueError(f"variant {name!r} is not available (choose from "
-                         f"{', '.join(v for v in SUPPORTED_VARIANTS if v in mi.variants())})")
-    if name.startswith("cuda") and not dr.has_backend(dr.JitBackend.CUDA):
-        raise ValueError(f"variant {name!r} needs a CUDA GPU and driver, and none was found "
-                         f"(use llvm_ad_mono on the CPU)")
+    usable = [v for v in SUPPORTED_VARIANTS if v in mi.variants()
+              and (not v.startswith("cuda") or dr.has_backend(dr.JitBackend.CUDA))]
     if name.startswith("scalar"):
         raise ValueError(f"variant {name!r} is not supported: use a JIT variant such as "
                          f"{DEFAULT_VARIANT}")
+    if name.startswith("cuda") and name in mi.variants() and not dr.has_backend(dr.JitBackend.CUDA):
+        raise ValueError(f"variant {name!r} needs a CUDA GPU and driver, and none was found "
+                         f"(use llvm_ad_mono on the CPU)")
+    if name not in usable:
+        raise ValueError(f"variant {name!r} is not available (choose from {', '.join(usable)})")
     if mi.variant() != name:
         mi.set_variant(name)
     _register_plugins(name)

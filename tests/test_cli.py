@@ -42,6 +42,7 @@ BAD = [
     (["--variant", "nonsense"], "--variant"),
     (["--beam", "medium"], "--beam"),
     (["--paths-per-shot", "0"], "--paths-per-shot"),
+    (["--chunk-shots", "0"], "--chunk-shots"),
     (["--max-depth", "0"], "--max-depth"),
     (["--max-depth", "two"], "--max-depth"),
     (["--window", "0"], "--window"),

@@ -164,3 +164,8 @@ def test_detections_are_frozen(rng):
     d = detections(rng, 3, 10)
     with pytest.raises(AttributeError):
         d.shot = d.shot + 1
+
+
+def test_at_times_refuses_a_partial_shot():
+    with pytest.raises(ValueError, match="not a whole number of shots"):
+        Returns.at_times(np.zeros(10), paths_per_shot=4)

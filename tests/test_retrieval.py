@@ -183,3 +183,16 @@ def test_format_report_prints_the_numbers_in_cm(photons):
     one = format_report(elevation_report(**photons, window_shots=5000))
     assert not any(line.startswith("window") for line in one.splitlines())
     assert one.splitlines()[0].split()[0] == "photons"
+
+
+def test_report_refuses_photons_outside_its_shots_or_channels():
+    """A photon of shot 3 in a 3-shot report would count overall but in no window."""
+    with pytest.raises(ValueError, match="shot indices"):
+        elevation_report(dh_m=[0.1, 0.2, 0.3], shot=[0, 1, 3], channel=[0, 0, 0],
+                           n_shots=3, n_channels=1)
+    with pytest.raises(ValueError, match="channels"):
+        elevation_report(dh_m=[0.1, 0.2], shot=[0, 1], channel=[0, 2], n_shots=3,
+                           n_channels=2)
+    rep = elevation_report(dh_m=[0.1, 0.2], shot=[0, 1], channel=[0, 1], n_shots=3,
+                             n_channels=2, window_shots=2)           # plain lists work
+    assert sum(w["n_photons"] for w in rep.windows) == rep.overall.n_photons == 2

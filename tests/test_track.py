@@ -94,6 +94,10 @@ def test_to_dict():
     ("heading_deg", {"heading_deg": -math.inf}),
     ("offset_m", {"offset_m": math.inf}),
     ("offset_m", {"offset_m": 2e7}),
+    ("start_xy_m", {"start_xy_m": 5}),
+    ("start_xy_m", {"start_xy_m": ("a", "b")}),
+    ("heading_deg", {"heading_deg": "x"}),
+    ("offset_m", {"offset_m": None}),
 ])
 def test_bad_values_raise_naming_the_field(field, kwargs):
     with pytest.raises(ParameterError) as e:

@@ -41,7 +41,8 @@ def test_session_variant_is_active_with_plugins(variant):
     plugins_load()
 
 
-@pytest.mark.parametrize("name", ["nonsense", "llvm_ad_nope", "cuda_ad_nope", ""])
+@pytest.mark.parametrize("name", ["nonsense", "llvm_ad_nope", "cuda_ad_nope", ""] + [
+    v for v in ("llvm_ad_spectral", "llvm_ad_mono_polarized") if v in mi.variants()])
 def test_unknown_variant_is_refused_naming_it(name, variant):
     with pytest.raises(ValueError, match=re.escape(repr(name))):
         lidar_mitsuba.set_variant(name)

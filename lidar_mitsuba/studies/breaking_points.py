@@ -2,7 +2,7 @@
 
 Every row is either a finite result with its accuracy stated (against a closed form where one
 exists) or a status naming why there is no result. ``lidar-mitsuba bench`` runs these and
-charts them (``stability.png``); ``tests/test_stability.py`` pins the edges.
+charts them (``stability.png``); ``tests/test_breaking_points.py`` pins the edges.
 """
 from __future__ import annotations
 
