@@ -6,7 +6,6 @@ mean, sigma/sqrt(2n) for the standard deviation of Gaussian residuals, binomial 
 import math
 import pathlib
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest

@@ -1,5 +1,4 @@
 """Notebooks run top to bottom (small shot counts)."""
-import os
 import pathlib
 
 import nbformat
