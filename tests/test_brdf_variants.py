@@ -126,7 +126,7 @@ def check_sweep_figure(fig, rows):
 
 
 def test_errors_scale_with_sample():
-    """summarize's standard errors: std / sqrt(n) and std / sqrt(2 (n - 1))."""
+    """row_of's standard errors: std / sqrt(n) and std / sqrt(2 (n - 1))."""
     (r,) = compare.sweep(variants={"Lambertian": compare.BRDF_VARIANTS["Lambertian"]},
                          surfaces=[SurfaceSpec(kind="flat")], shots=200, seed=5, beam="weak",
                          ideal_detector=True)

@@ -71,7 +71,7 @@ STYLES: dict[str, tuple[str, str]] = {
     "roughconductor": ("#a50f15", "*"),
 }
 
-#: Numeric fields of a row that :func:`sweep` fills (all floats; see :func:`summarize`).
+#: Numeric fields of a row that :func:`sweep` fills (all floats; see :func:`row_of`).
 ROW_FIELDS = ("photons_per_shot", "photons_per_shot_se", "return_weight", "bias_m", "bias_se_m",
               "std_m", "std_se_m")
 
@@ -99,7 +99,7 @@ def _instrument(beam: str | Instrument, ideal_detector: bool | None) -> Instrume
     return inst
 
 
-def summarize(res: SimulationResult) -> dict:
+def row_of(res: SimulationResult) -> dict:
     """Photons per shot, bias and precision of one run's signal photons, with standard errors.
 
     Returns a dict of floats (NaN where undefined):
@@ -125,8 +125,7 @@ def summarize(res: SimulationResult) -> dict:
         if res.n_shots > 1 else math.nan,
         "return_weight": float(np.mean(d.mean_photons_per_shot) / sp) if sp > 0 else math.nan,
         "bias_m": float(st.bias_m), "bias_se_m": float(st.bias_se_m),
-        "std_m": float(st.std_m),
-        "std_se_m": float(st.std_m / math.sqrt(2.0 * (n - 1))) if n > 1 else math.nan,
+        "std_m": float(st.std_m), "std_se_m": float(st.std_se_m),
     }
 
 
@@ -158,7 +157,7 @@ def sweep(*, variants: Mapping[str, dict], surfaces: Sequence[SurfaceSpec], shot
         [ns], ``kind``, ``slope_deg`` [deg], ``p`` (NaN off fractals), ``relief_m`` [m],
         ``size_m`` [m], ``terrain_seed``, ``seed``, ``max_depth`` (the one used),
         ``time_s`` [s] and the fields of
-        :func:`summarize` (``shots``, ``n_photons``, ``photons_per_shot``,
+        :func:`row_of` (``shots``, ``n_photons``, ``photons_per_shot``,
         ``photons_per_shot_se``, ``return_weight``, ``bias_m``, ``bias_se_m``, ``std_m``,
         ``std_se_m``).
     """
@@ -180,7 +179,7 @@ def sweep(*, variants: Mapping[str, dict], surfaces: Sequence[SurfaceSpec], shot
                    "relief_m": float(surface.relief_m) if surface.kind == "fractal" else 0.0,
                    "size_m": float(surface.size_m), "terrain_seed": int(surface.terrain_seed),
                    "seed": int(seed), "max_depth": int(res.config["max_depth"])}
-            row.update(summarize(res))
+            row.update(row_of(res))
             row["time_s"] = time.perf_counter() - t0
             rows.append(row)
             if progress:
