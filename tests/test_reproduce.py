@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from lidar_mitsuba import spectra, terrain
+from lidar_mitsuba import terrain
 from lidar_mitsuba.studies import reproduce
 from lidar_mitsuba.cli import main
 from lidar_mitsuba.instrument import Instrument
@@ -90,6 +90,67 @@ def test_quick_writes_every_figure_and_a_finite_report(quick_runs):
         assert -0.05 < h["bias_min_m"] <= h["bias_max_m"] < 0.05
     assert doc["timings_s"]["total"] > 0
     assert doc["data"]["fig3"]["atm_data_available"] is False
+
+
+def _errorbars(ax):
+    """{label: (x, y)} of the error-bar series of an axis (their data lines)."""
+    return {c.get_label(): c.lines[0].get_xydata().T for c in ax.containers
+            if hasattr(c, "lines")}
+
+
+def test_figures_plot_the_computed_numbers(quick_runs):
+    """Each figure draws the numbers of its own computation (redrawn here from report.json):
+    Fig. 7's histograms and means, Fig. 9's bias and precision per slope, Fig. 12's
+    per-beam curves against p, Fig. 13's curves against albedo; with axes naming them."""
+    data = json.loads((quick_runs[0] / "report.json").read_text())["data"]
+    d = data["fig7"]
+    ax = reproduce.plot_fig7(d).axes[0]
+    e = 100 * np.array(d["edges_m"])
+    steps = [ln for ln in ax.lines if ln.get_drawstyle() == "steps-post"]
+    means = [ln for ln in ax.lines if ln.get_linestyle() == ":"]
+    assert len(steps) == len(d["detectors"]) == len(means) == 4
+    for ln, mean, r in zip(steps, means, d["detectors"].values()):
+        np.testing.assert_allclose(ln.get_xdata(), e[:-1])
+        np.testing.assert_allclose(ln.get_ydata(), np.array(r["hist_per_shot"]) / (e[1] - e[0]))
+        assert mean.get_xdata()[0] == pytest.approx(100 * r["bias_m"])
+    assert "elevation" in ax.get_xlabel() and "[cm]" in ax.get_xlabel()
+
+    d = data["fig8_9"]
+    top, bottom = reproduce.plot_fig9(d).axes
+    slopes = [r["slope_deg"] for r in d["runs"]]
+    (xb, yb), (xi, yi) = list(_errorbars(top).values())[:2]
+    np.testing.assert_allclose(xb, slopes)
+    np.testing.assert_allclose(yb, [100 * r["bias_m"] for r in d["runs"]])
+    np.testing.assert_allclose(yi, [100 * r["ideal"]["bias_m"] for r in d["runs"]])
+    xs, ys = list(_errorbars(bottom).values())[0]
+    np.testing.assert_allclose(ys, [100 * r["std_m"] for r in d["runs"]])
+    assert bottom.get_xlabel() == "slope [deg]" and "[cm]" in bottom.get_ylabel()
+
+    d = data["fig10_12"]
+    axes = reproduce.plot_fig12(d).axes
+    for k, (beam, q) in enumerate((("weak", "bias"), ("strong", "bias"), ("weak", "std"),
+                                   ("strong", "std"))):
+        ax = axes[k]
+        series = _errorbars(ax)
+        x, y = series["terrain seed 0 (±2 Monte Carlo SE)"]
+        np.testing.assert_allclose(x, np.array(d["p"]) - 0.004)
+        np.testing.assert_allclose(y, 100 * np.array(d["summary"][beam][q]["primary"]))
+        x, y = [v for lab, v in series.items() if lab.startswith("mean of")][0]
+        np.testing.assert_allclose(y, 100 * np.array(d["summary"][beam][q]["mean"]))
+    assert axes[2].get_xlabel() == "p"
+
+    d = data["fig13"]
+    ax, bx, cx = reproduce.plot_fig13(d).axes
+    w = d["summary"]["ward1992"]
+    for axis, q in ((ax, "bias"), (bx, "std")):
+        x, y = list(_errorbars(axis).values())[0]
+        np.testing.assert_allclose(x, np.array(d["rho_d"]) - 0.004)
+        np.testing.assert_allclose(y, 100 * np.array(w[q]["mean"]))
+        assert "albedo" in axis.get_xlabel()
+    lobes = _errorbars(cx)
+    assert len(lobes) == 3
+    for (x, y), norm in zip(lobes.values(), ("ward1992", "duer", "balanced")):
+        np.testing.assert_allclose(y, 100 * np.array(d["summary"][norm]["bias"]["primary"]))
 
 
 def test_same_command_same_numbers(quick_runs):
