@@ -1,4 +1,5 @@
-"""ATL06-style surface finding and first-photon-bias (FPB) correction (lidar_mitsuba.atl06).
+"""ATL06-style surface finding and first-photon-bias (FPB) correction (lidar_mitsuba.atl06),
+end to end on simulated tracks; the FPB building blocks are tested in test_fpb.py.
 
 Tolerances. Every Monte Carlo estimate is compared with its truth within Z = 4.5 standard
 errors (two-sided p ~ 7e-6 each), the standard error taken from the sample: binomial for
@@ -14,205 +15,15 @@ import math
 
 import numpy as np
 import pytest
-from scipy import integrate, stats
+from scipy import stats
 
 from lidar_mitsuba import atl06, pmt
-from lidar_mitsuba.photons import Returns
-from lidar_mitsuba.constants import C_M_PER_NS
 from lidar_mitsuba.instrument import Instrument
-from reference_loops import loop_nonparalyzable, loop_paralyzable
-
-Z = 4.5
-T0 = 2 * 496e3 / C_M_PER_NS          # round-trip time to h = 0 [ns]
+from lidar_mitsuba.constants import C_M_PER_NS
+from closed_forms import T0, Z, gaussian_returns
 
 
-def gaussian_returns(rng, n_shots, sigma_ns, k=48):
-    """Synthetic traced returns: ``k`` paths per shot, weight 1, Gaussian times about T0."""
-    return Returns.at_times(T0 + sigma_ns * rng.standard_normal(n_shots * k), paths_per_shot=k)
-
-
-def first_photon_moments(lam, sigma):
-    """First arrival of a Poisson process of mean ``lam`` with Gaussian intensity (sd sigma),
-    given at least one: density lam phi(t) exp(-lam Phi(t)) / (1 - exp(-lam)).
-    Returns (p_detect, mean, sd, kurtosis)."""
-    norm = -math.expm1(-lam)
-
-    def f(t):
-        return (lam * stats.norm.pdf(t, scale=sigma)
-                * math.exp(-lam * stats.norm.cdf(t, scale=sigma)) / norm)
-
-    lim = 12 * sigma
-    m1 = integrate.quad(lambda t: t * f(t), -lim, lim, epsabs=1e-13)[0]
-    m2 = integrate.quad(lambda t: (t - m1) ** 2 * f(t), -lim, lim, epsabs=1e-13)[0]
-    m4 = integrate.quad(lambda t: (t - m1) ** 4 * f(t), -lim, lim, epsabs=1e-13)[0]
-    return norm, m1, math.sqrt(m2), m4 / m2 ** 2
-
-
-def paralyzable_detections_per_channel(lam, sigma, tau):
-    """Mean detections per channel-pulse of a paralyzable channel fed a Poisson process of
-    mean ``lam`` with Gaussian intensity: an arrival at t is detected when no arrival came in
-    (t - tau, t), so the rate is lam phi(t) exp(-lam (Phi(t) - Phi(t - tau)))."""
-    def f(t):
-        return lam * stats.norm.pdf(t, scale=sigma) * math.exp(
-            -lam * (stats.norm.cdf(t, scale=sigma) - stats.norm.cdf(t - tau, scale=sigma)))
-    return integrate.quad(f, -12 * sigma, 12 * sigma + tau, epsabs=1e-13)[0]
-
-
-def loop_paralyzable_weights(t, dead, npc):
-    """Reference for the paralyzable correction: in time order, each photon's weight is
-    exp(sum of the weights of the photons in (t - dead, t) / npc), npc the channel-pulses
-    other than the photon's own."""
-    order = np.argsort(t, kind="stable")
-    w = np.empty(t.size)
-    for a, i in enumerate(order):
-        s = 0.0
-        for j in order[:a]:
-            if t[i] - dead < t[j] < t[i]:
-                s += w[j]
-        w[i] = math.exp(s / npc)
-    return w
-
-
-def batch_se(values_fn, shot, n_shots, n_batches=20):
-    """Standard error of an estimator from ``n_batches`` disjoint blocks of shots."""
-    edges = np.linspace(0, n_shots, n_batches + 1).astype(int)
-    est = [values_fn((shot >= a) & (shot < b), b - a) for a, b in zip(edges[:-1], edges[1:])]
-    return float(np.std(est, ddof=1) / math.sqrt(n_batches))
-
-
-# ---------------------------------------------------------------------------- 1. closed forms
-
-@pytest.mark.parametrize("paralyzable", [False, True])
-@pytest.mark.parametrize("channels", [4, 16])
-def test_detection_fraction_per_channel(rng, channels, paralyzable):
-    """A channel detects in a shot iff at least one photon arrives on it (the first arrival
-    always finds it alive, in both models): fraction 1 - exp(-mu / C), mu = S ff pde."""
-    inst = Instrument(beam="strong", channels=channels, signal_photons=6.0,
-                      paralyzable=paralyzable)
-    n_shots = 20000
-    det = pmt.detect(gaussian_returns(rng, n_shots, inst.pulse_sigma_ns), inst, rng)
-    mu = inst.signal_photons * inst.fill_factor * inst.pde
-    p = -math.expm1(-mu / channels)
-    frac = np.unique(det.shot * channels + det.channel).size / (n_shots * channels)
-    assert abs(frac - p) < Z * math.sqrt(p * (1 - p) / (n_shots * channels))
-
-
-@pytest.mark.parametrize("channels", [4, 16])
-def test_nonparalyzable_first_photon_and_its_correction(rng, channels):
-    """Dead time 3 ns >> pulse sigma 0.42 ns: each channel records its first photon only.
-    Its mean and spread match the closed form, and the dead-time weights undo it: the
-    weighted count per channel-pulse is lam (the true mean) and the weighted mean time 0."""
-    inst = Instrument(beam="strong", channels=channels)
-    n_shots = 40000
-    sigma = inst.pulse_sigma_ns
-    det = pmt.detect(gaussian_returns(rng, n_shots, sigma), inst, rng)
-    lam = inst.signal_photons * inst.fill_factor * inst.pde / channels
-    _, mean, sd, kurt = first_photon_moments(lam, sigma)
-    dt = det.time_ns - T0
-    n = dt.size
-    assert abs(dt.mean() - mean) < Z * sd / math.sqrt(n)
-    assert abs(dt.std(ddof=1) - sd) < Z * sd * math.sqrt((kurt - 1) / (4 * n))
-
-    w, ok = atl06.dead_time_weights(dt, n_pulses=n_shots, n_channels=channels,
-                                    dead_time_ns=inst.dead_time_ns, paralyzable=False)
-    assert ok and np.all(w >= 1)
-    lam_hat = w.sum() / (n_shots * channels)
-    mean_hat = np.sum(w * dt) / w.sum()
-
-    def count(sel, ns):
-        ww, _ = atl06.dead_time_weights(dt[sel], n_pulses=ns, n_channels=channels,
-                                        dead_time_ns=inst.dead_time_ns, paralyzable=False)
-        return ww.sum() / (ns * channels)
-
-    def centroid(sel, ns):
-        ww, _ = atl06.dead_time_weights(dt[sel], n_pulses=ns, n_channels=channels,
-                                        dead_time_ns=inst.dead_time_ns, paralyzable=False)
-        return np.sum(ww * dt[sel]) / ww.sum()
-
-    assert abs(lam_hat - lam) < Z * batch_se(count, det.shot, n_shots)
-    assert abs(mean_hat) < Z * batch_se(centroid, det.shot, n_shots)
-    assert abs(mean) > 10 * batch_se(centroid, det.shot, n_shots)   # there was a bias to undo
-
-
-@pytest.mark.parametrize("tau", [1.0, 3.0, 6.0])
-def test_paralyzable_rate_and_its_correction(rng, tau):
-    """Paralyzable channel, return spread comparable to the dead time (sigma 3 ns): mean
-    detections per channel-pulse match the quadrature closed form, and the paralyzable
-    weights recover the true count lam and mean time 0."""
-    channels, lam, sigma = 4, 2.0, 3.0
-    inst = Instrument(beam="strong", channels=channels, signal_photons=lam * channels,
-                      fill_factor=1.0, pde=1.0, dead_time_ns=tau, paralyzable=True)
-    n_shots = 20000
-    det = pmt.detect(gaussian_returns(rng, n_shots, sigma, k=64), inst, rng)
-    expect = paralyzable_detections_per_channel(lam, sigma, tau)
-    per_cp = np.bincount(det.shot * channels + det.channel, minlength=n_shots * channels)
-    assert abs(per_cp.mean() - expect) < Z * per_cp.std(ddof=1) / math.sqrt(per_cp.size)
-    dt = det.time_ns - T0
-
-    def est(sel, ns):
-        w, ok = atl06.dead_time_weights(dt[sel], n_pulses=ns, n_channels=channels,
-                                        dead_time_ns=tau, paralyzable=True)
-        assert ok
-        return w.sum() / (ns * channels), np.sum(w * dt[sel]) / w.sum()
-
-    lam_hat, mean_hat = est(np.ones(dt.size, bool), n_shots)
-    assert abs(lam_hat - lam) < Z * batch_se(lambda s, n: est(s, n)[0], det.shot, n_shots)
-    assert abs(mean_hat) < Z * batch_se(lambda s, n: est(s, n)[1], det.shot, n_shots)
-
-
-@pytest.mark.parametrize("dead", [0.5, 3.0, 10.0, 40.0])
-def test_dead_time_masks_event_by_event(rng, dead):
-    """pmt's vectorised masks against plain loops, on event lists like a real gate: dense
-    signal clusters on a uniform background, at orbital times, with exact ties."""
-    n_groups = 50
-    sig_g = rng.integers(0, n_groups, 3000)
-    sig_t = T0 + rng.normal(0, 0.5, sig_g.size) + rng.normal(0, 2.0, n_groups)[sig_g]
-    bg_g = rng.integers(0, n_groups, 2000)
-    bg_t = T0 + rng.uniform(-100, 100, bg_g.size)
-    group = np.concatenate([sig_g, bg_g])
-    t = np.concatenate([sig_t, bg_t])
-    t[::9] = t[1::9][: t[::9].size]                   # exact ties
-    assert np.array_equal(pmt.paralyzable_mask(group, t, dead), loop_paralyzable(group, t, dead))
-    assert np.array_equal(pmt.nonparalyzable_mask(group, t, dead),
-                          loop_nonparalyzable(group, t, dead))
-
-
-@pytest.mark.parametrize("dead", [0.3, 1.0, 3.0])
-def test_paralyzable_weights_match_sequential_loop(rng, dead):
-    """The vectorised fixed-point solution of the causal paralyzable equation equals the
-    plain in-time-order loop, photon by photon; the non-paralyzable weights are
-    1 / (1 - detections in (t - dead, t) / (N C - 1))."""
-    # detections of a paralyzable detector: 50 pulses x 4 channels, Poisson(2) arrivals per
-    # channel-pulse (Gaussian, sd 1 ns) on a uniform background
-    n_cp = 50 * 4
-    k = rng.poisson(2.0, n_cp)
-    group = np.concatenate([np.repeat(np.arange(n_cp), k), rng.integers(0, n_cp, 100)])
-    t = np.concatenate([rng.normal(0, 1.0, k.sum()), rng.uniform(-8, 8, 100)])
-    t = t[loop_paralyzable(group, t, dead)]
-    npc = n_cp - 1               # the channel-pulses other than the photon's own (known alive)
-    w, ok = atl06.dead_time_weights(t, n_pulses=50, n_channels=4, dead_time_ns=dead,
-                                    paralyzable=True)
-    assert ok
-    np.testing.assert_allclose(w, loop_paralyzable_weights(t, dead, npc), rtol=1e-8)
-    assert w.max() > 1.2                                     # the correction matters
-    # non-paralyzable: 1 / (1 - detections in (t - dead, t) / npc)
-    w_np, _ = atl06.dead_time_weights(t, n_pulses=50, n_channels=4, dead_time_ns=dead,
-                                      paralyzable=False)
-    k = np.array([np.sum((t > ti - dead) & (t < ti)) for ti in t])
-    np.testing.assert_allclose(w_np, 1 / (1 - k / npc))
-
-
-@pytest.mark.parametrize("paralyzable", [False, True])
-def test_background_dead_time_correction_inverts_the_models(paralyzable):
-    tau, channels, true_mhz = 3.0, 4, 40.0
-    r = true_mhz * 1e-3 / channels
-    obs = r / (1 + r * tau) if not paralyzable else r * math.exp(-r * tau)
-    got = atl06.corrected_background_mhz(obs * channels * 1e3, n_channels=channels,
-                                         dead_time_ns=tau, paralyzable=paralyzable)
-    assert got == pytest.approx(true_mhz, rel=1e-12)
-
-
-# ---------------------------------------------------------- 2. fractal track with background
+# ---------------------------------------------------------- 1. fractal track with background
 
 @pytest.fixture(scope="module")
 def fractal_tracks():
@@ -325,7 +136,7 @@ def test_atl03_file_to_segments_and_back(fractal_tracks, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["atl06.h5", "track.h5"]
 
 
-# ------------------------------------------------------------------------------ 3. flags
+# ------------------------------------------------------------------------------ 2. flags
 
 def test_flagged_segments_are_kept_marked_and_left_out(rng):
     """A gap in the photons (too few photons) and a saturating return (~60 photons on each

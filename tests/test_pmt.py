@@ -9,15 +9,13 @@ import math
 
 import numpy as np
 import pytest
-from scipy import integrate, stats
 
 from lidar_mitsuba import pmt
 from lidar_mitsuba.photons import Returns
 from lidar_mitsuba.constants import C_M_PER_NS
 from lidar_mitsuba.instrument import Instrument
+from closed_forms import T0, Z, first_photon_moments, gaussian_returns
 from reference_loops import loop_nonparalyzable, loop_paralyzable
-
-Z = 4.5
 
 
 @pytest.mark.parametrize("dead", [0.0, 0.5, 3.0, 20.0])
@@ -84,22 +82,6 @@ def test_arrivals_fallback_keeps_weights(rng):
     assert np.all(shot[idx] == np.repeat(np.arange(n_shots), counts))
 
 
-def first_photon_moments(lam, sigma):
-    """Closed form of the first arrival of a Poisson process of mean lam with Gaussian
-    intensity (sd sigma), given at least one arrival: density
-    f(t) = lam phi(t) exp(-lam Phi(t)) / (1 - exp(-lam)). Returns (p_detect, mean, sd, kurtosis)."""
-    norm = -math.expm1(-lam)
-
-    def f(t):
-        return lam * stats.norm.pdf(t, scale=sigma) * math.exp(-lam * stats.norm.cdf(t, scale=sigma)) / norm
-
-    lim = 12 * sigma
-    m1 = integrate.quad(lambda t: t * f(t), -lim, lim, epsabs=1e-13)[0]
-    m2 = integrate.quad(lambda t: (t - m1) ** 2 * f(t), -lim, lim, epsabs=1e-13)[0]
-    m4 = integrate.quad(lambda t: (t - m1) ** 4 * f(t), -lim, lim, epsabs=1e-13)[0]
-    return norm, m1, math.sqrt(m2), m4 / m2 ** 2
-
-
 @pytest.mark.parametrize("channels", [1, 4, 16])
 def test_first_photon_statistics_closed_form(rng, channels):
     """Strong-beam signal (8.17 photons/shot) on a Gaussian return, dead time 3 ns >> pulse:
@@ -133,3 +115,35 @@ def test_ideal_detector_keeps_every_photon(rng):
     assert abs(len(det) / n_shots - expect) < Z * math.sqrt(expect / n_shots)
     assert det.channel.max() < inst.channels
     assert np.array_equal(det.channel, det.anode // 4)
+
+
+@pytest.mark.parametrize("paralyzable", [False, True])
+@pytest.mark.parametrize("channels", [4, 16])
+def test_detection_fraction_per_channel(rng, channels, paralyzable):
+    """A channel detects in a shot iff at least one photon arrives on it (the first arrival
+    always finds it alive, in both models): fraction 1 - exp(-mu / C), mu = S ff pde."""
+    inst = Instrument(beam="strong", channels=channels, signal_photons=6.0,
+                      paralyzable=paralyzable)
+    n_shots = 20000
+    det = pmt.detect(gaussian_returns(rng, n_shots, inst.pulse_sigma_ns), inst, rng)
+    mu = inst.signal_photons * inst.fill_factor * inst.pde
+    p = -math.expm1(-mu / channels)
+    frac = np.unique(det.shot * channels + det.channel).size / (n_shots * channels)
+    assert abs(frac - p) < Z * math.sqrt(p * (1 - p) / (n_shots * channels))
+
+
+@pytest.mark.parametrize("dead", [0.5, 3.0, 10.0, 40.0])
+def test_dead_time_masks_event_by_event(rng, dead):
+    """pmt's vectorised masks against plain loops, on event lists like a real gate: dense
+    signal clusters on a uniform background, at orbital times, with exact ties."""
+    n_groups = 50
+    sig_g = rng.integers(0, n_groups, 3000)
+    sig_t = T0 + rng.normal(0, 0.5, sig_g.size) + rng.normal(0, 2.0, n_groups)[sig_g]
+    bg_g = rng.integers(0, n_groups, 2000)
+    bg_t = T0 + rng.uniform(-100, 100, bg_g.size)
+    group = np.concatenate([sig_g, bg_g])
+    t = np.concatenate([sig_t, bg_t])
+    t[::9] = t[1::9][: t[::9].size]                   # exact ties
+    assert np.array_equal(pmt.paralyzable_mask(group, t, dead), loop_paralyzable(group, t, dead))
+    assert np.array_equal(pmt.nonparalyzable_mask(group, t, dead),
+                          loop_nonparalyzable(group, t, dead))
