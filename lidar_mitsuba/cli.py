@@ -1,4 +1,5 @@
-"""Command-line interface ``lidar-mitsuba`` (simulate, stats, segments, terrain, bench, reproduce).
+"""Command-line interface ``lidar-mitsuba`` (simulate, stats, segments, terrain, bench, reproduce,
+sweep).
 
 Bad input is reported as one line naming the option, with exit code 2 and no output file.
 The options of ``simulate`` and ``terrain`` are generated from the API (:mod:`.cli_options`):
@@ -211,6 +212,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="along-track profile to fit p on (Fig. 3): .npy of shape (n, 2) or a "
                     "two-column text file, distance [m] and height [m]")
 
+    _add_sweep_parser(sub)
+
     t = sub.add_parser("terrain", help="fractal terrain by Fourier synthesis (.npy or .ply)",
                        description="Synthesise a periodic 1/f^p fractal heightfield (paper eqs. 2-4).")
     opts.add_options(t, terrain.fractal, metavars={"p": "P"})
@@ -407,6 +410,103 @@ def _cmd_reproduce(a) -> int:
     return 0
 
 
+def _add_sweep_parser(sub) -> None:
+    sw = sub.add_parser("sweep", help="parameter sweeps on Dask: a table of bias, precision, "
+                        "... per task, resumable", description="Run a grid (or list) of "
+                        "parameters and replicates as independent tasks on Dask (a LocalCluster "
+                        "here, or any running scheduler), one row of statistics per task, "
+                        "appended to DIR as tasks finish; rerunning resumes. The spec format is "
+                        "in the README and in `lidar_mitsuba.sweep`.")
+    sw.add_argument("spec", metavar="SPEC.toml", help="the sweep: [sweep], [fixed], [grid], "
+                    "[[list]]")
+    sw.add_argument("--out", required=True, metavar="DIR", help="folder for rows/, "
+                    "results.parquet (or .csv) and charts (created if missing; reusing it "
+                    "skips the tasks already done)")
+    sw.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. "
+                    "tcp://host:8786 (default: a LocalCluster on this machine)")
+    sw.add_argument("--workers", type=_nonnegative_int, metavar="N", help="worker processes "
+                    "of the LocalCluster (default: the cores; 0: no Dask, tasks run here one "
+                    "after another)")
+    sw.add_argument("--threads", type=_positive_int, metavar="N", help="Dr.Jit and numba "
+                    "threads per task (default: cores / workers on the LocalCluster, the "
+                    "workers' own setting with --scheduler)")
+    sw.add_argument("--plot", action="append", metavar="PARAM", help="draw bias and precision "
+                    "against the swept parameter PARAM to DIR/sweep_PARAM.png (repeatable)")
+    sw.add_argument("--retry-failed", action="store_true", help="run the tasks recorded as "
+                    "failed again")
+    sw.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _nonnegative_int(value: str) -> int:
+    try:
+        v = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {value!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0 (got {v})")
+    return v
+
+
+def _cmd_sweep(a) -> int:
+    """Checks everything (spec, options, scheduler) before anything is written."""
+    from . import sweep
+    from .sweep import plot as sweep_plot
+    if not pathlib.Path(a.spec).is_file():
+        raise UsageError("SPEC", f"{a.spec!r} not found")
+
+    def named(e):        # "SPEC.toml: [grid] p: ..." (the file alone for file-wide errors)
+        whole = e.key in ("spec", str(pathlib.Path(a.spec)))
+        return UsageError(a.spec if whole else f"{a.spec}: {e.key}", e.message)
+    try:
+        spec = sweep.load_spec(a.spec)
+    except sweep.SpecError as e:
+        raise named(e) from None
+    out = _out_dir(a.out)
+    if a.scheduler is not None and a.workers is not None:
+        raise UsageError("--workers", "does not apply to --scheduler (its workers are started "
+                         "there)")
+    for param in a.plot or []:
+        if param not in spec.swept:
+            raise UsageError("--plot", f"{param!r} is not a swept parameter of {a.spec} "
+                             f"(swept: {', '.join(spec.swept) or 'none'})")
+    client = None
+    if a.scheduler is not None:
+        from dask.distributed import Client
+        try:
+            client = Client(a.scheduler, timeout="20s")
+        except (OSError, TimeoutError, ValueError) as e:
+            raise UsageError("--scheduler", f"cannot connect to {a.scheduler!r} ({e})") from None
+        print(f"connected to {a.scheduler}: {len(client.scheduler_info()['workers'])} workers")
+    try:
+        df = sweep.run(spec, client, out=out, workers=a.workers, threads=a.threads,
+                       retry_failed=a.retry_failed, progress=not a.no_progress,
+                       log=lambda msg: print(msg, flush=True))
+    except sweep.SpecError as e:
+        raise named(e) from None
+    except KeyboardInterrupt:
+        sys.stderr.write(f"{PROG} sweep: the finished tasks are in {out / 'rows'}; run the same "
+                         "command again to resume\n")
+        raise
+    finally:
+        if client is not None:
+            client.close()
+    n, failed = df.attrs["tasks"], df[df["status"] == "failed"]
+    print(f"{spec.name}: {n} tasks, {df.attrs['ran']} run now, {df.attrs['skipped']} already "
+          f"done, {len(failed)} failed; wrote {df.attrs['results']}")
+    for _, row in failed.head(5).iterrows():
+        what = ", ".join(f"{k} = {row[k]}" for k in spec.swept) or f"task {row['task_index']}"
+        sys.stderr.write(f"{PROG} sweep: warning: task {row['task_id']} ({what}, replicate "
+                         f"{row['replicate']}) failed: {row['error']}\n")
+    if len(failed) > 5:
+        sys.stderr.write(f"{PROG} sweep: warning: {len(failed) - 5} more failed tasks (status "
+                         "'failed' in the table)\n")
+    for param in a.plot or []:
+        path = out / f"sweep_{param}.png"
+        sweep_plot.plot(df, param, path=path, title=f"{spec.name}: {n} tasks")
+        print(f"wrote {path}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -418,7 +518,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             return {"simulate": _cmd_simulate, "stats": _cmd_stats, "segments": _cmd_segments,
                     "bench": _cmd_bench, "terrain": _cmd_terrain,
-                    "reproduce": _cmd_reproduce}[args.command](args)
+                    "reproduce": _cmd_reproduce, "sweep": _cmd_sweep}[args.command](args)
         except ParameterError as e:
             raise UsageError(opts.option_name(e.name), e.message) from None
     except UsageError as e:
