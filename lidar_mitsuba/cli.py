@@ -55,27 +55,32 @@ def _out_path(value: str, suffixes: tuple[str, ...], option: str = "--out") -> p
     parent = path.parent if str(path.parent) else pathlib.Path(".")
     if not parent.is_dir():
         raise UsageError(option, f"folder {str(parent)!r} does not exist")
-    try:
-        fd, probe = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".probe", dir=parent)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as e:
-        raise UsageError(option, f"cannot write in {str(parent)!r} ({e.strerror})") from None
+    _probe_writable(parent, option)
     return path
 
 
-def _out_dir(value: str) -> pathlib.Path:
+def _out_dir(value: str, option: str = "--out") -> pathlib.Path:
     """An output folder (created by the command): not an existing file, inside a writable
     existing folder."""
     out = pathlib.Path(value)
     if out.exists() and not out.is_dir():
-        raise UsageError("--out", f"{value!r} exists and is not a folder")
+        raise UsageError(option, f"{value!r} exists and is not a folder")
     parent = out.parent if str(out.parent) else pathlib.Path(".")
     if not parent.is_dir():
-        raise UsageError("--out", f"folder {str(parent)!r} does not exist")
-    if not os.access(out if out.exists() else parent, os.W_OK):
-        raise UsageError("--out", f"folder {str(out if out.exists() else parent)!r} is not writable")
+        raise UsageError(option, f"folder {str(parent)!r} does not exist")
+    _probe_writable(out if out.exists() else parent, option)
     return out
+
+
+def _probe_writable(folder: pathlib.Path, option: str) -> None:
+    """Create and remove a file in ``folder``: tried, not guessed from permissions (root passes
+    every permission check, and a read-only file system fails only on writing)."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".lidar-mitsuba.", suffix=".probe", dir=folder)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise UsageError(option, f"cannot write in {str(folder)!r} ({e.strerror})") from None
 
 
 def _dead_time(value: str) -> float:

@@ -12,7 +12,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import types
+import typing
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from . import constants as K
 from .constants import C_M_PER_NS, FWHM_PER_SIGMA, check as _check
@@ -87,6 +91,7 @@ class Instrument:
     range_gate_m: float = 30.0
 
     def __post_init__(self):
+        _check_types(self)
         _check("beam", self.beam, self.beam in BEAMS, f"must be one of {', '.join(BEAMS)}")
         preset = BEAMS[self.beam]
         if self.signal_photons is None:
@@ -179,3 +184,29 @@ class Instrument:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+def _check_types(obj) -> None:
+    """ParameterError naming the first field whose value is not of its annotated type: a bool
+    for bool fields (not the string "no"), an int for int fields, a real number for float
+    fields, a string for str fields (``None`` where the annotation allows it)."""
+    hints = typing.get_type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        value, hint = getattr(obj, f.name), hints[f.name]
+        allowed = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union,
+                                                                       types.UnionType) else (hint,)
+        if value is None and type(None) in allowed:
+            continue
+        if bool in allowed:
+            ok = isinstance(value, (bool, np.bool_))
+        elif int in allowed:
+            ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+        elif float in allowed:
+            ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+        else:
+            ok = isinstance(value, allowed)
+        kind = next(t for t in allowed if t is not type(None))
+        _check(f.name, value, ok, "must be " + _TYPE_WORDS.get(kind, kind.__name__))
+
+
+_TYPE_WORDS = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}

@@ -1,11 +1,10 @@
-"""Figures. matplotlib with the Agg backend (no display needed)."""
+"""Figures. matplotlib's backend is left as the session chose it (a notebook's inline backend,
+or Agg, which matplotlib falls back to where there is no display); every figure is saved and
+closed when given a path, and returned."""
 from __future__ import annotations
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
 
 def photon_cloud(*, along_track_m: np.ndarray, surface_z_m: np.ndarray, z_ref_m: np.ndarray,

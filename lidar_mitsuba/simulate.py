@@ -14,6 +14,7 @@ detect chunk by chunk (:mod:`.chunks`), and finally place and classify the photo
 """
 from __future__ import annotations
 
+import inspect
 import math
 import pathlib
 import time
@@ -105,6 +106,16 @@ def _check_run(shots, seed, paths_per_shot, max_depth, chunk_shots) -> None:
     if max_depth != "auto" and (not is_int(max_depth) or not 1 <= max_depth <= 64):
         raise ParameterError("max_depth", f"must be 'auto' or an integer in [1, 64] "
                              f"(got {max_depth!r})")
+
+
+def check_run(**kw) -> None:
+    """Check ``simulate``'s run arguments (``shots``, ``seed``, ``paths_per_shot``,
+    ``max_depth``, ``chunk_shots``) without running: those given in ``kw``, ``simulate``'s
+    defaults for the others. Raises :class:`ParameterError` naming the bad one."""
+    defaults = inspect.signature(simulate).parameters
+    get = lambda name: kw.get(name, defaults[name].default)  # noqa: E731
+    _check_run(get("shots"), get("seed"), get("paths_per_shot"), get("max_depth"),
+               get("chunk_shots"))
 
 
 #: bytes a run holds per shot (track, reference, gate, folding and per-shot detector arrays,

@@ -19,15 +19,12 @@ import math
 import time
 from collections.abc import Iterable, Mapping, Sequence
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from ..instrument import Instrument  # noqa: E402
-from ..simulate import SimulationResult, simulate  # noqa: E402
-from ..surface import SurfaceSpec  # noqa: E402
+from ..instrument import Instrument
+from ..simulate import SimulationResult, simulate
+from ..surface import SurfaceSpec
 
 _WARD = {"type": "ward", "rho_d": 0.9, "rho_s": 0.05, "alpha": 0.3}
 

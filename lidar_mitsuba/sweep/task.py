@@ -17,7 +17,7 @@ import numpy as np
 from .. import __version__, atl06
 from ..constants import ParameterError
 from ..instrument import Instrument
-from ..simulate import _check_run, simulate
+from ..simulate import check_run, simulate
 from ..surface import SurfaceSpec
 from ..track import Track
 from ..variant import DEFAULT_VARIANT
@@ -103,8 +103,8 @@ def build(task: Task | dict) -> dict:
         surface = dict(surface=SurfaceSpec(**s))
     crop = run.pop("crop_to_track", True)
     run.setdefault("variant", DEFAULT_VARIANT)
-    _check_run(run.get("shots", 1000), run["seed"], run.get("paths_per_shot", 128),
-               run.get("max_depth", "auto"))
+    check_run(**{k: v for k, v in run.items()
+                 if k in ("shots", "seed", "paths_per_shot", "max_depth", "chunk_shots")})
     return dict(instrument=Instrument(**kw["instrument"]), track=Track(**kw["track"]),
                 crop_to_track=crop, **surface, **run)
 
