@@ -120,16 +120,9 @@ def _define(value: str) -> tuple[str, str]:
 
 
 def _version() -> str:
-    from importlib import metadata
-
-    from . import __version__
-
-    def v(pkg):
-        try:
-            return metadata.version(pkg)
-        except metadata.PackageNotFoundError:
-            return "?"
-    return f"{PROG} {__version__} (mitsuba {v('mitsuba')}, drjit {v('drjit')})"
+    from .resources import versions
+    v = versions()
+    return f"{PROG} {v['lidar_mitsuba']} (mitsuba {v['mitsuba']}, drjit {v['drjit']})"
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,5 +1,6 @@
-"""Memory the machine can give a run, and refusals that name the option before a run would
-exhaust it (a one-line error instead of a MemoryError or the kernel's OOM killer)."""
+"""What the machine offers a run: the memory it can give (and refusals that name the option
+before a run would exhaust it: a one-line error instead of a MemoryError or the kernel's OOM
+killer), and the versions of the packages that run it."""
 from __future__ import annotations
 
 import os
@@ -38,3 +39,17 @@ def check_memory(name: str, need_bytes: float, what: str, hint: str) -> None:
 
 def _gb(n: float) -> str:
     return f"{n / 2 ** 30:.1f} GB" if n >= 2 ** 28 else f"{n / 2 ** 20:.0f} MB"
+
+
+def versions() -> dict[str, str]:
+    """``{"lidar_mitsuba": ..., "mitsuba": ..., "drjit": ...}`` as installed ("?" if absent)."""
+    from importlib import metadata
+
+    from . import __version__
+    out = {"lidar_mitsuba": __version__}
+    for pkg in ("mitsuba", "drjit"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = "?"
+    return out

@@ -14,8 +14,9 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from .. import __version__, atl06
+from .. import atl06
 from ..constants import ParameterError
+from ..resources import versions
 from ..instrument import Instrument
 from ..simulate import check_run, simulate
 from ..surface import SurfaceSpec
@@ -115,15 +116,7 @@ def _one_line(e: BaseException) -> str:
 
 
 def _versions() -> dict:
-    from importlib import metadata
-
-    def v(pkg):
-        try:
-            return metadata.version(pkg)
-        except metadata.PackageNotFoundError:
-            return "?"
-    return {"lidar_mitsuba_version": __version__, "mitsuba_version": v("mitsuba"),
-            "drjit_version": v("drjit")}
+    return {f"{pkg}_version": v for pkg, v in versions().items()}
 
 
 def _set_threads(n: int | None) -> None:
