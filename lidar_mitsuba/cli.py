@@ -206,6 +206,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "parent must exist)")
     rp.add_argument("--quick", action="store_true",
                     help="fewer shots and configurations, same code (what the tests run)")
+    rp.add_argument("--workers", type=_positive_int, metavar="N",
+                    help="compute the figures as tasks on a Dask LocalCluster of N processes "
+                    "(same numbers; default: one after another in this process)")
     rp.add_argument("--profile", metavar="FILE",
                     help="along-track profile to fit p on (Fig. 3): .npy of shape (n, 2) or a "
                     "two-column text file, distance [m] and height [m]")
@@ -402,7 +405,8 @@ def _cmd_reproduce(a) -> int:
             raise UsageError("--profile", str(e)) from None
     doc = reproduce.run(out, quick=a.quick, profile=profile,
                         profile_name=pathlib.Path(a.profile).name if a.profile else None,
-                        log=lambda msg: print(msg, flush=True), started=started)
+                        log=lambda msg: print(msg, flush=True), started=started,
+                        workers=a.workers)
     print(reproduce.format_summary(doc))
     print(f"wrote {out / 'report.md'}, {out / 'report.json'} and {len(reproduce.PNG)} figures")
     return 0

@@ -4,6 +4,7 @@ The Lambertian 0.9 plate at nadir returns weight exactly 1 per traced path, so w
 detector each shot's detected photons are Poisson with mean signal_photons * fill_factor * pde:
 the sweep's photons per shot must match it within Z = 4.5 standard errors.
 """
+import json
 import math
 
 import matplotlib.figure
@@ -154,3 +155,12 @@ def test_relative_and_conclusions(rows):
     assert "flat plate" in joined and "Ward normalisations" in joined and "Precision" in joined
     assert "×2.778 in return weight" in joined       # the roughconductor's nadir peak
     assert text[-1].startswith("[ideal detector]")
+
+
+def test_workers_give_the_same_rows():
+    """brdf_variants.sweep(workers=2) runs each simulation as a Dask task: the same rows."""
+    kw = dict(variants={k: compare.BRDF_VARIANTS[k] for k in ("Ward ward1992", "Lambertian")},
+              surfaces=compare.slope_surfaces(slopes_deg=(0, 20)), shots=300, seed=3)
+    serial, parallel = compare.sweep(**kw), compare.sweep(**kw, workers=2)
+    drop = lambda rows: [{k: v for k, v in r.items() if k != "time_s"} for r in rows]  # noqa: E731
+    assert json.dumps(drop(serial)) == json.dumps(drop(parallel))

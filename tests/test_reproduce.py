@@ -255,3 +255,14 @@ def test_bad_out(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "--out" in err
     assert f.read_text() == "x"
+
+
+def test_workers_give_the_same_report(quick_runs, tmp_path):
+    """`reproduce --workers 2` computes the figure groups on a Dask LocalCluster: the report's
+    numbers are those of the serial run, to the bit."""
+    out = tmp_path / "par"
+    prof = quick_runs[0].parent / "profile.npy"
+    assert call(["reproduce", "--quick", "--workers", "2", "--out", str(out),
+                 "--profile", str(prof)]) == 0
+    a, b = (json.loads((o / "report.json").read_text()) for o in (quick_runs[0], out))
+    assert _without_timings(a) == _without_timings(b)

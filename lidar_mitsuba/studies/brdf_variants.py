@@ -15,6 +15,7 @@ numbers): the *differences* between variants are less noisy than the per-row err
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Iterable, Mapping, Sequence
@@ -129,7 +130,7 @@ def row_of(res: SimulationResult) -> dict:
 def sweep(*, variants: Mapping[str, dict], surfaces: Sequence[SurfaceSpec], shots: int,
           seed: int = 0, beam: str | Instrument = "strong", ideal_detector: bool | None = None,
           paths_per_shot: int = 128, max_depth: int | str = 1,
-          progress: bool = False) -> list[dict]:
+          progress: bool = False, workers: int | None = None) -> list[dict]:
     """Simulate every BRDF variant on every surface and summarise each run.
 
     Args:
@@ -147,6 +148,8 @@ def sweep(*, variants: Mapping[str, dict], surfaces: Sequence[SurfaceSpec], shot
             multiple scattering; ``"auto"`` lets each run choose (see
             :func:`~lidar_mitsuba.simulate.simulate`), which may differ between BRDFs.
         progress: print one line per run.
+        workers: run the simulations as tasks on a Dask ``LocalCluster`` of this many
+            processes (:func:`lidar_mitsuba.sweep.compute_all`); the rows are the same.
 
     Returns:
         ``len(surfaces) * len(variants)`` rows (surface-major), each a dict with ``variant``,
@@ -161,28 +164,43 @@ def sweep(*, variants: Mapping[str, dict], surfaces: Sequence[SurfaceSpec], shot
     inst = _instrument(beam, ideal_detector)
     if not variants:
         raise ValueError("variants: give at least one BRDF")
+    runs = {(i, name): functools.partial(
+        simulate, instrument=inst, surface=surface, bsdf=dict(bsdf), shots=shots, seed=seed,
+        paths_per_shot=paths_per_shot, max_depth=max_depth, progress=False)
+        for i, surface in enumerate(surfaces) for name, bsdf in variants.items()}
+    if workers:
+        from ..sweep import compute_all
+        done = compute_all({k: functools.partial(_row_of_run, fn) for k, fn in runs.items()},
+                           workers=workers)
     rows = []
-    for surface in surfaces:
-        for name, bsdf in variants.items():
-            t0 = time.perf_counter()
-            res = simulate(instrument=inst, surface=surface, bsdf=dict(bsdf), shots=shots,
-                           seed=seed, paths_per_shot=paths_per_shot, max_depth=max_depth,
-                           progress=False)
-            row = {"variant": name, "bsdf": str(bsdf.get("type", "")), "beam": inst.beam,
-                   "ideal_detector": inst.ideal_detector,
-                   "dead_time_ns": float(inst.effective_dead_time_ns), "kind": surface.kind,
-                   "slope_deg": float(surface.slope_deg) if surface.kind == "slope" else 0.0,
-                   "p": float(surface.p) if surface.kind == "fractal" else math.nan,
-                   "relief_m": float(surface.relief_m) if surface.kind == "fractal" else 0.0,
-                   "size_m": float(surface.size_m), "terrain_seed": int(surface.terrain_seed),
-                   "seed": int(seed), "max_depth": int(res.config["max_depth"])}
-            row.update(row_of(res))
-            row["time_s"] = time.perf_counter() - t0
-            rows.append(row)
-            if progress:
-                print(f"{_surface_label(row):<16}{name:<24}{row['photons_per_shot']:7.3f} ph/shot "
-                      f"({row['time_s']:.2f} s)", flush=True)
+    for (i, name), fn in runs.items():
+        surface, bsdf = surfaces[i], variants[name]
+        (max_used, summary), seconds = done[(i, name)] if workers else _timed_row(fn)
+        row = {"variant": name, "bsdf": str(bsdf.get("type", "")), "beam": inst.beam,
+               "ideal_detector": inst.ideal_detector,
+               "dead_time_ns": float(inst.effective_dead_time_ns), "kind": surface.kind,
+               "slope_deg": float(surface.slope_deg) if surface.kind == "slope" else 0.0,
+               "p": float(surface.p) if surface.kind == "fractal" else math.nan,
+               "relief_m": float(surface.relief_m) if surface.kind == "fractal" else 0.0,
+               "size_m": float(surface.size_m), "terrain_seed": int(surface.terrain_seed),
+               "seed": int(seed), "max_depth": max_used, **summary, "time_s": seconds}
+        rows.append(row)
+        if progress:
+            print(f"{_surface_label(row):<16}{name:<24}{row['photons_per_shot']:7.3f} ph/shot "
+                  f"({row['time_s']:.2f} s)", flush=True)
     return rows
+
+
+def _row_of_run(run) -> tuple[int, dict]:
+    """(max_depth used, :func:`row_of`) of ``run()``: small enough to send back from a worker."""
+    res = run()
+    return int(res.config["max_depth"]), row_of(res)
+
+
+def _timed_row(run):
+    t0 = time.perf_counter()
+    out = _row_of_run(run)
+    return out, time.perf_counter() - t0
 
 
 def _surface_label(row: dict) -> str:

@@ -75,17 +75,20 @@ only, so ``import lidar_mitsuba`` and the other commands do not load them.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
 import os
 import pathlib
 import sys
+import time
 from datetime import datetime, timezone
 
 from ..constants import ParameterError
 from .spec import Spec, SpecError, Task, expand, load_spec, parameter_names, task_id  # noqa: F401
-from .task import COLUMNS, RUN_DEPENDENT, _HEAD, _one_line, _row, build, run_task  # noqa: F401
+from .task import (COLUMNS, RUN_DEPENDENT, _HEAD, _one_line, _row, _set_threads,  # noqa: F401
+                   build, run_task)
 
 
 # --------------------------------------------------------------------------- storage
@@ -253,6 +256,45 @@ def run(spec, client=None, *, out=None, workers: int | None = None, threads: int
     return df
 
 
+@contextlib.contextmanager
+def local_client(workers: int | None = None, *, log=None):
+    """A ``dask.distributed.Client`` on a ``LocalCluster`` of ``workers`` processes (default:
+    the cores), one Dask thread each, closed on exit. Yields ``(client, threads)``: the
+    Dr.Jit / numba threads each task should use, ``cores // workers``."""
+    from dask.distributed import Client, LocalCluster
+    n = workers or _cores()
+    (log or (lambda msg: None))(f"starting a LocalCluster of {n} worker process{'es' * (n > 1)}")
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        yield client, max(1, _cores() // n)
+
+
+def compute_all(calls: dict, *, workers: int | None = None, log=None) -> dict:
+    """``{key: (result, seconds)}`` of ``{key: fn}`` (functions of no arguments): one after
+    another in this process with ``workers`` None or 0, else as tasks on a
+    :func:`local_client` of ``workers`` processes. The results do not depend on where they
+    ran: the studies that use this (``reproduce --workers``, ``brdf_variants.sweep(workers=)``)
+    seed every computation themselves."""
+    if not workers:
+        return {key: _timed(fn) for key, fn in calls.items()}
+    import mitsuba as mi
+    with local_client(workers, log=log) as (client, threads):
+        futures = {key: client.submit(_timed, fn, threads, mi.variant(), pure=False)
+                   for key, fn in calls.items()}
+        return {key: fut.result() for key, fut in futures.items()}
+
+
+def _timed(fn, threads: int | None = None, variant: str | None = None):
+    """``(fn(), seconds)``, with ``threads`` Dr.Jit / numba threads in ``variant``."""
+    if variant is not None:
+        from ..variant import set_variant
+        set_variant(variant)
+    _set_threads(threads)
+    t0 = time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - t0
+
+
 def _execute(todo: list[Task], *, client, workers, threads, record, log) -> None:
     """Run ``todo`` and ``record`` each row as it finishes (in this process with
     ``workers=0``, else on Dask)."""
@@ -261,31 +303,25 @@ def _execute(todo: list[Task], *, client, workers, threads, record, log) -> None
         for p in payloads.values():
             record(run_task({**p, "threads": threads}))
         return
-    from dask.distributed import Client, LocalCluster, as_completed
-    own = []
-    try:
+    with contextlib.ExitStack() as stack:
         if client is None:
-            n = workers or _cores()
-            log(f"starting a LocalCluster of {n} worker process{'es' * (n > 1)}")
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   dashboard_address=None)
-            own = [cluster]
-            client = Client(cluster)
-            own.insert(0, client)
-            threads = threads or max(1, _cores() // n)
-        futures = {client.submit(run_task, {**p, "threads": threads}, pure=False): p
-                   for p in payloads.values()}
-        try:
-            for fut in as_completed(futures):
-                try:
-                    row = fut.result()
-                except Exception as e:         # the worker died, or the task could not be sent
-                    now = datetime.now(timezone.utc).isoformat()
-                    row = _row(futures[fut], status="failed", error=_one_line(e),
-                               started_at=now, finished_at=now, worker="?")
-                record(row)
-        finally:
-            client.cancel(list(futures))
+            client, default_threads = stack.enter_context(local_client(workers, log=log))
+            threads = threads or default_threads
+        _submit(todo=payloads, client=client, threads=threads, record=record)
+
+
+def _submit(*, todo: dict, client, threads, record) -> None:
+    from dask.distributed import as_completed
+    futures = {client.submit(run_task, {**p, "threads": threads}, pure=False): p
+               for p in todo.values()}
+    try:
+        for fut in as_completed(futures):
+            try:
+                row = fut.result()
+            except Exception as e:             # the worker died, or the task could not be sent
+                now = datetime.now(timezone.utc).isoformat()
+                row = _row(futures[fut], status="failed", error=_one_line(e),
+                           started_at=now, finished_at=now, worker="?")
+            record(row)
     finally:
-        for obj in own:
-            obj.close()
+        client.cancel(list(futures))

@@ -161,7 +161,7 @@ def format_markdown(doc: dict) -> str:
 
 
 def run(out_dir, *, quick: bool = False, profile=None, profile_name: str | None = None,
-        log=None, started: float | None = None) -> dict:
+        log=None, started: float | None = None, workers: int | None = None) -> dict:
     """Regenerate every figure into ``out_dir`` (created if missing; its parent must exist) and
     write ``report.md`` and ``report.json``.
 
@@ -173,6 +173,9 @@ def run(out_dir, *, quick: bool = False, profile=None, profile_name: str | None 
         log: callable receiving one progress line per figure.
         started: ``time.perf_counter()`` at the start of the caller's set-up, to include it in
             the reported wall time.
+        workers: compute the figure groups as tasks on a Dask ``LocalCluster`` of this many
+            processes (:func:`lidar_mitsuba.sweep.compute_all`); ``None``: one after another
+            here. The numbers are the same either way (every computation seeds itself).
 
     Returns the report document (what ``report.json`` holds).
     """
@@ -195,44 +198,49 @@ def run(out_dir, *, quick: bool = False, profile=None, profile_name: str | None 
     results: dict = {}
     fig_time: dict[str, float] = {}
 
-    def step(key, compute, plots):
+    computes = {
+        "fig3": lambda: fig3_spectra(profile=prof, profile_name=prof_name),
+        "fig4": fig4_surfaces,
+        "fig5": lambda: fig5_rms(terrain_seeds=max(counts.terrain_seeds, 3)),
+        "fig6": fig6_brdf,
+        "fig7": lambda: fig7_flat(shots=counts.flat_shots, paths_per_shot=counts.paths_per_shot),
+        "fig8_9": lambda: fig8_9_slopes(shots=counts.slope_shots, slopes_deg=counts.slopes_deg,
+                                        paths_per_shot=counts.paths_per_shot),
+        "fig10_12": lambda: fig10_12_complex(shots=counts.complex_shots,
+                                             terrain_seeds=counts.terrain_seeds,
+                                             p_values=counts.p_values,
+                                             paths_per_shot=counts.paths_per_shot),
+        "fig13": lambda: fig13_albedo(shots=counts.complex_shots,
+                                      terrain_seeds=counts.terrain_seeds,
+                                      resolve_shots=counts.resolve_shots, albedos=counts.albedos,
+                                      paths_per_shot=counts.paths_per_shot),
+    }
+    plots = {"fig3": [("fig3", plot_fig3)], "fig4": [("fig4", plot_fig4)],
+             "fig5": [("fig5", plot_fig5)], "fig6": [("fig6", lambda d, p: plot_fig6(p))],
+             "fig7": [("fig7", plot_fig7)],
+             "fig8_9": [("fig8", plot_fig8), ("fig9", plot_fig9)],
+             "fig10_12": [("fig10", plot_fig10), ("fig11", plot_fig11), ("fig12", plot_fig12)],
+             "fig13": [("fig13", plot_fig13)]}
+    if workers:      # every figure's computation seeds itself: the same numbers anywhere
+        from ...sweep import compute_all
+        log(f"computing the {len(computes)} figure groups on {workers} Dask workers")
+        computed = compute_all(computes, workers=workers, log=log)
+    for key, compute in computes.items():
         t0 = time.perf_counter()
-        if compute is not None:
+        if workers:
+            results[key], compute_s = computed[key]
+        else:
             results[key] = compute()
+            compute_s = time.perf_counter() - t0
         t1 = time.perf_counter()
-        for fig, fn in plots:
+        for fig, draw in plots[key]:
             t2 = time.perf_counter()
-            fn(out / PNG[fig])
+            draw(results[key], out / PNG[fig])
             fig_time[fig] = time.perf_counter() - t2
-        t3 = time.perf_counter()
-        first = plots[0][0]
-        fig_time[first] += t1 - t0
-        timings[key.replace("_", "–").replace("fig", "Fig. ")] = t3 - t0
-        log(f"{key}: {t3 - t0:.1f} s")
-
-    step("fig3", lambda: fig3_spectra(profile=prof, profile_name=prof_name),
-         [("fig3", lambda p: plot_fig3(results["fig3"], p))])
-    step("fig4", fig4_surfaces, [("fig4", lambda p: plot_fig4(results["fig4"], p))])
-    step("fig5", lambda: fig5_rms(terrain_seeds=max(counts.terrain_seeds, 3)),
-         [("fig5", lambda p: plot_fig5(results["fig5"], p))])
-    step("fig6", fig6_brdf, [("fig6", plot_fig6)])
-    step("fig7", lambda: fig7_flat(shots=counts.flat_shots, paths_per_shot=counts.paths_per_shot),
-         [("fig7", lambda p: plot_fig7(results["fig7"], p))])
-    step("fig8_9", lambda: fig8_9_slopes(shots=counts.slope_shots, slopes_deg=counts.slopes_deg,
-                                         paths_per_shot=counts.paths_per_shot),
-         [("fig8", lambda p: plot_fig8(results["fig8_9"], p)),
-          ("fig9", lambda p: plot_fig9(results["fig8_9"], p))])
-    step("fig10_12", lambda: fig10_12_complex(shots=counts.complex_shots,
-                                              terrain_seeds=counts.terrain_seeds,
-                                              p_values=counts.p_values,
-                                              paths_per_shot=counts.paths_per_shot),
-         [("fig10", lambda p: plot_fig10(results["fig10_12"], p)),
-          ("fig11", lambda p: plot_fig11(results["fig10_12"], p)),
-          ("fig12", lambda p: plot_fig12(results["fig10_12"], p))])
-    step("fig13", lambda: fig13_albedo(shots=counts.complex_shots, terrain_seeds=counts.terrain_seeds,
-                                       resolve_shots=counts.resolve_shots, albedos=counts.albedos,
-                                       paths_per_shot=counts.paths_per_shot),
-         [("fig13", lambda p: plot_fig13(results["fig13"], p))])
+        fig_time[plots[key][0][0]] += compute_s
+        spent = compute_s + time.perf_counter() - t1
+        timings[key.replace("_", "–").replace("fig", "Fig. ")] = spent
+        log(f"{key}: {spent:.1f} s")
 
     t0 = time.perf_counter()
     cloud = results["fig10_12"].get("_cloud")
