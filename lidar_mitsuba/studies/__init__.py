@@ -9,8 +9,8 @@
 - :mod:`.brdf_variants`: Ward normalisations and Mitsuba BSDFs compared (notebook 01).
 - :mod:`.fpb_matrix`: the first-photon-bias correction's test matrix, without rendering.
 
-Each exposes ``run(...) -> dict`` (its numbers, JSON-serialisable) and, where it draws, a
-``chart``/``plot_*`` function that takes that dict.
+Each computes JSON-able numbers (a dict or rows; ``run`` for the bench's studies and the
+reproduction) and draws from them (``chart`` / ``plot_*``, returning the Figure).
 """
 
 import warnings as _warnings
