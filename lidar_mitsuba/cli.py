@@ -102,14 +102,21 @@ def _max_depth(value: str):
         raise argparse.ArgumentTypeError(f"not an integer or 'auto': {value!r}") from None
 
 
-def _positive_int(value: str) -> int:
-    try:
-        v = int(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {value!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1 (got {v})")
-    return v
+def _int_at_least(minimum: int):
+    """An argparse type: an integer >= ``minimum``."""
+    def parse(value: str) -> int:
+        try:
+            v = int(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not an integer: {value!r}") from None
+        if v < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum} (got {v})")
+        return v
+    return parse
+
+
+_positive_int = _int_at_least(1)
+_nonnegative_int = _int_at_least(0)
 
 
 def _define(value: str) -> tuple[str, str]:
@@ -437,16 +444,6 @@ def _add_sweep_parser(sub) -> None:
     sw.add_argument("--retry-failed", action="store_true", help="run the tasks recorded as "
                     "failed again")
     sw.add_argument("--no-progress", action="store_true", help="no progress bar")
-
-
-def _nonnegative_int(value: str) -> int:
-    try:
-        v = int(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {value!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0 (got {v})")
-    return v
 
 
 def _cmd_sweep(a) -> int:
