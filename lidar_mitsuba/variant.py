@@ -6,6 +6,7 @@ name, whenever that variant becomes active.
 """
 from __future__ import annotations
 
+import gc
 import importlib.util
 import pathlib
 
@@ -33,11 +34,19 @@ def _register_plugins(variant: str | None) -> None:
 
 
 def _on_variant_change(old: str | None, new: str | None) -> None:
+    # Free what the previous variant left unreachable (Python plugin objects sit in reference
+    # cycles): Dr.Jit's virtual-call registry is shared by the variants of one backend, and a
+    # dead object of another variant still registered there can break the compilation of
+    # this variant's kernels ("invalid redefinition of function").
+    gc.collect()
     _register_plugins(new)
 
 
 def set_variant(name: str = DEFAULT_VARIANT) -> str:
     """Activate Mitsuba variant ``name`` (e.g. ``llvm_ad_mono``, ``cuda_ad_mono``).
+
+    Use one variant per process where you can: objects (scenes, BSDFs) made in another variant
+    of the same backend must be released before tracing in this one.
 
     Raises ``ValueError`` naming the variant when it is unknown or its backend (CUDA) is absent.
     """

@@ -18,7 +18,7 @@ from lidar_mitsuba import variant as V
 
 @pytest.fixture
 def restore_variant(variant):
-    yield
+    yield                                   # the test's objects are released by now
     lidar_mitsuba.set_variant(variant)
     assert mi.variant() == variant
 

@@ -509,6 +509,7 @@ def test_rgb_variant(variant):
         value = np.asarray(b.eval(mi.BSDFContext(), si, mi.Vector3f(0, 0, 1))).ravel()
         np.testing.assert_allclose(value, np.array([0.2, 0.5, 0.8]) / np.pi
                                    + 0.05 / (4 * np.pi * 0.09), rtol=1e-6)
+        del b                  # release the rgb objects before going back (see set_variant)
     finally:
         lidar_mitsuba.set_variant(variant)
     assert mi.variant() == variant
