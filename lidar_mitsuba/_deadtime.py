@@ -94,28 +94,42 @@ def choose_returns(start, weight, w_max, need, exchangeable, seed):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, parallel=True)
 def shot_stats(shot, weight, n_shots):
-    """One pass over traced returns: per-shot weight sums (float64), offsets (n_shots + 1),
-    the largest weight, and whether ``shot`` is non-decreasing."""
+    """Per-shot weight sums (float64, summed in return order), offsets (n_shots + 1), the
+    largest weight, and whether ``shot`` is non-decreasing (if not, the rest is not computed).
+    Parallel over blocks of returns, then over shots."""
+    n = shot.size
+    n_blocks = min(n, 1024)
+    bad = np.zeros(max(n_blocks, 1), np.bool_)
+    for b in numba.prange(n_blocks):
+        i0 = max(b * n // n_blocks, 1)
+        for i in range(i0, (b + 1) * n // n_blocks):
+            if shot[i] < shot[i - 1]:
+                bad[b] = True
+                break
     w_sum = np.zeros(n_shots, np.float64)
     start = np.zeros(n_shots + 1, np.int64)
+    if bad.any():
+        return w_sum, start, 0.0, False
+    for s in numba.prange(n_shots + 1):
+        start[s] = np.searchsorted(shot, s)
+    w_top = np.zeros(n_shots, np.float64)
+    for s in numba.prange(n_shots):
+        acc = 0.0
+        top = 0.0
+        for i in range(start[s], start[s + 1]):
+            w = float(weight[i])
+            acc += w
+            if w > top:
+                top = w
+        w_sum[s] = acc
+        w_top[s] = top
     w_max = 0.0
-    ordered = True
-    prev = -1
-    for i in range(shot.size):
-        s = shot[i]
-        if s < prev:
-            ordered = False
-        prev = s
-        w = float(weight[i])
-        w_sum[s] += w
-        start[s + 1] += 1
-        if w > w_max:
-            w_max = w
     for s in range(n_shots):
-        start[s + 1] += start[s]
-    return w_sum, start, w_max, ordered
+        if w_top[s] > w_max:
+            w_max = w_top[s]
+    return w_sum, start, w_max, True
 
 
 @numba.njit(cache=True, nogil=True)

@@ -58,10 +58,12 @@ def find_libllvm(candidates: list[str] | None = None) -> str | None:
     return None if best is None else best[1]
 
 
-def ensure_libllvm() -> str:
+def ensure_libllvm(*, required: bool = True) -> str | None:
     """Set ``DRJIT_LIBLLVM_PATH`` to a usable libLLVM and return it, or raise ``ImportError``.
 
     A path the user already set is honoured when it exists and is not a known-bad version.
+    ``required=False`` (a CUDA variant was asked for): return ``None`` when none is found;
+    Dr.Jit then runs without its LLVM backend (a bad libLLVM is still never loaded).
     """
     user = os.environ.get("DRJIT_LIBLLVM_PATH")
     if user:
@@ -74,6 +76,9 @@ def ensure_libllvm() -> str:
                 f"{MIN_LLVM_MAJOR}: {INSTALL_HINT}")
         return user
     path = find_libllvm()
+    if path is None and not required:
+        os.environ["DRJIT_LIBLLVM_PATH"] = os.devnull   # never the system's libLLVM 15/16
+        return None
     if path is None:
         raise ImportError(
             f"lidar_mitsuba needs libLLVM >= {MIN_LLVM_MAJOR} for Dr.Jit's LLVM backend "

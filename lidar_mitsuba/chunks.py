@@ -24,7 +24,9 @@ CHUNK_SHOTS = 65536
 """Default shots per chunk."""
 _DETECTOR_STREAM = 0x504D54         # 'PMT': keeps the detector's stream apart from the tracer's
 
-#: ``source(first_shot, stop_shot, trace_seed) -> Returns`` of those shots (local shot indices)
+#: ``source(first_shot, stop_shot, trace_seed) -> Returns`` of those shots (local shot
+#: indices); a source with a ``launch`` method of the same arguments returning an object
+#: with ``result()`` (:class:`traced`) lets :func:`run` overlap tracing and detecting
 Source = Callable[[int, int, int], Returns]
 
 
@@ -61,20 +63,43 @@ def gate_center_ns(instrument: Instrument, z_ref_m: np.ndarray) -> np.ndarray:
 
 def traced(integrator, scene, *, x_m: np.ndarray, y_m: np.ndarray, paths_per_shot: int,
            dx_m: np.ndarray | None = None, dy_m: np.ndarray | None = None,
-           dz_m: np.ndarray | None = None) -> Source:
+           dz_m: np.ndarray | None = None) -> "TracedSource":
+    """A source that traces shots at (``x_m``, ``y_m``) [m] in ``scene`` with ``integrator``
+    (:class:`TracedSource`)."""
+    return TracedSource(integrator, scene, x_m=x_m, y_m=y_m, paths_per_shot=paths_per_shot,
+                        dx_m=dx_m, dy_m=dy_m, dz_m=dz_m)
+
+
+class TracedSource:
     """A source that traces shots at (``x_m``, ``y_m``) [m] in ``scene`` with ``integrator``;
     when the positions were folded into a tile, ``dx_m``/``dy_m``/``dz_m`` (n_shots,) move the
-    returns back to the track (:meth:`Returns.moved`)."""
-    def source(a: int, b: int, seed: int) -> Returns:
-        ret = integrator.trace(scene, shot_x_m=x_m[a:b], shot_y_m=y_m[a:b],
-                               paths_per_shot=int(paths_per_shot), seed=seed)
-        if dx_m is None and dy_m is None and dz_m is None:
-            return ret
-        zero = np.zeros(b - a)
-        return ret.moved(dx_m=zero if dx_m is None else dx_m[a:b],
-                         dy_m=zero if dy_m is None else dy_m[a:b],
-                         dz_m=zero if dz_m is None else dz_m[a:b])
-    return source
+    returns back to the track (on the device: the integrator's ``offset_m``).
+
+    Besides being called, it can :meth:`launch` a chunk and hand back a pending trace, which
+    :func:`run` uses to trace the next chunk while the host detects the last one."""
+
+    def __init__(self, integrator, scene, *, x_m: np.ndarray, y_m: np.ndarray,
+                 paths_per_shot: int, dx_m: np.ndarray | None = None,
+                 dy_m: np.ndarray | None = None, dz_m: np.ndarray | None = None):
+        self.integrator, self.scene = integrator, scene
+        self.x_m, self.y_m, self.paths_per_shot = x_m, y_m, int(paths_per_shot)
+        shifts = (dx_m, dy_m, dz_m)
+        self.offsets = None
+        if any(d is not None for d in shifts):
+            zero = np.zeros(np.asarray(x_m).shape)
+            self.offsets = tuple(zero if d is None else np.asarray(d, np.float64)
+                                 for d in shifts)
+
+    def launch(self, a: int, b: int, seed: int):
+        """Start tracing shots ``a`` .. ``b - 1`` (local shot indices in the result)."""
+        offset = None if self.offsets is None else tuple(d[a:b] for d in self.offsets)
+        return self.integrator.launch(self.scene, shot_x_m=self.x_m[a:b],
+                                      shot_y_m=self.y_m[a:b],
+                                      paths_per_shot=self.paths_per_shot, seed=seed,
+                                      offset_m=offset)
+
+    def __call__(self, a: int, b: int, seed: int) -> Returns:
+        return self.launch(a, b, seed).result()
 
 
 def replayed(returns: Returns) -> Source:
@@ -90,7 +115,9 @@ class ChunkedRun:
         detections: detector name -> its :class:`Detections` over the whole track.
         returns: every traced return (global shot indices), or ``None`` when not kept.
         n_returns: traced returns in all.
-        timings_s: ``trace_s`` and ``detect_s``, wall time of tracing and of detecting [s].
+        timings_s: ``trace_s`` and ``detect_s``, wall time [s] the host spent waiting for
+            and fetching traces (including launching the next chunk) and detecting; on a
+            CUDA device the next chunk is traced while the host detects.
     """
     detections: dict[str, Detections]
     returns: Returns | None
@@ -124,11 +151,18 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
     n_returns = 0
     trace_s = detect_s = 0.0
     bar = _progress_bar(n_shots, progress)
+    spans = [(k, a, min(n_shots, a + per)) for k, a in enumerate(range(0, n_shots, per))]
+    launch = getattr(source, "launch", None)
+    if launch is None:
+        launch = (lambda a, b, s: _Done(source(a, b, s)))
     try:
-        for k, a in enumerate(range(0, n_shots, per)):
-            b = min(n_shots, a + per)
+        pending = launch(spans[0][1], spans[0][2], trace_seed(seed, 0)) if spans else None
+        for i, (k, a, b) in enumerate(spans):
             t0 = time.perf_counter()
-            ret = source(a, b, trace_seed(seed, k))
+            ret = pending.result()
+            if i + 1 < len(spans):    # the device traces the next chunk while we detect this
+                k1, a1, b1 = spans[i + 1]
+                pending = launch(a1, b1, trace_seed(seed, k1))
             t1 = time.perf_counter()
             for name, inst in detectors.items():
                 det = pmt.detect(ret, inst, detector_rng(seed, k),
@@ -148,6 +182,16 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
     returns = Returns.concatenate(kept, n_shots=n_shots) if keep_returns else None
     return ChunkedRun(detections=dets, returns=returns, n_returns=n_returns,
                       timings_s={"trace_s": trace_s, "detect_s": detect_s})
+
+
+class _Done:
+    """An already finished trace (for sources that cannot launch asynchronously)."""
+
+    def __init__(self, returns: Returns):
+        self._returns = returns
+
+    def result(self) -> Returns:
+        return self._returns
 
 
 def _progress_bar(total: int, enabled: bool):

@@ -59,6 +59,19 @@ def _out_path(value: str, suffixes: tuple[str, ...], option: str = "--out") -> p
     return path
 
 
+def _variant_list(value: str) -> list[str]:
+    """argparse type of ``bench --variant``: known, usable variants, comma-separated."""
+    from .variant import usable_variants
+    names = [v.strip() for v in value.split(",") if v.strip()]
+    usable = usable_variants()
+    bad = [v for v in names if v not in usable]
+    if not names or bad:
+        raise argparse.ArgumentTypeError(
+            f"{', '.join(bad) or repr(value)} not available here (choose from "
+            f"{', '.join(usable)})")
+    return names
+
+
 def _out_dir(value: str, option: str = "--out") -> pathlib.Path:
     """An output folder (created by the command): not an existing file, inside a writable
     existing folder."""
@@ -200,6 +213,11 @@ def build_parser() -> argparse.ArgumentParser:
                        "ratios within one run.")
     b.add_argument("--out", required=True, metavar="DIR", help="folder for bench.json and PNGs")
     b.add_argument("--quick", action="store_true", help="small sizes (what the tests run)")
+    b.add_argument("--variant", type=_variant_list, metavar="NAME[,NAME]",
+                   help="Mitsuba variant(s) to measure, e.g. llvm_ad_mono,cuda_ad_mono: each "
+                   "in its own process, charted side by side (default: the active one)")
+    b.add_argument("--throughput-only", action="store_true",
+                   help="only the throughput benchmarks (no studies)")
 
     rp = sub.add_parser("reproduce", help="regenerate the paper's results (Figs. 3-13) and "
                         "compare them with the paper",
@@ -366,11 +384,13 @@ def _cmd_segments(a) -> int:
 def _cmd_bench(a) -> int:
     out = _out_dir(a.out)
     from .studies import bench
-    doc = bench.run(out_dir=out, quick=a.quick)
+    doc = bench.run(out_dir=out, quick=a.quick, variants=a.variant,
+                    throughput_only=a.throughput_only)
     print(bench.format_summary(doc))
-    print(f"wrote {out / 'bench.json'} and the charts throughput.png, stability.png, "
-          f"accuracy_vs_time.png" + (", peer.png" if "rows" in doc.get("peer", {}) else "")
-          + f" in {out}")
+    charts = "throughput.png" if a.throughput_only else (
+        "throughput.png, stability.png, accuracy_vs_time.png"
+        + (", peer.png" if "rows" in doc.get("peer", {}) else ""))
+    print(f"wrote {out / 'bench.json'} and the charts {charts} in {out}")
     return 0
 
 

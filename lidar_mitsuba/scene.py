@@ -67,8 +67,7 @@ def scene_bounds(scene: mi.Scene) -> tuple[np.ndarray, np.ndarray]:
         if shape.is_mesh():
             if not shape.vertex_count():
                 continue
-            v = np.asarray(shape.vertex_positions_buffer(), np.float64).reshape(-1, 3)
-            blo, bhi = v.min(0), v.max(0)
+            blo, bhi = _vertex_bounds(shape)
         else:
             b = shape.bbox()
             blo = np.array([float(c) for c in b.min])
@@ -83,6 +82,20 @@ def scene_bounds(scene: mi.Scene) -> tuple[np.ndarray, np.ndarray]:
                              "(a NaN or inf in a transform or a vertex?)")
         raise ValueError("the scene has no shapes to trace")
     return lo, hi
+
+
+def _vertex_bounds(shape) -> tuple[np.ndarray, np.ndarray]:
+    """(min, max) of a mesh's vertices, reduced on the device (only six numbers cross to the
+    host); NaN corners when any vertex is not finite."""
+    p = dr.unravel(mi.Point3f, shape.vertex_positions_buffer())
+    finite = dr.all(dr.isfinite(p.x) & dr.isfinite(p.y) & dr.isfinite(p.z))
+    lo = [dr.min(c) for c in (p.x, p.y, p.z)]
+    hi = [dr.max(c) for c in (p.x, p.y, p.z)]
+    dr.eval(finite, lo, hi)
+    if not bool(finite[0] if dr.is_array_v(finite) else finite):
+        return np.full(3, np.nan), np.full(3, np.nan)
+    scalar = [float(c[0] if dr.is_array_v(c) else c) for c in lo + hi]
+    return np.array(scalar[:3]), np.array(scalar[3:])
 
 
 def load_scene(source, *, params: dict | None = None) -> tuple[mi.Scene, str]:

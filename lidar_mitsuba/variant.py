@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import gc
 import importlib.util
+import os
 import pathlib
 
 import drjit as dr
@@ -42,6 +43,12 @@ def _on_variant_change(old: str | None, new: str | None) -> None:
     _register_plugins(new)
 
 
+def usable_variants() -> list[str]:
+    """The supported variants this machine can run (CUDA ones only where a GPU is found)."""
+    return [v for v in SUPPORTED_VARIANTS if v in mi.variants()
+            and (not v.startswith("cuda") or dr.has_backend(dr.JitBackend.CUDA))]
+
+
 def set_variant(name: str = DEFAULT_VARIANT) -> str:
     """Activate Mitsuba variant ``name`` (e.g. ``llvm_ad_mono``, ``cuda_ad_mono``).
 
@@ -50,8 +57,7 @@ def set_variant(name: str = DEFAULT_VARIANT) -> str:
 
     Raises ``ValueError`` naming the variant when it is unknown or its backend (CUDA) is absent.
     """
-    usable = [v for v in SUPPORTED_VARIANTS if v in mi.variants()
-              and (not v.startswith("cuda") or dr.has_backend(dr.JitBackend.CUDA))]
+    usable = usable_variants()
     if name.startswith("scalar"):
         raise ValueError(f"variant {name!r} is not supported: use a JIT variant such as "
                          f"{DEFAULT_VARIANT}")
@@ -70,5 +76,9 @@ def init() -> None:
     """Called on ``import lidar_mitsuba``: keep plugins registered in whatever variant is active."""
     mi.detail.add_variant_callback(_on_variant_change)
     if mi.variant() is None:
-        mi.set_variant(DEFAULT_VARIANT)
+        wanted = os.environ.get("LIDAR_MITSUBA_VARIANT") or DEFAULT_VARIANT
+        try:
+            set_variant(wanted)
+        except ValueError as e:
+            raise ImportError(f"LIDAR_MITSUBA_VARIANT: {e}") from None
     _register_plugins(mi.variant())

@@ -199,3 +199,45 @@ def test_peer_chart_plots_both_tools(bench_run):
         np.testing.assert_allclose(y, coarse / coarse.sum(), rtol=1e-12)
         assert y.sum() == pytest.approx(1.0)
         np.testing.assert_allclose(np.diff(x), wf["bin_m"] * 20 / 2, rtol=1e-6)
+
+
+def test_two_variants_are_measured_apart_and_charted_side_by_side(tmp_path):
+    """`bench --variant A,B --throughput-only`: each variant in a process of its own, both in
+    bench.json["by_variant"], and a third panel whose bars are their rates (variant_rates).
+    Here two CPU variants (mono and rgb); on a GPU machine, llvm_ad_mono,cuda_ad_mono."""
+    out = tmp_path / "b"
+    figs = {}
+    mp = pytest.MonkeyPatch()
+    mp.setattr(bench, "_chart", lambda *a, _fn=bench._chart, **kw: figs.setdefault("f", _fn(*a, **kw)))
+    try:
+        with contextlib.redirect_stdout(io.StringIO()) as printed:
+            code = main(["bench", "--out", str(out), "--quick", "--throughput-only",
+                         "--variant", "llvm_ad_mono,llvm_ad_rgb"])
+    finally:
+        mp.undo()
+    assert code == 0
+    doc = json.loads((out / "bench.json").read_text())
+    assert list(doc["by_variant"]) == ["llvm_ad_mono", "llvm_ad_rgb"]
+    assert doc["variant"] == "llvm_ad_mono" and "stability" not in doc
+    for variant, d in doc["by_variant"].items():
+        child = json.loads((out / variant / "bench.json").read_text())
+        assert child["variant"] == variant and child["integrator"] == d["integrator"]
+        assert 0 <= d["integrator"]["host_share"] <= 1
+        assert {r["traced_depth"] for r in d["end_to_end"]} == {1, 2}
+    names, rates = bench.variant_rates(doc["by_variant"])
+    ax = figs["f"].axes[2]
+    widths = [p.get_width() for p in ax.patches]
+    np.testing.assert_array_equal(widths, rates["llvm_ad_mono"] + rates["llvm_ad_rgb"])
+    assert [t.get_text() for t in ax.get_yticklabels()] == names
+    assert ax.get_xscale() == "log"
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert legend == [f"{v}: {d['device']}" for v, d in doc["by_variant"].items()]
+    assert "-- llvm_ad_rgb on" in printed.getvalue()
+
+
+def test_bench_refuses_an_unknown_variant(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["bench", "--out", "x", "--variant", "llvm_ad_mono,cuda_ad_nope"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) >= 1 and "--variant: cuda_ad_nope not available here" in err[-1]

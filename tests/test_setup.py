@@ -45,6 +45,32 @@ def test_import_refuses_bad_llvm_without_aborting(tmp_path):
     assert r.returncode == 1 and r.stderr.count("\n") == 1 and "libllvm19" in r.stderr
 
 
+def test_variant_from_the_environment():
+    """LIDAR_MITSUBA_VARIANT picks the variant at import; an unusable one is one ImportError
+    line naming the variable (a CUDA variant on a machine without a GPU, too)."""
+    def imported(variant):
+        env = dict(os.environ, LIDAR_MITSUBA_VARIANT=variant)
+        return subprocess.run([sys.executable, "-c", "import lidar_mitsuba, mitsuba as mi; "
+                               "print(mi.variant())"], env=env, capture_output=True,
+                              text=True, timeout=120)
+    r = imported("llvm_ad_rgb")
+    assert r.returncode == 0 and r.stdout.strip() == "llvm_ad_rgb"
+    r = imported("llvm_ad_nope")
+    assert r.returncode == 1 and "ImportError: LIDAR_MITSUBA_VARIANT: variant 'llvm_ad_nope'" in r.stderr
+
+
+def test_a_cuda_variant_needs_no_libllvm(monkeypatch):
+    """With a CUDA variant asked for and no libLLVM found, the check passes and points
+    Dr.Jit at no library rather than at the system's bad one; without one it still refuses."""
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH")
+    monkeypatch.setattr(_llvm, "find_libllvm", lambda candidates=None: None)
+    assert _llvm.ensure_libllvm(required=False) is None
+    assert os.environ["DRJIT_LIBLLVM_PATH"] == os.devnull
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH")
+    with pytest.raises(ImportError, match="libllvm19"):
+        _llvm.ensure_libllvm()
+
+
 def test_import_sets_usable_llvm():
     path = os.environ["DRJIT_LIBLLVM_PATH"]
     assert (_llvm.llvm_major_version(path) or 99) >= _llvm.MIN_LLVM_MAJOR

@@ -4,6 +4,8 @@ Registered in every JIT variant by ``import lidar_mitsuba``.
 """
 from __future__ import annotations
 
+import time
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -130,20 +132,14 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
                            mi.Float((sy - mi.Float64(p.y)) / leg),
                            mi.Float((mi.Float64(self.altitude_m) - mi.Float64(p.z)) / leg))
 
-    @dr.syntax
-    def _trace_chunk(self, scene: mi.Scene, sx: mi.Float, sy: mi.Float, paths_per_shot: int,
-                     seed: mi.UInt32, z_start: float):
-        """Trace ``len(sx) * paths_per_shot`` photons. Returns Dr.Jit arrays of length
-        ``n * max_depth``: local shot index, time [ns], weight, hit x, y, z [m]."""
-        n_shots = dr.width(sx)
-        n = n_shots * paths_per_shot
-        depth_max = self.max_depth
-        lane = dr.arange(mi.UInt32, n)
-        shot = lane // paths_per_shot
+    def _emit(self, sx: mi.Float, sy: mi.Float, paths_per_shot: int, seed: mi.UInt32,
+              z_start: float):
+        """The photons of ``len(sx)`` shots: per lane its shot, the shot centre, the sampler
+        (seeded), the first ray and the emission time [ns]."""
+        n = dr.width(sx) * paths_per_shot
+        shot = dr.arange(mi.UInt32, n) // paths_per_shot
         x0 = dr.gather(mi.Float, sx, shot)
         y0 = dr.gather(mi.Float, sy, shot)
-        sx64, sy64 = mi.Float64(x0), mi.Float64(y0)
-
         sampler = mi.load_dict({"type": "independent"})
         sampler.seed(seed, n)
         # Gaussian footprint offset and emission time (Box-Muller).
@@ -153,9 +149,37 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
         u = sampler.next_2d()
         t_emit_ns = (self.pulse_sigma_ns * dr.sqrt(-2.0 * dr.log(dr.maximum(1.0 - u.x, 1e-30)))
                      * dr.cos(dr.two_pi * u.y))
-
         ray = mi.Ray3f(mi.Point3f(x0 + r * cos_p, y0 + r * sin_p, z_start),
                        mi.Vector3f(0.0, 0.0, -1.0))
+        return x0, y0, sampler, ray, t_emit_ns
+
+    def _first_surface(self, scene: mi.Scene, sx: mi.Float, sy: mi.Float, paths_per_shot: int,
+                       seed: mi.UInt32, z_start: float):
+        """``max_depth == 1``: one return per photon, straight-line code (no loop, no
+        scatter). Returns Dr.Jit arrays of length ``n`` (one slot per photon): time [ns]
+        (float64), weight (0 where nothing returns), hit x, y, z [m]."""
+        x0, y0, sampler, ray, t_emit_ns = self._emit(sx, sy, paths_per_shot, seed, z_start)
+        sx64, sy64 = mi.Float64(x0), mi.Float64(y0)
+        si = scene.ray_intersect(ray)
+        leg_m = self._leg_m(si.p, sx64, sy64)     # the same leg down and up, float64
+        wo = self._to_receiver(si.p, sx64, sy64, leg_m)
+        seen = si.is_valid() & (dr.square(si.p.x - x0) + dr.square(si.p.y - y0)
+                                <= self.fov_radius_m ** 2)
+        w = self._return_weight(si, wo, seen)
+        t_ns = mi.Float64(t_emit_ns) + (leg_m + leg_m) / C_M_PER_NS
+        return t_ns, w, si.p.x, si.p.y, si.p.z
+
+    @dr.syntax
+    def _multi_bounce(self, scene: mi.Scene, sx: mi.Float, sy: mi.Float, paths_per_shot: int,
+                      seed: mi.UInt32, z_start: float):
+        """``max_depth > 1``: a symbolic loop over the vertices of each path. Returns Dr.Jit
+        arrays of length ``n * max_depth`` (slot ``lane * max_depth + depth - 1``): time [ns]
+        (float64), weight (0 where nothing returns), hit x, y, z [m]."""
+        n = dr.width(sx) * paths_per_shot
+        depth_max = self.max_depth
+        lane = dr.arange(mi.UInt32, n)
+        x0, y0, sampler, ray, t_emit_ns = self._emit(sx, sy, paths_per_shot, seed, z_start)
+        sx64, sy64 = mi.Float64(x0), mi.Float64(y0)
         si = scene.ray_intersect(ray)
         active = si.is_valid()
         down_m = self._leg_m(si.p, sx64, sy64)        # spacecraft -> first vertex [m], float64
@@ -193,17 +217,63 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
                                          sampler.next_2d(active), active)
                 throughput *= bsdf_w[0]
                 ray = _spawn(si, si.to_world(bs.wo))
+                # The last vertex only counts inside the field of view: its ray stops where
+                # it leaves the FOV cylinder (it can leave the scene early, and most do).
+                ray.maxt = dr.select(depth == depth_max - 1,
+                                     _fov_exit(ray, x0, y0, self.fov_radius_m), ray.maxt)
                 p_prev = mi.Point3f(si.p)
-                si = scene.ray_intersect(ray, active)
+                si = scene.ray_intersect(ray, active & (ray.maxt > 0.0))
                 # vertex to vertex, not si.t: the ray starts off the surface
                 inner_m += dr.select(si.is_valid(), dr.norm(si.p - p_prev), 0.0)
                 active &= si.is_valid() & (throughput > 0)
-        shot_out = dr.arange(mi.UInt32, n * depth_max) // (paths_per_shot * depth_max)
-        return shot_out, out_t, out_w, out_x, out_y, out_z
+        return out_t, out_w, out_x, out_y, out_z
 
     # ---------------------------------------------------------------- public
+    def launch(self, scene: mi.Scene, *, shot_x_m: np.ndarray, shot_y_m: np.ndarray,
+               paths_per_shot: int = 128, seed: int = 0,
+               offset_m: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+               ) -> "PendingReturns":
+        """Start tracing and return at once where the backend allows (CUDA: the first
+        integrator chunk's kernel runs while the host goes on);
+        :meth:`PendingReturns.result` waits and gives what :meth:`trace` gives. Arguments as
+        :meth:`trace`. Later integrator chunks (more than ``max_lanes`` lanes) are traced one
+        at a time inside ``result()``, so the device holds one chunk at a time."""
+        shot_x_m = np.ascontiguousarray(shot_x_m, dtype=np.float32).ravel()
+        shot_y_m = np.ascontiguousarray(shot_y_m, dtype=np.float32).ravel()
+        if shot_x_m.shape != shot_y_m.shape:
+            raise ValueError("shot_x_m and shot_y_m must have the same shape")
+        if paths_per_shot < 1:
+            raise ValueError(f"paths_per_shot must be >= 1 (got {paths_per_shot})")
+        n_shots = shot_x_m.size
+        if offset_m is not None:
+            offset_m = tuple(np.ascontiguousarray(d, np.float64).ravel() for d in offset_m)
+            if len(offset_m) != 3 or any(d.shape != shot_x_m.shape for d in offset_m):
+                raise ValueError("offset_m must be three (n_shots,) arrays (dx, dy, dz) [m]")
+        lo, hi = scene_bounds(scene)
+        z_start = float(hi[2]) + 1e-3 * max(float(hi[2] - lo[2]), 1.0) + 1e-2
+        if not (z_start < self.altitude_m):
+            raise ValueError(f"altitude_m ({self.altitude_m}) must be above the scene top "
+                             f"({float(hi[2])})")
+        per_chunk = max(1, self.max_lanes // (paths_per_shot * self.max_depth))
+        core = self._first_surface if self.max_depth == 1 else self._multi_bounce
+
+        def make(k: int, start: int, stop: int):
+            out = core(scene, mi.Float(shot_x_m[start:stop]), mi.Float(shot_y_m[start:stop]),
+                       int(paths_per_shot), dr.opaque(mi.UInt32, _mix_seed(seed, k)), z_start)
+            dr.eval(*out)                  # asynchronous on CUDA
+            shift = None
+            if offset_m is not None and any(np.any(d[start:stop]) for d in offset_m):
+                shift = tuple(d[start:stop] for d in offset_m)
+            return out, shift
+
+        steps = [(k, a, min(n_shots, a + per_chunk))
+                 for k, a in enumerate(range(0, n_shots, per_chunk))]
+        return PendingReturns(make, steps, n_shots=n_shots, paths_per_shot=int(paths_per_shot),
+                              max_depth=self.max_depth)
+
     def trace(self, scene: mi.Scene, *, shot_x_m: np.ndarray, shot_y_m: np.ndarray,
-              paths_per_shot: int = 128, seed: int = 0, keep_zero_weight: bool = False,
+              paths_per_shot: int = 128, seed: int = 0,
+              offset_m: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
               progress=None) -> Returns:
         """Trace ``paths_per_shot`` photons for every shot.
 
@@ -212,60 +282,115 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
             shot_x_m, shot_y_m: (n_shots,) footprint centres [m] in scene coordinates.
             paths_per_shot: photon paths traced per shot (Monte Carlo samples of the return).
             seed: random seed; the same seed gives the same photons.
-            keep_zero_weight: keep returns of weight 0 (misses are always dropped).
+            offset_m: optional ``(dx, dy, dz)``, three (n_shots,) arrays [m]: the shots were
+                traced on a copy of the surface displaced by (-dx, -dy, -dz) (a track folded
+                into a tile), and the returns are put back in place on the device: points
+                move by the offset, times by -2 dz / c (as :meth:`Returns.moved`).
             progress: optional callable ``progress(n_shots_done)`` called after each chunk.
 
         Returns:
-            :class:`~lidar_mitsuba.photons.Returns`, one entry per photon return (at most
-            ``n_shots * paths_per_shot * max_depth``), sorted by shot: ``shot`` (uint32),
-            ``time_ns`` (float64 round-trip time [ns] from the pulse centre's emission),
-            ``weight`` (float32), ``x_m``, ``y_m``, ``z_m`` (float32 vertex position [m]),
-            ``depth`` (uint8, 1 = first surface).
+            :class:`~lidar_mitsuba.photons.Returns`, one entry per photon return of non-zero
+            weight (at most ``n_shots * paths_per_shot * max_depth``), sorted by shot:
+            ``shot`` (uint32), ``time_ns`` (float64 round-trip time [ns] from the pulse
+            centre's emission), ``weight`` (float32), ``x_m``, ``y_m``, ``z_m`` (float32
+            vertex position [m]), ``depth`` (uint8, 1 = first surface). The returns are
+            compacted on the device (``dr.compress``): only the kept ones cross to the host.
         """
-        shot_x_m = np.ascontiguousarray(shot_x_m, dtype=np.float32).ravel()
-        shot_y_m = np.ascontiguousarray(shot_y_m, dtype=np.float32).ravel()
-        if shot_x_m.shape != shot_y_m.shape:
-            raise ValueError("shot_x_m and shot_y_m must have the same shape")
-        if paths_per_shot < 1:
-            raise ValueError(f"paths_per_shot must be >= 1 (got {paths_per_shot})")
-        n_shots = shot_x_m.size
-        lo, hi = scene_bounds(scene)
-        z_start = float(hi[2]) + 1e-3 * max(float(hi[2] - lo[2]), 1.0) + 1e-2
-        if not (z_start < self.altitude_m):
-            raise ValueError(f"altitude_m ({self.altitude_m}) must be above the scene top "
-                             f"({float(hi[2])})")
-        per_chunk = max(1, self.max_lanes // (paths_per_shot * self.max_depth))
-        parts: list[tuple[Returns, int]] = []
-        for k, start in enumerate(range(0, n_shots, per_chunk)):
-            stop = min(n_shots, start + per_chunk)
-            chunk_seed = dr.opaque(mi.UInt32, _mix_seed(seed, k))
-            shot, t, w, x, y, z = self._trace_chunk(
-                scene, mi.Float(shot_x_m[start:stop]), mi.Float(shot_y_m[start:stop]),
-                paths_per_shot, chunk_seed, z_start)
-            dr.eval(shot, t, w, x, y, z)
-            w_np = w.numpy()
-            t_np = t.numpy()
-            keep = (w_np > 0) if not keep_zero_weight else (t_np > 0)
-            depth = (np.arange(w_np.size) % self.max_depth + 1).astype(np.uint8)
-            parts.append((Returns(
-                shot=shot.numpy()[keep], time_ns=t_np[keep], weight=w_np[keep],
-                x_m=x.numpy()[keep], y_m=y.numpy()[keep], z_m=z.numpy()[keep],
-                depth=depth[keep], n_shots=stop - start, paths_per_shot=int(paths_per_shot)),
-                start))
-            if progress is not None:
-                progress(stop - start)
-        if not parts:
-            return Returns.empty(n_shots=0, paths_per_shot=paths_per_shot)
-        if len(parts) == 1:
-            return parts[0][0]
-        out = Returns.concatenate(parts, n_shots=n_shots)
-        out.shot = out.shot.astype(np.uint32)
-        return out
+        return self.launch(scene, shot_x_m=shot_x_m, shot_y_m=shot_y_m,
+                           paths_per_shot=paths_per_shot, seed=seed,
+                           offset_m=offset_m).result(progress=progress)
 
     def to_string(self):
         return (f"PathLengthIntegrator[max_depth={self.max_depth}, altitude_m={self.altitude_m}, "
                 f"footprint_sigma_m={self.footprint_sigma_m}, "
                 f"pulse_sigma_ns={self.pulse_sigma_ns}]")
+
+
+class PendingReturns:
+    """A trace under way (:meth:`PathLengthIntegrator.launch`); :meth:`result` gives its
+    :class:`~lidar_mitsuba.photons.Returns`. The first integrator chunk is launched at
+    creation; later ones are launched and fetched one by one in ``result()``."""
+
+    def __init__(self, make, steps, *, n_shots: int, paths_per_shot: int, max_depth: int):
+        self._make, self._steps = make, steps
+        self.n_shots, self.paths_per_shot, self.max_depth = n_shots, paths_per_shot, max_depth
+        #: host time [s]: ``launch_s`` building and launching kernels, ``wait_s`` waiting for
+        #: the device, ``fetch_s`` compacting and copying returns to numpy (bench reports the
+        #: host's share of a trace from these)
+        self.timings_s = {"launch_s": 0.0, "wait_s": 0.0, "fetch_s": 0.0}
+        self._first = self._launch(*steps[0]) if steps else None
+
+    def _launch(self, k: int, start: int, stop: int):
+        t0 = time.perf_counter()
+        out = self._make(k, start, stop)
+        self.timings_s["launch_s"] += time.perf_counter() - t0
+        return out
+
+    def result(self, progress=None) -> Returns:
+        """Wait for the trace and bring its non-zero returns to the host (see
+        :meth:`PathLengthIntegrator.trace`). ``progress(n_shots_done)``: called per chunk."""
+        if not self._steps:
+            return Returns.empty(n_shots=0, paths_per_shot=self.paths_per_shot)
+        parts = []
+        for i, (k, start, stop) in enumerate(self._steps):
+            out, shift = self._first if i == 0 else self._launch(k, start, stop)
+            self._first = None
+            t0 = time.perf_counter()
+            dr.sync_thread()
+            t1 = time.perf_counter()
+            parts.append((self._fetch(out, shift, stop - start), start))
+            self.timings_s["wait_s"] += t1 - t0
+            self.timings_s["fetch_s"] += time.perf_counter() - t1
+            if progress is not None:
+                progress(stop - start)
+        if len(parts) == 1:
+            return parts[0][0]
+        out = Returns.concatenate(parts, n_shots=self.n_shots)
+        out.shot = out.shot.astype(np.uint32)
+        return out
+
+    def _fetch(self, out, shift, n_shots: int) -> Returns:
+        """Compact the slots of non-zero weight on the device, derive their shot (and depth)
+        there, put folded shots back in place, and copy only those to the host."""
+        t, w, x, y, z = out
+        idx = dr.compress(w > 0.0)                        # synchronises; keeps slot order
+        if dr.width(idx) == 0:
+            return Returns.empty(n_shots=n_shots, paths_per_shot=self.paths_per_shot)
+        shot = idx // (self.paths_per_shot * self.max_depth)
+        if dr.width(idx) < dr.width(w):   # (single bounce on terrain often keeps every slot)
+            t, w = dr.gather(mi.Float64, t, idx), dr.gather(mi.Float, w, idx)
+            x, y, z = (dr.gather(mi.Float, a, idx) for a in (x, y, z))
+        if shift is not None:                             # as Returns.moved, on the device
+            # the per-shot time shift is computed on the host (n_shots values), exactly as
+            # Returns.moved does, so both give the same bits
+            dx, dy, dz, dt = (dr.gather(mi.Float64, mi.Float64(d), shot)
+                              for d in (*shift, 2.0 * shift[2] / C_M_PER_NS))
+            t = t - dt
+            x, y, z = (mi.Float(mi.Float64(a) + d) for a, d in ((x, dx), (y, dy), (z, dz)))
+        arrays = [shot, t, w, x, y, z]
+        if self.max_depth > 1:
+            arrays.append(idx % self.max_depth + 1)
+        dr.eval(*arrays)
+        host = [a.numpy() for a in arrays]
+        depth = (host[6].astype(np.uint8) if self.max_depth > 1
+                 else np.ones(host[0].size, np.uint8))
+        return Returns(shot=host[0], time_ns=host[1], weight=host[2], x_m=host[3],
+                       y_m=host[4], z_m=host[5], depth=depth, n_shots=n_shots,
+                       paths_per_shot=self.paths_per_shot)
+
+
+def _fov_exit(ray: mi.Ray3f, cx: mi.Float, cy: mi.Float, radius_m: float) -> mi.Float:
+    """Distance along ``ray`` at which it leaves the vertical cylinder of radius ``radius_m``
+    around (cx, cy) for good (0 when it never is inside ahead; infinity when it runs
+    vertically inside). Beyond it no point is in the field of view."""
+    ox, oy = ray.o.x - cx, ray.o.y - cy
+    a = dr.square(ray.d.x) + dr.square(ray.d.y)
+    b = ox * ray.d.x + oy * ray.d.y
+    c = dr.square(ox) + dr.square(oy) - radius_m * radius_m
+    disc = dr.square(b) - a * c
+    t_out = (dr.sqrt(dr.maximum(disc, 0.0)) - b) / dr.maximum(a, 1e-30)
+    t_out = dr.select(disc >= 0.0, dr.maximum(t_out, 0.0), 0.0)
+    return dr.select(a > 1e-12, t_out, dr.select(c <= 0.0, dr.inf, 0.0))
 
 
 def _spawn(si: mi.SurfaceInteraction3f, d: mi.Vector3f) -> mi.Ray3f:

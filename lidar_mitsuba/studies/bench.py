@@ -16,6 +16,8 @@ import os
 import pathlib
 import platform
 import statistics
+import subprocess
+import sys
 import time
 
 import drjit as dr
@@ -28,6 +30,7 @@ from ..instrument import Instrument
 from ..photons import Returns
 from ..simulate import simulate
 from ..surface import SurfaceSpec, heightfield_to_trimesh
+from ..variant import set_variant
 from . import accuracy, breaking_points, peer
 
 
@@ -94,66 +97,123 @@ def bench_detector(*, quick: bool) -> list[dict]:
     return rows
 
 
+def device_name() -> str:
+    """What the active variant runs on: the GPU's name for CUDA variants (from nvidia-smi when
+    it is there), else the CPU model and its core count."""
+    if mi.variant().startswith("cuda"):
+        try:
+            out = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
+                                 capture_output=True, text=True, timeout=20, check=True)
+            return out.stdout.strip().splitlines()[0] + " (CUDA)"
+        except (OSError, subprocess.SubprocessError, IndexError):
+            return "CUDA GPU"
+    model = platform.processor() or "CPU"
+    try:
+        for line in pathlib.Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores"
+
+
+def _on_gpu() -> bool:
+    return mi.variant().startswith("cuda")
+
+
 def bench_integrator(*, quick: bool) -> dict:
     """Photon paths/s of the path-length integrator against raw ``scene.ray_intersect`` on the
-    same rays and mesh: the 1024 m fractal tile at 1 m (about 2 million triangles)."""
+    same rays and mesh (the 1024 m fractal tile at 1 m, about 2 million triangles), cast in the
+    same launches of ``max_lanes`` rays; and where a trace's host time goes: building and
+    launching kernels, waiting for the device, compacting and copying returns to numpy.
+    On a GPU the track is 1 M shots x 128 paths (the size of an orbit's chunk stream)."""
     size = 256.0 if quick else 1024.0
     hf = terrain.fractal(p=1.8, size_m=size, grid_m=1.0, relief_m=10.0, seed=0)
     t = time.perf_counter()
     tm = heightfield_to_trimesh(hf, margin_m=13.5)
     scene = scn.scene_from_mesh(tm.vertices, tm.faces)
     build_s = time.perf_counter() - t
-    integ = mi.load_dict(Instrument().integrator_dict())
-    n_shots, k = (2000, 128) if quick else (20000, 256)
+    n_shots, k = (2000, 128) if quick else ((2 ** 20, 128) if _on_gpu() else (20000, 256))
     xs = (np.arange(n_shots) * 0.7) % (size - 30) + 15
     ys = np.full(n_shots, size / 2)
+    reps = 3 if quick else 5
+    doc = {"triangles": int(len(tm.faces)), "mesh_build_s": build_s, "paths": n_shots * k,
+           "shots": n_shots, "paths_per_shot": k}
+    for depth in (1, 2):
+        integ = mi.load_dict(Instrument().integrator_dict(max_depth=depth))
+        split = []
 
-    def trace():
-        integ.trace(scene, shot_x_m=xs, shot_y_m=ys, paths_per_shot=k, seed=1)
+        def trace():
+            pending = integ.launch(scene, shot_x_m=xs, shot_y_m=ys, paths_per_shot=k, seed=1)
+            pending.result()
+            split.append(pending.timings_s)
 
+        trace_s = _median_time(trace, repeats=reps)
+        host = {key: statistics.median(d[key] for d in split[1:]) for key in split[0]}
+        row = {"trace_s": trace_s, "paths_per_s": n_shots * k / trace_s, **host,
+               "host_share": (host["launch_s"] + host["fetch_s"]) / trace_s}
+        if depth == 1:
+            doc.update(row)
+        else:
+            doc["two_bounces"] = row
+    lanes = Instrument().integrator_dict().get("max_lanes", 2 ** 23)
     rng = np.random.default_rng(3)
-    n = n_shots * k
-    ox = (np.repeat(xs, k) + 2.5 * rng.standard_normal(n)).astype(np.float32)
-    oy = (np.repeat(ys, k) + 2.5 * rng.standard_normal(n)).astype(np.float32)
+    per = max(1, lanes // k)
+    batches = []
     top = float(tm.vertices[:, 2].max()) + 1.0
-    rays = mi.Ray3f(mi.Point3f(mi.Float(ox), mi.Float(oy), top), mi.Vector3f(0, 0, -1))
+    for a in range(0, n_shots, per):
+        m = (min(n_shots, a + per) - a) * k
+        ox = (np.repeat(xs[a:a + per], k) + 2.5 * rng.standard_normal(m)).astype(np.float32)
+        oy = (np.repeat(ys[a:a + per], k) + 2.5 * rng.standard_normal(m)).astype(np.float32)
+        batches.append((mi.Float(ox), mi.Float(oy)))
 
     def cast():
-        si = scene.ray_intersect(rays)
-        z = si.p.z.numpy()            # the same device -> host copy the integrator makes
-        return z
+        for ox, oy in batches:
+            si = scene.ray_intersect(mi.Ray3f(mi.Point3f(ox, oy, top), mi.Vector3f(0, 0, -1)))
+            si.p.z.numpy()            # the same device -> host copy the integrator makes
 
-    reps = 3 if quick else 5
-    trace_s = _median_time(trace, repeats=reps)
     cast_s = _median_time(cast, repeats=reps)
-    return {"triangles": int(len(tm.faces)), "mesh_build_s": build_s, "paths": n,
-            "trace_s": trace_s, "raycast_s": cast_s, "paths_per_s": n / trace_s,
-            "rays_per_s": n / cast_s, "ratio_to_ceiling": cast_s / trace_s}
+    doc.update(raycast_s=cast_s, rays_per_s=n_shots * k / cast_s,
+               ratio_to_ceiling=cast_s / doc["trace_s"])
+    doc["two_bounces"]["ratio_to_ceiling"] = cast_s / doc["two_bounces"]["trace_s"]
+    return doc
 
 
 def bench_end_to_end(*, quick: bool) -> list[dict]:
-    """Shots/s of ``simulate`` (scene build included) over the p = 1.8 fractal, both beams."""
+    """Shots/s of ``simulate`` over the p = 1.8 fractal: both beams with the default
+    ``max_depth="auto"`` (two bounces on this terrain) and the strong beam with one bounce.
+    ``shots_per_s`` counts the whole call (scene build and bounce pilot included);
+    ``loop_shots_per_s`` the trace-and-detect chunk loop alone, what a long track runs at.
+    On a GPU each run is 1 M shots."""
     rows = []
-    shots = 2000 if quick else 20000
-    for beam in ("strong", "weak"):
+    shots = 2000 if quick else (2 ** 20 if _on_gpu() else 20000)
+    for beam, max_depth in (("strong", "auto"), ("weak", "auto"), ("strong", 1)):
         out = {}
 
         def run():
             out["res"] = simulate(instrument=Instrument(beam=beam), shots=shots, seed=1,
-                                  surface=SurfaceSpec(kind="fractal", p=1.8), progress=False)
+                                  surface=SurfaceSpec(kind="fractal", p=1.8), progress=False,
+                                  max_depth=max_depth)
 
         sec = _median_time(run, repeats=1 if quick else 3)
-        rows.append({"beam": beam, "shots": shots, "seconds": sec, "shots_per_s": shots / sec,
-                     "stage_seconds": out["res"].timings_s})
+        st = out["res"].timings_s
+        rows.append({"beam": beam, "max_depth": max_depth,
+                     "traced_depth": out["res"].config["max_depth"], "shots": shots,
+                     "seconds": sec, "shots_per_s": shots / sec, "stage_seconds": st,
+                     "loop_shots_per_s": shots / max(st["trace_s"] + st["detect_s"], 1e-9)})
     return rows
 
 
 def _chart(doc: dict, path: pathlib.Path):
-    """Throughput bars (detector cases; integrator against its ray-cast ceiling), saved to
-    ``path``. Returns the (closed) matplotlib Figure."""
+    """Throughput bars (detector cases; integrator against its ray-cast ceiling), and, when
+    the bench measured several variants, their rates side by side; saved to ``path``.
+    Returns the (closed) matplotlib Figure."""
     from ..plotting import plt
     det = doc["detector"]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), dpi=110)
+    variants = doc.get("by_variant", {})
+    fig, axes = plt.subplots(1, 3 if len(variants) > 1 else 2,
+                             figsize=(16.5 if len(variants) > 1 else 11, 3.8), dpi=110)
     ax = axes[0]
     ax.barh([r["case"] for r in det], [r["events_per_s"] / 1e6 for r in det], color="tab:blue")
     ax.axvline(20, color="k", ls="--", lw=1, label="target 20 M/s")
@@ -169,31 +229,115 @@ def _chart(doc: dict, path: pathlib.Path):
     ax.set_xlabel(f"million paths / s, {integ['triangles'] / 1e6:.1f} M triangles "
                   f"(ratio {integ['ratio_to_ceiling']:.2f})")
     ax.invert_yaxis()
-    fig.suptitle(f"lidar_mitsuba throughput on {os.cpu_count()} CPU cores ({mi.variant()})")
+    if len(variants) > 1:
+        ax = axes[2]
+        names, rates = variant_rates(variants)
+        height = 0.8 / len(variants)
+        for j, (variant, vals) in enumerate(rates.items()):
+            ax.barh(np.arange(len(names)) + j * height, vals, height=height,
+                    label=f"{variant}: {variants[variant]['device']}")
+        ax.set_yticks(np.arange(len(names)) + 0.4 - height / 2, names)
+        ax.set_xscale("log")
+        ax.set_xlabel("million per second (log scale)")
+        ax.legend(fontsize=7, loc="lower right")
+        ax.invert_yaxis()
+    fig.suptitle(f"lidar_mitsuba throughput on {doc.get('device', os.cpu_count())} "
+                 f"({mi.variant() if 'variant' not in doc else doc['variant']})")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
     return fig
 
 
-def run(*, out_dir: str | os.PathLike, quick: bool = False) -> dict:
-    """Run every benchmark; write ``bench.json`` and ``throughput.png`` into ``out_dir``."""
+def variant_rates(variants: dict) -> tuple[list[str], dict[str, list[float]]]:
+    """The rates the side-by-side panel shows, in millions per second: ray casts, integrator
+    paths (one and two bounces), end-to-end shots (strong beam, one bounce and auto)."""
+    names = ["ray_intersect [M rays/s]", "integrator, 1 bounce [M paths/s]",
+             "integrator, 2 bounces [M paths/s]", "end to end, 1 bounce [M shots/s]",
+             "end to end, auto [M shots/s]"]
+    rates = {}
+    for variant, d in variants.items():
+        integ = d["integrator"]
+        e2e = {(r["beam"], str(r["max_depth"])): r for r in d["end_to_end"]}
+        rates[variant] = [integ["rays_per_s"] / 1e6, integ["paths_per_s"] / 1e6,
+                          integ["two_bounces"]["paths_per_s"] / 1e6,
+                          e2e[("strong", "1")]["loop_shots_per_s"] / 1e6,
+                          e2e[("strong", "auto")]["loop_shots_per_s"] / 1e6]
+    return names, rates
+
+
+def throughput(*, quick: bool) -> dict:
+    """The throughput part of the bench in the active variant: detector, integrator, end to
+    end, with the variant and the device they ran on."""
+    return {"variant": mi.variant(), "device": device_name(), "cpu_count": os.cpu_count(),
+            "detector": bench_detector(quick=quick), "integrator": bench_integrator(quick=quick),
+            "end_to_end": bench_end_to_end(quick=quick)}
+
+
+def _throughput_in_child(variant: str, out: pathlib.Path, quick: bool) -> dict:
+    """Run the throughput bench of ``variant`` in a process of its own (one variant per
+    process) and read its bench.json."""
+    sub = out / variant
+    cmd = [sys.executable, "-c", "import sys; from lidar_mitsuba.cli import main; "
+           "sys.exit(main(sys.argv[1:]))", "bench", "--variant", variant, "--throughput-only",
+           "--out", str(sub)] + (["--quick"] if quick else [])
+    subprocess.run(cmd, check=True)
+    return json.loads((sub / "bench.json").read_text())
+
+
+def run(*, out_dir: str | os.PathLike, quick: bool = False,
+        variants: list[str] | None = None, throughput_only: bool = False) -> dict:
+    """Run every benchmark; write ``bench.json`` and ``throughput.png`` (and, unless
+    ``throughput_only``, the study charts) into ``out_dir``.
+
+    ``variants``: Mitsuba variants to measure (default: the active one). With several, each
+    variant's throughput runs in a process of its own (``out_dir/<variant>/``), the studies
+    run in the first, and ``bench.json["by_variant"]`` and the chart hold them side by side.
+    """
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    doc = {"quick": quick, "variant": mi.variant(), "cpu_count": os.cpu_count(),
-           "machine": platform.platform(), "drjit": dr.__version__, "mitsuba": mi.__version__,
-           "detector": bench_detector(quick=quick), "integrator": bench_integrator(quick=quick),
-           "end_to_end": bench_end_to_end(quick=quick)}
-    doc["stability"] = breaking_points.run_all(quick=quick)
-    doc["accuracy_vs_time"] = accuracy.run(quick=quick)
-    doc["simplifications"] = accuracy.simplifications(quick=quick)
-    doc["peer"] = peer.run(quick=quick)
+    variants = list(variants or [mi.variant()])
+    if len(variants) == 1:
+        set_variant(variants[0])
+        doc = throughput(quick=quick)
+    else:
+        by = {v: _throughput_in_child(v, out, quick) for v in variants}
+        set_variant(variants[0])
+        doc = dict(by[variants[0]])
+        doc["by_variant"] = {v: {k: d[k] for k in ("device", "cpu_count", "detector",
+                                                   "integrator", "end_to_end")}
+                             for v, d in by.items()}
+    doc.update(quick=quick, machine=platform.platform(), drjit=dr.__version__,
+               mitsuba=mi.__version__)
+    if not throughput_only:
+        doc["stability"] = breaking_points.run_all(quick=quick)
+        doc["accuracy_vs_time"] = accuracy.run(quick=quick)
+        doc["simplifications"] = accuracy.simplifications(quick=quick)
+        doc["peer"] = peer.run(quick=quick)
     (out / "bench.json").write_text(json.dumps(doc, indent=1, default=float))
     _chart(doc, out / "throughput.png")
-    breaking_points.chart(doc["stability"], out / "stability.png")
-    accuracy.chart(doc["accuracy_vs_time"], out / "accuracy_vs_time.png")
-    peer.chart(doc["peer"], out / "peer.png")
+    if not throughput_only:
+        breaking_points.chart(doc["stability"], out / "stability.png")
+        accuracy.chart(doc["accuracy_vs_time"], out / "accuracy_vs_time.png")
+        peer.chart(doc["peer"], out / "peer.png")
     return doc
+
+
+def _format_rates(d: dict) -> list[str]:
+    i, two = d["integrator"], d["integrator"]["two_bounces"]
+    lines = [f"integrator: {i['paths_per_s'] / 1e6:.1f} M paths/s vs ray_intersect "
+             f"{i['rays_per_s'] / 1e6:.1f} M rays/s on {i['triangles'] / 1e6:.2f} M triangles: "
+             f"ratio {i['ratio_to_ceiling']:.2f}; host share of a trace {i['host_share']:.0%} "
+             f"(launch {i['launch_s']:.3f} s, wait {i['wait_s']:.3f} s, "
+             f"fetch {i['fetch_s']:.3f} s)",
+             f"integrator, 2 bounces: {two['paths_per_s'] / 1e6:.1f} M paths/s, ratio "
+             f"{two['ratio_to_ceiling']:.2f}, host share {two['host_share']:.0%}"]
+    for r in d["end_to_end"]:
+        lines.append(f"end to end, {r['beam']} beam, max_depth {r['max_depth']} "
+                     f"({r['traced_depth']} traced): {r['shots_per_s']:.0f} shots/s "
+                     f"({r['shots']} shots in {r['seconds']:.2f} s); chunk loop "
+                     f"{r['loop_shots_per_s']:.0f} shots/s")
+    return lines
 
 
 def format_summary(doc: dict) -> str:
@@ -205,13 +349,9 @@ def format_summary(doc: dict) -> str:
                      f"{r['returns_per_s'] / 1e6:>12.1f}{r['seconds']:>10.3f}")
     lines.append("(few photons per shot: the stage is bound by the traced returns it reads, "
                  "not by events)")
-    i = doc["integrator"]
-    lines.append(f"integrator: {i['paths_per_s'] / 1e6:.1f} M paths/s vs ray_intersect "
-                 f"{i['rays_per_s'] / 1e6:.1f} M rays/s on {i['triangles'] / 1e6:.2f} M triangles: "
-                 f"ratio {i['ratio_to_ceiling']:.2f}")
-    for r in doc["end_to_end"]:
-        lines.append(f"end to end, {r['beam']} beam: {r['shots_per_s']:.0f} shots/s "
-                     f"({r['shots']} shots in {r['seconds']:.2f} s)")
+    for variant, d in (doc.get("by_variant") or {doc["variant"]: doc}).items():
+        lines.append(f"-- {variant} on {d['device']}")
+        lines += _format_rates(d)
     for name, d in doc.get("accuracy_vs_time", {}).items():
         front = ", ".join(f"{r['knob']}={r['value']:g}: {100 * r['error_m']:.2f} cm in "
                           f"{r['seconds']:.2f} s" for r in accuracy.pareto_front(d["rows"]))
