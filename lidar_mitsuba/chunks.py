@@ -26,7 +26,7 @@ _DETECTOR_STREAM = 0x504D54         # 'PMT': keeps the detector's stream apart f
 
 #: ``source(first_shot, stop_shot, trace_seed) -> Returns`` of those shots (local shot
 #: indices); a source with a ``launch`` method of the same arguments returning an object
-#: with ``result()`` (:class:`traced`) lets :func:`run` overlap tracing and detecting
+#: with ``result()`` (:class:`TracedSource`) lets :func:`run` overlap tracing and detecting
 Source = Callable[[int, int, int], Returns]
 
 
@@ -61,15 +61,6 @@ def gate_center_ns(instrument: Instrument, z_ref_m: np.ndarray) -> np.ndarray:
     return 2.0 * (instrument.altitude_m - gate_heights_m(z_ref_m)) / C_M_PER_NS
 
 
-def traced(integrator, scene, *, x_m: np.ndarray, y_m: np.ndarray, paths_per_shot: int,
-           dx_m: np.ndarray | None = None, dy_m: np.ndarray | None = None,
-           dz_m: np.ndarray | None = None) -> "TracedSource":
-    """A source that traces shots at (``x_m``, ``y_m``) [m] in ``scene`` with ``integrator``
-    (:class:`TracedSource`)."""
-    return TracedSource(integrator, scene, x_m=x_m, y_m=y_m, paths_per_shot=paths_per_shot,
-                        dx_m=dx_m, dy_m=dy_m, dz_m=dz_m)
-
-
 class TracedSource:
     """A source that traces shots at (``x_m``, ``y_m``) [m] in ``scene`` with ``integrator``;
     when the positions were folded into a tile, ``dx_m``/``dy_m``/``dz_m`` (n_shots,) move the
@@ -100,6 +91,10 @@ class TracedSource:
 
     def __call__(self, a: int, b: int, seed: int) -> Returns:
         return self.launch(a, b, seed).result()
+
+
+#: ``chunks.traced(integrator, scene, x_m=..., y_m=..., paths_per_shot=...)``: the traced source
+traced = TracedSource
 
 
 def replayed(returns: Returns) -> Source:

@@ -92,10 +92,9 @@ def _vertex_bounds(shape) -> tuple[np.ndarray, np.ndarray]:
     lo = [dr.min(c) for c in (p.x, p.y, p.z)]
     hi = [dr.max(c) for c in (p.x, p.y, p.z)]
     dr.eval(finite, lo, hi)
-    if not bool(finite[0] if dr.is_array_v(finite) else finite):
+    if not bool(finite[0]):
         return np.full(3, np.nan), np.full(3, np.nan)
-    scalar = [float(c[0] if dr.is_array_v(c) else c) for c in lo + hi]
-    return np.array(scalar[:3]), np.array(scalar[3:])
+    return np.array([float(c[0]) for c in lo]), np.array([float(c[0]) for c in hi])
 
 
 def load_scene(source, *, params: dict | None = None) -> tuple[mi.Scene, str]:

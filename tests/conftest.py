@@ -1,14 +1,12 @@
-"""Shared fixtures. The Mitsuba variant is chosen once here (LIDAR_MITSUBA_VARIANT, default
-llvm_ad_mono); ``import lidar_mitsuba`` registers our plugins in it."""
-import os
-
+"""Shared fixtures. The Mitsuba variant is the one ``import lidar_mitsuba`` chose from
+LIDAR_MITSUBA_VARIANT (default llvm_ad_mono), with our plugins registered in it."""
+import mitsuba as mi
 import numpy as np
 import pytest
 
-import lidar_mitsuba
+import lidar_mitsuba  # noqa: F401
 
-VARIANT = os.environ.get("LIDAR_MITSUBA_VARIANT", lidar_mitsuba.DEFAULT_VARIANT)
-lidar_mitsuba.set_variant(VARIANT)
+VARIANT = mi.variant()        # import lidar_mitsuba applied LIDAR_MITSUBA_VARIANT
 
 
 @pytest.fixture

@@ -100,7 +100,7 @@ def bench_detector(*, quick: bool) -> list[dict]:
 def device_name() -> str:
     """What the active variant runs on: the GPU's name for CUDA variants (from nvidia-smi when
     it is there), else the CPU model and its core count."""
-    if mi.variant().startswith("cuda"):
+    if _on_gpu():
         try:
             out = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
                                  capture_output=True, text=True, timeout=20, check=True)
@@ -157,9 +157,8 @@ def bench_integrator(*, quick: bool) -> dict:
             doc.update(row)
         else:
             doc["two_bounces"] = row
-    lanes = Instrument().integrator_dict().get("max_lanes", 2 ** 23)
     rng = np.random.default_rng(3)
-    per = max(1, lanes // k)
+    per = max(1, integ.max_lanes // k)          # the single-bounce trace's launches
     batches = []
     top = float(tm.vertices[:, 2].max()) + 1.0
     for a in range(0, n_shots, per):
@@ -278,9 +277,8 @@ def _throughput_in_child(variant: str, out: pathlib.Path, quick: bool) -> dict:
     """Run the throughput bench of ``variant`` in a process of its own (one variant per
     process) and read its bench.json."""
     sub = out / variant
-    cmd = [sys.executable, "-c", "import sys; from lidar_mitsuba.cli import main; "
-           "sys.exit(main(sys.argv[1:]))", "bench", "--variant", variant, "--throughput-only",
-           "--out", str(sub)] + (["--quick"] if quick else [])
+    cmd = [sys.executable, "-m", "lidar_mitsuba_cli", "bench", "--variant", variant,
+           "--throughput-only", "--out", str(sub)] + (["--quick"] if quick else [])
     subprocess.run(cmd, check=True)
     return json.loads((sub / "bench.json").read_text())
 
