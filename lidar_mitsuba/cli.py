@@ -174,6 +174,25 @@ def build_parser() -> argparse.ArgumentParser:
         i, Instrument, types_={"dead_time_ns": _dead_time}))
     t = s.add_argument_group("track (default: along +x through the middle of the surface)")
     s.set_defaults(_track_opts=opts.add_options(t, Track, metavars={"start_xy_m": ("X", "Y")}))
+    d = s.add_argument_group("real terrain and orbit (--dem: a granule of up to six beams)")
+    d.add_argument("--dem", metavar="FILE.tif", help="GeoTIFF DEM in a projected CRS (metres); "
+                   "the track streams over it in corridor tiles")
+    d.add_argument("--track", metavar="LAT,LON,AZIMUTH|FILE",
+                   help="reference ground track: first shot and azimuth [deg, clockwise from "
+                   "north], or a file of lat, lon rows (a polyline)")
+    d.add_argument("--beams", default="all", metavar="all|strong|weak|gt1l,...",
+                   help="beams to simulate (all)")
+    d.add_argument("--sc-orient", type=int, choices=(0, 1), default=0,
+                   help="spacecraft orientation: 0 backward (left beams strong), 1 forward")
+    d.add_argument("--epoch", default="2019-06-01T00:00:00Z", metavar="UTC",
+                   help="time of the first shot (ISO 8601 UTC)")
+    d.add_argument("--roughness-relief-m", type=float, metavar="M",
+                   help="add fractal roughness below the DEM's posting with this relief")
+    d.add_argument("--roughness-p", type=float, default=1.8, metavar="P",
+                   help="spectral exponent of the roughness (1.8)")
+    d.add_argument("--mesh-grid-m", type=float, default=1.0, metavar="M",
+                   help="spacing of the corridor mesh (1 m)")
+    d.add_argument("--atl06", metavar="FILE.h5", help="also write ATL06 land-ice segments")
     r = s.add_argument_group("rendering")
     opts.add_options(r, simulate, only=RUN_OPTIONS, types_={"max_depth": _max_depth},
                      metavars={"max_depth": "N|auto", "variant": "NAME"})
@@ -252,6 +271,13 @@ def build_parser() -> argparse.ArgumentParser:
 def _cmd_simulate(a) -> int:
     out = _out_path(a.out, (".h5", ".hdf5"))
     plot = _out_path(a.plot, (".png",), "--plot") if a.plot else None
+    dem_only = {"--track": a.track, "--atl06": a.atl06,
+                "--roughness-relief-m": a.roughness_relief_m}
+    if a.dem is not None:
+        return _simulate_dem(a, out, plot)
+    for flag, value in dem_only.items():
+        if value is not None:
+            raise UsageError(flag, "only applies to --dem")
     from . import atl03
     from .retrieval import format_report
     from .simulate import simulate
@@ -351,6 +377,67 @@ def _finite(obj):
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
     return obj
+
+
+def _simulate_dem(a, out, plot) -> int:
+    """``simulate --dem``: a granule of up to six beams along a ground track."""
+    from . import dem as dems, geotrack, granule
+    atl06_out = _out_path(a.atl06, (".h5", ".hdf5"), "--atl06") if a.atl06 else None
+    if a.scene is not None:
+        raise UsageError("--scene", "give --dem or --scene, not both")
+    for name in list(opts.given(a, a._surface_opts)) + list(opts.given(a, a._track_opts)):
+        raise UsageError(opts.option_name(name), "does not apply to --dem (the DEM is the "
+                         "surface; --track sets the ground track)")
+    if a.define:
+        raise UsageError("-D", "only applies to --scene")
+    if a.track is None:
+        raise UsageError("--track", "is required with --dem (LAT,LON,AZIMUTH or a file)")
+    inst_opts = opts.given(a, a._instrument_opts)
+    if "beam" in inst_opts:
+        raise UsageError("--beam", "does not apply to --dem: use --beams")
+    run = opts.given(a, RUN_OPTIONS)
+    dem = dems.DEM.open(a.dem)
+    rough = None
+    if a.roughness_relief_m is not None:
+        rough = dems.roughness(p=a.roughness_p, relief_m=a.roughness_relief_m,
+                               posting_m=dem.posting_m, grid_m=a.mesh_grid_m,
+                               seed=run.get("seed", 0))
+    surface = dems.DEMSurface(dem, roughness=rough, mesh_grid_m=a.mesh_grid_m)
+    track = geotrack.GeoTrack.parse(a.track, epoch_utc=a.epoch)
+    beams = geotrack.select_beams(a.beams, a.sc_orient)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SimulationWarning)
+        g = granule.simulate_granule(surface=surface, track=track, beams=beams,
+                                     sc_orient=a.sc_orient, instrument_options=inst_opts,
+                                     progress=not a.no_progress,
+                                     shots=run.pop("shots", 1000), **run)
+    for r in g.beams:
+        for w in r.result.config["warnings"]:
+            sys.stderr.write(f"{PROG} simulate: warning: {r.beam.name}: {w}\n")
+    granule.write_atl03(g, out)
+    if atl06_out is not None:
+        granule.write_atl06(g, atl06_out)
+    print(f"{len(g.beams)} beam(s), {g.beams[0].result.n_shots} shots each, over {dem.path.name} "
+          f"({g.crs})")
+    print(f"  {'beam':5} {'spot':>4} {'type':6} {'signal':>8} {'bias [cm]':>14} "
+          f"{'precision [cm]':>14} {'time [s]':>8}")
+    for r in g.beams:
+        o = r.result.report(window_shots=a.window).overall
+        print(f"  {r.beam.name:5} {r.beam.spot:>4} {r.beam.strength:6} {o.n_photons:>8} "
+              f"{100 * o.bias_m:+7.2f} ± {100 * o.bias_se_m:4.2f} {100 * o.std_m:>14.2f} "
+              f"{r.result.timings_s['total_s']:>8.1f}")
+    if a.explain:
+        print("model:")
+        for line in g.beams[0].result.config["choices"]:
+            print(f"  - {line}")
+    print(f"wrote {out}")
+    if atl06_out is not None:
+        print(f"wrote {atl06_out}")
+    if plot is not None:
+        from .plotting import granule_clouds
+        granule_clouds(g, plot)
+        print(f"wrote {plot}")
+    return 0
 
 
 def _cmd_segments(a) -> int:

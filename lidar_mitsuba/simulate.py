@@ -278,12 +278,20 @@ def simulate(*, instrument: Instrument | None = None,
     # mesh only the corridor the photons can reach: footprints (5 sigma) for single bounce;
     # the receiver's field of view when paths may bounce on
     reach = margin if max_depth == 1 else max(margin, instrument.fov_diameter_m / 2 + 5.0)
-    bounds = None
-    if crop_to_track:
-        bounds = (float(x_loc.min()) - reach, float(x_loc.max()) + reach,
-                  float(y_loc.min()) - reach, float(y_loc.max()) + reach)
-    scene_, triangles = surf.mitsuba_scene(bsdf=bsdf if bsdf is not None else default_bsdf,
-                                           margin_m=reach, bounds_m=bounds)
+    bsdf_used = bsdf if bsdf is not None else default_bsdf
+    first_tile = None
+    if surf.streamed:       # a DEM: every chunk traces its own corridor tile
+        chunk_shots = min(chunk_shots, surf.tile_shots)
+        first_tile = surf.corridor_tile(x[:chunk_shots], y[:chunk_shots], reach_m=reach,
+                                        bsdf=bsdf_used)
+        scene_, (ox, oy), triangles = first_tile
+        x_loc, y_loc = x[:chunk_shots] - ox, y[:chunk_shots] - oy     # the pilot's tile
+    else:
+        bounds = None
+        if crop_to_track:
+            bounds = (float(x_loc.min()) - reach, float(x_loc.max()) + reach,
+                      float(y_loc.min()) - reach, float(y_loc.max()) + reach)
+        scene_, triangles = surf.mitsuba_scene(bsdf=bsdf_used, margin_m=reach, bounds_m=bounds)
     top = float(scn.scene_bounds(scene_)[1][2] + np.max(np.abs(dz), initial=0.0))
     if top + 1.0 >= instrument.altitude_m:
         raise ParameterError("altitude_m", f"the spacecraft ({instrument.altitude_m:g} m) must "
@@ -300,18 +308,26 @@ def simulate(*, instrument: Instrument | None = None,
     lanes = {} if max_lanes is None else {"max_lanes": int(max_lanes)}
     if max_depth == "auto":
         t1 = time.perf_counter()
+        n_pilot = x_loc.size           # a streamed surface's pilot runs on its first tile
         pilot = bounce_pilot.run_pilot(scene=scene_, instrument=instrument, x_m=x_loc, y_m=y_loc,
-                                       dz_m=dz, z_ref_m=z_ref, paths_per_shot=int(paths_per_shot))
+                                       dz_m=dz[:n_pilot], z_ref_m=z_ref[:n_pilot],
+                                       paths_per_shot=int(paths_per_shot))
         max_depth = 1 if pilot["single_bounce_enough"] else 2
         timings["pilot_s"] = time.perf_counter() - t1
     integrator = mi.load_dict(instrument.integrator_dict(max_depth=max_depth, **lanes))
     if keep_returns is None:
         keep_returns = shots * paths_per_shot * max_depth <= 2 ** 24
     gate_z = chunks.gate_heights_m(z_ref)
+    if surf.streamed:
+        source = chunks.CorridorSource(integrator, surf, x_m=x, y_m=y,
+                                       paths_per_shot=int(paths_per_shot), reach_m=reach,
+                                       bsdf=bsdf_used, first=first_tile)
+    else:
+        source = chunks.traced(integrator, scene_, x_m=x_loc, y_m=y_loc,
+                               paths_per_shot=int(paths_per_shot), dx_m=x - x_loc,
+                               dy_m=y - y_loc, dz_m=dz)
     run = chunks.run(
-        source=chunks.traced(integrator, scene_, x_m=x_loc, y_m=y_loc,
-                             paths_per_shot=int(paths_per_shot), dx_m=x - x_loc,
-                             dy_m=y - y_loc, dz_m=dz),
+        source=source,
         detectors={"run": instrument}, z_ref_m=z_ref, seed=seed, chunk_shots=chunk_shots,
         keep_returns=keep_returns, progress=progress)
     timings.update(run.timings_s)
@@ -326,7 +342,10 @@ def simulate(*, instrument: Instrument | None = None,
     choices, warns = _explain(instrument=instrument, surf=surf, max_depth=max_depth,
                               pilot=pilot, paths_per_shot=paths_per_shot, crop=crop_to_track,
                               triangles=triangles, det=det)
-    warns += _diagnose(surf=surf, scene=scene_, x_m=x_loc, y_m=y_loc, surface_z=surface_z,
+    if surf.streamed:
+        surf_cfg.update(tiles=source.tiles, max_tile_triangles=source.triangles)
+    warns += _diagnose(surf=surf, scene=scene_, x_m=x_loc, y_m=y_loc,
+                       surface_z=surface_z[:x_loc.size],
                        n_returns=run.n_returns, det=det, instrument=instrument)
     for w in warns:
         warnings.warn(w, SimulationWarning, stacklevel=2)

@@ -44,6 +44,8 @@ class Surface:
     exact_single_bounce: bool = False
     #: built-in surfaces take a BSDF; a scene has its own
     takes_bsdf: bool = True
+    #: traced in corridor tiles along the track (``corridor_tile``), never as one scene
+    streamed: bool = False
 
     def centre_xy_m(self) -> tuple[float, float]:
         """Where the middle of a default track goes [m]."""

@@ -1,0 +1,264 @@
+"""Ground tracks on the Earth and ICESat-2's six beams.
+
+A :class:`GeoTrack` is the reference ground track: a start latitude/longitude and azimuth
+(a geodesic on the WGS84 ellipsoid), or a polyline of (lat, lon) vertices (e.g. a reference
+ground track read from a file, :meth:`GeoTrack.from_file`), with shots every
+``shot_spacing_m`` along it and shot times at the instrument's PRF from ``epoch_utc``.
+
+The six beams (:func:`beam_layout`) fly in three pairs about it: pair centres 3.3 km apart
+across track (gt1 left of the reference track, gt2 on it, gt3 right, looking along the
+direction of travel), the two beams of a pair 90 m apart (``l`` left, ``r`` right). Which
+beam of a pair is strong follows the spacecraft orientation, as in ATL03's
+``orbit_info/sc_orient``: backward (0): the left beams are strong and gt1l..gt3r are ATLAS
+spots 1..6; forward (1): the right beams are strong and gt1l..gt3r are spots 6..1. Spots
+1, 3, 5 are strong (four times the energy of spots 2, 4, 6). The beams' along-track stagger
+(~2.5 km between the beams of a pair in orbit) is left out: all six fire at each shot time
+over the same along-track position.
+
+Times: ``delta_time`` [s] since the ATLAS Standard Data Product epoch, 2018-01-01T00:00:00Z
+(GPS seconds 1198800018; no leap second has occurred since, so UTC differences count it).
+"""
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import math
+import os
+import pathlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from .constants import ParameterError, check
+
+#: GPS seconds of the ATLAS SDP epoch 2018-01-01T00:00:00Z (ATL03 ancillary_data)
+ATLAS_SDP_GPS_EPOCH = 1198800018.0
+SDP_EPOCH_UTC = _dt.datetime(2018, 1, 1, tzinfo=_dt.timezone.utc)
+PAIR_SEPARATION_M = 3300.0
+BEAM_SEPARATION_M = 90.0
+
+
+@dataclass(frozen=True)
+class Beam:
+    """One ATLAS beam.
+
+    Attributes:
+        name: ground-track group name (``gt1l`` .. ``gt3r``).
+        spot: ATLAS spot number (1-6).
+        strength: ``"strong"`` or ``"weak"``.
+        across_m: offset from the reference ground track [m], positive to the left.
+    """
+    name: str
+    spot: int
+    strength: str
+    across_m: float
+
+    @property
+    def pce(self) -> int:
+        """The photon-counting electronics card of the spot (1: spots 1-2, 2: 3-4, 3: 5-6)."""
+        return (self.spot + 1) // 2
+
+
+def beam_layout(sc_orient: int = 0) -> list[Beam]:
+    """The six beams for spacecraft orientation ``sc_orient`` (0 backward, 1 forward)."""
+    check("sc_orient", sc_orient, sc_orient in (0, 1), "must be 0 (backward) or 1 (forward)")
+    out = []
+    for i, pair in enumerate((1, 2, 3)):
+        centre = (1 - i) * PAIR_SEPARATION_M
+        for j, side in enumerate("lr"):
+            k = 2 * i + j                                   # 0..5 left to right
+            spot = k + 1 if sc_orient == 0 else 6 - k
+            out.append(Beam(name=f"gt{pair}{side}", spot=spot,
+                            strength="strong" if spot % 2 else "weak",
+                            across_m=centre + (BEAM_SEPARATION_M / 2 if side == "l"
+                                               else -BEAM_SEPARATION_M / 2)))
+    return out
+
+
+def select_beams(spec: str, sc_orient: int = 0) -> list[Beam]:
+    """Beams by a CLI spec: ``all``, ``strong``, ``weak`` or names (``gt1l,gt2r``)."""
+    beams = beam_layout(sc_orient)
+    spec = spec.strip().lower()
+    if spec == "all":
+        return beams
+    if spec in ("strong", "weak"):
+        return [b for b in beams if b.strength == spec]
+    names = [s.strip() for s in spec.split(",") if s.strip()]
+    known = {b.name: b for b in beams}
+    bad = [n for n in names if n not in known]
+    if bad or not names:
+        raise ParameterError("beams", f"unknown beam {', '.join(bad) or repr(spec)}: use all, "
+                             f"strong, weak or names from {', '.join(known)}")
+    return [known[n] for n in dict.fromkeys(names)]
+
+
+def _geod():
+    from pyproj import Geod
+    return Geod(ellps="WGS84")
+
+
+def parse_utc(text: str) -> _dt.datetime:
+    """An ISO 8601 UTC time (``2019-06-01T12:00:00Z``); ``ParameterError`` (``epoch``)."""
+    try:
+        t = _dt.datetime.fromisoformat(str(text).replace("Z", "+00:00"))
+    except ValueError:
+        raise ParameterError("epoch", f"must be an ISO 8601 UTC time like "
+                             f"2019-06-01T12:00:00Z (got {text!r})") from None
+    if t.tzinfo is None:
+        t = t.replace(tzinfo=_dt.timezone.utc)
+    t = t.astimezone(_dt.timezone.utc)
+    if t < SDP_EPOCH_UTC:
+        raise ParameterError("epoch", f"must be after the ATLAS SDP epoch 2018-01-01 (got {text})")
+    return t
+
+
+@dataclass(frozen=True)
+class GeoTrack:
+    """A reference ground track on the WGS84 ellipsoid.
+
+    Attributes:
+        start_lat_deg, start_lon_deg: the first shot [deg] (with ``azimuth_deg``).
+        azimuth_deg: direction of travel at the start [deg], clockwise from north; the track
+            follows the geodesic.
+        polyline: ``((lat, lon), ...)`` vertices [deg] instead of a start and azimuth; shots
+            follow the geodesic segments between them from the first vertex.
+        epoch_utc: time of the first shot (ISO 8601 UTC).
+    """
+    start_lat_deg: float | None = None
+    start_lon_deg: float | None = None
+    azimuth_deg: float = 0.0
+    polyline: tuple[tuple[float, float], ...] | None = None
+    epoch_utc: str = "2019-06-01T00:00:00Z"
+
+    def __post_init__(self):
+        parse_utc(self.epoch_utc)
+        if self.polyline is not None:
+            pts = np.asarray(self.polyline, np.float64)
+            check("track", "polyline", pts.ndim == 2 and pts.shape[1] == 2 and len(pts) >= 2
+                  and np.isfinite(pts).all(), "a polyline needs >= 2 finite (lat, lon) vertices")
+            check("track", "polyline", (np.abs(pts[:, 0]) <= 90).all(),
+                  "latitudes must be in [-90, 90]")
+            object.__setattr__(self, "polyline", tuple(map(tuple, pts.tolist())))
+            return
+        lat, lon = self.start_lat_deg, self.start_lon_deg
+        ok = all(isinstance(v, (int, float)) and math.isfinite(v) for v in (lat, lon))
+        check("track", (lat, lon), ok and abs(lat) < 90, "needs a start latitude in (-90, 90) "
+              "and a longitude, or a polyline")
+        check("azimuth_deg", self.azimuth_deg, math.isfinite(self.azimuth_deg),
+              "must be a finite number")
+
+    @classmethod
+    def from_file(cls, path: str | os.PathLike, *, epoch_utc: str = "2019-06-01T00:00:00Z"
+                  ) -> "GeoTrack":
+        """A polyline from a text/CSV file of ``lat, lon`` rows [deg] (comma or whitespace
+        separated; a header row and ``#`` comments are skipped)."""
+        path = pathlib.Path(path)
+        if not path.is_file():
+            raise ParameterError("track", f"{path}: no such file")
+        rows = []
+        for line in path.read_text().splitlines():
+            line = line.split("#", 1)[0].strip()
+            if not line:
+                continue
+            fields = next(csv.reader([line])) if "," in line else line.split()
+            try:
+                lat, lon = (float(v) for v in fields[:2])
+            except ValueError:
+                if rows:
+                    raise ParameterError("track", f"{path}: bad row {line!r} (want lat, lon)") \
+                        from None
+                continue                                    # a header
+            rows.append((lat, lon))
+        if len(rows) < 2:
+            raise ParameterError("track", f"{path}: needs at least two (lat, lon) rows")
+        return cls(polyline=tuple(rows), epoch_utc=epoch_utc)
+
+    @classmethod
+    def parse(cls, text: str, *, epoch_utc: str = "2019-06-01T00:00:00Z") -> "GeoTrack":
+        """``LAT,LON,AZIMUTH`` [deg] or the path of a polyline file."""
+        parts = text.split(",")
+        if len(parts) == 3:
+            try:
+                lat, lon, az = (float(p) for p in parts)
+            except ValueError:
+                pass
+            else:
+                return cls(start_lat_deg=lat, start_lon_deg=lon, azimuth_deg=az,
+                           epoch_utc=epoch_utc)
+        if not pathlib.Path(text).is_file():
+            raise ParameterError("track", f"must be LAT,LON,AZIMUTH (degrees) or a file of "
+                                 f"lat, lon rows (got {text!r})")
+        return cls.from_file(text, epoch_utc=epoch_utc)
+
+    def shots(self, n_shots: int, *, spacing_m: float) -> tuple[np.ndarray, ...]:
+        """``(lat_deg, lon_deg, azimuth_deg, along_m)`` of the reference track's shots, each
+        (n_shots,) float64: positions every ``spacing_m`` along the track, the local direction
+        of travel [deg clockwise from north] and the distance from the first shot [m]."""
+        geod = _geod()
+        along = np.arange(int(n_shots), dtype=np.float64) * float(spacing_m)
+        if self.polyline is None:
+            lat0 = np.full(along.shape, self.start_lat_deg, np.float64)
+            lon0 = np.full(along.shape, self.start_lon_deg, np.float64)
+            az0 = np.full(along.shape, self.azimuth_deg, np.float64)
+            d = along
+        else:
+            pts = np.asarray(self.polyline, np.float64)
+            az_seg, _, seg_len = geod.inv(pts[:-1, 1], pts[:-1, 0], pts[1:, 1], pts[1:, 0])
+            ends = np.concatenate([[0.0], np.cumsum(seg_len)])
+            if along.size and along[-1] > ends[-1] + 1e-6:
+                raise ParameterError("shots", f"{n_shots} shots ({along[-1] / 1e3:.2f} km) run "
+                                     f"past the end of the track's polyline "
+                                     f"({ends[-1] / 1e3:.2f} km); use fewer shots")
+            k = np.clip(np.searchsorted(ends, along, side="right") - 1, 0, len(seg_len) - 1)
+            lat0, lon0 = pts[k, 0], pts[k, 1]
+            az0, d = np.asarray(az_seg)[k], along - ends[k]
+        lon, lat, back = geod.fwd(lon0, lat0, az0, d)
+        az = np.mod(np.asarray(back) + 180.0, 360.0)        # forward azimuth at each shot
+        return np.asarray(lat), np.asarray(lon), az, along
+
+    def to_dict(self) -> dict:
+        return {"start_lat_deg": self.start_lat_deg, "start_lon_deg": self.start_lon_deg,
+                "azimuth_deg": self.azimuth_deg,
+                "polyline": None if self.polyline is None else [list(p) for p in self.polyline],
+                "epoch_utc": self.epoch_utc}
+
+
+def beam_shots(lat_deg, lon_deg, azimuth_deg, beam: Beam) -> tuple[np.ndarray, np.ndarray]:
+    """The beam's footprint centres ``(lat, lon)`` [deg]: the reference track's shots moved
+    ``beam.across_m`` across track along the geodesic perpendicular to the direction of
+    travel (left for positive offsets)."""
+    if beam.across_m == 0:
+        return np.asarray(lat_deg, np.float64), np.asarray(lon_deg, np.float64)
+    az = np.asarray(azimuth_deg, np.float64) + (-90.0 if beam.across_m > 0 else 90.0)
+    lon, lat, _ = _geod().fwd(lon_deg, lat_deg, az, np.full(np.shape(az), abs(beam.across_m)))
+    return np.asarray(lat), np.asarray(lon)
+
+
+@dataclass(frozen=True)
+class ProjectedTrack:
+    """Precomputed shot positions in a surface's frame, in the shape
+    :func:`~lidar_mitsuba.simulate.simulate` takes as ``track``.
+
+    Attributes:
+        x_m, y_m: (n_shots,) footprint centres in the simulation frame [m].
+        along_m: (n_shots,) distance along the track from the first shot [m].
+        info: a JSON-serialisable description (recorded in the output).
+    """
+    x_m: np.ndarray
+    y_m: np.ndarray
+    along_m: np.ndarray
+    info: dict
+
+    def positions(self, n_shots: int, *, spacing_m: float, centre_xy_m=None):
+        if n_shots != self.x_m.size:
+            raise ParameterError("shots", f"the track has {self.x_m.size} shots, not {n_shots}")
+        return self.along_m, self.x_m, self.y_m
+
+    def to_dict(self) -> dict:
+        return dict(self.info)
+
+
+def delta_time_s(epoch_utc: str, n_shots: int, *, prf_hz: float) -> np.ndarray:
+    """(n_shots,) transmit time of each shot [s] since the ATLAS SDP epoch."""
+    t0 = (parse_utc(epoch_utc) - SDP_EPOCH_UTC).total_seconds()
+    return t0 + np.arange(int(n_shots), dtype=np.float64) / float(prf_hz)

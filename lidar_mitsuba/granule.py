@@ -1,0 +1,488 @@
+"""A granule: up to six ICESat-2 beams along a real ground track over a GeoTIFF DEM, written
+as ATL03 and ATL06 files with the field names, dtypes, units and attributes that ICESat-2
+readers use.
+
+>>> from lidar_mitsuba import dem, geotrack, granule
+>>> g = granule.simulate_granule(surface=dem.DEMSurface(dem.DEM.open("dem.tif")),
+...                              track=geotrack.GeoTrack(start_lat_deg=69.95, start_lon_deg=-45,
+...                                                      azimuth_deg=0), shots=2000)  # doctest: +SKIP
+>>> granule.write_atl03(g, "ATL03_sim.h5"); granule.write_atl06(g, "ATL06_sim.h5")  # doctest: +SKIP
+
+**ATL03** (``write_atl03``), per beam group ``gtXx``:
+
+* ``heights/``: one row per detected photon, in shot order: ``lat_ph``, ``lon_ph`` [deg]
+  (the footprint centre of the photon's shot: the beam points at nadir), ``h_ph`` [m, float32]
+  above the DEM's vertical datum, ``delta_time`` [s since 2018-01-01], ``dist_ph_along``
+  [m from the start of its 20 m geolocation segment], ``dist_ph_across`` [m, 0: the beam's own
+  track], ``signal_conf_ph`` (n, 5) int8, ``quality_ph`` int8 (0 nominal), ``ph_id_count``
+  (1-based index of the event in its channel and pulse), ``ph_id_channel`` (strong 1-16, weak
+  17-20), ``ph_id_pulse`` (1-200 within the 50 Hz major frame), ``pce_mframe_cnt``;
+* ``geolocation/``: one row per 20 m along-track segment from the track's start:
+  ``segment_id`` (1, 2, ...), ``segment_ph_cnt``, ``ph_index_beg`` (1-based, 0 when empty),
+  ``segment_dist_x`` [m from the first shot, not the equator], ``segment_length``,
+  ``reference_photon_lat/lon`` [deg] and ``delta_time`` of the shot nearest the segment's
+  centre, ``reference_photon_index``, ``ref_azimuth``, ``ref_elev`` [rad], ``sigma_h``,
+  ``surf_type``;
+* ``bckgrd_atlas/``: ``bckgrd_rate`` [Hz] (the modelled solar background reaching the
+  detector, every 50 shots) and ``delta_time``; ``geophys_corr/``: zeros for tides and
+  atmosphere (a simulation has none) and ``dem_h``, the DEM under each segment;
+* ``ancillary_data/`` (``atlas_sdp_gps_epoch``, start/end times, ``calibrations/dead_time``
+  per channel, ``tep``), ``atlas_impulse_response/`` (the modelled transmit pulse shape),
+  ``orbit_info/sc_orient``; beam attributes ``atlas_beam_type``, ``atlas_spot_number``,
+  ``atlas_pce``, ``groundtrack_id``, ``sc_orientation``.
+* ``/truth/gtXx/{photons,shots}``: the simulation truth as :mod:`lidar_mitsuba.atl03` writes
+  it for one beam, plus ``/truth`` attributes ``crs`` and ``frame_origin_m``: truth
+  positions are in the DEM's CRS less that origin.
+
+**ATL06** (``write_atl06``): ``gtXx/land_ice_segments/{h_li, h_li_sigma, latitude,
+longitude, delta_time, segment_id, atl06_quality_summary, sigma_geo_h}`` and the subgroups
+``fit_statistics``, ``bias_correction``, ``geophysical``, ``ground_track``, ``dem``, from
+:func:`lidar_mitsuba.atl06.segments_from_result` (40 m segments every 20 m).
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import pathlib
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from . import __version__, atl06, geotrack
+from .atl03 import _ds, atomic_h5file
+from .constants import FWHM_PER_SIGMA, ParameterError
+from .dem import DEMSurface
+from .geotrack import Beam, GeoTrack
+from .instrument import Instrument
+
+SEGMENT_M = 20.0            #: ATL03 geolocation segment length [m]
+PULSES_PER_MAJOR_FRAME = 200
+BCKGRD_SHOTS = 50           #: shots per ATL03 bckgrd_atlas row (200 Hz at 10 kHz)
+
+
+@dataclass
+class BeamRun:
+    """One beam of a granule.
+
+    Attributes:
+        beam: the :class:`~lidar_mitsuba.geotrack.Beam`.
+        result: its :class:`~lidar_mitsuba.simulate.SimulationResult` (positions in the
+            granule's frame).
+        lat_deg, lon_deg: (n_shots,) footprint centres [deg].
+        azimuth_deg: (n_shots,) direction of travel [deg clockwise from north].
+        delta_time_s: (n_shots,) transmit times [s since 2018-01-01T00:00:00Z].
+    """
+    beam: Beam
+    result: object
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    azimuth_deg: np.ndarray
+    delta_time_s: np.ndarray
+
+
+@dataclass
+class Granule:
+    """Beams simulated along one reference ground track over one DEM.
+
+    Attributes:
+        beams: the :class:`BeamRun` of each beam simulated.
+        sc_orient: spacecraft orientation (0 backward, 1 forward).
+        crs: the DEM's CRS; frame_origin_m: its (x, y) [m] at the simulation frame's origin.
+        track: the reference ground track.
+        config: the run's settings.
+    """
+    beams: list[BeamRun]
+    sc_orient: int
+    crs: str
+    frame_origin_m: tuple[float, float]
+    track: GeoTrack
+    config: dict = field(default_factory=dict)
+
+
+def simulate_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
+                     beams: str | list[Beam] = "all", sc_orient: int = 0,
+                     instrument_options: dict | None = None, seed: int = 0,
+                     paths_per_shot: int = 128, max_depth: int | str = "auto",
+                     progress: bool = True, **simulate_options) -> Granule:
+    """Simulate ``shots`` shots of each of ``beams`` along ``track`` over a DEM.
+
+    Args:
+        surface: the DEM surface (its ``origin_m`` is set here, near the track's start).
+        track: the reference ground track.
+        shots: shots per beam.
+        beams: ``"all"``, ``"strong"``, ``"weak"``, names (``"gt1l,gt2l"``) or a list of beams.
+        sc_orient: 0 backward (left beams strong), 1 forward.
+        instrument_options: :class:`~lidar_mitsuba.instrument.Instrument` fields shared by the
+            beams (``beam`` is set per beam: strong beams carry four times the weak ones' energy).
+        seed: the granule's seed; each beam runs with its own stream.
+        paths_per_shot, max_depth, progress, simulate_options: as
+            :func:`~lidar_mitsuba.simulate.simulate`.
+    """
+    from pyproj import Transformer
+    from .simulate import simulate
+    if isinstance(beams, str):
+        beams = geotrack.select_beams(beams, sc_orient)
+    opts = dict(instrument_options or {})
+    if "beam" in opts:
+        raise ParameterError("beam", "is set per beam in a granule (use beams=)")
+    base = Instrument(**opts)
+    lat0, lon0, az0, along = track.shots(shots, spacing_m=base.shot_spacing_m)
+    to_crs = Transformer.from_crs("EPSG:4326", surface.dem.crs, always_xy=True)
+    x0, y0 = to_crs.transform(lon0[:1], lat0[:1])
+    origin = (float(np.round(x0[0], -3)), float(np.round(y0[0], -3)))
+    surface = replace(surface, origin_m=origin)
+    times = geotrack.delta_time_s(track.epoch_utc, shots, prf_hz=base.prf_hz)
+    runs = []
+    for k, beam in enumerate(_beam_bar(beams, progress)):
+        lat, lon = geotrack.beam_shots(lat0, lon0, az0, beam)
+        x, y = to_crs.transform(lon, lat)
+        if not (np.isfinite(x).all() and np.isfinite(y).all()):
+            raise ParameterError("track", f"{beam.name}: the track leaves the DEM's projection "
+                                 f"({surface.dem.crs.to_string()})")
+        ptrack = geotrack.ProjectedTrack(
+            x_m=np.asarray(x) - origin[0], y_m=np.asarray(y) - origin[1], along_m=along,
+            info={"reference_track": track.to_dict(), "beam": beam.name,
+                  "across_m": beam.across_m})
+        beam_seed = int(np.random.SeedSequence([int(seed), beam.spot]).generate_state(1)[0])
+        try:
+            res = simulate(instrument=Instrument(**opts, beam=beam.strength), surface=surface,
+                           track=ptrack, shots=shots, seed=beam_seed,
+                           paths_per_shot=paths_per_shot, max_depth=max_depth,
+                           progress=progress, **simulate_options)
+        except ParameterError as e:
+            raise ParameterError(e.name, f"{beam.name}: {e.message}") from None
+        runs.append(BeamRun(beam=beam, result=res, lat_deg=np.asarray(lat),
+                            lon_deg=np.asarray(lon), azimuth_deg=az0, delta_time_s=times))
+    config = {"shots": int(shots), "seed": int(seed), "sc_orient": int(sc_orient),
+              "beams": [b.name for b in beams], "track": track.to_dict(),
+              "surface": surface.config(), "instrument_options": opts}
+    return Granule(beams=runs, sc_orient=int(sc_orient), crs=surface.dem.crs.to_string(),
+                   frame_origin_m=origin, track=track, config=config)
+
+
+def _beam_bar(beams, progress):
+    if not progress or len(beams) < 2:
+        return beams
+    from tqdm.auto import tqdm
+    return tqdm(beams, desc="beams", unit="beam", leave=False)
+
+
+# --------------------------------------------------------------------------- ATL03
+def _utc(delta_time_s: float) -> bytes:
+    t = geotrack.SDP_EPOCH_UTC + _dt.timedelta(seconds=float(delta_time_s))
+    return t.strftime("%Y-%m-%dT%H:%M:%S.%fZ").encode()
+
+
+def _gps_week_sow(delta_time_s: float) -> tuple[int, float]:
+    gps = geotrack.ATLAS_SDP_GPS_EPOCH + float(delta_time_s)
+    return int(gps // 604800), gps % 604800
+
+
+def _photon_order(res) -> np.ndarray:
+    """Photon order by shot (stable), so every segment's photons are contiguous."""
+    return np.argsort(res.detections.shot, kind="stable")
+
+
+def _ph_id_count(shot: np.ndarray, channel: np.ndarray) -> np.ndarray:
+    """1-based index of each event among the events of its shot and channel, in order."""
+    n = shot.size
+    if n == 0:
+        return np.zeros(0, np.int8)
+    key = shot.astype(np.int64) * 64 + channel.astype(np.int64)
+    order = np.argsort(key, kind="stable")
+    k = key[order]
+    start = np.r_[True, k[1:] != k[:-1]]
+    run_start = np.maximum.accumulate(np.where(start, np.arange(n), 0))
+    out = np.empty(n, np.int64)
+    out[order] = np.arange(n) - run_start + 1
+    return np.minimum(out, 127).astype(np.int8)
+
+
+def _segments(along_m: np.ndarray, photon_shot: np.ndarray):
+    """Per 20 m segment: index of its first photon, photon count, and the shot nearest
+    its centre. ``along_m`` (n_shots,) from the first shot; photons sorted by shot."""
+    n_seg = int(np.floor(along_m[-1] / SEGMENT_M)) + 1 if along_m.size else 0
+    seg_of_shot = np.floor(along_m / SEGMENT_M).astype(np.int64)
+    seg_of_photon = seg_of_shot[photon_shot]
+    count = np.bincount(seg_of_photon, minlength=n_seg)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    centre = (np.arange(n_seg) + 0.5) * SEGMENT_M
+    ref_shot = np.clip(np.searchsorted(along_m, centre), 0, along_m.size - 1)
+    prev = np.maximum(ref_shot - 1, 0)
+    closer = np.abs(along_m[prev] - centre) < np.abs(along_m[ref_shot] - centre)
+    ref_shot = np.where(closer, prev, ref_shot)
+    return seg_of_shot, first, count, ref_shot
+
+
+def write_atl03(granule: Granule, path: str | os.PathLike) -> pathlib.Path:
+    """Write ``granule`` as an ATL03 file (see the module docstring), atomically."""
+    path = pathlib.Path(path)
+    runs = granule.beams
+    t_first = min(float(r.delta_time_s[0]) for r in runs)
+    t_last = max(float(r.delta_time_s[-1]) for r in runs)
+    with atomic_h5file(path) as f:
+        f.attrs["short_name"] = "ATL03"
+        f.attrs["title"] = "SET_BY_LIDAR_MITSUBA: simulated ATLAS/ICESat-2 L2A Global " \
+                           "Geolocated Photon Data"
+        f.attrs["description"] = ("Simulated by lidar_mitsuba (first-principles Monte Carlo): "
+                                  "photon heights over a DEM; /truth holds the simulation truth")
+        f.attrs["lidar_mitsuba_version"] = __version__
+        f.attrs["config"] = json.dumps(granule.config)
+        f.attrs["time_coverage_start"] = _utc(t_first)
+        f.attrs["time_coverage_end"] = _utc(t_last)
+        _ancillary(f, runs, t_first, t_last)
+        _orbit_info(f, granule, t_first)
+        for r in runs:
+            _beam_atl03(f, r, granule.sc_orient)
+        f["truth"].attrs["crs"] = granule.crs
+        f["truth"].attrs["frame_origin_m"] = np.asarray(granule.frame_origin_m, np.float64)
+        f["truth"].attrs["description"] = (
+            "simulation truth per beam; positions x, y in the DEM CRS (attribute crs) less "
+            "frame_origin_m [m], z and heights above the DEM's vertical datum [m]")
+    return path
+
+
+def _ancillary(f, runs, t_first, t_last):
+    a = f.create_group("ancillary_data")
+    _ds(a, "atlas_sdp_gps_epoch", np.array([geotrack.ATLAS_SDP_GPS_EPOCH]), "seconds since "
+        "1980-01-06T00:00:00.000000Z", "GPS seconds of the ATLAS SDP epoch 2018-01-01")
+    for key, t in (("data_start_utc", t_first), ("granule_start_utc", t_first),
+                   ("data_end_utc", t_last), ("granule_end_utc", t_last)):
+        _ds(a, key, np.array([_utc(t)]), "1", f"{key[:-4].replace('_', ' ')} (UTC)")
+    for when, t in (("start", t_first), ("end", t_last)):
+        week, sow = _gps_week_sow(t)
+        _ds(a, f"{when}_gpsweek", np.array([week], np.int32), "weeks", "GPS week")
+        _ds(a, f"{when}_gpssow", np.array([sow]), "seconds", "GPS seconds of week")
+        for key in ("cycle", "geoseg", "orbit", "region", "rgt"):
+            _ds(a, f"{when}_{key}", np.array([0], np.int32), "1",
+                f"{key}: not applicable to a simulated track (0)")
+    _ds(a, "release", np.array([b"SIM"]), "1", "simulated: lidar_mitsuba")
+    _ds(a, "version", np.array([__version__.encode()]), "1", "lidar_mitsuba version")
+    tep = a.create_group("tep")
+    _ds(tep, "tep_valid_spot", np.array([1, 1, 3, 3, 5, 5], np.int8), "1",
+        "spot whose transmit pulse shape applies (every spot has the modelled shape)")
+    cal = a.create_group("calibrations")
+    dt = cal.create_group("dead_time")
+    fpb = cal.create_group("first_photon_bias")
+    fpb.attrs["description"] = ("no first-photon-bias tables: lidar_mitsuba's ATL06 corrects "
+                                "event by event (lidar_mitsuba.fpb)")
+    for r in runs:
+        inst = r.result.instrument
+        g = dt.create_group(r.beam.name)
+        _ds(g, "dead_time", np.full(inst.channels, inst.effective_dead_time_ns * 1e-9),
+            "seconds", "modelled dead time of each channel")
+        _ds(g, "sigma", np.zeros(inst.channels), "seconds", "dead time uncertainty (exact)")
+        fpb.create_group(r.beam.name)
+    imp = f.create_group("atlas_impulse_response")
+    sigma_ns = runs[0].result.instrument.pulse_sigma_ns
+    t_ns = np.arange(-5 * sigma_ns, 5 * sigma_ns, 0.025)
+    hist = np.exp(-0.5 * (t_ns / sigma_ns) ** 2)
+    for pce in ("pce1_spot1", "pce2_spot3"):
+        h = imp.create_group(f"{pce}/tep_histogram")
+        _ds(h, "tep_hist", hist / hist.sum(), "1", "modelled transmit pulse shape "
+            f"(Gaussian, FWHM {sigma_ns * FWHM_PER_SIGMA:g} ns), normalised")
+        _ds(h, "tep_hist_time", t_ns * 1e-9, "seconds", "bin centre time from the pulse centre")
+        _ds(h, "tep_tod", np.array([t_first]), "seconds since 2018-01-01", "histogram time")
+
+
+def _orbit_info(f, granule, t_first):
+    o = f.create_group("orbit_info")
+    _ds(o, "sc_orient", np.array([granule.sc_orient], np.int8), "1",
+        "spacecraft orientation: 0 backward (left beams strong), 1 forward, 2 transition")
+    _ds(o, "sc_orient_time", np.array([t_first]), "seconds since 2018-01-01",
+        "time of the orientation")
+    for key, dtype in (("rgt", np.int16), ("cycle_number", np.int8), ("orbit_number", np.uint16)):
+        _ds(o, key, np.array([0], dtype), "1", f"{key}: not applicable to a simulated track")
+
+
+def _beam_atl03(f, run: BeamRun, sc_orient: int):
+    res, beam = run.result, run.beam
+    inst, det = res.instrument, res.detections
+    order = _photon_order(res)
+    shot = det.shot[order].astype(np.int64)
+    channel = det.channel[order]
+    seg_of_shot, first, count, ref_shot = _segments(res.along_track_m, shot)
+    gt = f.create_group(beam.name)
+    gt.attrs.update({"atlas_beam_type": beam.strength, "atlas_spot_number": str(beam.spot),
+                     "atlas_pce": f"pce{beam.pce}", "groundtrack_id": beam.name,
+                     "sc_orientation": "Backward" if sc_orient == 0 else "Forward",
+                     "description": "one ATLAS beam: photons, geolocation, background"})
+    h = gt.create_group("heights")
+    _ds(h, "lat_ph", run.lat_deg[shot], "degrees_north",
+        "latitude of the photon: its shot's footprint centre (nadir pointing)")
+    _ds(h, "lon_ph", run.lon_deg[shot], "degrees_east", "longitude of the photon")
+    _ds(h, "h_ph", res.h_m[order].astype(np.float32), "meters",
+        "photon height above the DEM's vertical datum: altitude - c t / 2")
+    _ds(h, "delta_time", run.delta_time_s[shot], "seconds since 2018-01-01",
+        "transmit time of the photon's shot")
+    _ds(h, "dist_ph_along", (res.along_track_m[shot] - SEGMENT_M * seg_of_shot[shot])
+        .astype(np.float32), "meters", "along-track distance from the start of the segment")
+    _ds(h, "dist_ph_across", np.zeros(shot.size, np.float32), "meters",
+        "across-track distance from the beam's ground track (0: nadir pointing)")
+    conf = res.signal_conf[order].astype(np.int8)
+    _ds(h, "signal_conf_ph", np.repeat(conf[:, None], 5, axis=1), "counts",
+        "confidence (land, ocean, sea ice, land ice, inland water; one histogram test for all): "
+        "0 noise, 2 low, 3 medium, 4 high")
+    _ds(h, "quality_ph", np.zeros(shot.size, np.int8), "1", "0: nominal")
+    _ds(h, "ph_id_count", _ph_id_count(shot, channel), "counts",
+        "1-based index of the event in its channel and pulse")
+    base = 1 if beam.strength == "strong" else 17
+    _ds(h, "ph_id_channel", (channel.astype(np.int64) + base).astype(np.uint8), "1",
+        "channel: strong beam 1-16, weak beam 17-20")
+    _ds(h, "ph_id_pulse", (shot % PULSES_PER_MAJOR_FRAME + 1).astype(np.uint8), "counts",
+        "pulse number within the major frame (1-200)")
+    _ds(h, "pce_mframe_cnt", (shot // PULSES_PER_MAJOR_FRAME).astype(np.uint32), "counts",
+        "major frame counter (from 0 at the first shot)")
+
+    g = gt.create_group("geolocation")
+    n_seg = count.size
+    _ds(g, "segment_id", np.arange(1, n_seg + 1, dtype=np.int32), "1",
+        "20 m segment number, from 1 at the track's first shot")
+    _ds(g, "segment_ph_cnt", count.astype(np.int32), "counts", "photons in the segment")
+    _ds(g, "ph_index_beg", np.where(count > 0, first + 1, 0).astype(np.int64), "1",
+        "1-based index in heights/ of the segment's first photon (0: none)")
+    _ds(g, "segment_dist_x", SEGMENT_M * np.arange(n_seg, dtype=np.float64), "meters",
+        "along-track distance of the segment start from the track's first shot")
+    _ds(g, "segment_length", np.full(n_seg, SEGMENT_M), "meters", "segment length")
+    _ds(g, "reference_photon_lat", run.lat_deg[ref_shot], "degrees_north",
+        "footprint centre of the shot nearest the segment centre")
+    _ds(g, "reference_photon_lon", run.lon_deg[ref_shot], "degrees_east",
+        "footprint centre of the shot nearest the segment centre")
+    ref_ph = np.searchsorted(shot, ref_shot)
+    has = (ref_ph < shot.size) & (shot[np.minimum(ref_ph, max(shot.size - 1, 0))] == ref_shot) \
+        if shot.size else np.zeros(n_seg, bool)
+    _ds(g, "reference_photon_index", np.where(has, ref_ph - first + 1, 0).astype(np.int32),
+        "1", "1-based index in the segment of the reference shot's first photon (0: none)")
+    _ds(g, "delta_time", run.delta_time_s[ref_shot], "seconds since 2018-01-01",
+        "transmit time of the reference shot")
+    _ds(g, "ref_azimuth", np.deg2rad(run.azimuth_deg[ref_shot]).astype(np.float32), "radians",
+        "direction of travel, clockwise from north")
+    _ds(g, "ref_elev", np.full(n_seg, np.pi / 2, np.float32), "radians",
+        "elevation of the unit pointing vector (nadir pointing)")
+    _ds(g, "sigma_h", np.zeros(n_seg, np.float32), "meters", "height uncertainty from "
+        "geolocation (none in a simulation)")
+    _ds(g, "surf_type", np.tile(np.array([0, 0, 0, 1, 0], np.int8), (n_seg, 1)), "1",
+        "surface types (land, ocean, sea ice, land ice, inland water): land ice")
+
+    b = gt.create_group("bckgrd_atlas")
+    rows = np.arange(0, res.n_shots, BCKGRD_SHOTS)
+    _ds(b, "bckgrd_rate", np.full(rows.size, inst.background_mhz * 1e6, np.float32), "counts / "
+        "second", "modelled solar background rate reaching the detector")
+    _ds(b, "delta_time", run.delta_time_s[rows], "seconds since 2018-01-01",
+        "time of the 50-shot background period")
+
+    c = gt.create_group("geophys_corr")
+    _ds(c, "delta_time", run.delta_time_s[ref_shot], "seconds since 2018-01-01",
+        "segment time")
+    for key in ("dac", "tide_earth", "tide_load", "tide_ocean", "tide_pole",
+                "tide_equilibrium", "geoid", "dem_h"):
+        v = res.surface_z_m[ref_shot] if key == "dem_h" else np.zeros(n_seg)
+        _ds(c, key, v.astype(np.float32), "meters",
+            "DEM height at the reference shot" if key == "dem_h"
+            else f"{key}: not modelled in a simulation (0)")
+
+    _truth(f.require_group("truth").create_group(beam.name), res, order)
+
+
+def _truth(g, res, order):
+    det = res.detections
+    tp = g.create_group("photons")
+    _ds(tp, "shot", det.shot[order], "1", "shot index")
+    _ds(tp, "channel", det.channel[order], "1", "detector channel (0-based)")
+    _ds(tp, "is_signal", det.is_signal[order].astype(np.int8), "1", "1 signal, 0 noise")
+    _ds(tp, "time_ns", det.time_ns[order], "ns", "round-trip time from the pulse centre")
+    _ds(tp, "h_m", res.h_m[order], "meters", "photon height (float64)")
+    for j, axis in enumerate(("x", "y", "z")):
+        _ds(tp, f"hit_{axis}_m", det.hit_xyz_m[order, j], "meters",
+            f"{axis} of the scattering point in the simulation frame (NaN for noise)")
+    ts = g.create_group("shots")
+    _ds(ts, "along_track_m", res.along_track_m, "meters", "along-track distance")
+    _ds(ts, "x_m", res.shot_x_m, "meters", "footprint centre x (simulation frame)")
+    _ds(ts, "y_m", res.shot_y_m, "meters", "footprint centre y (simulation frame)")
+    _ds(ts, "z_ref_m", res.z_ref_m, "meters",
+        "reference elevation: Gaussian-footprint-weighted mean height")
+    _ds(ts, "surface_z_m", res.surface_z_m, "meters", "height at the footprint centre")
+    g.attrs["config"] = json.dumps(res.config)
+
+
+# --------------------------------------------------------------------------- ATL06
+#: ATL06 names of our segment fields: (subgroup or "" for land_ice_segments, name, dtype)
+_ATL06_NAMES = {
+    "h_li": ("", "h_li", np.float32), "h_li_sigma": ("", "h_li_sigma", np.float32),
+    "atl06_quality_summary": ("", "atl06_quality_summary", np.int8),
+    "dh_fit_dx": ("fit_statistics", "dh_fit_dx", np.float32),
+    "h_mean": ("fit_statistics", "h_mean", np.float32),
+    "sigma_h_mean": ("fit_statistics", "sigma_h_mean", np.float32),
+    "h_robust_sprd": ("fit_statistics", "h_robust_sprd", np.float32),
+    "h_rms_misfit": ("fit_statistics", "h_rms_misfit", np.float32),
+    "n_fit_photons": ("fit_statistics", "n_fit_photons", np.int32),
+    "n_seg_pulses": ("fit_statistics", "n_seg_pulses", np.float32),
+    "w_surface_window_final": ("fit_statistics", "w_surface_window_final", np.float32),
+    "snr": ("fit_statistics", "snr", np.float32),
+    "fpb_corr_m": ("bias_correction", "fpb_mean_corr", np.float32),
+    "fpb_corr_sigma_m": ("bias_correction", "fpb_mean_corr_sigma", np.float32),
+    "fpb_med_corr_m": ("bias_correction", "fpb_med_corr", np.float32),
+    "fpb_n_corr": ("bias_correction", "fpb_n_corr", np.float32),
+    "bckgrd": ("geophysical", "bckgrd", np.float32),
+    "x_atc": ("ground_track", "x_atc", np.float64),
+    "h_ref_m": ("dem", "h_ref_m", np.float32),
+}
+
+
+def write_atl06(granule: Granule, path: str | os.PathLike, **options) -> pathlib.Path:
+    """Fit ATL06 segments to every beam (:func:`lidar_mitsuba.atl06.segments_from_result`,
+    ``options`` passed on) and write them with ATL06's names, atomically."""
+    path = pathlib.Path(path)
+    runs = granule.beams
+    t_first = min(float(r.delta_time_s[0]) for r in runs)
+    t_last = max(float(r.delta_time_s[-1]) for r in runs)
+    with atomic_h5file(path) as f:
+        f.attrs["short_name"] = "ATL06"
+        f.attrs["description"] = ("Simulated land-ice heights (lidar_mitsuba.atl06: 40 m "
+                                  "segments every 20 m, first-photon-bias corrected)")
+        f.attrs["lidar_mitsuba_version"] = __version__
+        f.attrs["config"] = json.dumps(granule.config)
+        _ancillary(f, runs, t_first, t_last)
+        li = f["ancillary_data"].create_group("land_ice")
+        _ds(li, "t_dead", np.array([runs[0].result.instrument.effective_dead_time_ns * 1e-9]),
+            "seconds", "dead time used by the first-photon-bias correction")
+        _orbit_info(f, granule, t_first)
+        qa = f.create_group("quality_assessment")
+        _ds(qa, "qa_granule_pass_fail", np.array([0], np.int8), "1", "0: pass")
+        for r in runs:
+            _beam_atl06(f, r, granule.sc_orient, options)
+    return path
+
+
+def _beam_atl06(f, run: BeamRun, sc_orient: int, options: dict):
+    table = atl06.segments_from_result(run.result, **options)
+    beam = run.beam
+    gt = f.create_group(beam.name)
+    gt.attrs.update({"atlas_beam_type": beam.strength, "atlas_spot_number": str(beam.spot),
+                     "atlas_pce": f"pce{beam.pce}", "groundtrack_id": beam.name,
+                     "sc_orientation": "Backward" if sc_orient == 0 else "Forward"})
+    li = gt.create_group("land_ice_segments")
+    for sub in ("fit_statistics", "bias_correction", "geophysical", "ground_track", "dem"):
+        li.create_group(sub)
+    # segment centre -> the shot nearest it, for position and time
+    along = run.result.along_track_m
+    i = np.clip(np.searchsorted(along, table.x_atc), 0, along.size - 1)
+    _ds(li, "segment_id", np.asarray(table.segment_id, np.int32), "1",
+        "segment number: the segment spans 20 m ATL03 segments segment_id and segment_id + 1")
+    _ds(li, "latitude", run.lat_deg[i], "degrees_north", "latitude of the segment centre")
+    _ds(li, "longitude", run.lon_deg[i], "degrees_east", "longitude of the segment centre")
+    _ds(li, "delta_time", run.delta_time_s[i], "seconds since 2018-01-01",
+        "time of the segment centre")
+    _ds(li, "sigma_geo_h", np.zeros(len(table), np.float32), "meters",
+        "height error from geolocation (none in a simulation)")
+    for ours, (sub, name, dtype) in _ATL06_NAMES.items():
+        units, desc = atl06.FIELDS[ours]
+        v = np.asarray(getattr(table, ours))
+        if np.issubdtype(dtype, np.floating):
+            v = np.where(np.isfinite(v), v, np.finfo(dtype).max)   # ATL06's fill value
+        ds = _ds(li[sub] if sub else li, name, v.astype(dtype), units, desc)
+        if np.issubdtype(dtype, np.floating):
+            ds.attrs["_FillValue"] = np.finfo(dtype).max.astype(dtype)
+    _ds(li["ground_track"], "y_atc", np.full(len(table), run.beam.across_m, np.float32),
+        "meters", "across-track offset of the beam from the reference ground track")
