@@ -118,8 +118,9 @@ class DEM:
                      f"a DEM window of {col1 - col0 + 1} x {row1 - row0 + 1} pixels",
                      "use a shorter track chunk")
         win = rio.windows.Window(col0, row0, col1 - col0 + 1, row1 - row0 + 1)
-        with rio.open(self.path) as ds:
-            z = ds.read(1, window=win, boundless=True, masked=True,
+        inside = col0 >= 0 and row0 >= 0 and col1 < self.width and row1 < self.height
+        with rio.open(self.path) as ds:         # (boundless reads go through a slow VRT)
+            z = ds.read(1, window=win, boundless=not inside, masked=True,
                         fill_value=self.nodata if self.nodata is not None else np.nan)
         z = np.ma.filled(z.astype(np.float64), np.nan)
         z[~np.isfinite(z)] = np.nan
@@ -192,14 +193,15 @@ class DEMSurface(Surface):
             object.__setattr__(self, "mesh_grid_m", float(self.roughness.grid_m))
 
     # ---------------------------------------------------------------- heights
-    def _blocks(self, x_m, y_m, pad_m: float):
+    def _blocks(self, x_m, y_m, pad_m: float, block: int | None = None):
         """Yield ``(slice, z, origin)`` over consecutive blocks of points, each block's DEM
         window (:meth:`DEM.read_window`) read once (points along a track are local in
         blocks); ``z`` is None for a block without a finite point."""
         x = np.asarray(x_m, np.float64).ravel()
         y = np.asarray(y_m, np.float64).ravel()
-        for a in range(0, x.size, self.tile_shots):
-            s = slice(a, min(x.size, a + self.tile_shots))
+        block = block or self.tile_shots
+        for a in range(0, x.size, block):
+            s = slice(a, min(x.size, a + block))
             xs, ys = x[s], y[s]
             ok = np.isfinite(xs) & np.isfinite(ys)
             if not ok.any():
@@ -209,27 +211,37 @@ class DEMSurface(Surface):
                                              ys[ok].min() - pad_m, ys[ok].max() + pad_m)
             yield s, z, origin
 
-    def _dem_at(self, x_m, y_m, offsets_m) -> np.ndarray:
+    def _dem_at(self, x_m, y_m, offsets_m, weights=None, block: int | None = None
+                ) -> np.ndarray:
         """DEM heights [m] at every point shifted by each ``(dx, dy)`` of ``offsets_m``:
-        shape ``(len(offsets_m),) + broadcast shape``; NaN over nodata or off the DEM. One
-        window read per block of points covers all the shifts."""
+        shape ``(len(offsets_m),) + broadcast shape``, or with ``weights`` (one per offset)
+        their weighted sum, of the broadcast shape (no per-offset array is held); NaN over
+        nodata or off the DEM. One window read per block of points covers all the shifts."""
         x, y = np.broadcast_arrays(np.asarray(x_m, np.float64) + self.origin_m[0],
                                    np.asarray(y_m, np.float64) + self.origin_m[1])
         offs = np.asarray(offsets_m, np.float64).reshape(-1, 2)
         pad = float(np.abs(offs).max(initial=0.0))
         xf, yf = x.ravel(), y.ravel()
-        out = np.full((len(offs), xf.size), np.nan)
+        rows = 1 if weights is not None else len(offs)
+        out = np.full((rows, xf.size), np.nan)
         g = self.dem.posting_m
-        for s, z, (ox, oy) in self._blocks(xf, yf, pad):
+        for s, z, (ox, oy) in self._blocks(xf, yf, pad, block):
             if z is None:
                 continue
-            for k, (dx, dy) in enumerate(offs):
-                out[k, s] = _bilinear_nan(z, g, xf[s] + dx - ox, yf[s] + dy - oy)
-        return out.reshape((len(offs),) + x.shape)
+            px, py = xf[s] - ox, yf[s] - oy
+            if weights is None:
+                for k, (dx, dy) in enumerate(offs):
+                    out[k, s] = _bilinear_nan(z, g, px + dx, py + dy)
+            else:
+                out[0, s] = sum(w * _bilinear_nan(z, g, px + dx, py + dy)
+                                for w, (dx, dy) in zip(weights, offs))
+        return out.reshape(x.shape) if weights is not None else out.reshape((rows,) + x.shape)
 
-    def height_m(self, x_m, y_m) -> np.ndarray:
-        """DEM (+ roughness) height at each point [m]; NaN over nodata or off the DEM."""
-        z = self._dem_at(x_m, y_m, [(0.0, 0.0)])[0]
+    def height_m(self, x_m, y_m, *, block: int | None = None) -> np.ndarray:
+        """DEM (+ roughness) height at each point [m]; NaN over nodata or off the DEM.
+        ``block``: points per DEM window read (default ``tile_shots``; points in a block
+        should be near each other)."""
+        z = self._dem_at(x_m, y_m, [(0.0, 0.0)], block=block)[0]
         if self.roughness is not None:
             z = z + self.roughness.height_m(x_m, y_m)
         return z
@@ -242,8 +254,7 @@ class DEMSurface(Surface):
         t, w = np.polynomial.hermite_e.hermegauss(_GH_NODES)
         w = w / w.sum()
         offs = [(sigma_m * ti, sigma_m * tj) for ti in t for tj in t]
-        weights = np.outer(w, w).ravel()
-        z = np.tensordot(weights, self._dem_at(x_m, y_m, offs), axes=1)
+        z = self._dem_at(x_m, y_m, offs, weights=np.outer(w, w).ravel())
         if self.roughness is not None:
             z = z + self.roughness.reference_elevation_m(x_m, y_m, sigma_m=sigma_m)
         return z
@@ -299,7 +310,7 @@ class DEMSurface(Surface):
         A, Cc = np.meshgrid(a, c)                     # (nc, na), rows across
         lx = A * ux + Cc * vx
         ly = A * uy + Cc * vy
-        z = self.height_m(ox + lx, oy + ly)
+        z = self.height_m(ox + lx, oy + ly, block=lx.size)       # one window per tile
         if not np.isfinite(z).all():
             bad = np.flatnonzero(~np.isfinite(z.ravel()))[0]
             raise ParameterError(
@@ -375,9 +386,9 @@ def synthetic_ice_sheet(path: str | os.PathLike, *, lat_deg: float = 70.0,
         lon_deg, lat_deg)
     nx = int(round(width_m / posting_m)) + 1
     ny = int(round(length_m / posting_m)) + 1
-    n = 1 << max(nx, ny).bit_length()
+    n = min(1 << max(nx, ny).bit_length(), 2048)     # a longer DEM repeats the undulations
     und = terrain.fractal(p=2.0, size_m=n * posting_m, grid_m=posting_m, relief_m=40.0,
-                          seed=seed).z_m[:ny, :nx]
+                          seed=seed).z_m[np.ix_(np.arange(ny) % n, np.arange(nx) % n)]
     x = cx - width_m / 2 + np.arange(nx) * posting_m
     y = cy + length_m / 2 - np.arange(ny) * posting_m          # rows north to south
     X, Y = np.meshgrid(x, y)

@@ -149,7 +149,7 @@ def simulate_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
             res = simulate(instrument=Instrument(**opts, beam=beam.strength), surface=surface,
                            track=ptrack, shots=shots, seed=beam_seed,
                            paths_per_shot=paths_per_shot, max_depth=max_depth,
-                           progress=progress, **simulate_options)
+                           progress=progress, **{"keep_returns": False, **simulate_options})
         except ParameterError as e:
             raise ParameterError(e.name, f"{beam.name}: {e.message}") from None
         runs.append(BeamRun(beam=beam, result=res, lat_deg=np.asarray(lat),

@@ -68,6 +68,12 @@ def test_bench_quick(bench_run):
     assert simp["auto_max_depth"] == [2]    # the default p = 1.8 snow needs the second bounce
     crop = simp["rows"][0]        # the corridor crop is exact: photon for photon the same
     assert crop["d_bias_m"] == 0.0 and crop["d_std_m"] == 0.0
+    # the DEM track-length rows: one process each, tiles in proportion to the length
+    tl = doc["track_length"]
+    assert [r["length_km"] for r in tl] == [1.0, 4.0]
+    assert all(r["peak_rss_mb"] >= r["rss_before_mb"] > 0 and r["photons"] > 0 for r in tl)
+    assert tl[1]["tiles"] > tl[0]["tiles"] and "DEM track 4 km" in printed
+    assert (out / "track_length.png").stat().st_size > 10_000
     if "rows" in doc["peer"]:     # mitransient installed (the test extra has it)
         assert (out / "peer.png").stat().st_size > 10_000
         assert all(math.isfinite(r["error"]) and r["seconds"] > 0 for r in doc["peer"]["rows"])

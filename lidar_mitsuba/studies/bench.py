@@ -312,12 +312,15 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False,
         doc["accuracy_vs_time"] = accuracy.run(quick=quick)
         doc["simplifications"] = accuracy.simplifications(quick=quick)
         doc["peer"] = peer.run(quick=quick)
+        from . import track_length
+        doc["track_length"] = track_length.run(out=out, quick=quick)
     (out / "bench.json").write_text(json.dumps(doc, indent=1, default=float))
     _chart(doc, out / "throughput.png")
     if not throughput_only:
         breaking_points.chart(doc["stability"], out / "stability.png")
         accuracy.chart(doc["accuracy_vs_time"], out / "accuracy_vs_time.png")
         peer.chart(doc["peer"], out / "peer.png")
+        track_length.chart(doc["track_length"], out / "track_length.png")
     return doc
 
 
@@ -358,6 +361,11 @@ def format_summary(doc: dict) -> str:
         lines.append(accuracy.format_simplifications(doc["simplifications"]))
     if "peer" in doc:
         lines.append(peer.format_summary(doc["peer"]))
+    for r in doc.get("track_length", []):
+        lines.append(f"DEM track {r['length_km']:g} km ({r['shots']} shots, {r['tiles']} tiles): "
+                     f"{r['shots_per_s']:.0f} shots/s, peak RSS {r['peak_rss_mb']:.0f} MB "
+                     f"(before {r['rss_before_mb']:.0f}, result arrays {r['result_mb']:.0f}, "
+                     f"working {r['working_mb']:.0f})")
     for name, rows in doc.get("stability", {}).items():
         bad = [f"{r['value']:g}: {r['status']}" for r in rows
                if not str(r.get("status", "ok")).startswith("ok")]

@@ -1,0 +1,120 @@
+"""Memory and time against track length over a DEM (issue 13): one beam along a meridian of
+a long synthetic ice-sheet DEM, each length in a fresh process so its peak RSS is its own.
+
+Reported per length: shots, wall time, shots/s, the process's peak RSS, its RSS before the
+run (imports, DEM opened), and the bytes of the result the run hands back (per-shot truth
+and per-photon arrays, which grow with the track by design). ``working_mb`` = peak - before
+- result is what the streaming keeps flat: the corridor tiles, traces and detector state.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import resource
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+#: the long test DEM: 10 km wide along the -45 meridian (a straight line x = 0 in EPSG:3413)
+DEM_WIDTH_M = 10_000.0
+DEM_POSTING_M = 100.0
+START_LAT = 65.0
+
+
+def make_dem(path: pathlib.Path, length_km: float) -> pathlib.Path:
+    """A DEM long enough for a ``length_km`` track north from 65 N along -45 E."""
+    from .. import dem
+    from pyproj import Geod, Transformer
+    lon1, lat1, _ = Geod(ellps="WGS84").fwd(-45.0, START_LAT, 0.0, length_km * 1e3)
+    to = Transformer.from_crs("EPSG:4326", "EPSG:3413", always_xy=True)
+    _, y0 = to.transform(-45.0, START_LAT)
+    _, y1 = to.transform(-45.0, lat1)
+    pad = 5_000.0
+    length = abs(y1 - y0) + 2 * pad
+    mid_lon, mid_lat = Transformer.from_crs("EPSG:3413", "EPSG:4326", always_xy=True).transform(
+        0.0, 0.5 * (y0 + y1))
+    return dem.synthetic_ice_sheet(path, lat_deg=mid_lat, lon_deg=mid_lon, width_m=DEM_WIDTH_M,
+                                   length_m=length, posting_m=DEM_POSTING_M, hole=False)
+
+
+def _result_bytes(res) -> int:
+    d = res.detections
+    arrays = [res.along_track_m, res.shot_x_m, res.shot_y_m, res.surface_z_m, res.z_ref_m,
+              res.h_m, res.signal_conf] + [getattr(d, k) for k in vars(d)
+                                           if isinstance(getattr(d, k), np.ndarray)]
+    return int(sum(a.nbytes for a in arrays))
+
+
+def measure(dem_path: str, length_km: float) -> dict:
+    """Run one length in this process (call in a fresh one)."""
+    import lidar_mitsuba  # noqa: F401  (libLLVM, variant)
+    from .. import dem, geotrack, granule
+    surf = dem.DEMSurface(dem.DEM.open(dem_path))
+    shots = int(round(length_km * 1e3 / 0.7))
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    t0 = time.perf_counter()
+    g = granule.simulate_granule(
+        surface=surf, track=geotrack.GeoTrack(start_lat_deg=START_LAT, start_lon_deg=-45.0,
+                                              azimuth_deg=0.0),
+        shots=shots, beams="gt2l", max_depth=1, progress=False, paths_per_shot=64)
+    seconds = time.perf_counter() - t0
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    res = g.beams[0].result
+    result_mb = _result_bytes(res) / 2 ** 20
+    return {"length_km": float(length_km), "shots": shots, "seconds": seconds,
+            "shots_per_s": shots / seconds, "peak_rss_mb": peak, "rss_before_mb": before,
+            "result_mb": result_mb, "working_mb": peak - before - result_mb,
+            "tiles": res.config["surface"]["tiles"],
+            "photons": int(res.detections.shot.size)}
+
+
+def run(*, out: pathlib.Path, quick: bool) -> list[dict]:
+    """Every length in its own process; the DEM is made once for the longest."""
+    lengths = (1.0, 4.0) if quick else (10.0, 100.0, 1000.0)
+    out.mkdir(parents=True, exist_ok=True)
+    path = make_dem(out / "long_dem.tif", max(lengths))
+    rows = []
+    for km in lengths:
+        p = subprocess.run([sys.executable, "-m", "lidar_mitsuba.studies.track_length",
+                            str(path), str(km)], check=True, capture_output=True, text=True)
+        rows.append(json.loads(p.stdout.strip().splitlines()[-1]))
+    path.unlink()
+    return rows
+
+
+def chart(rows: list[dict], path: pathlib.Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    km = [r["length_km"] for r in rows]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.8), dpi=110)
+    a.plot(km, [r["peak_rss_mb"] for r in rows], "o-", label="peak RSS")
+    a.plot(km, [r["working_mb"] + r["rss_before_mb"] for r in rows], "s--",
+           label="peak RSS less the result arrays")
+    a.plot(km, [r["rss_before_mb"] for r in rows], ":", color="0.5", label="before the run")
+    a.set_xscale("log")
+    a.set_xlabel("track length [km]")
+    a.set_ylabel("memory [MB]")
+    a.set_title("memory vs track length (one strong beam)")
+    a.legend(fontsize=8)
+    a.grid(alpha=0.3)
+    b.plot(km, [r["shots_per_s"] for r in rows], "o-")
+    b.set_xscale("log")
+    b.set_xlabel("track length [km]")
+    b.set_ylabel("shots / s (whole run)")
+    b.set_title("throughput vs track length")
+    b.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser()
+    ap.add_argument("dem")
+    ap.add_argument("km", type=float)
+    a = ap.parse_args()
+    print(json.dumps(measure(a.dem, a.km)))
