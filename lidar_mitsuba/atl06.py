@@ -389,7 +389,8 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
                  gate_center_h_m: np.ndarray | None = None, footprint_sigma_m: float = 0.0,
                  initial_window_m: float = 10.0, min_window_m: float = 3.0,
                  max_iterations: int = 20, min_photons: int = 10,
-                 min_alive_pulses: float = 3.0, max_gain: float = 5.0) -> SegmentTable:
+                 min_alive_pulses: float = 3.0, max_gain: float = 5.0,
+                 x0_m: float | None = None) -> SegmentTable:
     """ATL06-style segments from detected photons (see the module docstring).
 
     Args:
@@ -416,6 +417,8 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
             this correction still removes 97 % of the bias; and any threshold on this noisy
             per-segment minimum biases the kept segments, so it is set where it rarely fires.)
         max_gain: flag ``fpb_gain`` when the corrected / observed count exceeds it.
+        x0_m: along-track origin of the segment grid [m] (centres at ``x0 + 20 (k + 1)``);
+            default the first shot's. A track fitted in sections passes the whole track's.
     """
     along = np.asarray(photon_along_m, np.float64)
     h = np.asarray(h_m, np.float64)
@@ -446,7 +449,7 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
     if n_shots == 0:
         centres = np.zeros(0)
     else:
-        x0, x1 = shot_along[0], shot_along[-1]
+        x0, x1 = (shot_along[0] if x0_m is None else float(x0_m)), shot_along[-1]
         n_seg = int(math.floor((x1 - x0 - segment_length_m) / segment_step_m + 1e-9)) + 1
         centres = x0 + half + segment_step_m * np.arange(max(n_seg, 0))
     gate = None if gate_center_h_m is None else np.asarray(gate_center_h_m, np.float64)

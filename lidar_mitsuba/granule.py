@@ -72,6 +72,8 @@ class BeamRun:
         lat_deg, lon_deg: (n_shots,) footprint centres [deg].
         azimuth_deg: (n_shots,) direction of travel [deg clockwise from north].
         delta_time_s: (n_shots,) transmit times [s since 2018-01-01T00:00:00Z].
+        first_shot: index of the result's first shot in the whole track (a streamed granule
+            is simulated and written in sections; :func:`simulate_granule`: 0).
     """
     beam: Beam
     result: object
@@ -79,6 +81,7 @@ class BeamRun:
     lon_deg: np.ndarray
     azimuth_deg: np.ndarray
     delta_time_s: np.ndarray
+    first_shot: int = 0
 
 
 @dataclass
@@ -179,6 +182,24 @@ def _gps_week_sow(delta_time_s: float) -> tuple[int, float]:
     return int(gps // 604800), gps % 604800
 
 
+def _put(group, name, data, units, description):
+    """Create a resizable, compressed dataset, or append ``data`` to it along axis 0 (a
+    streamed granule writes each section's rows after the last)."""
+    data = np.asarray(data)
+    if name in group:
+        d = group[name]
+        n = d.shape[0]
+        d.resize(n + data.shape[0], axis=0)
+        d[n:] = data
+        return d
+    d = group.create_dataset(name, data=data, maxshape=(None,) + data.shape[1:],
+                             chunks=(16384,) + data.shape[1:], compression="gzip",
+                             compression_opts=1, shuffle=True)
+    d.attrs["units"] = units
+    d.attrs["description"] = description
+    return d
+
+
 def _photon_order(res) -> np.ndarray:
     """Photon order by shot (stable), so every segment's photons are contiguous."""
     return np.argsort(res.detections.shot, kind="stable")
@@ -200,19 +221,21 @@ def _ph_id_count(shot: np.ndarray, channel: np.ndarray) -> np.ndarray:
 
 
 def _segments(along_m: np.ndarray, photon_shot: np.ndarray):
-    """Per 20 m segment: index of its first photon, photon count, and the shot nearest
-    its centre. ``along_m`` (n_shots,) from the first shot; photons sorted by shot."""
-    n_seg = int(np.floor(along_m[-1] / SEGMENT_M)) + 1 if along_m.size else 0
+    """The 20 m segments ``k0 .. k0 + n - 1`` the shots fall in (``along_m`` (n_shots,) from
+    the track's first shot): each shot's segment, the index of each segment's first photon
+    and its photon count (photons sorted by shot, ``photon_shot`` local), the shot nearest
+    each segment's centre, and ``k0``."""
     seg_of_shot = np.floor(along_m / SEGMENT_M).astype(np.int64)
-    seg_of_photon = seg_of_shot[photon_shot]
-    count = np.bincount(seg_of_photon, minlength=n_seg)
+    k0 = int(seg_of_shot[0]) if along_m.size else 0
+    n_seg = int(seg_of_shot[-1]) - k0 + 1 if along_m.size else 0
+    count = np.bincount(seg_of_shot[photon_shot] - k0, minlength=n_seg)
     first = np.concatenate([[0], np.cumsum(count)[:-1]])
-    centre = (np.arange(n_seg) + 0.5) * SEGMENT_M
+    centre = (k0 + np.arange(n_seg) + 0.5) * SEGMENT_M
     ref_shot = np.clip(np.searchsorted(along_m, centre), 0, along_m.size - 1)
     prev = np.maximum(ref_shot - 1, 0)
     closer = np.abs(along_m[prev] - centre) < np.abs(along_m[ref_shot] - centre)
     ref_shot = np.where(closer, prev, ref_shot)
-    return seg_of_shot, first, count, ref_shot
+    return seg_of_shot, first, count, ref_shot, k0
 
 
 def write_atl03(granule: Granule, path: str | os.PathLike) -> pathlib.Path:
@@ -222,28 +245,32 @@ def write_atl03(granule: Granule, path: str | os.PathLike) -> pathlib.Path:
     t_first = min(float(r.delta_time_s[0]) for r in runs)
     t_last = max(float(r.delta_time_s[-1]) for r in runs)
     with atomic_h5file(path) as f:
-        f.attrs["short_name"] = "ATL03"
-        f.attrs["title"] = "SET_BY_LIDAR_MITSUBA: simulated ATLAS/ICESat-2 L2A Global " \
-                           "Geolocated Photon Data"
-        f.attrs["description"] = ("Simulated by lidar_mitsuba (first-principles Monte Carlo): "
-                                  "photon heights over a DEM; /truth holds the simulation truth")
-        f.attrs["lidar_mitsuba_version"] = __version__
-        f.attrs["config"] = json.dumps(granule.config)
-        f.attrs["time_coverage_start"] = _utc(t_first)
-        f.attrs["time_coverage_end"] = _utc(t_last)
-        _ancillary(f, runs, t_first, t_last)
-        _orbit_info(f, granule, t_first)
+        _atl03_header(f, granule, [(r.beam, r.result.instrument) for r in runs], t_first, t_last)
         for r in runs:
             _beam_atl03(f, r, granule.sc_orient)
-        f["truth"].attrs["crs"] = granule.crs
-        f["truth"].attrs["frame_origin_m"] = np.asarray(granule.frame_origin_m, np.float64)
-        f["truth"].attrs["description"] = (
-            "simulation truth per beam; positions x, y in the DEM CRS (attribute crs) less "
-            "frame_origin_m [m], z and heights above the DEM's vertical datum [m]")
     return path
 
 
-def _ancillary(f, runs, t_first, t_last):
+def _atl03_header(f, granule, instruments, t_first, t_last):
+    f.attrs["short_name"] = "ATL03"
+    f.attrs["title"] = "simulated ATLAS/ICESat-2 L2A Global Geolocated Photon Data"
+    f.attrs["description"] = ("Simulated by lidar_mitsuba (first-principles Monte Carlo): "
+                              "photon heights over a DEM; /truth holds the simulation truth")
+    f.attrs["lidar_mitsuba_version"] = __version__
+    f.attrs["config"] = json.dumps(granule.config)
+    f.attrs["time_coverage_start"] = _utc(t_first)
+    f.attrs["time_coverage_end"] = _utc(t_last)
+    _ancillary(f, instruments, t_first, t_last)
+    _orbit_info(f, granule, t_first)
+    t = f.create_group("truth")
+    t.attrs["crs"] = granule.crs
+    t.attrs["frame_origin_m"] = np.asarray(granule.frame_origin_m, np.float64)
+    t.attrs["description"] = (
+        "simulation truth per beam; positions x, y in the DEM CRS (attribute crs) less "
+        "frame_origin_m [m], z and heights above the DEM's vertical datum [m]")
+
+
+def _ancillary(f, instruments, t_first, t_last):
     a = f.create_group("ancillary_data")
     _ds(a, "atlas_sdp_gps_epoch", np.array([geotrack.ATLAS_SDP_GPS_EPOCH]), "seconds since "
         "1980-01-06T00:00:00.000000Z", "GPS seconds of the ATLAS SDP epoch 2018-01-01")
@@ -267,15 +294,14 @@ def _ancillary(f, runs, t_first, t_last):
     fpb = cal.create_group("first_photon_bias")
     fpb.attrs["description"] = ("no first-photon-bias tables: lidar_mitsuba's ATL06 corrects "
                                 "event by event (lidar_mitsuba.fpb)")
-    for r in runs:
-        inst = r.result.instrument
-        g = dt.create_group(r.beam.name)
+    for beam, inst in instruments:
+        g = dt.create_group(beam.name)
         _ds(g, "dead_time", np.full(inst.channels, inst.effective_dead_time_ns * 1e-9),
             "seconds", "modelled dead time of each channel")
         _ds(g, "sigma", np.zeros(inst.channels), "seconds", "dead time uncertainty (exact)")
-        fpb.create_group(r.beam.name)
+        fpb.create_group(beam.name)
     imp = f.create_group("atlas_impulse_response")
-    sigma_ns = runs[0].result.instrument.pulse_sigma_ns
+    sigma_ns = instruments[0][1].pulse_sigma_ns
     t_ns = np.arange(-5 * sigma_ns, 5 * sigma_ns, 0.025)
     hist = np.exp(-0.5 * (t_ns / sigma_ns) ** 2)
     for pce in ("pce1_spot1", "pce2_spot3"):
@@ -300,110 +326,113 @@ def _beam_atl03(f, run: BeamRun, sc_orient: int):
     res, beam = run.result, run.beam
     inst, det = res.instrument, res.detections
     order = _photon_order(res)
-    shot = det.shot[order].astype(np.int64)
+    shot = det.shot[order].astype(np.int64)              # local to this section
+    gshot = shot + run.first_shot                        # in the whole track
     channel = det.channel[order]
-    seg_of_shot, first, count, ref_shot = _segments(res.along_track_m, shot)
-    gt = f.create_group(beam.name)
+    seg_of_shot, first, count, ref_shot, k0 = _segments(res.along_track_m, shot)
+    gt = f.require_group(beam.name)
+    done = gt["heights/h_ph"].shape[0] if "heights/h_ph" in gt else 0   # earlier sections
     gt.attrs.update({"atlas_beam_type": beam.strength, "atlas_spot_number": str(beam.spot),
                      "atlas_pce": f"pce{beam.pce}", "groundtrack_id": beam.name,
                      "sc_orientation": "Backward" if sc_orient == 0 else "Forward",
                      "description": "one ATLAS beam: photons, geolocation, background"})
-    h = gt.create_group("heights")
-    _ds(h, "lat_ph", run.lat_deg[shot], "degrees_north",
+    h = gt.require_group("heights")
+    _put(h, "lat_ph", run.lat_deg[shot], "degrees_north",
         "latitude of the photon: its shot's footprint centre (nadir pointing)")
-    _ds(h, "lon_ph", run.lon_deg[shot], "degrees_east", "longitude of the photon")
-    _ds(h, "h_ph", res.h_m[order].astype(np.float32), "meters",
+    _put(h, "lon_ph", run.lon_deg[shot], "degrees_east", "longitude of the photon")
+    _put(h, "h_ph", res.h_m[order].astype(np.float32), "meters",
         "photon height above the DEM's vertical datum: altitude - c t / 2")
-    _ds(h, "delta_time", run.delta_time_s[shot], "seconds since 2018-01-01",
+    _put(h, "delta_time", run.delta_time_s[shot], "seconds since 2018-01-01",
         "transmit time of the photon's shot")
-    _ds(h, "dist_ph_along", (res.along_track_m[shot] - SEGMENT_M * seg_of_shot[shot])
+    _put(h, "dist_ph_along", (res.along_track_m[shot] - SEGMENT_M * seg_of_shot[shot])
         .astype(np.float32), "meters", "along-track distance from the start of the segment")
-    _ds(h, "dist_ph_across", np.zeros(shot.size, np.float32), "meters",
+    _put(h, "dist_ph_across", np.zeros(shot.size, np.float32), "meters",
         "across-track distance from the beam's ground track (0: nadir pointing)")
     conf = res.signal_conf[order].astype(np.int8)
-    _ds(h, "signal_conf_ph", np.repeat(conf[:, None], 5, axis=1), "counts",
+    _put(h, "signal_conf_ph", np.repeat(conf[:, None], 5, axis=1), "counts",
         "confidence (land, ocean, sea ice, land ice, inland water; one histogram test for all): "
         "0 noise, 2 low, 3 medium, 4 high")
-    _ds(h, "quality_ph", np.zeros(shot.size, np.int8), "1", "0: nominal")
-    _ds(h, "ph_id_count", _ph_id_count(shot, channel), "counts",
+    _put(h, "quality_ph", np.zeros(shot.size, np.int8), "1", "0: nominal")
+    _put(h, "ph_id_count", _ph_id_count(shot, channel), "counts",
         "1-based index of the event in its channel and pulse")
     base = 1 if beam.strength == "strong" else 17
-    _ds(h, "ph_id_channel", (channel.astype(np.int64) + base).astype(np.uint8), "1",
+    _put(h, "ph_id_channel", (channel.astype(np.int64) + base).astype(np.uint8), "1",
         "channel: strong beam 1-16, weak beam 17-20")
-    _ds(h, "ph_id_pulse", (shot % PULSES_PER_MAJOR_FRAME + 1).astype(np.uint8), "counts",
+    _put(h, "ph_id_pulse", (gshot % PULSES_PER_MAJOR_FRAME + 1).astype(np.uint8), "counts",
         "pulse number within the major frame (1-200)")
-    _ds(h, "pce_mframe_cnt", (shot // PULSES_PER_MAJOR_FRAME).astype(np.uint32), "counts",
+    _put(h, "pce_mframe_cnt", (gshot // PULSES_PER_MAJOR_FRAME).astype(np.uint32), "counts",
         "major frame counter (from 0 at the first shot)")
 
-    g = gt.create_group("geolocation")
+    g = gt.require_group("geolocation")
     n_seg = count.size
-    _ds(g, "segment_id", np.arange(1, n_seg + 1, dtype=np.int32), "1",
+    _put(g, "segment_id", k0 + np.arange(1, n_seg + 1, dtype=np.int32), "1",
         "20 m segment number, from 1 at the track's first shot")
-    _ds(g, "segment_ph_cnt", count.astype(np.int32), "counts", "photons in the segment")
-    _ds(g, "ph_index_beg", np.where(count > 0, first + 1, 0).astype(np.int64), "1",
+    _put(g, "segment_ph_cnt", count.astype(np.int32), "counts", "photons in the segment")
+    _put(g, "ph_index_beg", np.where(count > 0, done + first + 1, 0).astype(np.int64), "1",
         "1-based index in heights/ of the segment's first photon (0: none)")
-    _ds(g, "segment_dist_x", SEGMENT_M * np.arange(n_seg, dtype=np.float64), "meters",
+    _put(g, "segment_dist_x", SEGMENT_M * (k0 + np.arange(n_seg, dtype=np.float64)), "meters",
         "along-track distance of the segment start from the track's first shot")
-    _ds(g, "segment_length", np.full(n_seg, SEGMENT_M), "meters", "segment length")
-    _ds(g, "reference_photon_lat", run.lat_deg[ref_shot], "degrees_north",
+    _put(g, "segment_length", np.full(n_seg, SEGMENT_M), "meters", "segment length")
+    _put(g, "reference_photon_lat", run.lat_deg[ref_shot], "degrees_north",
         "footprint centre of the shot nearest the segment centre")
-    _ds(g, "reference_photon_lon", run.lon_deg[ref_shot], "degrees_east",
+    _put(g, "reference_photon_lon", run.lon_deg[ref_shot], "degrees_east",
         "footprint centre of the shot nearest the segment centre")
     ref_ph = np.searchsorted(shot, ref_shot)
     has = (ref_ph < shot.size) & (shot[np.minimum(ref_ph, max(shot.size - 1, 0))] == ref_shot) \
         if shot.size else np.zeros(n_seg, bool)
-    _ds(g, "reference_photon_index", np.where(has, ref_ph - first + 1, 0).astype(np.int32),
+    _put(g, "reference_photon_index", np.where(has, ref_ph - first + 1, 0).astype(np.int32),
         "1", "1-based index in the segment of the reference shot's first photon (0: none)")
-    _ds(g, "delta_time", run.delta_time_s[ref_shot], "seconds since 2018-01-01",
+    _put(g, "delta_time", run.delta_time_s[ref_shot], "seconds since 2018-01-01",
         "transmit time of the reference shot")
-    _ds(g, "ref_azimuth", np.deg2rad(run.azimuth_deg[ref_shot]).astype(np.float32), "radians",
+    _put(g, "ref_azimuth", np.deg2rad(run.azimuth_deg[ref_shot]).astype(np.float32), "radians",
         "direction of travel, clockwise from north")
-    _ds(g, "ref_elev", np.full(n_seg, np.pi / 2, np.float32), "radians",
+    _put(g, "ref_elev", np.full(n_seg, np.pi / 2, np.float32), "radians",
         "elevation of the unit pointing vector (nadir pointing)")
-    _ds(g, "sigma_h", np.zeros(n_seg, np.float32), "meters", "height uncertainty from "
+    _put(g, "sigma_h", np.zeros(n_seg, np.float32), "meters", "height uncertainty from "
         "geolocation (none in a simulation)")
-    _ds(g, "surf_type", np.tile(np.array([0, 0, 0, 1, 0], np.int8), (n_seg, 1)), "1",
+    _put(g, "surf_type", np.tile(np.array([0, 0, 0, 1, 0], np.int8), (n_seg, 1)), "1",
         "surface types (land, ocean, sea ice, land ice, inland water): land ice")
 
-    b = gt.create_group("bckgrd_atlas")
-    rows = np.arange(0, res.n_shots, BCKGRD_SHOTS)
-    _ds(b, "bckgrd_rate", np.full(rows.size, inst.background_mhz * 1e6, np.float32), "counts / "
+    b = gt.require_group("bckgrd_atlas")
+    rows = np.flatnonzero((run.first_shot + np.arange(res.n_shots)) % BCKGRD_SHOTS == 0)
+    _put(b, "bckgrd_rate", np.full(rows.size, inst.background_mhz * 1e6, np.float32), "counts / "
         "second", "modelled solar background rate reaching the detector")
-    _ds(b, "delta_time", run.delta_time_s[rows], "seconds since 2018-01-01",
+    _put(b, "delta_time", run.delta_time_s[rows], "seconds since 2018-01-01",
         "time of the 50-shot background period")
 
-    c = gt.create_group("geophys_corr")
-    _ds(c, "delta_time", run.delta_time_s[ref_shot], "seconds since 2018-01-01",
+    c = gt.require_group("geophys_corr")
+    _put(c, "delta_time", run.delta_time_s[ref_shot], "seconds since 2018-01-01",
         "segment time")
     for key in ("dac", "tide_earth", "tide_load", "tide_ocean", "tide_pole",
                 "tide_equilibrium", "geoid", "dem_h"):
         v = res.surface_z_m[ref_shot] if key == "dem_h" else np.zeros(n_seg)
-        _ds(c, key, v.astype(np.float32), "meters",
+        _put(c, key, v.astype(np.float32), "meters",
             "DEM height at the reference shot" if key == "dem_h"
             else f"{key}: not modelled in a simulation (0)")
 
-    _truth(f.require_group("truth").create_group(beam.name), res, order)
+    _truth(f.require_group("truth").require_group(beam.name), res, order, run.first_shot)
 
 
-def _truth(g, res, order):
+def _truth(g, res, order, first_shot: int = 0):
     det = res.detections
-    tp = g.create_group("photons")
-    _ds(tp, "shot", det.shot[order], "1", "shot index")
-    _ds(tp, "channel", det.channel[order], "1", "detector channel (0-based)")
-    _ds(tp, "is_signal", det.is_signal[order].astype(np.int8), "1", "1 signal, 0 noise")
-    _ds(tp, "time_ns", det.time_ns[order], "ns", "round-trip time from the pulse centre")
-    _ds(tp, "h_m", res.h_m[order], "meters", "photon height (float64)")
+    tp = g.require_group("photons")
+    _put(tp, "shot", det.shot[order] + first_shot, "1", "shot index")
+    _put(tp, "channel", det.channel[order], "1", "detector channel (0-based)")
+    _put(tp, "is_signal", det.is_signal[order].astype(np.int8), "1", "1 signal, 0 noise")
+    _put(tp, "time_ns", det.time_ns[order], "ns", "round-trip time from the pulse centre")
+    _put(tp, "h_m", res.h_m[order], "meters", "photon height (float64)")
     for j, axis in enumerate(("x", "y", "z")):
-        _ds(tp, f"hit_{axis}_m", det.hit_xyz_m[order, j], "meters",
+        _put(tp, f"hit_{axis}_m", det.hit_xyz_m[order, j], "meters",
             f"{axis} of the scattering point in the simulation frame (NaN for noise)")
-    ts = g.create_group("shots")
-    _ds(ts, "along_track_m", res.along_track_m, "meters", "along-track distance")
-    _ds(ts, "x_m", res.shot_x_m, "meters", "footprint centre x (simulation frame)")
-    _ds(ts, "y_m", res.shot_y_m, "meters", "footprint centre y (simulation frame)")
-    _ds(ts, "z_ref_m", res.z_ref_m, "meters",
+    ts = g.require_group("shots")
+    _put(ts, "along_track_m", res.along_track_m, "meters", "along-track distance")
+    _put(ts, "x_m", res.shot_x_m, "meters", "footprint centre x (simulation frame)")
+    _put(ts, "y_m", res.shot_y_m, "meters", "footprint centre y (simulation frame)")
+    _put(ts, "z_ref_m", res.z_ref_m, "meters",
         "reference elevation: Gaussian-footprint-weighted mean height")
-    _ds(ts, "surface_z_m", res.surface_z_m, "meters", "height at the footprint centre")
-    g.attrs["config"] = json.dumps(res.config)
+    _put(ts, "surface_z_m", res.surface_z_m, "meters", "height at the footprint centre")
+    if "config" not in g.attrs:                       # (the first section's)
+        g.attrs["config"] = json.dumps(res.config)
 
 
 # --------------------------------------------------------------------------- ATL06
@@ -438,51 +467,57 @@ def write_atl06(granule: Granule, path: str | os.PathLike, **options) -> pathlib
     t_first = min(float(r.delta_time_s[0]) for r in runs)
     t_last = max(float(r.delta_time_s[-1]) for r in runs)
     with atomic_h5file(path) as f:
-        f.attrs["short_name"] = "ATL06"
-        f.attrs["description"] = ("Simulated land-ice heights (lidar_mitsuba.atl06: 40 m "
-                                  "segments every 20 m, first-photon-bias corrected)")
-        f.attrs["lidar_mitsuba_version"] = __version__
-        f.attrs["config"] = json.dumps(granule.config)
-        _ancillary(f, runs, t_first, t_last)
-        li = f["ancillary_data"].create_group("land_ice")
-        _ds(li, "t_dead", np.array([runs[0].result.instrument.effective_dead_time_ns * 1e-9]),
-            "seconds", "dead time used by the first-photon-bias correction")
-        _orbit_info(f, granule, t_first)
-        qa = f.create_group("quality_assessment")
-        _ds(qa, "qa_granule_pass_fail", np.array([0], np.int8), "1", "0: pass")
+        _atl06_header(f, granule, [(r.beam, r.result.instrument) for r in runs], t_first, t_last)
         for r in runs:
-            _beam_atl06(f, r, granule.sc_orient, options)
+            table = atl06.segments_from_result(r.result, **options)
+            _beam_atl06(f, r.beam, granule.sc_orient, table, along_m=r.result.along_track_m,
+                        lat_deg=r.lat_deg, lon_deg=r.lon_deg, delta_time_s=r.delta_time_s)
     return path
 
 
-def _beam_atl06(f, run: BeamRun, sc_orient: int, options: dict):
-    table = atl06.segments_from_result(run.result, **options)
-    beam = run.beam
-    gt = f.create_group(beam.name)
+def _atl06_header(f, granule, instruments, t_first, t_last):
+    f.attrs["short_name"] = "ATL06"
+    f.attrs["description"] = ("Simulated land-ice heights (lidar_mitsuba.atl06: 40 m "
+                              "segments every 20 m, first-photon-bias corrected)")
+    f.attrs["lidar_mitsuba_version"] = __version__
+    f.attrs["config"] = json.dumps(granule.config)
+    _ancillary(f, instruments, t_first, t_last)
+    li = f["ancillary_data"].create_group("land_ice")
+    _ds(li, "t_dead", np.array([instruments[0][1].effective_dead_time_ns * 1e-9]),
+        "seconds", "dead time used by the first-photon-bias correction")
+    _orbit_info(f, granule, t_first)
+    qa = f.create_group("quality_assessment")
+    _ds(qa, "qa_granule_pass_fail", np.array([0], np.int8), "1", "0: pass")
+
+
+def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_deg,
+                delta_time_s):
+    """Append ``table``'s segments to the beam's ``land_ice_segments``; positions and times
+    are those of the shot nearest each segment centre among ``along_m`` [m] (with their
+    ``lat_deg``, ``lon_deg``, ``delta_time_s``)."""
+    gt = f.require_group(beam.name)
     gt.attrs.update({"atlas_beam_type": beam.strength, "atlas_spot_number": str(beam.spot),
                      "atlas_pce": f"pce{beam.pce}", "groundtrack_id": beam.name,
                      "sc_orientation": "Backward" if sc_orient == 0 else "Forward"})
-    li = gt.create_group("land_ice_segments")
+    li = gt.require_group("land_ice_segments")
     for sub in ("fit_statistics", "bias_correction", "geophysical", "ground_track", "dem"):
-        li.create_group(sub)
-    # segment centre -> the shot nearest it, for position and time
-    along = run.result.along_track_m
-    i = np.clip(np.searchsorted(along, table.x_atc), 0, along.size - 1)
-    _ds(li, "segment_id", np.asarray(table.segment_id, np.int32), "1",
-        "segment number: the segment spans 20 m ATL03 segments segment_id and segment_id + 1")
-    _ds(li, "latitude", run.lat_deg[i], "degrees_north", "latitude of the segment centre")
-    _ds(li, "longitude", run.lon_deg[i], "degrees_east", "longitude of the segment centre")
-    _ds(li, "delta_time", run.delta_time_s[i], "seconds since 2018-01-01",
-        "time of the segment centre")
-    _ds(li, "sigma_geo_h", np.zeros(len(table), np.float32), "meters",
-        "height error from geolocation (none in a simulation)")
+        li.require_group(sub)
+    i = np.clip(np.searchsorted(along_m, table.x_atc), 0, max(along_m.size - 1, 0))
+    _put(li, "segment_id", np.asarray(table.segment_id, np.int32), "1",
+         "segment number: the segment spans 20 m ATL03 segments segment_id and segment_id + 1")
+    _put(li, "latitude", lat_deg[i], "degrees_north", "latitude of the segment centre")
+    _put(li, "longitude", lon_deg[i], "degrees_east", "longitude of the segment centre")
+    _put(li, "delta_time", delta_time_s[i], "seconds since 2018-01-01",
+         "time of the segment centre")
+    _put(li, "sigma_geo_h", np.zeros(len(table), np.float32), "meters",
+         "height error from geolocation (none in a simulation)")
     for ours, (sub, name, dtype) in _ATL06_NAMES.items():
         units, desc = atl06.FIELDS[ours]
         v = np.asarray(getattr(table, ours))
         if np.issubdtype(dtype, np.floating):
             v = np.where(np.isfinite(v), v, np.finfo(dtype).max)   # ATL06's fill value
-        ds = _ds(li[sub] if sub else li, name, v.astype(dtype), units, desc)
+        ds = _put(li[sub] if sub else li, name, v.astype(dtype), units, desc)
         if np.issubdtype(dtype, np.floating):
             ds.attrs["_FillValue"] = np.finfo(dtype).max.astype(dtype)
-    _ds(li["ground_track"], "y_atc", np.full(len(table), run.beam.across_m, np.float32),
-        "meters", "across-track offset of the beam from the reference ground track")
+    _put(li["ground_track"], "y_atc", np.full(len(table), beam.across_m, np.float32),
+         "meters", "across-track offset of the beam from the reference ground track")
