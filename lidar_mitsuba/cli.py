@@ -418,37 +418,33 @@ def _simulate_dem(a, out, plot) -> int:
     surface = dems.DEMSurface(dem, roughness=rough, mesh_grid_m=a.mesh_grid_m)
     track = geotrack.GeoTrack.parse(a.track, epoch_utc=a.epoch)
     beams = geotrack.select_beams(a.beams, a.sc_orient)
+    shots = run.pop("shots", 1000)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SimulationWarning)
-        g = granule.simulate_granule(surface=surface, track=track, beams=beams,
-                                     sc_orient=a.sc_orient, instrument_options=inst_opts,
-                                     progress=not a.no_progress,
-                                     shots=run.pop("shots", 1000), **run)
-    for r in g.beams:
-        for w in r.result.config["warnings"]:
-            sys.stderr.write(f"{PROG} simulate: warning: {r.beam.name}: {w}\n")
-    granule.write_atl03(g, out)
-    if atl06_out is not None:
-        granule.write_atl06(g, atl06_out)
-    print(f"{len(g.beams)} beam(s), {g.beams[0].result.n_shots} shots each, over {dem.path.name} "
-          f"({g.crs})")
-    print(f"  {'beam':5} {'spot':>4} {'type':6} {'signal':>8} {'bias [cm]':>14} "
-          f"{'precision [cm]':>14} {'time [s]':>8}")
-    for r in g.beams:
-        o = r.result.report(window_shots=a.window).overall
-        print(f"  {r.beam.name:5} {r.beam.spot:>4} {r.beam.strength:6} {o.n_photons:>8} "
-              f"{100 * o.bias_m:+7.2f} ± {100 * o.bias_se_m:4.2f} {100 * o.std_m:>14.2f} "
-              f"{r.result.timings_s['total_s']:>8.1f}")
+        summaries = granule.stream_granule(
+            surface=surface, track=track, beams=beams, sc_orient=a.sc_orient,
+            instrument_options=inst_opts, progress=not a.no_progress, shots=shots,
+            atl03_path=out, atl06_path=atl06_out, **run)
+    for sm in summaries:
+        for w in sm.config["warnings"]:
+            sys.stderr.write(f"{PROG} simulate: warning: {sm.beam.name}: {w}\n")
+    print(f"{len(summaries)} beam(s), {shots} shots each ({shots * 0.7e-3:.1f} km), over "
+          f"{dem.path.name} ({dem.crs.to_string()})")
+    print(f"  {'beam':5} {'spot':>4} {'type':6} {'signal':>9} {'bias [cm]':>14} "
+          f"{'precision [cm]':>14}")
+    for sm in summaries:
+        print(f"  {sm.beam.name:5} {sm.beam.spot:>4} {sm.beam.strength:6} {sm.photons:>9} "
+              f"{100 * sm.bias_m:+7.2f} ± {100 * sm.bias_se_m:4.2f} {100 * sm.std_m:>14.2f}")
     if a.explain:
-        print("model:")
-        for line in g.beams[0].result.config["choices"]:
+        print("model (first section of the first beam):")
+        for line in summaries[0].config["choices"]:
             print(f"  - {line}")
     print(f"wrote {out}")
     if atl06_out is not None:
         print(f"wrote {atl06_out}")
     if plot is not None:
         from .plotting import granule_clouds
-        granule_clouds(g, plot)
+        granule_clouds(out, plot)
         print(f"wrote {plot}")
     return 0
 

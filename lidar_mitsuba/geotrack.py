@@ -190,12 +190,14 @@ class GeoTrack:
                                  f"lat, lon rows (got {text!r})")
         return cls.from_file(text, epoch_utc=epoch_utc)
 
-    def shots(self, n_shots: int, *, spacing_m: float) -> tuple[np.ndarray, ...]:
-        """``(lat_deg, lon_deg, azimuth_deg, along_m)`` of the reference track's shots, each
-        (n_shots,) float64: positions every ``spacing_m`` along the track, the local direction
-        of travel [deg clockwise from north] and the distance from the first shot [m]."""
+    def shots(self, n_shots: int, *, spacing_m: float, first: int = 0
+              ) -> tuple[np.ndarray, ...]:
+        """``(lat_deg, lon_deg, azimuth_deg, along_m)`` of the reference track's shots
+        ``first`` .. ``first + n_shots - 1``, each (n_shots,) float64: positions every
+        ``spacing_m`` along the track, the local direction of travel [deg clockwise from
+        north] and the distance from the track's first shot [m]."""
         geod = _geod()
-        along = np.arange(int(n_shots), dtype=np.float64) * float(spacing_m)
+        along = (int(first) + np.arange(int(n_shots), dtype=np.float64)) * float(spacing_m)
         if self.polyline is None:
             lat0 = np.full(along.shape, self.start_lat_deg, np.float64)
             lon0 = np.full(along.shape, self.start_lon_deg, np.float64)
@@ -206,7 +208,7 @@ class GeoTrack:
             az_seg, _, seg_len = geod.inv(pts[:-1, 1], pts[:-1, 0], pts[1:, 1], pts[1:, 0])
             ends = np.concatenate([[0.0], np.cumsum(seg_len)])
             if along.size and along[-1] > ends[-1] + 1e-6:
-                raise ParameterError("shots", f"{n_shots} shots ({along[-1] / 1e3:.2f} km) run "
+                raise ParameterError("shots", f"{first + n_shots} shots ({along[-1] / 1e3:.2f} km) run "
                                      f"past the end of the track's polyline "
                                      f"({ends[-1] / 1e3:.2f} km); use fewer shots")
             k = np.clip(np.searchsorted(ends, along, side="right") - 1, 0, len(seg_len) - 1)
@@ -258,7 +260,8 @@ class ProjectedTrack:
         return dict(self.info)
 
 
-def delta_time_s(epoch_utc: str, n_shots: int, *, prf_hz: float) -> np.ndarray:
-    """(n_shots,) transmit time of each shot [s] since the ATLAS SDP epoch."""
+def delta_time_s(epoch_utc: str, n_shots: int, *, prf_hz: float, first: int = 0) -> np.ndarray:
+    """(n_shots,) transmit time [s] since the ATLAS SDP epoch of shots ``first`` ..
+    ``first + n_shots - 1``."""
     t0 = (parse_utc(epoch_utc) - SDP_EPOCH_UTC).total_seconds()
-    return t0 + np.arange(int(n_shots), dtype=np.float64) / float(prf_hz)
+    return t0 + (int(first) + np.arange(int(n_shots), dtype=np.float64)) / float(prf_hz)

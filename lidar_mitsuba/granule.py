@@ -122,46 +122,70 @@ def simulate_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
         paths_per_shot, max_depth, progress, simulate_options: as
             :func:`~lidar_mitsuba.simulate.simulate`.
     """
-    from pyproj import Transformer
-    from .simulate import simulate
     if isinstance(beams, str):
         beams = geotrack.select_beams(beams, sc_orient)
-    opts = dict(instrument_options or {})
-    if "beam" in opts:
-        raise ParameterError("beam", "is set per beam in a granule (use beams=)")
-    base = Instrument(**opts)
-    lat0, lon0, az0, along = track.shots(shots, spacing_m=base.shot_spacing_m)
-    to_crs = Transformer.from_crs("EPSG:4326", surface.dem.crs, always_xy=True)
-    x0, y0 = to_crs.transform(lon0[:1], lat0[:1])
-    origin = (float(np.round(x0[0], -3)), float(np.round(y0[0], -3)))
-    surface = replace(surface, origin_m=origin)
-    times = geotrack.delta_time_s(track.epoch_utc, shots, prf_hz=base.prf_hz)
-    runs = []
-    for k, beam in enumerate(_beam_bar(beams, progress)):
+    ctx = _Context(surface, track, instrument_options)
+    runs = [ctx.beam_run(beam, 0, shots, seed=_beam_seed(seed, beam), progress=progress,
+                         paths_per_shot=paths_per_shot, max_depth=max_depth, **simulate_options)
+            for beam in _beam_bar(beams, progress)]
+    return Granule(beams=runs, sc_orient=int(sc_orient), crs=ctx.surface.dem.crs.to_string(),
+                   frame_origin_m=ctx.origin, track=track,
+                   config=ctx.config(shots=shots, seed=seed, sc_orient=sc_orient, beams=beams))
+
+
+def _beam_seed(seed: int, beam: Beam, section: int | None = None) -> int:
+    key = [int(seed), beam.spot] + ([] if section is None else [int(section)])
+    return int(np.random.SeedSequence(key).generate_state(1)[0])
+
+
+class _Context:
+    """What every beam and section of a granule shares: the surface in a frame near the
+    track's start, the CRS transform, the instrument options."""
+
+    def __init__(self, surface: DEMSurface, track: GeoTrack, instrument_options: dict | None):
+        from pyproj import Transformer
+        self.opts = dict(instrument_options or {})
+        if "beam" in self.opts:
+            raise ParameterError("beam", "is set per beam in a granule (use beams=)")
+        self.base = Instrument(**self.opts)
+        self.track = track
+        self.to_crs = Transformer.from_crs("EPSG:4326", surface.dem.crs, always_xy=True)
+        lat0, lon0, _, _ = track.shots(1, spacing_m=self.base.shot_spacing_m)
+        x0, y0 = self.to_crs.transform(lon0, lat0)
+        self.origin = (float(np.round(x0[0], -3)), float(np.round(y0[0], -3)))
+        self.surface = replace(surface, origin_m=self.origin)
+
+    def instrument(self, beam: Beam) -> Instrument:
+        return Instrument(**self.opts, beam=beam.strength)
+
+    def beam_run(self, beam: Beam, first: int, n: int, *, seed: int, **simulate_kw) -> BeamRun:
+        """Simulate shots ``first`` .. ``first + n - 1`` of ``beam``."""
+        from .simulate import simulate
+        spacing = self.base.shot_spacing_m
+        lat0, lon0, az0, along = self.track.shots(n, spacing_m=spacing, first=first)
         lat, lon = geotrack.beam_shots(lat0, lon0, az0, beam)
-        x, y = to_crs.transform(lon, lat)
+        x, y = self.to_crs.transform(lon, lat)
         if not (np.isfinite(x).all() and np.isfinite(y).all()):
             raise ParameterError("track", f"{beam.name}: the track leaves the DEM's projection "
-                                 f"({surface.dem.crs.to_string()})")
+                                 f"({self.surface.dem.crs.to_string()})")
         ptrack = geotrack.ProjectedTrack(
-            x_m=np.asarray(x) - origin[0], y_m=np.asarray(y) - origin[1], along_m=along,
-            info={"reference_track": track.to_dict(), "beam": beam.name,
-                  "across_m": beam.across_m})
-        beam_seed = int(np.random.SeedSequence([int(seed), beam.spot]).generate_state(1)[0])
+            x_m=np.asarray(x) - self.origin[0], y_m=np.asarray(y) - self.origin[1],
+            along_m=along, info={"reference_track": self.track.to_dict(), "beam": beam.name,
+                                 "across_m": beam.across_m, "first_shot": int(first)})
         try:
-            res = simulate(instrument=Instrument(**opts, beam=beam.strength), surface=surface,
-                           track=ptrack, shots=shots, seed=beam_seed,
-                           paths_per_shot=paths_per_shot, max_depth=max_depth,
-                           progress=progress, **{"keep_returns": False, **simulate_options})
+            res = simulate(instrument=self.instrument(beam), surface=self.surface, track=ptrack,
+                           shots=n, seed=seed, **{"keep_returns": False, **simulate_kw})
         except ParameterError as e:
             raise ParameterError(e.name, f"{beam.name}: {e.message}") from None
-        runs.append(BeamRun(beam=beam, result=res, lat_deg=np.asarray(lat),
-                            lon_deg=np.asarray(lon), azimuth_deg=az0, delta_time_s=times))
-    config = {"shots": int(shots), "seed": int(seed), "sc_orient": int(sc_orient),
-              "beams": [b.name for b in beams], "track": track.to_dict(),
-              "surface": surface.config(), "instrument_options": opts}
-    return Granule(beams=runs, sc_orient=int(sc_orient), crs=surface.dem.crs.to_string(),
-                   frame_origin_m=origin, track=track, config=config)
+        times = geotrack.delta_time_s(self.track.epoch_utc, n, prf_hz=self.base.prf_hz,
+                                      first=first)
+        return BeamRun(beam=beam, result=res, lat_deg=np.asarray(lat), lon_deg=np.asarray(lon),
+                       azimuth_deg=az0, delta_time_s=times, first_shot=int(first))
+
+    def config(self, *, shots, seed, sc_orient, beams, **extra) -> dict:
+        return {"shots": int(shots), "seed": int(seed), "sc_orient": int(sc_orient),
+                "beams": [b.name for b in beams], "track": self.track.to_dict(),
+                "surface": self.surface.config(), "instrument_options": self.opts, **extra}
 
 
 def _beam_bar(beams, progress):
@@ -521,3 +545,191 @@ def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_d
             ds.attrs["_FillValue"] = np.finfo(dtype).max.astype(dtype)
     _put(li["ground_track"], "y_atc", np.full(len(table), beam.across_m, np.float32),
          "meters", "across-track offset of the beam from the reference ground track")
+
+
+# --------------------------------------------------------------------------- streamed granules
+SECTION_SHOTS = 1 << 16
+"""Shots per section of a streamed granule (about 46 km): memory is bounded by a section."""
+
+
+@dataclass
+class BeamSummary:
+    """Running statistics of one beam of a streamed granule (signal photons' h - z_ref).
+
+    Attributes: beam; shots; photons (signal); bias_m, std_m [m]; bias_se_m [m];
+    config: the first section's run config (its modelling choices).
+    """
+    beam: Beam
+    shots: int = 0
+    photons: int = 0
+    sum_m: float = 0.0
+    sum2_m2: float = 0.0
+    config: dict | None = None
+
+    def add(self, res) -> None:
+        dh = res.dh_m[res.detections.is_signal]
+        dh = dh[np.isfinite(dh)]
+        self.shots += res.n_shots
+        self.photons += int(dh.size)
+        self.sum_m += float(dh.sum())          # (dh is centimetres to metres: sums of
+        self.sum2_m2 += float(np.sum(dh * dh))  # squares lose nothing in float64)
+        if self.config is None:
+            self.config = res.config
+
+    @property
+    def bias_m(self) -> float:
+        return self.sum_m / self.photons if self.photons else float("nan")
+
+    @property
+    def std_m(self) -> float:
+        n = self.photons
+        if n < 2:
+            return float("nan")
+        return float(np.sqrt(max(self.sum2_m2 - n * self.bias_m ** 2, 0.0) / (n - 1)))
+
+    @property
+    def bias_se_m(self) -> float:
+        return self.std_m / np.sqrt(self.photons) if self.photons > 1 else float("nan")
+
+
+def section_bounds(n_shots: int, *, spacing_m: float, section_shots: int
+                   ) -> list[tuple[int, int]]:
+    """``[(first, stop), ...]`` shot ranges of about ``section_shots`` shots, each starting
+    on the first shot of a 20 m geolocation segment (so sections hold whole segments)."""
+    seg = lambda i: int(np.floor(i * spacing_m / SEGMENT_M))    # noqa: E731 (as _segments)
+    cuts = [0]
+    i = section_shots
+    while i < n_shots:
+        k = seg(i)
+        j = i
+        while j > cuts[-1] and seg(j - 1) == k:     # back to the segment's first shot
+            j -= 1
+        if j > cuts[-1]:
+            cuts.append(j)
+        i += section_shots
+    cuts.append(n_shots)
+    return list(zip(cuts[:-1], cuts[1:]))
+
+
+class _SegmentStream:
+    """ATL06 segments of one beam, fitted section by section. Each fit sees the previous
+    section's last 20 m (the tail), so a 40 m segment across a section boundary holds all
+    its photons; segments are on the whole track's grid (centres 20, 40, ... m from the
+    first shot) and every one is fitted once, when its whole span has been simulated."""
+
+    SHOT_KEYS = ("along", "zref", "lat", "lon", "time")
+    PHOTON_KEYS = ("shot", "h", "channel")
+
+    def __init__(self, options: dict):
+        self.options = options
+        self.next_centre = SEGMENT_M       # the first centre: 20 m from the first shot
+        self.tail = None
+
+    def fit(self, run: BeamRun, *, last: bool):
+        """The segments completed by this section: ``(table, along, lat, lon, time)``."""
+        res = run.result
+        inst, det = res.instrument, res.detections
+        shots = {"along": res.along_track_m, "zref": res.z_ref_m, "lat": run.lat_deg,
+                 "lon": run.lon_deg, "time": run.delta_time_s}
+        ph = {"shot": det.shot.astype(np.int64), "h": res.h_m, "channel": det.channel}
+        if self.tail is not None:
+            n_tail = self.tail[0]["along"].size
+            shots = {k: np.concatenate([self.tail[0][k], shots[k]]) for k in self.SHOT_KEYS}
+            ph = {k: np.concatenate([self.tail[1][k], ph[k] + (n_tail if k == "shot" else 0)])
+                  for k in self.PHOTON_KEYS}
+        along = shots["along"]
+        kw = dict(photon_along_m=along[ph["shot"]], h_m=ph["h"], shot=ph["shot"],
+                  channel=ph["channel"], n_shots=along.size, shot_along_m=along,
+                  n_channels=inst.channels, dead_time_ns=inst.effective_dead_time_ns,
+                  paralyzable=inst.paralyzable, pulse_sigma_ns=inst.pulse_sigma_ns,
+                  range_gate_m=inst.range_gate_m, z_ref_m=shots["zref"],
+                  gate_center_h_m=shots["zref"], footprint_sigma_m=inst.footprint_sigma_m,
+                  x0_m=self.next_centre - SEGMENT_M)
+        kw.update(self.options)
+        table = atl06.fit_segments(**kw)
+        keep = table.x_atc >= self.next_centre - 1e-6
+        if not last:      # a segment is done once the next section cannot add to it:
+            # its span ends at or before the end of this section's last 20 m segment
+            end = SEGMENT_M * (np.floor(along[-1] / SEGMENT_M) + 1)
+            keep &= table.x_atc + SEGMENT_M / 2 <= end - SEGMENT_M / 2 + 1e-6
+        table = atl06.SegmentTable(**{f: np.asarray(getattr(table, f))[keep]
+                                      for f in atl06.FIELDS})
+        table.segment_id[:] = np.round(table.x_atc / SEGMENT_M).astype(table.segment_id.dtype)
+        if table.x_atc.size:
+            self.next_centre = float(table.x_atc[-1]) + SEGMENT_M
+        start = self.next_centre - SEGMENT_M          # the next fit needs shots from here on
+        s0 = int(np.searchsorted(along, start - 1e-9))
+        p0 = int(np.searchsorted(ph["shot"], s0))
+        self.tail = ({k: v[s0:].copy() for k, v in shots.items()},
+                     {k: (v[p0:] - s0 if k == "shot" else v[p0:]).copy() for k, v in ph.items()})
+        return table, along, shots["lat"], shots["lon"], shots["time"]
+
+
+def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
+                   atl03_path: str | os.PathLike, atl06_path: str | os.PathLike | None = None,
+                   beams: str | list[Beam] = "all", sc_orient: int = 0,
+                   instrument_options: dict | None = None, seed: int = 0,
+                   paths_per_shot: int = 128, max_depth: int | str = "auto",
+                   progress: bool = True, section_shots: int = SECTION_SHOTS,
+                   segment_options: dict | None = None, **simulate_options
+                   ) -> list[BeamSummary]:
+    """Simulate a granule section by section straight into its ATL03 (and ATL06) files, so
+    memory is bounded by a section (``section_shots`` shots) for a track of any length.
+
+    Arguments as :func:`simulate_granule`. Each section of each beam is an independent run
+    (its own seed); ``max_depth="auto"`` is decided by each beam's first section's pilot and
+    kept for the rest. ATL06 segments are fitted across section boundaries (see
+    :class:`_SegmentStream`). Both files are written atomically: a failure leaves neither.
+    Returns each beam's running statistics.
+    """
+    import contextlib
+    if isinstance(beams, str):
+        beams = geotrack.select_beams(beams, sc_orient)
+    if not (isinstance(section_shots, (int, np.integer)) and section_shots >= 1):
+        raise ParameterError("section_shots", f"must be an integer >= 1 (got {section_shots!r})")
+    ctx = _Context(surface, track, instrument_options)
+    spacing = ctx.base.shot_spacing_m
+    bounds = section_bounds(shots, spacing_m=spacing, section_shots=int(section_shots))
+    times = geotrack.delta_time_s(track.epoch_utc, 1, prf_hz=ctx.base.prf_hz)
+    t_first, t_last = float(times[0]), float(times[0]) + (shots - 1) / ctx.base.prf_hz
+    meta = Granule(beams=[], sc_orient=int(sc_orient), crs=ctx.surface.dem.crs.to_string(),
+                   frame_origin_m=ctx.origin, track=track,
+                   config=ctx.config(shots=shots, seed=seed, sc_orient=sc_orient, beams=beams,
+                                     sections=len(bounds)))
+    instruments = [(b, ctx.instrument(b)) for b in beams]
+    summaries = {b.name: BeamSummary(beam=b) for b in beams}
+    depth = {b.name: max_depth for b in beams}
+    segs = {b.name: _SegmentStream(dict(segment_options or {})) for b in beams}
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        bar = tqdm(total=shots * len(beams), desc="granule", unit="shot", delay=2.0,
+                   leave=False)
+    try:
+        with contextlib.ExitStack() as stack:
+            f3 = stack.enter_context(atomic_h5file(atl03_path))
+            _atl03_header(f3, meta, instruments, t_first, t_last)
+            f6 = None
+            if atl06_path is not None:
+                f6 = stack.enter_context(atomic_h5file(atl06_path))
+                _atl06_header(f6, meta, instruments, t_first, t_last)
+            for k, (a, b) in enumerate(bounds):
+                for beam in beams:
+                    run = ctx.beam_run(beam, a, b - a, seed=_beam_seed(seed, beam, k),
+                                       progress=False, paths_per_shot=paths_per_shot,
+                                       max_depth=depth[beam.name], **simulate_options)
+                    depth[beam.name] = run.result.config["max_depth"]
+                    _beam_atl03(f3, run, sc_orient)
+                    if f6 is not None:
+                        table, along, lat, lon, t = segs[beam.name].fit(
+                            run, last=k == len(bounds) - 1)
+                        _beam_atl06(f6, beam, sc_orient, table, along_m=along, lat_deg=lat,
+                                    lon_deg=lon, delta_time_s=t)
+                    summaries[beam.name].add(run.result)
+                    if bar is not None:
+                        bar.update(b - a)
+                    del run
+    finally:
+        if bar is not None:
+            bar.close()
+    return list(summaries.values())

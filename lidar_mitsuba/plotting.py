@@ -53,20 +53,34 @@ def photon_cloud(*, along_track_m: np.ndarray, surface_z_m: np.ndarray, z_ref_m:
     return fig
 
 
-def granule_clouds(granule, path) -> None:
-    """One photon-cloud panel per beam of a :class:`~lidar_mitsuba.granule.Granule`, stacked
-    left to right across track (gt1l on top), written to the PNG ``path``."""
-    runs = granule.beams
-    fig, axes = plt.subplots(len(runs), 1, figsize=(10, 2.6 * len(runs)), dpi=110,
-                             squeeze=False)
-    for ax, r in zip(axes[:, 0], runs):
-        res, d = r.result, r.result.detections
-        rep = res.report().overall
-        photon_cloud(along_track_m=res.along_track_m, surface_z_m=res.surface_z_m,
-                     z_ref_m=res.z_ref_m, photon_along_m=res.along_track_m[d.shot],
-                     photon_h_m=res.h_m, is_signal=d.is_signal, ax=ax,
-                     title=f"{r.beam.name} (spot {r.beam.spot}, {r.beam.strength}): bias "
-                           f"{100 * rep.bias_m:+.1f} cm, precision {100 * rep.std_m:.1f} cm")
+def granule_clouds(atl03_path, path, *, max_points: int = 200_000) -> None:
+    """One photon-cloud panel per beam of an ATL03 granule written by
+    :mod:`lidar_mitsuba.granule` (gt1l on top), read back from the file (at most
+    ``max_points`` photons and shots per beam, evenly strided), written to the PNG ``path``."""
+    import h5py
+    with h5py.File(atl03_path, "r") as f:
+        names = sorted(k for k in f if k.startswith("gt"))
+        fig, axes = plt.subplots(len(names), 1, figsize=(10, 2.6 * len(names)), dpi=110,
+                                 squeeze=False)
+        for ax, name in zip(axes[:, 0], names):
+            h, geo, t = f[f"{name}/heights"], f[f"{name}/geolocation"], f[f"truth/{name}"]
+            n = h["h_ph"].shape[0]
+            step = max(1, -(-n // max_points))
+            seg = np.repeat(np.arange(geo["segment_ph_cnt"].shape[0]),
+                            geo["segment_ph_cnt"][()])[::step]
+            along = geo["segment_dist_x"][()][seg] + h["dist_ph_along"][::step]
+            ns = t["shots/along_track_m"].shape[0]
+            sstep = max(1, -(-ns // max_points))
+            sig = t["photons/is_signal"][::step] == 1
+            dh = (t["photons/h_m"][()] - t["shots/z_ref_m"][()][t["photons/shot"][()]])[
+                t["photons/is_signal"][()] == 1]
+            photon_cloud(along_track_m=t["shots/along_track_m"][::sstep],
+                         surface_z_m=t["shots/surface_z_m"][::sstep],
+                         z_ref_m=t["shots/z_ref_m"][::sstep], photon_along_m=along,
+                         photon_h_m=h["h_ph"][::step], is_signal=sig, ax=ax,
+                         title=f"{name} (spot {f[name].attrs['atlas_spot_number']}, "
+                               f"{f[name].attrs['atlas_beam_type']}): bias "
+                               f"{100 * dh.mean():+.1f} cm, precision {100 * dh.std():.1f} cm")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

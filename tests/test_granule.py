@@ -300,3 +300,50 @@ def test_cli_granule_and_its_errors(dem_path, tmp_path):
     p = subprocess.run(exe + ["--track", "69.97,-45,0", "--out", str(tmp_path / "b.h5")],
                        capture_output=True, text=True)
     assert p.returncode == 2 and "--track: only applies to --dem" in p.stderr
+
+
+def test_streamed_granule_sections_join_exactly(dem_path, tmp_path):
+    """A granule streamed in four sections: the ATL03 geolocation indices run on across the
+    sections (segment ids 1..n with no gap or repeat, ph_index_beg continuing the photon
+    count, global shot numbers), and the streamed ATL06 segments, fitted section by section
+    with a 40 m tail, equal a fit of the whole track's photons read back from the file (the
+    same photons: every segment is fitted once, with all its photons, on the same grid)."""
+    from lidar_mitsuba import atl06
+    surf = dems.DEMSurface(dems.DEM.open(dem_path), tile_shots=512)
+    a3, a6 = tmp_path / "s3.h5", tmp_path / "s6.h5"
+    out = granule.stream_granule(surface=surf, track=TRACK, shots=2400, beams="gt2l,gt2r",
+                                 atl03_path=a3, atl06_path=a6, seed=5, progress=False,
+                                 max_depth=1, section_shots=700)
+    assert [s.shots for s in out] == [2400, 2400]
+    assert granule.section_bounds(2400, spacing_m=0.7, section_shots=700)[1][0] == 686
+    with h5py.File(a3, "r") as f3, h5py.File(a6, "r") as f6:
+        assert json.loads(f3.attrs["config"])["sections"] == 4
+        for s in out:
+            name = s.beam.name
+            geo, t = f3[f"{name}/geolocation"], f3[f"truth/{name}"]
+            sid = geo["segment_id"][()]
+            np.testing.assert_array_equal(sid, np.arange(1, sid.size + 1))
+            assert sid.size == int(np.floor(2399 * 0.7 / 20)) + 1
+            cnt, beg = geo["segment_ph_cnt"][()], geo["ph_index_beg"][()]
+            full = cnt > 0
+            np.testing.assert_array_equal(beg[full], np.cumsum(cnt)[full] - cnt[full] + 1)
+            shot = t["photons/shot"][()]
+            assert np.all(np.diff(shot) >= 0) and shot.max() > 1700
+            sig = t["photons/is_signal"][()] == 1
+            assert sig.sum() == s.photons
+            along = t["shots/along_track_m"][()]
+            zref = t["shots/z_ref_m"][()]
+            inst = granule.Instrument(beam=s.beam.strength)
+            whole = atl06.fit_segments(
+                photon_along_m=along[shot], h_m=t["photons/h_m"][()], shot=shot,
+                channel=t["photons/channel"][()], n_shots=along.size, shot_along_m=along,
+                n_channels=inst.channels, dead_time_ns=inst.effective_dead_time_ns,
+                paralyzable=inst.paralyzable, pulse_sigma_ns=inst.pulse_sigma_ns,
+                range_gate_m=inst.range_gate_m, z_ref_m=zref, gate_center_h_m=zref,
+                footprint_sigma_m=inst.footprint_sigma_m)
+            li = f6[f"{name}/land_ice_segments"]
+            np.testing.assert_array_equal(li["segment_id"][()], whole.segment_id)
+            np.testing.assert_array_equal(li["h_li"][()], np.where(
+                np.isfinite(whole.h_li), whole.h_li, np.finfo(np.float32).max).astype(np.float32))
+            np.testing.assert_array_equal(li["fit_statistics/n_fit_photons"][()],
+                                          whole.n_fit_photons)

@@ -362,10 +362,10 @@ def format_summary(doc: dict) -> str:
     if "peer" in doc:
         lines.append(peer.format_summary(doc["peer"]))
     for r in doc.get("track_length", []):
-        lines.append(f"DEM track {r['length_km']:g} km ({r['shots']} shots, {r['tiles']} tiles): "
-                     f"{r['shots_per_s']:.0f} shots/s, peak RSS {r['peak_rss_mb']:.0f} MB "
-                     f"(before {r['rss_before_mb']:.0f}, result arrays {r['result_mb']:.0f}, "
-                     f"working {r['working_mb']:.0f})")
+        lines.append(f"DEM track {r['length_km']:g} km ({r['shots']} shots, {r['sections']} "
+                     f"sections, {r['tiles']} tiles): {r['shots_per_s']:.0f} shots/s, peak RSS "
+                     f"{r['peak_rss_mb']:.0f} MB (before the run {r['rss_before_mb']:.0f}), "
+                     f"files {r['files_mb']:.0f} MB")
     for name, rows in doc.get("stability", {}).items():
         bad = [f"{r['value']:g}: {r['status']}" for r in rows
                if not str(r.get("status", "ok")).startswith("ok")]

@@ -1,10 +1,11 @@
-"""Memory and time against track length over a DEM (issue 13): one beam along a meridian of
-a long synthetic ice-sheet DEM, each length in a fresh process so its peak RSS is its own.
+"""Memory and time against track length over a DEM (issue 13): one strong beam along a
+meridian of a long synthetic ice-sheet DEM, streamed into ATL03 and ATL06 files
+(:func:`lidar_mitsuba.granule.stream_granule`), each length in a fresh process so its peak
+RSS is its own.
 
-Reported per length: shots, wall time, shots/s, the process's peak RSS, its RSS before the
-run (imports, DEM opened), and the bytes of the result the run hands back (per-shot truth
-and per-photon arrays, which grow with the track by design). ``working_mb`` = peak - before
-- result is what the streaming keeps flat: the corridor tiles, traces and detector state.
+Reported per length: shots, sections, corridor tiles, wall time, shots/s, the process's
+peak RSS and its RSS before the run (imports, DEM opened), ``working_mb`` = peak - before,
+and the size of the files written.
 """
 from __future__ import annotations
 
@@ -40,35 +41,32 @@ def make_dem(path: pathlib.Path, length_km: float) -> pathlib.Path:
                                    length_m=length, posting_m=DEM_POSTING_M, hole=False)
 
 
-def _result_bytes(res) -> int:
-    d = res.detections
-    arrays = [res.along_track_m, res.shot_x_m, res.shot_y_m, res.surface_z_m, res.z_ref_m,
-              res.h_m, res.signal_conf] + [getattr(d, k) for k in vars(d)
-                                           if isinstance(getattr(d, k), np.ndarray)]
-    return int(sum(a.nbytes for a in arrays))
-
-
 def measure(dem_path: str, length_km: float) -> dict:
     """Run one length in this process (call in a fresh one)."""
+    import tempfile
     import lidar_mitsuba  # noqa: F401  (libLLVM, variant)
     from .. import dem, geotrack, granule
     surf = dem.DEMSurface(dem.DEM.open(dem_path))
     shots = int(round(length_km * 1e3 / 0.7))
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    t0 = time.perf_counter()
-    g = granule.simulate_granule(
-        surface=surf, track=geotrack.GeoTrack(start_lat_deg=START_LAT, start_lon_deg=-45.0,
-                                              azimuth_deg=0.0),
-        shots=shots, beams="gt2l", max_depth=1, progress=False, paths_per_shot=64)
-    seconds = time.perf_counter() - t0
+    with tempfile.TemporaryDirectory() as tmp:
+        a3, a6 = pathlib.Path(tmp) / "ATL03.h5", pathlib.Path(tmp) / "ATL06.h5"
+        t0 = time.perf_counter()
+        out = granule.stream_granule(
+            surface=surf, track=geotrack.GeoTrack(start_lat_deg=START_LAT, start_lon_deg=-45.0,
+                                                  azimuth_deg=0.0),
+            shots=shots, beams="gt2l", max_depth=1, progress=False, paths_per_shot=64,
+            atl03_path=a3, atl06_path=a6)
+        seconds = time.perf_counter() - t0
+        files_mb = (a3.stat().st_size + a6.stat().st_size) / 2 ** 20
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    res = g.beams[0].result
-    result_mb = _result_bytes(res) / 2 ** 20
+    sections = len(granule.section_bounds(shots, spacing_m=0.7,
+                                          section_shots=granule.SECTION_SHOTS))
     return {"length_km": float(length_km), "shots": shots, "seconds": seconds,
             "shots_per_s": shots / seconds, "peak_rss_mb": peak, "rss_before_mb": before,
-            "result_mb": result_mb, "working_mb": peak - before - result_mb,
-            "tiles": res.config["surface"]["tiles"],
-            "photons": int(res.detections.shot.size)}
+            "working_mb": peak - before, "files_mb": files_mb, "sections": sections,
+            "tiles": -(-shots // surf.tile_shots), "photons": out[0].photons,
+            "bias_m": out[0].bias_m, "std_m": out[0].std_m}
 
 
 def run(*, out: pathlib.Path, quick: bool) -> list[dict]:
@@ -92,13 +90,11 @@ def chart(rows: list[dict], path: pathlib.Path) -> None:
     km = [r["length_km"] for r in rows]
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.8), dpi=110)
     a.plot(km, [r["peak_rss_mb"] for r in rows], "o-", label="peak RSS")
-    a.plot(km, [r["working_mb"] + r["rss_before_mb"] for r in rows], "s--",
-           label="peak RSS less the result arrays")
     a.plot(km, [r["rss_before_mb"] for r in rows], ":", color="0.5", label="before the run")
     a.set_xscale("log")
     a.set_xlabel("track length [km]")
     a.set_ylabel("memory [MB]")
-    a.set_title("memory vs track length (one strong beam)")
+    a.set_title("memory vs track length (one strong beam, streamed)")
     a.legend(fontsize=8)
     a.grid(alpha=0.3)
     b.plot(km, [r["shots_per_s"] for r in rows], "o-")
