@@ -80,7 +80,8 @@ def granule_clouds(atl03_path, path, *, max_points: int = 200_000) -> None:
                          photon_h_m=h["h_ph"][::step], is_signal=sig, ax=ax,
                          title=f"{name} (spot {f[name].attrs['atlas_spot_number']}, "
                                f"{f[name].attrs['atlas_beam_type']}): bias "
-                               f"{100 * dh.mean():+.1f} cm, precision {100 * dh.std():.1f} cm")
+                               f"{100 * dh.mean():+.1f} cm, precision {100 * dh.std():.1f} cm"
+                               + (f" (every {step}th photon drawn)" if step > 1 else ""))
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
