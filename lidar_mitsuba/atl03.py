@@ -11,7 +11,8 @@ Layout (one beam per file)::
         heights/signal_conf_ph (n, 5) int8  ATL03 confidence (0 noise, 2 low, 3 medium, 4 high)
                                             from lidar_mitsuba.classify, same in all 5 columns
     /truth/photons/           per detected photon (n,): shot, channel, anode, is_signal,
-                              time_ns [ns], return_index, hit_x_m/hit_y_m/hit_z_m [m]
+                              time_ns [ns], return_index, h_m [m] (float64),
+                              hit_x_m/hit_y_m/hit_z_m [m]
     /truth/shots/             per shot (n_shots,): along_track_m, x_m, y_m [m], z_ref_m [m]
                               (Gaussian-footprint mean height), surface_z_m [m], arrivals,
                               mean_photons
@@ -63,26 +64,36 @@ def write(result, path: str | os.PathLike) -> pathlib.Path:
         _ds(g, "signal_conf_ph", np.repeat(result.signal_conf[:, None], 5, axis=1), "counts",
             "ATL03 confidence (land, ocean, sea ice, land ice, inland water; the same "
             "histogram test in every column): 0 noise, 2 low, 3 medium, 4 high")
-        tp = f.create_group("truth/photons")
-        _ds(tp, "shot", det.shot, "1", "shot index")
-        _ds(tp, "channel", det.channel, "1", "detector channel")
-        _ds(tp, "anode", det.anode, "1", "PMT anode segment")
-        _ds(tp, "is_signal", det.is_signal.astype(np.int8), "1", "1 signal, 0 noise")
-        _ds(tp, "time_ns", det.time_ns, "ns", "round-trip time from the pulse centre")
-        _ds(tp, "return_index", det.return_index, "1", "index of the traced return")
-        for j, axis in enumerate(("x", "y", "z")):
-            _ds(tp, f"hit_{axis}_m", det.hit_xyz_m[:, j], "meters",
-                f"{axis} of the scattering point (NaN for noise)")
-        ts = f.create_group("truth/shots")
-        _ds(ts, "along_track_m", result.along_track_m, "meters", "along-track distance")
-        _ds(ts, "x_m", result.shot_x_m, "meters", "footprint centre x")
-        _ds(ts, "y_m", result.shot_y_m, "meters", "footprint centre y")
-        _ds(ts, "z_ref_m", result.z_ref_m, "meters",
-            "reference elevation: Gaussian-footprint-weighted mean height")
-        _ds(ts, "surface_z_m", result.surface_z_m, "meters", "height at the footprint centre")
-        _ds(ts, "arrivals", det.arrivals_per_shot, "1", "photons reaching the detector")
-        _ds(ts, "mean_photons", det.mean_photons_per_shot, "1", "Poisson mean per shot")
+        for group, name, data, units, desc in truth_fields(result):
+            _ds(f.require_group(f"truth/{group}"), name, data, units, desc)
     return path
+
+
+def truth_fields(result, *, order: np.ndarray | None = None, first_shot: int = 0):
+    """The ``/truth`` datasets of one beam's result: ``(group, name, data, units,
+    description)`` with group ``photons`` (per detected photon, in ``order``) or ``shots``
+    (per shot); shot numbers count from ``first_shot`` (a granule written in sections)."""
+    det = result.detections
+    o = slice(None) if order is None else order
+    yield "photons", "shot", det.shot[o] + first_shot, "1", "shot index"
+    yield "photons", "channel", det.channel[o], "1", "detector channel (0-based)"
+    yield "photons", "anode", det.anode[o], "1", "PMT anode segment"
+    yield "photons", "is_signal", det.is_signal[o].astype(np.int8), "1", "1 signal, 0 noise"
+    yield "photons", "time_ns", det.time_ns[o], "ns", "round-trip time from the pulse centre"
+    yield ("photons", "return_index", det.return_index[o], "1",
+           "index of the traced return in its run (-1 for noise)")
+    yield "photons", "h_m", result.h_m[o], "meters", "photon height (float64)"
+    for j, axis in enumerate(("x", "y", "z")):
+        yield ("photons", f"hit_{axis}_m", det.hit_xyz_m[o, j], "meters",
+               f"{axis} of the scattering point (NaN for noise)")
+    yield "shots", "along_track_m", result.along_track_m, "meters", "along-track distance"
+    yield "shots", "x_m", result.shot_x_m, "meters", "footprint centre x"
+    yield "shots", "y_m", result.shot_y_m, "meters", "footprint centre y"
+    yield ("shots", "z_ref_m", result.z_ref_m, "meters",
+           "reference elevation: Gaussian-footprint-weighted mean height")
+    yield "shots", "surface_z_m", result.surface_z_m, "meters", "height at the footprint centre"
+    yield "shots", "arrivals", det.arrivals_per_shot, "1", "photons reaching the detector"
+    yield "shots", "mean_photons", det.mean_photons_per_shot, "1", "Poisson mean per shot"
 
 
 @contextlib.contextmanager

@@ -49,7 +49,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import __version__, atl06, geotrack
+from . import __version__, atl03, atl06, geotrack
 from .atl03 import _ds, atomic_h5file
 from .constants import FWHM_PER_SIGMA, ParameterError
 from .dem import DEMSurface
@@ -262,15 +262,20 @@ def _segments(along_m: np.ndarray, photon_shot: np.ndarray):
     return seg_of_shot, first, count, ref_shot, k0
 
 
+def _span(granule: Granule):
+    """``(instruments, t_first, t_last)`` of an in-memory granule, for the file headers."""
+    runs = granule.beams
+    return ([(r.beam, r.result.instrument) for r in runs],
+            min(float(r.delta_time_s[0]) for r in runs),
+            max(float(r.delta_time_s[-1]) for r in runs))
+
+
 def write_atl03(granule: Granule, path: str | os.PathLike) -> pathlib.Path:
     """Write ``granule`` as an ATL03 file (see the module docstring), atomically."""
     path = pathlib.Path(path)
-    runs = granule.beams
-    t_first = min(float(r.delta_time_s[0]) for r in runs)
-    t_last = max(float(r.delta_time_s[-1]) for r in runs)
     with atomic_h5file(path) as f:
-        _atl03_header(f, granule, [(r.beam, r.result.instrument) for r in runs], t_first, t_last)
-        for r in runs:
+        _atl03_header(f, granule, *_span(granule))
+        for r in granule.beams:
             _beam_atl03(f, r, granule.sc_orient)
     return path
 
@@ -438,23 +443,9 @@ def _beam_atl03(f, run: BeamRun, sc_orient: int):
 
 
 def _truth(g, res, order, first_shot: int = 0):
-    det = res.detections
-    tp = g.require_group("photons")
-    _put(tp, "shot", det.shot[order] + first_shot, "1", "shot index")
-    _put(tp, "channel", det.channel[order], "1", "detector channel (0-based)")
-    _put(tp, "is_signal", det.is_signal[order].astype(np.int8), "1", "1 signal, 0 noise")
-    _put(tp, "time_ns", det.time_ns[order], "ns", "round-trip time from the pulse centre")
-    _put(tp, "h_m", res.h_m[order], "meters", "photon height (float64)")
-    for j, axis in enumerate(("x", "y", "z")):
-        _put(tp, f"hit_{axis}_m", det.hit_xyz_m[order, j], "meters",
-            f"{axis} of the scattering point in the simulation frame (NaN for noise)")
-    ts = g.require_group("shots")
-    _put(ts, "along_track_m", res.along_track_m, "meters", "along-track distance")
-    _put(ts, "x_m", res.shot_x_m, "meters", "footprint centre x (simulation frame)")
-    _put(ts, "y_m", res.shot_y_m, "meters", "footprint centre y (simulation frame)")
-    _put(ts, "z_ref_m", res.z_ref_m, "meters",
-        "reference elevation: Gaussian-footprint-weighted mean height")
-    _put(ts, "surface_z_m", res.surface_z_m, "meters", "height at the footprint centre")
+    for group, name, data, units, desc in atl03.truth_fields(res, order=order,
+                                                             first_shot=first_shot):
+        _put(g.require_group(group), name, data, units, desc)
     if "config" not in g.attrs:                       # (the first section's)
         g.attrs["config"] = json.dumps(res.config)
 
@@ -487,12 +478,9 @@ def write_atl06(granule: Granule, path: str | os.PathLike, **options) -> pathlib
     """Fit ATL06 segments to every beam (:func:`lidar_mitsuba.atl06.segments_from_result`,
     ``options`` passed on) and write them with ATL06's names, atomically."""
     path = pathlib.Path(path)
-    runs = granule.beams
-    t_first = min(float(r.delta_time_s[0]) for r in runs)
-    t_last = max(float(r.delta_time_s[-1]) for r in runs)
     with atomic_h5file(path) as f:
-        _atl06_header(f, granule, [(r.beam, r.result.instrument) for r in runs], t_first, t_last)
-        for r in runs:
+        _atl06_header(f, granule, *_span(granule))
+        for r in granule.beams:
             table = atl06.segments_from_result(r.result, **options)
             _beam_atl06(f, r.beam, granule.sc_orient, table, along_m=r.result.along_track_m,
                         lat_deg=r.lat_deg, lon_deg=r.lon_deg, delta_time_s=r.delta_time_s)

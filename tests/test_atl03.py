@@ -43,6 +43,7 @@ def expected_datasets(res):
         "truth/photons/is_signal": d.is_signal.astype(np.int8),
         "truth/photons/time_ns": d.time_ns,
         "truth/photons/return_index": d.return_index,
+        "truth/photons/h_m": res.h_m,
         "truth/photons/hit_x_m": d.hit_xyz_m[:, 0],
         "truth/photons/hit_y_m": d.hit_xyz_m[:, 1],
         "truth/photons/hit_z_m": d.hit_xyz_m[:, 2],
