@@ -1,5 +1,6 @@
-"""Command-line interface ``lidar-mitsuba`` (simulate, stats, segments, terrain, bench, reproduce,
-sweep).
+"""Command-line interface ``lidar-mitsuba`` (simulate, stats, segments, terrain, make-dem, bench,
+reproduce, sweep). ``simulate --dem`` streams a granule of up to six beams over a GeoTIFF
+(:func:`lidar_mitsuba.granule.stream_granule`).
 
 Bad input is reported as one line naming the option, with exit code 2 and no output file.
 The options of ``simulate`` and ``terrain`` are generated from the API (:mod:`.cli_options`):

@@ -130,7 +130,8 @@ class DEM:
 
 def _bilinear_nan(z: np.ndarray, g: float, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bilinear look-up of the grid ``z`` (node (i, j) at (j g, i g)) [m] at (x, y) [m]; NaN
-    off the grid and wherever one of the four nodes is NaN."""
+    off the grid and wherever a node with a non-zero weight is NaN (so a point on the last
+    row or column of valid pixels is defined)."""
     ny, nx = z.shape
     fx, fy = x / g, y / g
     outside = ~((fx >= 0) & (fy >= 0) & (fx <= nx - 1) & (fy <= ny - 1))
@@ -139,8 +140,10 @@ def _bilinear_nan(z: np.ndarray, g: float, x: np.ndarray, y: np.ndarray) -> np.n
     ix = np.minimum(fx.astype(np.intp), nx - 2)
     iy = np.minimum(fy.astype(np.intp), ny - 2)
     tx, ty = fx - ix, fy - iy
-    out = ((1 - ty) * ((1 - tx) * z[iy, ix] + tx * z[iy, ix + 1])
-           + ty * ((1 - tx) * z[iy + 1, ix] + tx * z[iy + 1, ix + 1]))
+    out = np.zeros(np.shape(fx))
+    for w, zz in (((1 - tx) * (1 - ty), z[iy, ix]), (tx * (1 - ty), z[iy, ix + 1]),
+                  ((1 - tx) * ty, z[iy + 1, ix]), (tx * ty, z[iy + 1, ix + 1])):
+        out += np.where(w > 0, w * zz, 0.0)     # a node of weight 0 may be nodata (an edge)
     return np.where(outside, np.nan, out)
 
 

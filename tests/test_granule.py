@@ -347,3 +347,22 @@ def test_streamed_granule_sections_join_exactly(dem_path, tmp_path):
                 np.isfinite(whole.h_li), whole.h_li, np.finfo(np.float32).max).astype(np.float32))
             np.testing.assert_array_equal(li["fit_statistics/n_fit_photons"][()],
                                           whole.n_fit_photons)
+
+
+def test_make_dem_writes_a_dem_that_opens_and_refuses_bad_sizes(tmp_path):
+    exe = [sys.executable, "-m", "lidar_mitsuba_cli", "make-dem"]
+    out = tmp_path / "d.tif"
+    p = subprocess.run(exe + ["--out", str(out), "--width-m", "2000", "--length-m", "3000",
+                              "--posting-m", "25", "--no-hole"], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    d = dems.DEM.open(out)
+    assert d.crs.to_epsg() == 3413 and (d.width, d.height) == (81, 121)
+    surf = dems.DEMSurface(d)
+    x0, x1, y0, y1 = d.bounds_m
+    xs, ys = np.meshgrid(np.linspace(x0, x1, 7), np.linspace(y0, y1, 7))
+    assert np.isfinite(surf.height_m(xs, ys)).all()          # no hole asked for
+    for args, option in ((["--posting-m", "0"], "--posting-m"), (["--lat", "89"], "--lat"),
+                         (["--width-m", "1e9"], "--width-m")):
+        bad = tmp_path / "bad.tif"
+        p = subprocess.run(exe + ["--out", str(bad)] + args, capture_output=True, text=True)
+        assert p.returncode == 2 and f"error: {option}:" in p.stderr and not bad.exists()
