@@ -507,15 +507,21 @@ def segments_from_result(result, **options) -> SegmentTable:
     writing a file: the same photons, gate and truth as :func:`segments_from_atl03` reads
     from the file that ``atl03.write(result, ...)`` would write. ``options`` are passed to
     :func:`fit_segments`."""
-    inst, d = result.instrument, result.detections
+    d = result.detections
     kw = dict(photon_along_m=result.along_track_m[d.shot], h_m=result.h_m, shot=d.shot,
               channel=d.channel, n_shots=result.n_shots, shot_along_m=result.along_track_m,
-              n_channels=inst.channels, dead_time_ns=inst.effective_dead_time_ns,
-              paralyzable=inst.paralyzable, pulse_sigma_ns=inst.pulse_sigma_ns,
-              range_gate_m=inst.range_gate_m, z_ref_m=result.z_ref_m,
-              gate_center_h_m=result.z_ref_m, footprint_sigma_m=inst.footprint_sigma_m)
+              z_ref_m=result.z_ref_m, gate_center_h_m=result.z_ref_m,
+              **instrument_settings(result.instrument))
     kw.update(options)
     return fit_segments(**kw)
+
+
+def instrument_settings(inst) -> dict:
+    """:func:`fit_segments`' detector settings for an
+    :class:`~lidar_mitsuba.instrument.Instrument` as simulated."""
+    return dict(n_channels=inst.channels, dead_time_ns=inst.effective_dead_time_ns,
+                paralyzable=inst.paralyzable, pulse_sigma_ns=inst.pulse_sigma_ns,
+                range_gate_m=inst.range_gate_m, footprint_sigma_m=inst.footprint_sigma_m)
 
 
 def write(table: SegmentTable, path: str | os.PathLike, *, attrs: dict | None = None

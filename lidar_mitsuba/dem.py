@@ -29,7 +29,7 @@ import numpy as np
 from . import scene as scn, terrain
 from .constants import ParameterError, check
 from .resources import check_memory
-from .surface import MESH_BYTES_PER_VERTEX, Surface
+from .surface import MESH_BYTES_PER_VERTEX, Surface, grid_faces
 from .terrain import Heightfield
 
 #: Gauss-Hermite nodes per axis of the footprint-weighted reference elevation of the DEM part
@@ -321,12 +321,8 @@ class DEMSurface(Surface):
                 f"DEM's nodata or edge at x {ox + lx.flat[bad] + self.origin_m[0]:.1f} m, y "
                 f"{oy + ly.flat[bad] + self.origin_m[1]:.1f} m ({self.dem.crs.to_string()}); "
                 f"move the track")
-        nc, na = A.shape
         vertices = np.column_stack([lx.ravel(), ly.ravel(), z.ravel()])
-        i = (np.arange(nc - 1)[:, None] * na + np.arange(na - 1)[None, :]).ravel()
-        p, q, r, s = i, i + 1, i + na, i + na + 1
-        # (u, v) is a right-handed frame like (x, y): the same winding as the heightfield mesh
-        faces = np.concatenate([np.column_stack([p, q, s]), np.column_stack([p, s, r])])
+        faces = grid_faces(*A.shape)     # (u, v) is right-handed like (x, y): normals up
         return scn.scene_from_mesh(vertices, faces, bsdf=bsdf), (ox, oy), int(len(faces))
 
     def mitsuba_scene(self, *, bsdf, margin_m, bounds_m):

@@ -616,7 +616,7 @@ class _SegmentStream:
     def fit(self, run: BeamRun, *, last: bool):
         """The segments completed by this section: ``(table, along, lat, lon, time)``."""
         res = run.result
-        inst, det = res.instrument, res.detections
+        det = res.detections
         shots = {"along": res.along_track_m, "zref": res.z_ref_m, "lat": run.lat_deg,
                  "lon": run.lon_deg, "time": run.delta_time_s}
         ph = {"shot": det.shot.astype(np.int64), "h": res.h_m, "channel": det.channel}
@@ -628,18 +628,15 @@ class _SegmentStream:
         along = shots["along"]
         kw = dict(photon_along_m=along[ph["shot"]], h_m=ph["h"], shot=ph["shot"],
                   channel=ph["channel"], n_shots=along.size, shot_along_m=along,
-                  n_channels=inst.channels, dead_time_ns=inst.effective_dead_time_ns,
-                  paralyzable=inst.paralyzable, pulse_sigma_ns=inst.pulse_sigma_ns,
-                  range_gate_m=inst.range_gate_m, z_ref_m=shots["zref"],
-                  gate_center_h_m=shots["zref"], footprint_sigma_m=inst.footprint_sigma_m,
-                  x0_m=self.next_centre - SEGMENT_M)
+                  z_ref_m=shots["zref"], gate_center_h_m=shots["zref"],
+                  x0_m=self.next_centre - SEGMENT_M, **atl06.instrument_settings(res.instrument))
         kw.update(self.options)
         table = atl06.fit_segments(**kw)
         keep = table.x_atc >= self.next_centre - 1e-6
         if not last:      # a segment is done once the next section cannot add to it:
             # its span ends at or before the end of this section's last 20 m segment
             end = SEGMENT_M * (np.floor(along[-1] / SEGMENT_M) + 1)
-            keep &= table.x_atc + SEGMENT_M / 2 <= end - SEGMENT_M / 2 + 1e-6
+            keep &= table.x_atc + SEGMENT_M <= end + 1e-6
         table = atl06.SegmentTable(**{f: np.asarray(getattr(table, f))[keep]
                                       for f in atl06.FIELDS})
         table.segment_id[:] = np.round(table.x_atc / SEGMENT_M).astype(table.segment_id.dtype)

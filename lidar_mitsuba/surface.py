@@ -120,13 +120,18 @@ def heightfield_to_trimesh(hf: Heightfield, *, margin_m: float = 0.0,
         z = hf.z_m[np.ix_(iy % hf.ny, ix % hf.nx)]
     else:
         z = hf.z_m[np.ix_(np.clip(iy, 0, hf.ny - 1), np.clip(ix, 0, hf.nx - 1))]
-    ny, nx = z.shape
     X, Y = np.meshgrid(ix * g, iy * g)
     vertices = np.column_stack([X.ravel(), Y.ravel(), z.ravel()])
+    return trimesh.Trimesh(vertices, grid_faces(*z.shape), process=False)
+
+
+def grid_faces(ny: int, nx: int) -> np.ndarray:
+    """(2 (ny - 1) (nx - 1), 3) triangles of a row-major grid of ny x nx vertices whose rows
+    step along the second axis of a right-handed frame (y for x, y): two per cell, normals
+    up."""
     i = (np.arange(ny - 1)[:, None] * nx + np.arange(nx - 1)[None, :]).ravel()
     a, b, c, d = i, i + 1, i + nx, i + nx + 1        # (x,y), (x+1,y), (x,y+1), (x+1,y+1)
-    faces = np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
-    return trimesh.Trimesh(vertices, faces, process=False)
+    return np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
 
 
 def export_ply(tm: trimesh.Trimesh, path: str | pathlib.Path) -> None:
