@@ -194,6 +194,18 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--mesh-grid-m", type=float, default=1.0, metavar="M",
                    help="spacing of the corridor mesh (1 m)")
     d.add_argument("--atl06", metavar="FILE.h5", help="also write ATL06 land-ice segments")
+    v = s.add_argument_group("snow volume (off by default: the surface's BSDF is the snow)")
+    v.add_argument("--snow-grain-um", type=float, metavar="UM",
+                   help="trace snow as a scattering volume of this optical grain radius [um] "
+                   "under the surface (built-in surfaces and --dem)")
+    v.add_argument("--snow-density", type=float, default=350.0, metavar="KG_M3",
+                   help="snow density [kg/m^3] (350)")
+    v.add_argument("--snow-depth-m", type=float, default=float("inf"), metavar="M",
+                   help="snow layer thickness [m] (inf: semi-infinite)")
+    v.add_argument("--snow-base-albedo", type=float, default=0.0, metavar="A",
+                   help="Lambertian albedo of the base under a finite layer (0)")
+    v.add_argument("--snow-max-events", type=int, default=1000, metavar="N",
+                   help="scatterings traced per photon (1000); later light is lost")
     r = s.add_argument_group("rendering")
     opts.add_options(r, simulate, only=RUN_OPTIONS, types_={"max_depth": _max_depth},
                      metavars={"max_depth": "N|auto", "variant": "NAME"})
@@ -310,13 +322,16 @@ def _cmd_simulate(a) -> int:
         if "kind" not in surface_given and "slope_deg" in surface_given:
             surface_given["kind"] = "slope"
     inst = Instrument(**opts.given(a, a._instrument_opts))
+    if a.scene is not None and a.snow_grain_um is not None:
+        raise UsageError("--snow-grain-um", "does not apply to --scene: put a <medium> inside "
+                         "its terrain shape")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SimulationWarning)     # printed below, our way
         res = simulate(instrument=inst, surface=None if a.scene else SurfaceSpec(**surface_given),
                        scene_file=a.scene, params=params or None,
                        track=Track(**opts.given(a, a._track_opts)),
                        progress=not a.no_progress, crop_to_track=not a.full_tile,
-                       **opts.given(a, RUN_OPTIONS))
+                       snow=_snow(a), **opts.given(a, RUN_OPTIONS))
     inst = res.instrument           # as run (an XML <integrator> may set its geometry)
     for w in res.config["warnings"]:
         sys.stderr.write(f"{PROG} simulate: warning: {w}\n")
@@ -342,6 +357,23 @@ def _cmd_simulate(a) -> int:
                            f"precision {100 * rep.overall.std_m:.1f} cm")
         print(f"wrote {plot}")
     return 0
+
+
+def _snow(a):
+    """The run's snow volume from the ``--snow-*`` options, or ``None`` (no --snow-grain-um)."""
+    from . import snow
+    if a.snow_grain_um is None:
+        for flag, value, default in (("--snow-density", a.snow_density, 350.0),
+                                     ("--snow-depth-m", a.snow_depth_m, float("inf")),
+                                     ("--snow-base-albedo", a.snow_base_albedo, 0.0),
+                                     ("--snow-max-events", a.snow_max_events, 1000)):
+            if value != default:
+                raise UsageError(flag, "only applies with --snow-grain-um")
+        return None
+    return snow.snow_from_grains(grain_radius_um=a.snow_grain_um,
+                                 density_kg_m3=a.snow_density, depth_m=a.snow_depth_m,
+                                 base_albedo=a.snow_base_albedo,
+                                 max_events=a.snow_max_events)
 
 
 def _read_input(path: str, reader):
@@ -425,7 +457,7 @@ def _simulate_dem(a, out, plot) -> int:
         summaries = granule.stream_granule(
             surface=surface, track=track, beams=beams, sc_orient=a.sc_orient,
             instrument_options=inst_opts, progress=not a.no_progress, shots=shots,
-            atl03_path=out, atl06_path=atl06_out, **run)
+            atl03_path=out, atl06_path=atl06_out, snow=_snow(a), **run)
     for sm in summaries:
         for w in sm.config["warnings"]:
             sys.stderr.write(f"{PROG} simulate: warning: {sm.beam.name}: {w}\n")

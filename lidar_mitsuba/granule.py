@@ -703,7 +703,8 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                     run = ctx.beam_run(beam, a, b - a, seed=_beam_seed(seed, beam, k),
                                        progress=False, paths_per_shot=paths_per_shot,
                                        max_depth=depth[beam.name], **simulate_options)
-                    depth[beam.name] = run.result.config["max_depth"]
+                    if run.result.config.get("snow") is None:   # a volume sets its own
+                        depth[beam.name] = run.result.config["max_depth"]
                     _beam_atl03(f3, run, sc_orient)
                     if f6 is not None:
                         table, along, lat, lon, t = segs[beam.name].fit(

@@ -23,7 +23,7 @@ def ward_bsdf_dict(*, rho_d: float = 0.9, rho_s: float = 0.05, alpha: float = 0.
 
 
 def mitsuba_mesh(vertices: np.ndarray, faces: np.ndarray, *, bsdf: dict | mi.BSDF | None = None,
-                 name: str = "terrain") -> mi.Mesh:
+                 name: str = "terrain", interior: mi.Medium | None = None) -> mi.Mesh:
     """An in-memory Mitsuba mesh (no file written).
 
     Args:
@@ -31,10 +31,13 @@ def mitsuba_mesh(vertices: np.ndarray, faces: np.ndarray, *, bsdf: dict | mi.BSD
         faces: (n_faces, 3) vertex indices, counter-clockwise seen from the side the normal
             points to.
         bsdf: a Mitsuba BSDF or its dict (default: Mitsuba's default diffuse).
+        interior: the medium inside (below) the mesh, e.g. snow (:mod:`lidar_mitsuba.snow`).
     """
     props = mi.Properties()
     if bsdf is not None:
         props["bsdf"] = bsdf if isinstance(bsdf, mi.BSDF) else mi.load_dict(bsdf)
+    if interior is not None:
+        props["interior"] = interior
     v = np.ascontiguousarray(vertices, dtype=np.float32)
     f = np.ascontiguousarray(faces, dtype=np.uint32)
     mesh = mi.Mesh(name, v.shape[0], f.shape[0], props=props)
@@ -45,11 +48,36 @@ def mitsuba_mesh(vertices: np.ndarray, faces: np.ndarray, *, bsdf: dict | mi.BSD
     return mesh
 
 
-def scene_from_mesh(vertices: np.ndarray, faces: np.ndarray, *, bsdf: dict | None = None
-                    ) -> mi.Scene:
-    """A Mitsuba scene holding one mesh (default BSDF: the paper's Ward snow)."""
+def scene_from_mesh(vertices: np.ndarray, faces: np.ndarray, *, bsdf=None) -> mi.Scene:
+    """A Mitsuba scene holding one terrain mesh. ``bsdf``: its BSDF dict (default: the paper's
+    Ward snow), or a :class:`~lidar_mitsuba.snow.SnowVolume`: the terrain then bounds a snow
+    volume (index-matched surface, and a base mesh under a finite layer)."""
+    if hasattr(bsdf, "shapes"):                                   # a snow volume
+        return mi.load_dict({"type": "scene", **bsdf.shapes(vertices, faces)})
     mesh = mitsuba_mesh(vertices, faces, bsdf=bsdf if bsdf is not None else ward_bsdf_dict())
     return mi.load_dict({"type": "scene", "terrain": mesh})
+
+
+def scene_medium(scene: mi.Scene):
+    """The one participating medium of a scene (the interior medium of its shapes), or
+    ``None``. Raises ``ValueError`` for more than one medium, a medium that is not
+    ``homogeneous``, or a shape bounding it whose BSDF is not ``null`` (index-matched)."""
+    found = []
+    for shape in scene.shapes():
+        for med in (shape.interior_medium(), shape.exterior_medium()):
+            if med is None:
+                continue
+            if not med.is_homogeneous():
+                raise ValueError(f"shape '{shape.id()}': only homogeneous media are supported "
+                                 f"(got {med.class_name()})")
+            if not mi.has_flag(shape.bsdf().flags(), mi.BSDFFlags.Null):
+                raise ValueError(f"shape '{shape.id()}' bounds a medium: give it "
+                                 f'<bsdf type="null"/> (an index-matched surface)')
+            if not any(med is m for m in found):
+                found.append(med)
+    if len(found) > 1:
+        raise ValueError(f"the scene has {len(found)} media; one (the snow) is supported")
+    return found[0] if found else None
 
 
 def scene_bounds(scene: mi.Scene) -> tuple[np.ndarray, np.ndarray]:

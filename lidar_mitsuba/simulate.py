@@ -28,6 +28,7 @@ from . import bounce_pilot, chunks, classify, retrieval, scene as scn, surface a
 from .constants import FWHM_PER_SIGMA, ParameterError, SimulationWarning
 from .instrument import Instrument
 from .photons import Detections, Returns
+from .snow import SnowVolume
 from .resources import check_memory
 from .surface import SceneSurface, SurfaceSpec
 from .track import Track
@@ -205,7 +206,7 @@ def simulate(*, instrument: Instrument | None = None,
              paths_per_shot: int = 128, max_depth: int | str = "auto",
              track: Track | None = None, variant: str | None = None, progress: bool = True,
              chunk_shots: int = chunks.CHUNK_SHOTS, keep_returns: bool | None = None,
-             crop_to_track: bool = True) -> SimulationResult:
+             crop_to_track: bool = True, snow: SnowVolume | None = None) -> SimulationResult:
     """Simulate ``shots`` laser shots along a ground track and detect their photons.
 
     Args:
@@ -240,6 +241,10 @@ def simulate(*, instrument: Instrument | None = None,
         crop_to_track: mesh only the corridor the track's photons can reach (the footprints'
             5 sigma, or the receiver's field of view when ``max_depth > 1``) instead of the
             whole tile: the same answer from a much smaller mesh. ``False``: the full tile.
+        snow: a snow volume under a built-in surface or a DEM
+            (:func:`lidar_mitsuba.snow.snow_from_grains`), traced by the ``volpathlength``
+            integrator instead of the surface BSDF (off by default). An XML scene gets its
+            snow from a ``<medium>`` inside its terrain shape instead.
 
     Raises:
         ParameterError: a bad value, named (``.name``), before anything is traced.
@@ -250,7 +255,11 @@ def simulate(*, instrument: Instrument | None = None,
         resolves); also listed in ``result.config["warnings"]``.
     """
     instrument = instrument or Instrument()
-    _check_run(shots, seed, paths_per_shot, max_depth, chunk_shots)
+    if snow is not None and not isinstance(snow, SnowVolume):
+        raise ParameterError("snow", f"must be a SnowVolume (got {type(snow).__name__})")
+    _check_run(shots, seed, paths_per_shot,
+               "auto" if snow is not None and max_depth == snow.max_events else max_depth,
+               chunk_shots)
     if variant is not None:
         try:
             set_variant(variant)
@@ -262,9 +271,26 @@ def simulate(*, instrument: Instrument | None = None,
                                                     scene_file=scene_file, params=params,
                                                     bsdf=bsdf)
     max_lanes, honoured = None, {}
+    volume = snow is not None
+    if volume:
+        if isinstance(surf, SceneSurface):
+            raise ParameterError("snow", "does not apply to a Mitsuba scene: put a <medium> "
+                                 "inside its terrain shape (docs: README, snow)")
+        if bsdf is not None:
+            raise ParameterError("bsdf", "a snow volume replaces the surface BSDF: give one")
+        if max_depth not in ("auto", snow.max_events):
+            raise ParameterError("max_depth", "with a snow volume the interactions per photon "
+                                 "are the snow's max_events (--snow-max-events)")
+        max_depth = int(snow.max_events)
     if isinstance(surf, SceneSurface):
+        try:
+            volume = scn.scene_medium(surf.scene) is not None
+        except ValueError as e:
+            raise ParameterError("scene", str(e)) from None
         instrument, max_depth, max_lanes, honoured = _scene_settings(surf.scene, instrument,
                                                                      max_depth)
+        if volume and max_depth == "auto":
+            max_depth = 1000
     check_memory("shots", estimate_memory_bytes(instrument, shots), f"a run of {shots} shots",
                  "split the track into several runs")
     sigma = instrument.footprint_sigma_m
@@ -277,8 +303,9 @@ def simulate(*, instrument: Instrument | None = None,
         max_depth = 1
     # mesh only the corridor the photons can reach: footprints (5 sigma) for single bounce;
     # the receiver's field of view when paths may bounce on
-    reach = margin if max_depth == 1 else max(margin, instrument.fov_diameter_m / 2 + 5.0)
-    bsdf_used = bsdf if bsdf is not None else default_bsdf
+    reach = (margin if max_depth == 1 or volume
+             else max(margin, instrument.fov_diameter_m / 2 + 5.0))
+    bsdf_used = snow if snow is not None else bsdf if bsdf is not None else default_bsdf
     first_tile = None
     if surf.streamed:       # a DEM: every chunk traces its own corridor tile
         chunk_shots = min(chunk_shots, surf.tile_shots)
@@ -314,9 +341,16 @@ def simulate(*, instrument: Instrument | None = None,
                                        paths_per_shot=int(paths_per_shot))
         max_depth = 1 if pilot["single_bounce_enough"] else 2
         timings["pilot_s"] = time.perf_counter() - t1
-    integrator = mi.load_dict(instrument.integrator_dict(max_depth=max_depth, **lanes))
+    integrator_dict = instrument.integrator_dict(max_depth=max_depth, **lanes)
+    if volume:             # one record per photon, whatever its interactions
+        integrator_dict.update(snow.integrator_params() if snow is not None else
+                               {"type": "volpathlength", **{
+                                   k: v for k, v in honoured.items()
+                                   if k in ("group_index", "snow_depth_m", "base_albedo")}})
+        integrator_dict["max_depth"] = int(max_depth)
+    integrator = mi.load_dict(integrator_dict)
     if keep_returns is None:
-        keep_returns = shots * paths_per_shot * max_depth <= 2 ** 24
+        keep_returns = shots * paths_per_shot * (1 if volume else max_depth) <= 2 ** 24
     gate_z = chunks.gate_heights_m(z_ref)
     if surf.streamed:
         source = chunks.CorridorSource(integrator, surf, x_m=x, y_m=y,
@@ -341,7 +375,8 @@ def simulate(*, instrument: Instrument | None = None,
 
     choices, warns = _explain(instrument=instrument, surf=surf, max_depth=max_depth,
                               pilot=pilot, paths_per_shot=paths_per_shot, crop=crop_to_track,
-                              triangles=triangles, det=det)
+                              triangles=triangles, det=det, volume=volume, snow=snow,
+                              shots=shots, timings=timings)
     if surf.streamed:
         surf_cfg.update(tiles=source.tiles, max_tile_triangles=source.triangles)
     warns += _diagnose(surf=surf, scene=scene_, x_m=x_loc, y_m=y_loc,
@@ -352,7 +387,9 @@ def simulate(*, instrument: Instrument | None = None,
     config = {"instrument": instrument.to_dict(), "surface": surf_cfg, "track": track.to_dict(),
               "shots": int(shots), "seed": int(seed), "paths_per_shot": int(paths_per_shot),
               "max_depth": int(max_depth), "bounce_pilot": pilot, "variant": mi.variant(),
-              "scene_integrator": honoured, "choices": choices, "warnings": warns}
+              "scene_integrator": honoured, "choices": choices, "warnings": warns,
+              "snow": snow.config() if snow is not None else None,
+              "integrator": integrator_dict["type"]}
     return SimulationResult(instrument=instrument, config=config, along_track_m=along,
                             shot_x_m=x, shot_y_m=y, surface_z_m=surface_z, z_ref_m=z_ref,
                             detections=det, h_m=h, signal_conf=conf, returns=run.returns,
@@ -360,11 +397,21 @@ def simulate(*, instrument: Instrument | None = None,
 
 
 def _explain(*, instrument, surf, max_depth, pilot, paths_per_shot, crop, triangles,
-             det) -> tuple[list[str], list[str]]:
+             det, volume=False, snow=None, shots=0, timings=None
+             ) -> tuple[list[str], list[str]]:
     """The modelling choices of a run in words (``lidar-mitsuba simulate --explain``), and
     the ones that deserve a warning."""
     out = []
-    if surf.exact_single_bounce and max_depth == 1:
+    if volume:
+        out.append(snow.describe() if snow is not None else
+                   f"snow volume on (the scene's <medium>), up to {max_depth} interactions "
+                   f"per photon")
+        if timings and "trace_s" in timings:
+            rate = shots / max(timings["trace_s"], 1e-9)
+            out.append(f"its cost: {rate:.3g} shots/s traced ({timings['trace_s']:.3g} s for "
+                       f"{shots} shots), against ~10^4 shots/s for the surface alone on two "
+                       f"CPU cores; `lidar-mitsuba bench` charts the ratio")
+    elif surf.exact_single_bounce and max_depth == 1:
         out.append("single bounce (max_depth 1): exact for a plane, where nothing bounces twice")
     elif pilot is not None:
         out.append(bounce_pilot.explain(pilot, max_depth))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import gc
 import importlib.util
+import sys
 import os
 import pathlib
 
@@ -16,7 +17,7 @@ import mitsuba as mi
 
 DEFAULT_VARIANT = "llvm_ad_mono"
 SUPPORTED_VARIANTS = ("llvm_ad_mono", "cuda_ad_mono", "llvm_ad_rgb", "cuda_ad_rgb")
-PLUGIN_FILES = ("ward", "pathlength")
+PLUGIN_FILES = ("ward", "pathlength", "volpathlength")
 
 _registered: set[str] = set()
 
@@ -30,6 +31,7 @@ def _register_plugins(variant: str | None) -> None:
         spec = importlib.util.spec_from_file_location(
             f"lidar_mitsuba.plugins._{variant}_{name}", path)
         module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module   # a later plugin may build on it (volpathlength)
         spec.loader.exec_module(module)  # registers itself with mi.register_*
     _registered.add(variant)
 

@@ -13,7 +13,7 @@ import numpy as np
 from lidar_mitsuba import constants as K
 from lidar_mitsuba.constants import C_M_PER_NS, REFERENCE_ALBEDO
 from lidar_mitsuba.photons import Returns
-from lidar_mitsuba.scene import scene_bounds
+from lidar_mitsuba.scene import scene_bounds, scene_medium
 
 
 class PathLengthIntegrator(mi.SamplingIntegrator):
@@ -254,8 +254,8 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
         if not (z_start < self.altitude_m):
             raise ValueError(f"altitude_m ({self.altitude_m}) must be above the scene top "
                              f"({float(hi[2])})")
-        per_chunk = max(1, self.max_lanes // (paths_per_shot * self.max_depth))
-        core = self._first_surface if self.max_depth == 1 else self._multi_bounce
+        core, slots = self._core(scene)
+        per_chunk = max(1, self.max_lanes // (paths_per_shot * slots))
 
         def make(k: int, start: int, stop: int):
             out = core(scene, mi.Float(shot_x_m[start:stop]), mi.Float(shot_y_m[start:stop]),
@@ -269,7 +269,16 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
         steps = [(k, a, min(n_shots, a + per_chunk))
                  for k, a in enumerate(range(0, n_shots, per_chunk))]
         return PendingReturns(make, steps, n_shots=n_shots, paths_per_shot=int(paths_per_shot),
-                              max_depth=self.max_depth)
+                              max_depth=slots)
+
+    def _core(self, scene: mi.Scene):
+        """The tracing function for ``scene`` and its output slots per photon lane."""
+        if scene_medium(scene) is not None:
+            raise ValueError("the scene has a participating medium (snow): trace it with the "
+                             "'volpathlength' integrator (simulate() chooses it)")
+        if self.max_depth == 1:
+            return self._first_surface, 1
+        return self._multi_bounce, self.max_depth
 
     def trace(self, scene: mi.Scene, *, shot_x_m: np.ndarray, shot_y_m: np.ndarray,
               paths_per_shot: int = 128, seed: int = 0,
@@ -352,7 +361,8 @@ class PendingReturns:
     def _fetch(self, out, shift, n_shots: int) -> Returns:
         """Compact the slots of non-zero weight on the device, derive their shot (and depth)
         there, put folded shots back in place, and copy only those to the host."""
-        t, w, x, y, z = out
+        t, w, x, y, z = out[:5]
+        depth_of_slot = out[5] if len(out) > 5 else None      # cores that record it per slot
         idx = dr.compress(w > 0.0)                        # synchronises; keeps slot order
         if dr.width(idx) == 0:
             return Returns.empty(n_shots=n_shots, paths_per_shot=self.paths_per_shot)
@@ -368,11 +378,13 @@ class PendingReturns:
             t = t - dt
             x, y, z = (mi.Float(mi.Float64(a) + d) for a, d in ((x, dx), (y, dy), (z, dz)))
         arrays = [shot, t, w, x, y, z]
-        if self.max_depth > 1:
+        if depth_of_slot is not None:
+            arrays.append(dr.minimum(dr.gather(mi.UInt32, depth_of_slot, idx), 255))
+        elif self.max_depth > 1:
             arrays.append(idx % self.max_depth + 1)
         dr.eval(*arrays)
         host = [a.numpy() for a in arrays]
-        depth = (host[6].astype(np.uint8) if self.max_depth > 1
+        depth = (host[6].astype(np.uint8) if len(host) > 6
                  else np.ones(host[0].size, np.uint8))
         return Returns(shot=host[0], time_ns=host[1], weight=host[2], x_m=host[3],
                        y_m=host[4], z_m=host[5], depth=depth, n_shots=n_shots,

@@ -1,0 +1,270 @@
+"""Snow as a volume (lidar_mitsuba.snow, the volpathlength integrator): checked against closed
+forms, never against itself.
+
+References:
+- exact radiative transfer for isotropic scattering in a half-space (Chandrasekhar's
+  H-function, tests/closed_forms.py): the nadir return pi f_r = omega H(1)^2 / 8 and the
+  hemispherical albedo 1 - H(1) sqrt(1 - omega);
+- single scattering in a layer of optical depth tau (exact when only the first interaction
+  returns, and the limit of the full walk as tau -> 0);
+- diffusion theory (lidar_mitsuba.snow.DiffusionHalfSpace) for the hemispherical albedo and
+  the mean and variance of the path length, where it holds (mu_a / mu_s' = 0.01);
+- the grain-size law of diffusion: the mean path scales as sqrt(r) at fixed density.
+
+Tolerances: Z = 4.5 sampling standard errors (per-photon sd / sqrt(N) for totals, batch
+means over 20 blocks of shots for ratios such as the mean path), plus, for diffusion theory,
+its own model error, stated where used.
+"""
+import math
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from lidar_mitsuba import scene as scn, snow
+from lidar_mitsuba.constants import C_M_PER_NS, ParameterError, REFERENCE_ALBEDO
+
+from closed_forms import Z, chandrasekhar_h
+
+ALT = 496e3
+
+
+def flat_trace(vol: snow.SnowVolume, *, tally="receiver", max_depth=None, n_shots=100,
+               pps=1000, seed=1):
+    """Trace a flat snowpack (a 2 km square at z = 0) at nadir with a point footprint and a
+    zero-width pulse. Returns per photon (n_shots * pps,) its weight (0 if none) and its
+    path length inside the medium [m], and the shot of each photon."""
+    v = np.array([[-1e3, -1e3, 0], [1e3, -1e3, 0], [-1e3, 1e3, 0], [1e3, 1e3, 0]], float)
+    sc = scn.scene_from_mesh(v, np.array([[0, 1, 3], [0, 3, 2]]), bsdf=vol)
+    params = {**vol.integrator_params(), "pulse_sigma_ns": 0.0, "footprint_sigma_m": 0.0,
+              "tally": tally}
+    if max_depth is not None:
+        params["max_depth"] = int(max_depth)
+    integ = mi.load_dict(params)
+    r = integ.trace(sc, shot_x_m=np.zeros(n_shots), shot_y_m=np.zeros(n_shots),
+                    paths_per_shot=pps, seed=seed)
+    n = n_shots * pps
+    w = np.zeros(n)
+    L = np.zeros(n)
+    # one record per photon, in photon order within its shot: place them by counting
+    assert np.all(np.bincount(r.shot, minlength=n_shots) <= pps)
+    idx = np.arange(len(r))
+    first = np.searchsorted(r.shot, r.shot)
+    slot = r.shot.astype(np.int64) * pps + (idx - first)
+    w[slot] = r.weight
+    L[slot] = r.time_ns * C_M_PER_NS - 2 * ALT
+    return w, L, np.repeat(np.arange(n_shots), pps)
+
+
+def mean_se(x):
+    return float(np.mean(x)), float(np.std(x) / math.sqrt(x.size))
+
+
+def batch_moments(w, L, shot, n_batches=20):
+    """Weighted mean and variance of L, and their batch-means standard errors."""
+    def moments(sel):
+        ww, ll = w[sel], L[sel]
+        m = np.sum(ww * ll) / np.sum(ww)
+        return m, np.sum(ww * (ll - m) ** 2) / np.sum(ww)
+    full = moments(np.ones(w.size, bool))
+    blocks = np.array_split(np.unique(shot), n_batches)
+    b = np.array([moments(np.isin(shot, blk)) for blk in blocks])
+    se = b.std(axis=0, ddof=1) / math.sqrt(n_batches)
+    return full, se
+
+
+# --------------------------------------------------------------------------- coefficients
+def test_coefficients_from_grain_size_and_density():
+    s = snow.snow_from_grains(grain_radius_um=100, density_kg_m3=350)
+    f = 350 / 917
+    assert s.sigma_t_per_m == pytest.approx(1.5 * f / 100e-6, rel=1e-12)     # 5725 /m
+    B = snow.absorption_enhancement()
+    assert B == pytest.approx(1.2543, abs=2e-4)      # n = 1.3117, weak-absorption sphere
+    assert s.sigma_a_per_m == pytest.approx(B * f * 0.04, rel=1e-12)
+    assert s.group_index == pytest.approx(1 + 0.3117 * f, rel=1e-12)
+    # absorption does not depend on grain size, scattering goes as 1 / r
+    big = snow.snow_from_grains(grain_radius_um=1000, density_kg_m3=350)
+    assert big.sigma_a_per_m == pytest.approx(s.sigma_a_per_m)
+    assert big.sigma_t_per_m == pytest.approx(s.sigma_t_per_m / 10)
+    with pytest.raises(ParameterError) as e:
+        snow.snow_from_grains(grain_radius_um=1, density_kg_m3=350)
+    assert e.value.name == "snow_grain_um"
+    with pytest.raises(ParameterError) as e:
+        snow.snow_from_grains(grain_radius_um=100, density_kg_m3=950)
+    assert e.value.name == "snow_density"
+
+
+def test_diffusion_closed_forms_are_consistent():
+    """The reference itself: its density integrates to its total, its CDF and moments agree
+    with quadrature of the density (a slip in a closed form would show here)."""
+    from scipy.integrate import quad
+    d = snow.DiffusionHalfSpace(mu_s_prime_per_m=630.0, mu_a_per_m=0.02)
+    tot = quad(lambda L: d.path_pdf(L), 0, np.inf, limit=400)[0]
+    assert tot == pytest.approx(d.total_reflectance(), rel=1e-7)
+    assert d.path_cdf(0.3) == pytest.approx(quad(lambda L: d.path_pdf(L), 0, 0.3,
+                                                 limit=400)[0], rel=1e-7)
+    m = quad(lambda L: L * d.path_pdf(L), 0, np.inf, limit=400)[0] / tot
+    assert d.mean_path_m() == pytest.approx(m, rel=1e-6)
+    v = quad(lambda L: (L - m) ** 2 * d.path_pdf(L), 0, np.inf, limit=400)[0] / tot
+    assert d.var_path_m2() == pytest.approx(v, rel=1e-5)
+    # small absorption: 1 - R -> (5/3) sqrt(3 mu_a / mu_s') (extrapolated boundary)
+    d2 = snow.DiffusionHalfSpace(mu_s_prime_per_m=1.0, mu_a_per_m=1e-8)
+    assert 1 - d2.total_reflectance() == pytest.approx(5 / 3 * math.sqrt(3e-8), rel=1e-3)
+
+
+# --------------------------------------------------------------------------- exact transport
+@pytest.mark.parametrize("omega", [0.9, 0.99])
+def test_nadir_return_matches_chandrasekhar(omega):
+    """Isotropic scattering, semi-infinite, index-matched: the nadir return of single and
+    multiple scattering is pi f_r = omega H(1)^2 / 8 exactly (weight scale: / 0.9)."""
+    sigma_t = 1000.0
+    vol = snow.SnowVolume(sigma_s_per_m=omega * sigma_t, sigma_a_per_m=(1 - omega) * sigma_t,
+                          g=0.0, max_events=5000)
+    w, _, _ = flat_trace(vol, n_shots=100, pps=1000)
+    mean, se = mean_se(w)
+    exact = omega * chandrasekhar_h(omega, 1.0) ** 2 / 8 / REFERENCE_ALBEDO
+    assert abs(mean - exact) < Z * se, (mean, se, exact)
+
+
+def test_hemispherical_albedo_matches_chandrasekhar():
+    """Isotropic scattering: the albedo under a normal beam is 1 - H(1) sqrt(1 - omega)."""
+    omega = 0.99
+    vol = snow.SnowVolume(sigma_s_per_m=990.0, sigma_a_per_m=10.0, g=0.0, max_events=5000)
+    w, _, _ = flat_trace(vol, tally="hemisphere", n_shots=100, pps=1000)
+    mean, se = mean_se(w)
+    exact = 1 - chandrasekhar_h(omega, 1.0) * math.sqrt(1 - omega)
+    assert abs(mean - exact) < Z * se, (mean, se, exact)
+
+
+# --------------------------------------------------------------------------- single scattering
+@pytest.mark.parametrize("g", [0.0, 0.89])
+def test_first_interaction_return_is_single_scattering(g):
+    """Only the first interaction returning (max_depth 1) over a black base under a layer
+    of optical depth 0.5: pi omega p(180 deg) (1 - e^{-2 tau}) / 2 exactly."""
+    sigma_t, depth = 1000.0, 5e-4
+    vol = snow.SnowVolume(sigma_s_per_m=0.95 * sigma_t, sigma_a_per_m=0.05 * sigma_t, g=g,
+                          depth_m=depth, max_events=1)
+    w, _, _ = flat_trace(vol, n_shots=100, pps=1000)
+    mean, se = mean_se(w)
+    p_back = (1 - g * g) / (4 * math.pi * (1 + g) ** 3)           # HG at 180 degrees
+    tau = sigma_t * depth
+    exact = math.pi * 0.95 * p_back * (1 - math.exp(-2 * tau)) / 2 / REFERENCE_ALBEDO
+    assert abs(mean - exact) < Z * se, (mean, se, exact)
+
+
+def test_thin_layer_tends_to_single_scattering():
+    """The full walk in an optically thin layer (tau = 0.01, black base): single scattering,
+    plus multiple scattering of relative size O(tau) (bounded here by 2 tau)."""
+    sigma_t, depth = 1000.0, 1e-5
+    vol = snow.SnowVolume(sigma_s_per_m=sigma_t, sigma_a_per_m=0.0, g=0.0, depth_m=depth)
+    w, _, _ = flat_trace(vol, n_shots=200, pps=1000)
+    mean, se = mean_se(w)
+    tau = sigma_t * depth
+    single = math.pi / (4 * math.pi) * (1 - math.exp(-2 * tau)) / 2 / REFERENCE_ALBEDO
+    assert abs(mean - single) < Z * se + 2 * tau * single, (mean, se, single)
+
+
+def test_energy_conservation():
+    """No absorption: the albedo is 1 less the light still inside after max_depth
+    interactions (diffusion's path-length tail beyond max_depth free paths); with absorption
+    it is below that, and it falls as absorption grows."""
+    vol = snow.SnowVolume(sigma_s_per_m=1000.0, sigma_a_per_m=0.0, g=0.0, max_events=20000)
+    w, _, _ = flat_trace(vol, tally="hemisphere", n_shots=20, pps=1000)
+    r0, se0 = mean_se(w)
+    assert np.all(w <= 1.0 + 1e-6)
+    lost = vol.diffusion().total_reflectance() - vol.diffusion().path_cdf(20000 / 1000.0)
+    assert abs(r0 - (1 - lost)) < Z * se0 + 0.005, (r0, lost)
+    albedos = []
+    for mu_a in (1.0, 10.0):
+        v = snow.SnowVolume(sigma_s_per_m=1000.0, sigma_a_per_m=mu_a, g=0.0, max_events=5000)
+        albedos.append(mean_se(flat_trace(v, tally="hemisphere", n_shots=20, pps=1000)[0])[0])
+    assert r0 > albedos[0] > albedos[1]
+
+
+# --------------------------------------------------------------------------- diffusion theory
+@pytest.mark.parametrize("g, sigma_s", [(0.0, 1000.0), (0.89, 1000.0 / 0.11)])
+def test_hemisphere_matches_diffusion_theory(g, sigma_s):
+    """mu_a / mu_s' = 0.01 (mu_s' = 1000 /m for both g, the similarity principle): total,
+    mean and variance of the path length against the extrapolated-boundary dipole. Model
+    error allowed on top of Z standard errors: 2 % on the total, 8 % on the moments
+    (diffusion's error at this absorption; an independent numpy random walk of the same
+    medium differs from it by 1 % and 7 %)."""
+    vol = snow.SnowVolume(sigma_s_per_m=sigma_s, sigma_a_per_m=10.0, g=g, max_events=20000)
+    w, L, shot = flat_trace(vol, tally="hemisphere", n_shots=40, pps=1000)
+    d = vol.diffusion()
+    r, se = mean_se(w)
+    assert abs(r - d.total_reflectance()) < Z * se + 0.02 * d.total_reflectance()
+    (m, v), (m_se, v_se) = batch_moments(w, L, shot)
+    assert abs(m - d.mean_path_m()) < Z * m_se + 0.08 * d.mean_path_m(), (m, d.mean_path_m())
+    assert abs(v - d.var_path_m2()) < Z * v_se + 0.08 * d.var_path_m2(), (v, d.var_path_m2())
+
+
+def test_mean_path_grows_as_sqrt_of_grain_size():
+    """Diffusion: mean path = sqrt(3) / (2 sqrt(mu_s' mu_a)) up to the boundary term, and
+    mu_s' ~ 1/r at fixed density: four times the grain radius doubles the mean extra path.
+    (Ice absorption raised to 4 /m here so that paths stay short; the law is the same.)"""
+    means = []
+    for r_um in (50, 200):
+        vol = snow.snow_from_grains(grain_radius_um=r_um, density_kg_m3=350,
+                                    ice_absorption_per_m=4.0, group_index=1.0,
+                                    max_events=50000)
+        w, L, shot = flat_trace(vol, tally="hemisphere", n_shots=20, pps=500)
+        (m, _), (m_se, _) = batch_moments(w, L, shot)
+        means.append((m, m_se, vol.diffusion().mean_path_m()))
+    ratio = means[1][0] / means[0][0]
+    ratio_se = ratio * math.hypot(means[0][1] / means[0][0], means[1][1] / means[1][0])
+    theory = means[1][2] / means[0][2]
+    assert 1.9 < theory < 2.0                       # sqrt(4) less the boundary term
+    assert abs(ratio - theory) < Z * ratio_se + 0.05 * theory, (ratio, theory)
+
+
+def test_return_path_lengths_and_a_gamma_law():
+    """Hu et al. (2022) describe the lidar return of snow by a Gamma law of path length.
+    Fitted by maximum likelihood it stays within 0.15 of the return's cumulative
+    distribution (Kolmogorov distance; 0.115 measured), and diffusion theory's law (the
+    dipole, normalised) as well, while a Gamma law with the return's mean and variance
+    does not (0.30): the L^-3/2 tail makes moments a poor way to fit it."""
+    from scipy import stats
+    vol = snow.snow_from_grains(grain_radius_um=200, density_kg_m3=350,
+                                ice_absorption_per_m=4.0, group_index=1.0, max_events=50000)
+    w, L, _ = flat_trace(vol, n_shots=20, pps=1000)
+    keep = w > 0
+    w, L = w[keep], np.maximum(L[keep], 1e-9)
+    order = np.argsort(L)
+    cdf = np.cumsum(w[order]) / np.sum(w)
+    x = L[order]
+    k, theta = snow.gamma_fit(L, w)
+    assert 0.3 < k < 1.5                             # a skewed law, not a Gaussian
+    dist = np.max(np.abs(cdf - stats.gamma.cdf(x, k, scale=theta)))
+    assert dist < 0.15, dist
+    d = vol.diffusion()
+    assert np.max(np.abs(cdf - d.path_cdf(x) / d.total_reflectance())) < 0.15
+    m = np.sum(w * L) / np.sum(w)
+    v = np.sum(w * (L - m) ** 2) / np.sum(w)
+    moments = np.max(np.abs(cdf - stats.gamma.cdf(x, m * m / v, scale=v / m)))
+    assert moments > dist + 0.1, (moments, dist)
+
+
+# --------------------------------------------------------------------------- plumbing
+def test_pathlength_refuses_a_medium_and_xml_medium_runs(tmp_path):
+    from lidar_mitsuba.simulate import simulate
+    vol = snow.snow_from_grains(grain_radius_um=200, density_kg_m3=350)
+    xml = tmp_path / "snow.xml"
+    xml.write_text(f"""<scene version="3.0.0">
+  <shape type="rectangle">
+    <transform name="to_world"><scale value="500"/><translate x="500" y="500"/></transform>
+    {vol.xml()}
+  </shape>
+</scene>""")
+    sc = mi.load_file(str(xml))
+    plain = mi.load_dict({"type": "pathlength"})
+    with pytest.raises(ValueError, match="volpathlength"):
+        plain.trace(sc, shot_x_m=np.array([500.0]), shot_y_m=np.array([500.0]))
+    res = simulate(scene_file=str(xml), shots=300, seed=2, progress=False)
+    assert res.config["integrator"] == "volpathlength"
+    rep = res.report().overall
+    # the snow delays the return: photons appear below the surface
+    assert rep.bias_m < -3 * rep.bias_se_m
+    with pytest.raises(ParameterError) as e:
+        simulate(scene_file=str(xml), snow=vol, shots=10, progress=False)
+    assert e.value.name == "snow"
