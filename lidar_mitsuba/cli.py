@@ -204,8 +204,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="snow layer thickness [m] (inf: semi-infinite)")
     v.add_argument("--snow-base-albedo", type=float, default=0.0, metavar="A",
                    help="Lambertian albedo of the base under a finite layer (0)")
-    v.add_argument("--snow-max-events", type=int, default=1000, metavar="N",
-                   help="scatterings traced per photon (1000); later light is lost")
+    v.add_argument("--snow-max-events", type=int, default=10000, metavar="N",
+                   help="scatterings traced per photon (10000); later light is lost")
     r = s.add_argument_group("rendering")
     opts.add_options(r, simulate, only=RUN_OPTIONS, types_={"max_depth": _max_depth},
                      metavars={"max_depth": "N|auto", "variant": "NAME"})
@@ -366,7 +366,7 @@ def _snow(a):
         for flag, value, default in (("--snow-density", a.snow_density, 350.0),
                                      ("--snow-depth-m", a.snow_depth_m, float("inf")),
                                      ("--snow-base-albedo", a.snow_base_albedo, 0.0),
-                                     ("--snow-max-events", a.snow_max_events, 1000)):
+                                     ("--snow-max-events", a.snow_max_events, 10000)):
             if value != default:
                 raise UsageError(flag, "only applies with --snow-grain-um")
         return None

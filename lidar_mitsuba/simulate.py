@@ -290,7 +290,7 @@ def simulate(*, instrument: Instrument | None = None,
         instrument, max_depth, max_lanes, honoured = _scene_settings(surf.scene, instrument,
                                                                      max_depth)
         if volume and max_depth == "auto":
-            max_depth = 1000
+            max_depth = 10000
     check_memory("shots", estimate_memory_bytes(instrument, shots), f"a run of {shots} shots",
                  "split the track into several runs")
     sigma = instrument.footprint_sigma_m
@@ -422,7 +422,8 @@ def _explain(*, instrument, surf, max_depth, pilot, paths_per_shot, crop, triang
                    "checks whether that matters)")
     else:
         out.append(f"{max_depth} bounces per path with shadow-tested returns toward the receiver")
-    out += surf.notes(instrument=instrument, max_depth=max_depth, crop=crop, triangles=triangles)
+    out += surf.notes(instrument=instrument, max_depth=1 if volume else max_depth, crop=crop,
+                      triangles=triangles)
     warns = surf.warnings(instrument=instrument)
     peak = float(np.max(det.mean_photons_per_shot)) if det.mean_photons_per_shot.size else 0.0
     kept = peak * instrument.fill_factor * instrument.pde

@@ -79,7 +79,7 @@ class SnowVolume:
     group_index: float = 1.0
     depth_m: float = math.inf
     base_albedo: float = 0.0
-    max_events: int = 1000
+    max_events: int = 10000
     grain_radius_um: float | None = None
     density_kg_m3: float | None = None
 
@@ -176,7 +176,7 @@ def snow_from_grains(*, grain_radius_um: float, density_kg_m3: float,
                      depth_m: float = math.inf, base_albedo: float = 0.0,
                      g: float = G_ICE_SPHERES,
                      ice_absorption_per_m: float = ICE_ABSORPTION_532_PER_M,
-                     group_index: float | None = None, max_events: int = 1000) -> SnowVolume:
+                     group_index: float | None = None, max_events: int = 10000) -> SnowVolume:
     """A :class:`SnowVolume` from optical grain radius [um] and density [kg m^-3] (the
     relations in the module docstring). ``group_index`` ``None``: ``1 + (n_ice - 1) f``."""
     check("snow_grain_um", grain_radius_um,

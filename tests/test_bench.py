@@ -74,6 +74,16 @@ def test_bench_quick(bench_run):
     assert all(r["peak_rss_mb"] >= r["rss_before_mb"] > 0 and r["photons"] > 0 for r in tl)
     assert tl[1]["tiles"] > tl[0]["tiles"] and "DEM track 4 km" in printed
     assert (out / "track_length.png").stat().st_size > 10_000
+    # snow: the volume costs time and biases elevations low, more for larger grains
+    sn = doc["snow"]
+    assert sn["cost"][0]["grain_um"] is None
+    assert all(r["shots_per_s"] < sn["cost"][0]["shots_per_s"] for r in sn["cost"][1:])
+    strong = [r for r in sn["bias"] if r["beam"] == "strong"]
+    assert strong[-1]["h_li_bias_m"] < strong[0]["h_li_bias_m"] < 0
+    assert [r["max_events"] for r in sn["events"]] == [100, 1000, 10000]
+    assert "snow volume, 200 um" in doc["accuracy_vs_time"]
+    assert "of surface only" in printed
+    assert (out / "snow.png").stat().st_size > 10_000
     if "rows" in doc["peer"]:     # mitransient installed (the test extra has it)
         assert (out / "peer.png").stat().st_size > 10_000
         assert all(math.isfinite(r["error"]) and r["seconds"] > 0 for r in doc["peer"]["rows"])

@@ -268,3 +268,28 @@ def test_pathlength_refuses_a_medium_and_xml_medium_runs(tmp_path):
     with pytest.raises(ParameterError) as e:
         simulate(scene_file=str(xml), snow=vol, shots=10, progress=False)
     assert e.value.name == "snow"
+
+
+def test_cli_snow_options(tmp_path):
+    """--snow-* run through the whole chain; bad values: one line naming the option, exit 2,
+    no file."""
+    import subprocess
+    import sys
+    exe = [sys.executable, "-m", "lidar_mitsuba.cli"]
+    out = tmp_path / "s.h5"
+    p = subprocess.run(exe + ["simulate", "--surface", "flat", "--snow-grain-um", "100",
+                              "--snow-max-events", "2000", "--shots", "200", "--out", str(out),
+                              "--explain", "--no-progress"],
+                       capture_output=True, text=True, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "snow volume on (grains r = 100 um" in p.stdout and out.is_file()
+    for args, flag in ((["--snow-grain-um", "2"], "--snow-grain-um"),
+                       (["--snow-density", "300"], "--snow-density"),
+                       (["--snow-grain-um", "100", "--snow-density", "2000"], "--snow-density"),
+                       (["--snow-grain-um", "100", "--snow-max-events", "0"],
+                        "--snow-max-events")):
+        bad = tmp_path / "bad.h5"
+        p = subprocess.run(exe + ["simulate", "--surface", "flat", "--shots", "10", "--out",
+                                  str(bad)] + args, capture_output=True, text=True, cwd=tmp_path)
+        assert p.returncode == 2 and flag in p.stderr and "Traceback" not in p.stderr, p.stderr
+        assert len(p.stderr.strip().splitlines()) == 1 and not bad.exists()

@@ -29,7 +29,7 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
 
      * - max_depth
        - |int|
-       - Interactions per photon: volume scatterings and opaque-surface hits (default 1000).
+       - Interactions per photon: volume scatterings and opaque-surface hits (default 10000).
          A photon still travelling after that is dropped (its later returns are lost).
      * - group_index
        - |float|
@@ -88,13 +88,13 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
         .. code-tab:: xml
 
             <integrator type="volpathlength">
-                <integer name="max_depth" value="1000"/>
+                <integer name="max_depth" value="10000"/>
                 <float name="group_index" value="1.12"/>
             </integrator>
 
         .. code-tab:: python
 
-            {'type': 'volpathlength', 'max_depth': 1000, 'group_index': 1.12}
+            {'type': 'volpathlength', 'max_depth': 10000, 'group_index': 1.12}
     """
 
     #: parameters beyond ``pathlength``'s
@@ -102,7 +102,7 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
 
     def __init__(self, props: mi.Properties):
         if "max_depth" not in props:
-            props["max_depth"] = 1000
+            props["max_depth"] = 10000
         depth = int(props["max_depth"])
         if not 1 <= depth <= 10 ** 6:
             raise ValueError(f"volpathlength: max_depth out of range (got {depth})")

@@ -312,8 +312,10 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False,
         doc["accuracy_vs_time"] = accuracy.run(quick=quick)
         doc["simplifications"] = accuracy.simplifications(quick=quick)
         doc["peer"] = peer.run(quick=quick)
-        from . import track_length
+        from . import snow_bias, track_length
         doc["track_length"] = track_length.run(out=out, quick=quick)
+        doc["snow"] = snow_bias.run(quick=quick)
+        doc["accuracy_vs_time"]["snow volume, 200 um"] = snow_bias.pareto_rows(doc["snow"])
     (out / "bench.json").write_text(json.dumps(doc, indent=1, default=float))
     _chart(doc, out / "throughput.png")
     if not throughput_only:
@@ -321,6 +323,7 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False,
         accuracy.chart(doc["accuracy_vs_time"], out / "accuracy_vs_time.png")
         peer.chart(doc["peer"], out / "peer.png")
         track_length.chart(doc["track_length"], out / "track_length.png")
+        snow_bias.chart(doc["snow"], out / "snow.png")
     return doc
 
 
@@ -366,6 +369,9 @@ def format_summary(doc: dict) -> str:
                      f"sections, {r['tiles']} tiles): {r['shots_per_s']:.0f} shots/s, peak RSS "
                      f"{r['peak_rss_mb']:.0f} MB (before the run {r['rss_before_mb']:.0f}), "
                      f"files {r['files_mb']:.0f} MB")
+    if "snow" in doc:
+        from . import snow_bias
+        lines += snow_bias.format_summary(doc["snow"])
     for name, rows in doc.get("stability", {}).items():
         bad = [f"{r['value']:g}: {r['status']}" for r in rows
                if not str(r.get("status", "ok")).startswith("ok")]
