@@ -204,8 +204,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="snow layer thickness [m] (inf: semi-infinite)")
     v.add_argument("--snow-base-albedo", type=float, default=0.0, metavar="A",
                    help="Lambertian albedo of the base under a finite layer (0)")
-    v.add_argument("--snow-max-events", type=int, default=10000, metavar="N",
-                   help="scatterings traced per photon (10000); later light is lost")
+    v.add_argument("--snow-max-events", type=int, metavar="N",
+                   help="scatterings traced per photon; later light is lost (default: enough "
+                   "for 10 m of path in the snow)")
+    v.add_argument("--snow-similarity-g", type=float, metavar="G",
+                   help="trace a similar snow with this asymmetry (0 <= G < 0.89) and the same "
+                   "sigma_s (1 - g): fewer scatterings, faster, approximate near the surface")
     r = s.add_argument_group("rendering")
     opts.add_options(r, simulate, only=RUN_OPTIONS, types_={"max_depth": _max_depth},
                      metavars={"max_depth": "N|auto", "variant": "NAME"})
@@ -366,14 +370,15 @@ def _snow(a):
         for flag, value, default in (("--snow-density", a.snow_density, 350.0),
                                      ("--snow-depth-m", a.snow_depth_m, float("inf")),
                                      ("--snow-base-albedo", a.snow_base_albedo, 0.0),
-                                     ("--snow-max-events", a.snow_max_events, 10000)):
+                                     ("--snow-max-events", a.snow_max_events, None),
+                                     ("--snow-similarity-g", a.snow_similarity_g, None)):
             if value != default:
                 raise UsageError(flag, "only applies with --snow-grain-um")
         return None
-    return snow.snow_from_grains(grain_radius_um=a.snow_grain_um,
-                                 density_kg_m3=a.snow_density, depth_m=a.snow_depth_m,
-                                 base_albedo=a.snow_base_albedo,
-                                 max_events=a.snow_max_events)
+    vol = snow.snow_from_grains(grain_radius_um=a.snow_grain_um,
+                                density_kg_m3=a.snow_density, depth_m=a.snow_depth_m,
+                                base_albedo=a.snow_base_albedo, max_events=a.snow_max_events)
+    return vol if a.snow_similarity_g is None else vol.similar(a.snow_similarity_g)
 
 
 def _read_input(path: str, reader):

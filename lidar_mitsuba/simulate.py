@@ -28,7 +28,7 @@ from . import bounce_pilot, chunks, classify, retrieval, scene as scn, surface a
 from .constants import FWHM_PER_SIGMA, ParameterError, SimulationWarning
 from .instrument import Instrument
 from .photons import Detections, Returns
-from .snow import SnowVolume
+from .snow import SnowVolume, medium_events_cap
 from .resources import check_memory
 from .surface import SceneSurface, SurfaceSpec
 from .track import Track
@@ -258,7 +258,7 @@ def simulate(*, instrument: Instrument | None = None,
     if snow is not None and not isinstance(snow, SnowVolume):
         raise ParameterError("snow", f"must be a SnowVolume (got {type(snow).__name__})")
     _check_run(shots, seed, paths_per_shot,
-               "auto" if snow is not None and max_depth == snow.max_events else max_depth,
+               "auto" if snow is not None and max_depth == snow.events_cap else max_depth,
                chunk_shots)
     if variant is not None:
         try:
@@ -278,19 +278,20 @@ def simulate(*, instrument: Instrument | None = None,
                                  "inside its terrain shape (docs: README, snow)")
         if bsdf is not None:
             raise ParameterError("bsdf", "a snow volume replaces the surface BSDF: give one")
-        if max_depth not in ("auto", snow.max_events):
+        if max_depth not in ("auto", snow.events_cap):
             raise ParameterError("max_depth", "with a snow volume the interactions per photon "
                                  "are the snow's max_events (--snow-max-events)")
-        max_depth = int(snow.max_events)
+        max_depth = snow.events_cap
     if isinstance(surf, SceneSurface):
         try:
-            volume = scn.scene_medium(surf.scene) is not None
+            medium = scn.scene_medium(surf.scene)
         except ValueError as e:
             raise ParameterError("scene", str(e)) from None
+        volume = medium is not None
         instrument, max_depth, max_lanes, honoured = _scene_settings(surf.scene, instrument,
                                                                      max_depth)
         if volume and max_depth == "auto":
-            max_depth = 10000
+            max_depth = medium_events_cap(medium)
     check_memory("shots", estimate_memory_bytes(instrument, shots), f"a run of {shots} shots",
                  "split the track into several runs")
     sigma = instrument.footprint_sigma_m

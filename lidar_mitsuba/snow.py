@@ -33,6 +33,7 @@ Patterson & Wilson 1992, Med. Phys. 19, 879).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -48,6 +49,10 @@ N_ICE_532 = 1.3117
 ICE_ABSORPTION_532_PER_M = 0.04
 #: asymmetry parameter of large ice spheres at 532 nm
 G_ICE_SPHERES = 0.89
+#: path length inside the snow [m] that the default interaction cap covers (sigma_s x this):
+#: ATL06 h_li changes by less than its Monte Carlo error (~0.5 cm) beyond it (bench's
+#: snow study), while the raw photon mean never settles (the path tail falls as L^-3/2)
+DEFAULT_PATH_M = 10.0
 
 
 def absorption_enhancement(n: float = N_ICE_532) -> float:
@@ -68,8 +73,10 @@ class SnowVolume:
             path length in air (1 for the closed-form checks).
         depth_m: thickness of the layer [m] (``inf``: semi-infinite).
         base_albedo: Lambertian albedo of the opaque base under a finite layer (0: black).
-        max_events: interactions traced per photon (volume scatterings and surface hits);
-            light still inside after that is lost: the accuracy-versus-time knob.
+        max_events: interactions traced per photon (volume scatterings and base hits);
+            light still inside after that is lost: the accuracy-versus-time knob. ``None``
+            (default): enough for ``DEFAULT_PATH_M`` of path, ``ceil(sigma_s x 10 m)``
+            (:attr:`events_cap`).
         grain_radius_um, density_kg_m3: the physical parameters it came from, if any
             (:func:`snow_from_grains`), for the record.
     """
@@ -79,9 +86,11 @@ class SnowVolume:
     group_index: float = 1.0
     depth_m: float = math.inf
     base_albedo: float = 0.0
-    max_events: int = 10000
+    max_events: int | None = None
     grain_radius_um: float | None = None
     density_kg_m3: float | None = None
+    #: the asymmetry this volume was rescaled from by :meth:`similar` (None: not rescaled)
+    similar_to_g: float | None = None
 
     def __post_init__(self):
         check("sigma_s_per_m", self.sigma_s_per_m,
@@ -94,14 +103,21 @@ class SnowVolume:
               "must be in [1, 2]")
         check("snow_depth_m", self.depth_m, self.depth_m > 0, "must be > 0 (inf: semi-infinite)")
         check("base_albedo", self.base_albedo, 0 <= self.base_albedo <= 1, "must be in [0, 1]")
-        check("snow_max_events", self.max_events,
-              isinstance(self.max_events, (int, np.integer)) and 1 <= self.max_events <= 10 ** 6,
-              "must be an integer in [1, 1e6]")
+        check("snow_max_events", self.max_events, self.max_events is None or (
+              isinstance(self.max_events, (int, np.integer)) and 1 <= self.max_events <= 10 ** 7),
+              "must be an integer in [1, 1e7]")
 
     # ------------------------------------------------------------ derived
     @property
     def sigma_t_per_m(self) -> float:
         return self.sigma_s_per_m + self.sigma_a_per_m
+
+    @property
+    def events_cap(self) -> int:
+        """Interactions traced per photon: ``max_events``, or enough for ``DEFAULT_PATH_M``."""
+        if self.max_events is not None:
+            return int(self.max_events)
+        return int(min(10 ** 7, math.ceil(self.sigma_s_per_m * DEFAULT_PATH_M)))
 
     @property
     def albedo(self) -> float:
@@ -112,6 +128,21 @@ class SnowVolume:
     def reduced_scattering_per_m(self) -> float:
         """sigma_s (1 - g) [1/m]: the inverse of the transport mean free path."""
         return self.sigma_s_per_m * (1.0 - self.g)
+
+    def similar(self, g: float) -> "SnowVolume":
+        """The same snow for diffusion (same reduced scattering sigma_s (1 - g) and
+        absorption) with asymmetry ``g`` instead: fewer, longer free paths, so fewer
+        interactions per photon (``max_events`` scaled to cover the same path length). Exact
+        where diffusion holds, approximate in the first few transport free paths, which is
+        where the earliest returns come from: ``bench`` measures what it costs in accuracy."""
+        check("snow_similarity_g", g, isinstance(g, (int, float)) and 0 <= g <= self.g,
+              f"must be in [0, {self.g:g}] (the snow's own g)")
+        scale = (1.0 - self.g) / (1.0 - g)
+        return dataclasses.replace(
+            self, sigma_s_per_m=self.sigma_s_per_m * scale, g=float(g),
+            max_events=(None if self.max_events is None
+                        else max(1, int(round(self.max_events * scale)))),
+            similar_to_g=self.g if self.similar_to_g is None else self.similar_to_g)
 
     def diffusion(self) -> "DiffusionHalfSpace":
         """Diffusion theory for this medium as a half-space (ignores ``depth_m``)."""
@@ -137,7 +168,7 @@ class SnowVolume:
 
     def integrator_params(self) -> dict:
         """The ``volpathlength`` integrator's parameters for this snowpack."""
-        return {"type": "volpathlength", "max_depth": int(self.max_events),
+        return {"type": "volpathlength", "max_depth": self.events_cap,
                 "group_index": float(self.group_index), "snow_depth_m": float(self.depth_m),
                 "base_albedo": float(self.base_albedo)}
 
@@ -155,7 +186,8 @@ class SnowVolume:
                 "sigma_s_per_m": self.sigma_s_per_m, "sigma_a_per_m": self.sigma_a_per_m,
                 "g": self.g, "group_index": self.group_index,
                 "depth_m": None if math.isinf(self.depth_m) else self.depth_m,
-                "base_albedo": self.base_albedo, "max_events": int(self.max_events)}
+                "base_albedo": self.base_albedo, "max_events": self.events_cap,
+                "similar_to_g": self.similar_to_g}
 
     def describe(self) -> str:
         """One line for ``--explain``."""
@@ -164,19 +196,34 @@ class SnowVolume:
                if self.grain_radius_um is not None else "")
         depth = "semi-infinite" if math.isinf(self.depth_m) else (
             f"{self.depth_m:g} m deep over a base of albedo {self.base_albedo:g}")
+        if self.similar_to_g is not None:
+            src += (f"rescaled by similarity from g {self.similar_to_g:g} (same sigma_s (1 - g)"
+                    f"; approximate near the surface), ")
         return (f"snow volume on ({src}sigma_s {self.sigma_s_per_m:.4g} /m, sigma_a "
                 f"{self.sigma_a_per_m:.3g} /m, g {self.g:g}, {depth}, index-matched surface, "
                 f"group index {self.group_index:.3f}); diffusion theory: mean extra path "
                 f"{d.mean_path_m():.3g} m, {d.mean_path_m() * self.sigma_s_per_m:.0f} "
-                f"scatterings per returned photon on average; traced up to {self.max_events} "
-                f"interactions per photon")
+                f"scatterings per returned photon on average; traced up to {self.events_cap} "
+                f"interactions per photon ({self.events_cap / self.sigma_s_per_m:.3g} m of "
+                f"path)")
+
+
+def medium_events_cap(medium) -> int:
+    """The default interaction cap (``DEFAULT_PATH_M`` of path) for a Mitsuba homogeneous
+    medium, e.g. the ``<medium>`` of an XML scene: ``ceil(scale sigma_t albedo x 10 m)``."""
+    import mitsuba as mi
+    p = mi.traverse(medium)
+    sigma_s = (float(p["scale"]) * float(p["sigma_t.value.value"][0])
+               * float(p["albedo.value.value"][0]))
+    return int(min(10 ** 7, max(1, math.ceil(sigma_s * DEFAULT_PATH_M))))
 
 
 def snow_from_grains(*, grain_radius_um: float, density_kg_m3: float,
                      depth_m: float = math.inf, base_albedo: float = 0.0,
                      g: float = G_ICE_SPHERES,
                      ice_absorption_per_m: float = ICE_ABSORPTION_532_PER_M,
-                     group_index: float | None = None, max_events: int = 10000) -> SnowVolume:
+                     group_index: float | None = None,
+                     max_events: int | None = None) -> SnowVolume:
     """A :class:`SnowVolume` from optical grain radius [um] and density [kg m^-3] (the
     relations in the module docstring). ``group_index`` ``None``: ``1 + (n_ice - 1) f``."""
     check("snow_grain_um", grain_radius_um,

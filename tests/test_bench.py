@@ -81,6 +81,7 @@ def test_bench_quick(bench_run):
     strong = [r for r in sn["bias"] if r["beam"] == "strong"]
     assert strong[-1]["h_li_bias_m"] < strong[0]["h_li_bias_m"] < 0
     assert [r["max_events"] for r in sn["events"]] == [100, 1000, 10000]
+    assert [r["similarity_g"] for r in sn["similarity"]] == [0.0, 0.5]
     assert "snow volume, 200 um" in doc["accuracy_vs_time"]
     assert "of surface only" in printed
     assert (out / "snow.png").stat().st_size > 10_000

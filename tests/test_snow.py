@@ -152,6 +152,22 @@ def test_first_interaction_return_is_single_scattering(g):
     assert abs(mean - exact) < Z * se, (mean, se, exact)
 
 
+def test_layer_over_a_lambertian_base():
+    """A purely absorbing layer (tau = 0.5, next to no scattering) over a Lambertian base of
+    albedo 0.6: the return is the base's, 0.6 / 0.9 e^{-2 tau} (down and up through the
+    layer), and its delay is exactly twice the thickness times the group index."""
+    depth, sigma_a = 5e-4, 1000.0
+    vol = snow.SnowVolume(sigma_s_per_m=1e-9, sigma_a_per_m=sigma_a, g=0.0, depth_m=depth,
+                          base_albedo=0.6, group_index=1.3)
+    w, L, _ = flat_trace(vol, n_shots=100, pps=1000)
+    mean, se = mean_se(w)
+    exact = 0.6 / REFERENCE_ALBEDO * math.exp(-2 * sigma_a * depth)
+    assert abs(mean - exact) < Z * se, (mean, se, exact)
+    base = w > 1e-3            # (collisions in the layer leave weights of order 1e-12)
+    assert base.mean() > 0.3
+    np.testing.assert_allclose(L[base], 2 * depth * 1.3, atol=2e-6)   # float64 legs
+
+
 def test_thin_layer_tends_to_single_scattering():
     """The full walk in an optically thin layer (tau = 0.01, black base): single scattering,
     plus multiple scattering of relative size O(tau) (bounded here by 2 tau)."""
