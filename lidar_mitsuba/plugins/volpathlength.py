@@ -104,7 +104,7 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
         if "max_depth" not in props:
             props["max_depth"] = 10000
         depth = int(props["max_depth"])
-        if not 1 <= depth <= 10 ** 6:
+        if not 1 <= depth <= 10 ** 7:
             raise ValueError(f"volpathlength: max_depth out of range (got {depth})")
         props["max_depth"] = min(depth, 64)            # the base class's own range check
         super().__init__(props)

@@ -127,7 +127,7 @@ def chart(results: dict, path):
     to ``path``. Returns the (closed) matplotlib Figure."""
     from ..plotting import plt
     markers = {"shots": "o", "paths_per_shot": "s", "grid_m": "^", "max_depth": "D",
-               "chunk_shots": "x", "snow_max_events": "v"}
+               "chunk_shots": "x", "snow_max_events": "v", "snow_similarity_g": "P"}
     fig, axes = plt.subplots(1, len(results), figsize=(5.2 * len(results), 4.4), dpi=110)
     for ax, (name, doc) in zip(np.atleast_1d(axes), results.items()):
         rows = doc["rows"]

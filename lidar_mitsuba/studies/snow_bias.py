@@ -96,9 +96,11 @@ def chart(doc: dict, path) -> None:
     ax[0].axhline(0, color="k", lw=0.5)
     ax[0].legend(fontsize=6, ncol=2)
     c = doc["cost"]
-    ax[1].bar([("surface" if r["grain_um"] is None else f"{r['grain_um']:g} µm") for r in c],
+    ax[1].bar([("Ward surface" if r["grain_um"] is None else f"{r['grain_um']:g} µm")
+               for r in c],
               [r["shots_per_s"] for r in c], color=["C7"] + ["C0"] * (len(c) - 1))
-    ax[1].set(yscale="log", ylabel="traced shots/s", title="cost: volume vs surface only")
+    ax[1].set(yscale="log", ylabel="traced shots/s",
+              title="cost: snow volume (default cap) vs surface only")
     ev = doc["events"]
     ref = ev[-1]
     for r in doc.get("similarity", []):
