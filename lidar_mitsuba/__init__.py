@@ -3,8 +3,8 @@
 ``import lidar_mitsuba`` finds a usable libLLVM for Dr.Jit (or stops with a message saying what
 to install), selects the Mitsuba variant named by the environment variable
 ``LIDAR_MITSUBA_VARIANT`` (default ``llvm_ad_mono``) unless one is already active, and
-registers the plugins ``ward`` (BSDF) and ``pathlength`` (integrator) in every variant. With
-``LIDAR_MITSUBA_VARIANT=cuda_ad_mono`` a machine needs no libLLVM.
+registers the plugins ``ward`` (BSDF), ``pathlength`` and ``volpathlength`` (integrators) in
+every variant. With ``LIDAR_MITSUBA_VARIANT=cuda_ad_mono`` a machine needs no libLLVM.
 """
 import os as _os
 
