@@ -309,3 +309,33 @@ def test_cli_snow_options(tmp_path):
                                   str(bad)] + args, capture_output=True, text=True, cwd=tmp_path)
         assert p.returncode == 2 and flag in p.stderr and "Traceback" not in p.stderr, p.stderr
         assert len(p.stderr.strip().splitlines()) == 1 and not bad.exists()
+
+
+def test_snow_over_a_dem_granule_across_sections(tmp_path):
+    """The streamed granule path (DEM corridor tiles, sections, ATL03 + ATL06 files) with a
+    snow volume: each section keeps the snow, and the segments sit lower than without it."""
+    import h5py
+    import json
+    from lidar_mitsuba import dem as dems, geotrack, granule
+    dem = dems.DEM.open(dems.synthetic_ice_sheet(tmp_path / "ice.tif"))
+    track = geotrack.GeoTrack(start_lat_deg=69.97, start_lon_deg=-45.0, azimuth_deg=0.0)
+    vol = snow.snow_from_grains(grain_radius_um=1000, density_kg_m3=350).similar(0.0)
+    h_li = {}
+    for name, kw in (("bare", {"max_depth": 1}), ("snow", {"snow": vol})):
+        a3, a6 = tmp_path / f"{name}3.h5", tmp_path / f"{name}6.h5"
+        out = granule.stream_granule(surface=dems.DEMSurface(dem, tile_shots=512), track=track,
+                                     shots=1400, beams="gt1l", atl03_path=a3, atl06_path=a6,
+                                     seed=4, progress=False, section_shots=700, **kw)
+        assert out[0].shots == 1400
+        with h5py.File(a3, "r") as f3, h5py.File(a6, "r") as f6:
+            cfg = json.loads(f3.attrs["config"])
+            assert cfg["sections"] == 2
+            li = f6["gt1l/land_ice_segments"]
+            h, q = li["h_li"][()], li["atl06_quality_summary"][()]
+            z = li["dem/h_ref_m"][()]              # the reference under each segment
+            good = q == 0
+            h_li[name] = h[good] - z[good]
+    bare, wet = h_li["bare"], h_li["snow"]
+    diff = wet.mean() - bare.mean()
+    se = math.hypot(wet.std() / math.sqrt(wet.size), bare.std() / math.sqrt(bare.size))
+    assert diff < -0.05 and diff < -Z * se, (diff, se)
