@@ -153,37 +153,83 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
         rec_d = dr.select(opaque, mi.UInt32(1), mi.UInt32(0))
         if medium is None:
             return rec_t, w_sum, rec_x, rec_y, rec_z, rec_d
-        return self._walk(medium, si, ray.d, null, sampler, t_emit_ns, x0, y0, down_m, wo0,
-                          (rec_t, w_sum, rec_x, rec_y, rec_z, rec_d))
+        state = {
+            # per photon, fixed: the entry point and facet normal (the walk's frame), the
+            # direction to the receiver, the shot centre, the down leg, the emission time
+            "entry": mi.Point3f(si.p), "n": mi.Vector3f(si.n), "wo": mi.Vector3f(wo0),
+            "x0": mi.Float(x0), "y0": mi.Float(y0), "down_m": mi.Float64(down_m),
+            "t_emit": mi.Float(t_emit_ns),
+            # the walk: position in the entry frame, direction, optical path, throughput
+            "q": mi.Vector3f(0.0), "d": mi.Vector3f(ray.d), "path_m": mi.Float64(0.0),
+            "throughput": mi.Float(1.0), "events": mi.UInt32(0),
+            "active": null & (dr.dot(ray.d, si.n) < 0.0),
+            # the record (one-slot weighted reservoir)
+            "rec_t": rec_t, "w_sum": w_sum, "rec_x": rec_x, "rec_y": rec_y, "rec_z": rec_z,
+            "rec_d": rec_d}
+        return self._walk(medium, state, sampler, seed)
+
+    #: interactions of the first stage of the walk; each later stage allows 8 times more
+    STAGE_EVENTS = 512
+    _RECORD = ("rec_t", "w_sum", "rec_x", "rec_y", "rec_z", "rec_d")
+
+    def _walk(self, medium, state: dict, sampler, seed):
+        """The random walk of the photons that entered the medium, in stages: each stage
+        runs the loop (:meth:`_walk_loop`) up to an interaction limit, then only the photons
+        still walking go on, compacted (``dr.compress``), with a fresh random stream. A
+        vectorised loop runs until the last lane of its packet (or warp) is done, and a few
+        photons of every packet walk 100 times longer than the median one: compaction keeps
+        the long walks from holding whole packets. Returns the records of every photon."""
+        out = None
+        idx = None
+        limit = min(self.STAGE_EVENTS, self.max_depth)
+        stage = 0
+        while True:
+            state = self._walk_loop(medium, state, sampler, dr.opaque(mi.UInt32, limit))
+            if limit < self.max_depth:
+                # one kernel for all of the loop's outputs: evaluated one by one (compress,
+                # then the gathers), each would run the loop again
+                dr.eval(state)
+            if out is None:
+                out = {k: state[k] for k in self._RECORD}
+            else:
+                for k in self._RECORD:
+                    dr.scatter(out[k], state[k], idx)
+            if limit >= self.max_depth:
+                break
+            more = dr.compress(state["active"])          # photons still walking
+            if dr.width(more) == 0:
+                break
+            idx = more if idx is None else dr.gather(mi.UInt32, idx, more)
+            state = {k: dr.gather(type(v), v, more) for k, v in state.items()}
+            stage += 1
+            sampler = mi.load_dict({"type": "independent"})
+            sampler.seed(seed + mi.UInt32(0x9E3779B9 * stage & 0xFFFFFFFF), dr.width(more))
+            limit = min(limit * 8, self.max_depth)
+        return tuple(out[k] for k in self._RECORD)
 
     @dr.syntax
-    def _walk(self, medium, si, d_in, null, sampler, t_emit_ns, x0, y0, down_m, wo0, rec):
-        """The random walk of the photons that entered the medium at ``si`` (a symbolic
-        loop); ``rec`` (time, summed weight, x, y, z, interactions) are updated and returned."""
-        rec_t, w_sum, rec_x, rec_y, rec_z, rec_d = rec
+    def _walk_loop(self, medium, state: dict, sampler, limit: mi.UInt32) -> dict:
+        """The walk of each photon (a symbolic loop) until it leaves, is absorbed or reaches
+        ``limit`` interactions (then ``active`` stays set: it goes on in the next stage)."""
+        entry, n, wo = state["entry"], state["n"], state["wo"]
+        x0, y0, down_m, t_emit_ns = state["x0"], state["y0"], state["down_m"], state["t_emit"]
+        q, d, path_m = state["q"], state["d"], state["path_m"]
+        throughput, events, active = state["throughput"], state["events"], state["active"]
+        rec_t, w_sum, rec_x, rec_y, rec_z, rec_d = (state[k] for k in self._RECORD)
         sx64, sy64 = mi.Float64(x0), mi.Float64(y0)
         fov2 = self.fov_radius_m ** 2
         # the walk, in a frame at the entry point: q = position - entry [m], float32 (exact
         # to ~1e-9 m over a walk), below the entry facet's plane (normal n) while q.n < 0;
         # a finite layer ends at the base plane, depth_m below it vertically
-        n = mi.Vector3f(si.n)
         base_n = -self.snow_depth_m * dr.abs(n.z)              # q.n of the base plane
-        entry = mi.Point3f(si.p)
-        q = mi.Vector3f(0.0)
-        d = mi.Vector3f(d_in)
-        active = null & (dr.dot(d, n) < 0.0)
-        path_m = mi.Float64(0.0)                    # optical path since the entry [m]
-        throughput = mi.Float(1.0)
-        events = mi.UInt32(0)
         n_g = self.group_index
         pctx = mi.PhaseFunctionContext(None)
-        # direction to the receiver: the same for every vertex of a walk (to 1e-7 rad)
-        wo = mi.Vector3f(wo0)
+        # the direction to the receiver is the same for every vertex of a walk (to 1e-7 rad)
         wo_n = dr.dot(wo, n)
         hemisphere = self.tally == "hemisphere"
         base_albedo = self.base_albedo
 
-        while active:
+        while active & (events < limit):
             # -- the flight: to the surface (up), to the base (down) or a scattering
             qn, dn = dr.dot(q, n), dr.dot(d, n)
             t_top = dr.select(dn > 0.0, -qn / dr.maximum(dn, 1e-30), dr.inf)
@@ -237,8 +283,11 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
             d = dr.select(scatter, wo_ph, dr.select(on_base, up, d))
             throughput *= dr.select(scatter, sigma_s[0] / sigma_t[0] * ph_w[0],
                                     dr.select(on_base, base_albedo, 1.0))
-            active &= vertex & (throughput > 0.0) & (events < self.max_depth)
-        return rec_t, w_sum, rec_x, rec_y, rec_z, rec_d
+            active &= vertex & (throughput > 0.0)
+        return dict(state, q=q, d=d, path_m=path_m, throughput=throughput, events=events,
+                    active=active, rec_t=rec_t, w_sum=w_sum, rec_x=rec_x, rec_y=rec_y,
+                    rec_z=rec_z, rec_d=rec_d)
+
 
     def to_string(self):
         return (f"VolumePathLengthIntegrator[max_depth={self.max_depth}, "
