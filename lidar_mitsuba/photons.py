@@ -24,7 +24,9 @@ class Returns:
         weight: return weight (float32): pi f_r cos(theta_o) / 0.9 times the path throughput,
             1 for a flat Lambertian 0.9 plate at nadir.
         x_m, y_m, z_m: scattering point [m] (float32), in the frame of the shot positions.
-        depth: surface interaction of the return, 1 = first surface (uint8).
+        depth: surface interaction of the return, 1 = first surface (uint8); for a snow volume
+            (``volpathlength``), the interactions before the photon's drawn return, capped
+            at 255.
         n_shots: shots traced (including shots with no return).
         paths_per_shot: photon paths traced per shot.
     """
