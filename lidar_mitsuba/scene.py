@@ -51,7 +51,7 @@ def mitsuba_mesh(vertices: np.ndarray, faces: np.ndarray, *, bsdf: dict | mi.BSD
 def scene_from_mesh(vertices: np.ndarray, faces: np.ndarray, *, bsdf=None) -> mi.Scene:
     """A Mitsuba scene holding one terrain mesh. ``bsdf``: its BSDF dict (default: the paper's
     Ward snow), or a :class:`~lidar_mitsuba.snow.SnowVolume`: the terrain then bounds a snow
-    volume (index-matched surface, and a base mesh under a finite layer)."""
+    volume (an index-matched surface; a finite layer's base is the integrator's, not a mesh)."""
     if hasattr(bsdf, "shapes"):                                   # a snow volume
         return mi.load_dict({"type": "scene", **bsdf.shapes(vertices, faces)})
     mesh = mitsuba_mesh(vertices, faces, bsdf=bsdf if bsdf is not None else ward_bsdf_dict())

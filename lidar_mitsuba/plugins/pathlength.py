@@ -153,18 +153,28 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
                        mi.Vector3f(0.0, 0.0, -1.0))
         return x0, y0, sampler, ray, t_emit_ns
 
-    def _first_surface(self, scene: mi.Scene, sx: mi.Float, sy: mi.Float, paths_per_shot: int,
-                       seed: mi.UInt32, z_start: float):
-        """``max_depth == 1``: one return per photon, straight-line code (no loop, no
-        scatter). Returns Dr.Jit arrays of length ``n`` (one slot per photon): time [ns]
-        (float64), weight (0 where nothing returns), hit x, y, z [m]."""
+    def _first_hit(self, scene: mi.Scene, sx: mi.Float, sy: mi.Float, paths_per_shot: int,
+                   seed: mi.UInt32, z_start: float):
+        """Emit the photons (:meth:`_emit`) and find their first surface. Returns ``(x0, y0,
+        sampler, ray, t_emit_ns, si, leg_m, wo, in_fov)``: :meth:`_emit`'s, the interaction,
+        the float64 leg between the spacecraft and it [m], the direction to the receiver,
+        and whether it is a hit inside the field of view."""
         x0, y0, sampler, ray, t_emit_ns = self._emit(sx, sy, paths_per_shot, seed, z_start)
         sx64, sy64 = mi.Float64(x0), mi.Float64(y0)
         si = scene.ray_intersect(ray)
         leg_m = self._leg_m(si.p, sx64, sy64)     # the same leg down and up, float64
         wo = self._to_receiver(si.p, sx64, sy64, leg_m)
-        seen = si.is_valid() & (dr.square(si.p.x - x0) + dr.square(si.p.y - y0)
-                                <= self.fov_radius_m ** 2)
+        in_fov = si.is_valid() & (dr.square(si.p.x - x0) + dr.square(si.p.y - y0)
+                                  <= self.fov_radius_m ** 2)
+        return x0, y0, sampler, ray, t_emit_ns, si, leg_m, wo, in_fov
+
+    def _first_surface(self, scene: mi.Scene, sx: mi.Float, sy: mi.Float, paths_per_shot: int,
+                       seed: mi.UInt32, z_start: float):
+        """``max_depth == 1``: one return per photon, straight-line code (no loop, no
+        scatter). Returns Dr.Jit arrays of length ``n`` (one slot per photon): time [ns]
+        (float64), weight (0 where nothing returns), hit x, y, z [m]."""
+        *_, t_emit_ns, si, leg_m, wo, seen = self._first_hit(scene, sx, sy, paths_per_shot,
+                                                             seed, z_start)
         w = self._return_weight(si, wo, seen)
         t_ns = mi.Float64(t_emit_ns) + (leg_m + leg_m) / C_M_PER_NS
         return t_ns, w, si.p.x, si.p.y, si.p.z

@@ -141,16 +141,11 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
         [ns] (float64) and position [m] of the drawn return, the summed weight (0 where
         nothing returns), and its interaction count."""
         medium = self._medium
-        x0, y0, sampler, ray, t_emit_ns = self._emit(sx, sy, paths_per_shot, seed, z_start)
-        sx64, sy64 = mi.Float64(x0), mi.Float64(y0)
-        si = scene.ray_intersect(ray)
-        fov2 = self.fov_radius_m ** 2
-        in_fov = si.is_valid() & (dr.square(si.p.x - x0) + dr.square(si.p.y - y0) <= fov2)
-        down_m = self._leg_m(si.p, sx64, sy64)      # spacecraft -> first surface [m], float64
+        x0, y0, sampler, ray, t_emit_ns, si, down_m, wo0, in_fov = self._first_hit(
+            scene, sx, sy, paths_per_shot, seed, z_start)
         # an opaque first surface: the single-bounce return
         null = si.is_valid() & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Null)
         opaque = in_fov & ~null
-        wo0 = self._to_receiver(si.p, sx64, sy64, down_m)
         w_sum = self._return_weight(si, wo0, opaque)
         rec_t = mi.Float64(t_emit_ns) + (down_m + down_m) / C_M_PER_NS
         rec_x, rec_y, rec_z = mi.Float(si.p.x), mi.Float(si.p.y), mi.Float(si.p.z)
@@ -291,7 +286,6 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
         return dict(state, q=q, d=d, path_m=path_m, throughput=throughput, events=events,
                     active=active, rec_t=rec_t, w_sum=w_sum, rec_x=rec_x, rec_y=rec_y,
                     rec_z=rec_z, rec_d=rec_d)
-
 
     def to_string(self):
         return (f"VolumePathLengthIntegrator[max_depth={self.max_depth}, "
