@@ -198,11 +198,11 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--snow-grain-um", type=float, metavar="UM",
                    help="trace snow as a scattering volume of this optical grain radius [um] "
                    "under the surface (built-in surfaces and --dem)")
-    v.add_argument("--snow-density", type=float, default=350.0, metavar="KG_M3",
+    v.add_argument("--snow-density", type=float, metavar="KG_M3",
                    help="snow density [kg/m^3] (350)")
-    v.add_argument("--snow-depth-m", type=float, default=float("inf"), metavar="M",
+    v.add_argument("--snow-depth-m", type=float, metavar="M",
                    help="snow layer thickness [m] (inf: semi-infinite)")
-    v.add_argument("--snow-base-albedo", type=float, default=0.0, metavar="A",
+    v.add_argument("--snow-base-albedo", type=float, metavar="A",
                    help="Lambertian albedo of the base under a finite layer (0)")
     v.add_argument("--snow-max-events", type=int, metavar="N",
                    help="scatterings traced per photon; later light is lost (default: enough "
@@ -366,18 +366,19 @@ def _cmd_simulate(a) -> int:
 def _snow(a):
     """The run's snow volume from the ``--snow-*`` options, or ``None`` (no --snow-grain-um)."""
     from . import snow
+    options = (("--snow-density", "density_kg_m3", a.snow_density),
+               ("--snow-depth-m", "depth_m", a.snow_depth_m),
+               ("--snow-base-albedo", "base_albedo", a.snow_base_albedo),
+               ("--snow-max-events", "max_events", a.snow_max_events),
+               ("--snow-similarity-g", None, a.snow_similarity_g))
+    given = [(flag, key, value) for flag, key, value in options if value is not None]
     if a.snow_grain_um is None:
-        for flag, value, default in (("--snow-density", a.snow_density, 350.0),
-                                     ("--snow-depth-m", a.snow_depth_m, float("inf")),
-                                     ("--snow-base-albedo", a.snow_base_albedo, 0.0),
-                                     ("--snow-max-events", a.snow_max_events, None),
-                                     ("--snow-similarity-g", a.snow_similarity_g, None)):
-            if value != default:
-                raise UsageError(flag, "only applies with --snow-grain-um")
+        if given:
+            raise UsageError(given[0][0], "only applies with --snow-grain-um")
         return None
+    # options not given keep snow_from_grains' defaults
     vol = snow.snow_from_grains(grain_radius_um=a.snow_grain_um,
-                                density_kg_m3=a.snow_density, depth_m=a.snow_depth_m,
-                                base_albedo=a.snow_base_albedo, max_events=a.snow_max_events)
+                                **{key: value for _, key, value in given if key})
     return vol if a.snow_similarity_g is None else vol.similar(a.snow_similarity_g)
 
 
@@ -521,10 +522,7 @@ def _cmd_bench(a) -> int:
     doc = bench.run(out_dir=out, quick=a.quick, variants=a.variant,
                     throughput_only=a.throughput_only)
     print(bench.format_summary(doc))
-    charts = "throughput.png" if a.throughput_only else (
-        "throughput.png, stability.png, accuracy_vs_time.png"
-        + (", peer.png" if "rows" in doc.get("peer", {}) else ""))
-    print(f"wrote {out / 'bench.json'} and the charts {charts} in {out}")
+    print(f"wrote {out / 'bench.json'} and the charts {', '.join(doc['charts'])} in {out}")
     return 0
 
 

@@ -218,7 +218,7 @@ def medium_events_cap(medium) -> int:
     return int(min(10 ** 7, max(1, math.ceil(sigma_s * DEFAULT_PATH_M))))
 
 
-def snow_from_grains(*, grain_radius_um: float, density_kg_m3: float,
+def snow_from_grains(*, grain_radius_um: float, density_kg_m3: float = 350.0,
                      depth_m: float = math.inf, base_albedo: float = 0.0,
                      g: float = G_ICE_SPHERES,
                      ice_absorption_per_m: float = ICE_ABSORPTION_532_PER_M,
