@@ -316,14 +316,20 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False,
         doc["track_length"] = track_length.run(out=out, quick=quick)
         doc["snow"] = snow_bias.run(quick=quick)
         doc["accuracy_vs_time"]["snow volume, 200 um"] = snow_bias.pareto_rows(doc["snow"])
-    (out / "bench.json").write_text(json.dumps(doc, indent=1, default=float))
-    _chart(doc, out / "throughput.png")
+    charts = {"throughput.png": lambda p: _chart(doc, p)}
     if not throughput_only:
-        breaking_points.chart(doc["stability"], out / "stability.png")
-        accuracy.chart(doc["accuracy_vs_time"], out / "accuracy_vs_time.png")
-        peer.chart(doc["peer"], out / "peer.png")
-        track_length.chart(doc["track_length"], out / "track_length.png")
-        snow_bias.chart(doc["snow"], out / "snow.png")
+        charts.update({
+            "stability.png": lambda p: breaking_points.chart(doc["stability"], p),
+            "accuracy_vs_time.png": lambda p: accuracy.chart(doc["accuracy_vs_time"], p)})
+        if "rows" in doc["peer"]:             # mitransient installed: the comparison ran
+            charts["peer.png"] = lambda p: peer.chart(doc["peer"], p)
+        charts.update({
+            "track_length.png": lambda p: track_length.chart(doc["track_length"], p),
+            "snow.png": lambda p: snow_bias.chart(doc["snow"], p)})
+    for name, draw in charts.items():
+        draw(out / name)
+    doc["charts"] = list(charts)         # the files written, for the caller to name
+    (out / "bench.json").write_text(json.dumps(doc, indent=1, default=float))
     return doc
 
 
