@@ -24,7 +24,7 @@ import pytest
 from lidar_mitsuba import scene as scn, snow
 from lidar_mitsuba.constants import C_M_PER_NS, ParameterError, REFERENCE_ALBEDO
 
-from closed_forms import Z, chandrasekhar_h
+from closed_forms import Z, batch_se, chandrasekhar_h
 
 ALT = 496e3
 
@@ -60,17 +60,19 @@ def mean_se(x):
     return float(np.mean(x)), float(np.std(x) / math.sqrt(x.size))
 
 
-def batch_moments(w, L, shot, n_batches=20):
-    """Weighted mean and variance of L, and their batch-means standard errors."""
-    def moments(sel):
-        ww, ll = w[sel], L[sel]
-        m = np.sum(ww * ll) / np.sum(ww)
-        return m, np.sum(ww * (ll - m) ** 2) / np.sum(ww)
-    full = moments(np.ones(w.size, bool))
-    blocks = np.array_split(np.unique(shot), n_batches)
-    b = np.array([moments(np.isin(shot, blk)) for blk in blocks])
-    se = b.std(axis=0, ddof=1) / math.sqrt(n_batches)
-    return full, se
+def weighted_moments(w, L):
+    """Weighted mean and variance of L."""
+    m = np.sum(w * L) / np.sum(w)
+    return m, np.sum(w * (L - m) ** 2) / np.sum(w)
+
+
+def batch_moments(w, L, shot):
+    """Weighted mean and variance of L, and their batch-means standard errors (20 blocks of
+    shots, closed_forms.batch_se)."""
+    n_shots = int(shot.max()) + 1
+    se = [batch_se(lambda sel, _n, i=i: weighted_moments(w[sel], L[sel])[i], shot, n_shots)
+          for i in (0, 1)]
+    return weighted_moments(w, L), se
 
 
 # --------------------------------------------------------------------------- coefficients
@@ -255,8 +257,7 @@ def test_return_path_lengths_and_a_gamma_law():
     assert dist < 0.15, dist
     d = vol.diffusion()
     assert np.max(np.abs(cdf - d.path_cdf(x) / d.total_reflectance())) < 0.15
-    m = np.sum(w * L) / np.sum(w)
-    v = np.sum(w * (L - m) ** 2) / np.sum(w)
+    m, v = weighted_moments(w, L)
     moments = np.max(np.abs(cdf - stats.gamma.cdf(x, m * m / v, scale=v / m)))
     assert moments > dist + 0.1, (moments, dist)
 

@@ -51,7 +51,6 @@ def _one(*, beam: str, grain_um: float | None, density: float, shots: int, seed:
     return {"beam": beam, "grain_um": grain_um, "density": density, "shots": shots,
             "max_events": None if vol is None else vol.events_cap,
             "similarity_g": similarity_g, "seconds": seconds,
-            "trace_s": float(res.timings_s.get("trace_s", np.nan)),
             "raw_bias_m": rep.bias_m, "raw_bias_se_m": rep.bias_se_m,
             "precision_m": rep.std_m, "h_mean_bias_m": h_mean, "h_mean_bias_se_m": h_mean_se,
             "h_li_bias_m": h_li, "h_li_bias_se_m": h_li_se, "segments": int(good.sum())}
