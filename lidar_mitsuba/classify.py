@@ -42,10 +42,8 @@ def signal_confidence(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.
         pool_blocks: the noise level of a block is pooled over this many neighbouring blocks.
     """
     shot = np.asarray(shot, np.int64)
-    n = shot.size
-    conf = np.zeros(n, np.int8)
-    if n == 0:
-        return conf
+    if shot.size == 0:
+        return np.zeros(0, np.int8)
     rel = np.asarray(h_m, float) - np.asarray(gate_center_h_m, float)[shot] + range_gate_m / 2.0
     n_bins = max(3, int(np.ceil(range_gate_m / bin_m)))
     b = np.clip((rel / bin_m).astype(np.int64), 0, n_bins - 1)
@@ -62,21 +60,26 @@ def signal_confidence(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.
         noise_bins = ~(_poisson_sf(counts - 1, np.maximum(lam, 1e-12)[:, None]) < 1e-3)
     padded = np.pad(counts, ((0, 0), (1, 1)))
     neighbourhood = padded[:, :-2] + padded[:, 1:-1] + padded[:, 2:]
-    k = neighbourhood[block, b]
-    mean = 3.0 * lam[block]
-    p = np.where(mean > 0, _poisson_sf(k - 1, np.maximum(mean, 1e-300)), 0.0)
-    conf[p < 1e-2] = 2
-    conf[p < 1e-4] = 3
-    conf[p < 1e-6] = 4
-    return conf
+    # the tail probability and confidence of every (block, bin) cell, then each photon's
+    # cell's (the test depends on the photon through its cell only; cells are fewer)
+    mean = 3.0 * lam[:, None]
+    p = np.where(mean > 0, _poisson_sf(neighbourhood - 1, np.maximum(mean, 1e-300)), 0.0)
+    cell = np.zeros(p.shape, np.int8)
+    cell[p < 1e-2] = 2
+    cell[p < 1e-4] = 3
+    cell[p < 1e-6] = 4
+    return cell[block, b]
 
 
 def _poisson_sf(k, mu):
     """P(K >= k + 1) for K ~ Poisson(mu), elementwise; 1 for k < 0 (what
     ``scipy.stats.poisson.sf`` gives, from the same ``special.pdtrc``, without importing
     scipy.stats, which costs most of a second)."""
-    k = np.asarray(k)
-    return np.where(k < 0, 1.0, special.pdtrc(np.maximum(k, 0), mu))
+    k, mu = np.broadcast_arrays(np.asarray(k), np.asarray(mu, float))
+    out = np.ones(k.shape)
+    some = k >= 0                   # (empty cells, most of a quiet track, need no pdtrc)
+    out[some] = special.pdtrc(k[some], mu[some])
+    return out
 
 
 def classification_rates(conf: np.ndarray, is_signal: np.ndarray, *, min_conf: int = 2) -> dict:

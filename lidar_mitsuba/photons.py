@@ -109,6 +109,11 @@ class Returns:
         """Join chunk traces ``[(returns, first_shot), ...]`` into one with global shots."""
         if not parts:
             return cls.empty(n_shots=n_shots, paths_per_shot=1)
+        if len(parts) == 1 and parts[0][1] == 0:      # one chunk: no copy but the shots
+            r = parts[0][0]
+            out = {k: getattr(r, k) for k in cls.ARRAYS}
+            out["shot"] = r.shot.astype(np.int64)
+            return cls(**out, n_shots=int(n_shots), paths_per_shot=r.paths_per_shot)
         out = {k: np.concatenate([getattr(r, k) for r, _ in parts]) for k in cls.ARRAYS}
         out["shot"] = np.concatenate([r.shot.astype(np.int64) + a for r, a in parts])
         return cls(**out, n_shots=int(n_shots), paths_per_shot=parts[0][0].paths_per_shot)
@@ -148,6 +153,8 @@ class Detections:
     def concatenate(cls, parts: list[tuple["Detections", int, int]]) -> "Detections":
         """Join chunk detections ``[(detections, first_shot, first_return), ...]``: shots and
         return indices become global."""
+        if len(parts) == 1 and parts[0][1] == 0 and parts[0][2] == 0:   # one chunk: as it is
+            return parts[0][0]
         out = {f.name: np.concatenate([getattr(d, f.name) for d, *_ in parts])
                for f in fields(cls)}
         out["shot"] = np.concatenate([d.shot + a for d, a, _ in parts])

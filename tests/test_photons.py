@@ -50,6 +50,10 @@ def test_slice_shots_then_concatenate_is_the_identity(rng):
     assert len(e) == 0 and e.n_shots == 1
     empty = Returns.concatenate([], n_shots=5)
     assert len(empty) == 0 and empty.n_shots == 5
+    # one chunk from shot 0 is joined without copying its arrays (only the shots widen)
+    one = Returns.concatenate([(r, 0)], n_shots=r.n_shots)
+    assert one.shot.dtype == np.int64 and np.array_equal(one.shot, r.shot)
+    assert all(getattr(one, k) is getattr(r, k) for k in Returns.ARRAYS if k != "shot")
 
 
 def test_select_keeps_the_trace_header(rng):
@@ -158,6 +162,8 @@ def test_detections_concatenate_offsets_shots_and_return_indices(rng):
     np.testing.assert_array_equal(out.arrivals_per_shot,
                                   np.concatenate([d.arrivals_per_shot for d, *_ in parts]))
     assert out.mean_photons_per_shot.size == 12 and out.hit_xyz_m.shape == (len(out), 3)
+    # a single chunk from shot 0 and return 0 is the whole run as it is
+    assert Detections.concatenate([(parts[0][0], 0, 0)]) is parts[0][0]
 
 
 def test_detections_are_frozen(rng):

@@ -235,6 +235,30 @@ def test_reference_elevation_matches_bruteforce() -> None:
                           h.height_m(pts[:, 0], pts[:, 1]))
 
 
+@pytest.mark.parametrize("periodic", [True, False])
+def test_reference_elevation_on_few_rows_equals_the_whole_grid_filter(periodic) -> None:
+    """A track touching few rows filters only those (simulate's case): the same bits as
+    the whole grid's cached filter, for a track folded along x, a narrow band, the
+    whole tile (falls back to the full filter) and NaN points; nothing is cached."""
+    h = T.fractal(p=1.8, size_m=256.0, relief_m=10.0, seed=5)
+    if not periodic:
+        h = T.Heightfield(z_m=h.z_m[:200, :230].copy(), grid_m=0.5, periodic=False)
+    rng = np.random.default_rng(6)
+    cases = [((np.arange(3000) * 0.7) % 900.0 - 50.0, np.full(3000, 61.3)),
+             (rng.uniform(-20, 140, 500), 40.0 + rng.uniform(-1.5, 1.5, 500)),
+             (rng.uniform(-20, 140, 500), rng.uniform(-20, 140, 500)),
+             (np.array([1.0, np.nan, 5.0]), np.array([np.nan, 3.0, 99.0]))]
+    full = h._interp(h.smoothed_grid(sigma_m=2.5), *cases[0])
+    for xs, ys in cases:
+        h._cache.clear()
+        got = h.reference_elevation_m(xs, ys, sigma_m=2.5)
+        if xs is cases[0][0]:
+            assert not h._cache
+        want = h._interp(h.smoothed_grid(sigma_m=2.5), xs, ys)
+        assert np.array_equal(got, want, equal_nan=True)
+    assert np.array_equal(full, h.reference_elevation_m(*cases[0], sigma_m=2.5))
+
+
 # --------------------------------------------------------------------------- #
 # Validation
 # --------------------------------------------------------------------------- #
