@@ -62,6 +62,12 @@ def test_bench_quick(bench_run):
     assert doc["integrator"]["triangles"] > 100_000
     assert 0 < doc["integrator"]["ratio_to_ceiling"] < 10
     assert all(r["shots_per_s"] > 0 for r in doc["end_to_end"])
+    for r in doc["end_to_end"]:   # the rate the run's own casts allow, one per path and bounce
+        assert r["cast_bound_shots_per_s"] == pytest.approx(
+            doc["integrator"]["rays_per_s"] / (r["paths_per_shot"] * r["traced_depth"]))
+        assert r["loop_of_cast_bound"] == pytest.approx(
+            r["loop_shots_per_s"] / r["cast_bound_shots_per_s"])
+    assert "of its ray casts' bound" in printed
     assert "M events/s" in printed and "simplifications of the default run" in printed
     simp = doc["simplifications"]
     assert simp["mc_std_m"] > 0 and len(simp["rows"]) == 4

@@ -199,6 +199,7 @@ def bench_end_to_end(*, quick: bool) -> list[dict]:
         st = out["res"].timings_s
         rows.append({"beam": beam, "max_depth": max_depth,
                      "traced_depth": out["res"].config["max_depth"], "shots": shots,
+                     "paths_per_shot": out["res"].config["paths_per_shot"],
                      "seconds": sec, "shots_per_s": shots / sec, "stage_seconds": st,
                      "loop_shots_per_s": shots / max(st["trace_s"] + st["detect_s"], 1e-9)})
     return rows
@@ -265,12 +266,28 @@ def variant_rates(variants: dict) -> tuple[list[str], dict[str, list[float]]]:
     return names, rates
 
 
+def cast_bound(end_to_end: list[dict], rays_per_s: float) -> None:
+    """Put into each end-to-end row the rate its ray casts alone would allow
+    (``cast_bound_shots_per_s``: ``rays_per_s`` over one cast per path per traced bounce,
+    ``rays_per_s`` measured in the same run on nadir rays) and the chunk loop's fraction of
+    it (``loop_of_cast_bound``): what is left for sampling, BSDFs, fetching and detecting,
+    whatever the machine's speed that minute. A second bounce's rays start on the surface
+    in random directions and cost more than nadir rays, so for two bounces it is a bound
+    the loop cannot reach."""
+    for r in end_to_end:
+        bound = rays_per_s / (r["paths_per_shot"] * r["traced_depth"])
+        r["cast_bound_shots_per_s"] = bound
+        r["loop_of_cast_bound"] = r["loop_shots_per_s"] / bound
+
+
 def throughput(*, quick: bool) -> dict:
     """The throughput part of the bench in the active variant: detector, integrator, end to
     end, with the variant and the device they ran on."""
-    return {"variant": mi.variant(), "device": device_name(), "cpu_count": os.cpu_count(),
-            "detector": bench_detector(quick=quick), "integrator": bench_integrator(quick=quick),
-            "end_to_end": bench_end_to_end(quick=quick)}
+    doc = {"variant": mi.variant(), "device": device_name(), "cpu_count": os.cpu_count(),
+           "detector": bench_detector(quick=quick), "integrator": bench_integrator(quick=quick),
+           "end_to_end": bench_end_to_end(quick=quick)}
+    cast_bound(doc["end_to_end"], doc["integrator"]["rays_per_s"])
+    return doc
 
 
 def _throughput_in_child(variant: str, out: pathlib.Path, quick: bool) -> dict:
@@ -346,7 +363,9 @@ def _format_rates(d: dict) -> list[str]:
         lines.append(f"end to end, {r['beam']} beam, max_depth {r['max_depth']} "
                      f"({r['traced_depth']} traced): {r['shots_per_s']:.0f} shots/s "
                      f"({r['shots']} shots in {r['seconds']:.2f} s); chunk loop "
-                     f"{r['loop_shots_per_s']:.0f} shots/s")
+                     f"{r['loop_shots_per_s']:.0f} shots/s, "
+                     f"{r['loop_of_cast_bound']:.2f} of its ray casts' bound "
+                     f"({r['cast_bound_shots_per_s']:.0f})")
     return lines
 
 
