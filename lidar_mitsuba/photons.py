@@ -114,9 +114,15 @@ class Returns:
             out = {k: getattr(r, k) for k in cls.ARRAYS}
             out["shot"] = r.shot.astype(np.int64)
             return cls(**out, n_shots=int(n_shots), paths_per_shot=r.paths_per_shot)
-        out = {k: np.concatenate([getattr(r, k) for r, _ in parts]) for k in cls.ARRAYS}
-        out["shot"] = np.concatenate([r.shot.astype(np.int64) + a for r, a in parts])
-        return cls(**out, n_shots=int(n_shots), paths_per_shot=parts[0][0].paths_per_shot)
+        out = {k: np.concatenate([getattr(r, k) for r, _ in parts]) for k in cls.ARRAYS
+               if k != "shot"}
+        shot = np.empty(sum(len(r) for r, _ in parts), np.int64)   # one pass: widen and shift
+        i = 0
+        for r, a in parts:
+            np.add(r.shot, a, out=shot[i:i + len(r)], casting="unsafe")
+            i += len(r)
+        return cls(**out, shot=shot, n_shots=int(n_shots),
+                   paths_per_shot=parts[0][0].paths_per_shot)
 
 
 @dataclass(frozen=True)
