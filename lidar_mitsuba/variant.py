@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import gc
 import importlib.util
-import sys
 import os
 import pathlib
+import sys
 
 import drjit as dr
 import mitsuba as mi
@@ -46,9 +46,12 @@ def _on_variant_change(old: str | None, new: str | None) -> None:
 
 
 def usable_variants() -> list[str]:
-    """The supported variants this machine can run (CUDA ones only where a GPU is found)."""
+    """The supported variants this machine can run: CUDA ones only where a GPU is found, LLVM
+    ones only where a usable libLLVM was (``import lidar_mitsuba`` under a CUDA variant points
+    Dr.Jit at ``os.devnull`` when it finds none)."""
+    llvm = os.environ.get("DRJIT_LIBLLVM_PATH") != os.devnull
     return [v for v in SUPPORTED_VARIANTS if v in mi.variants()
-            and (not v.startswith("cuda") or dr.has_backend(dr.JitBackend.CUDA))]
+            and (dr.has_backend(dr.JitBackend.CUDA) if v.startswith("cuda") else llvm)]
 
 
 def set_variant(name: str = DEFAULT_VARIANT) -> str:
@@ -57,7 +60,8 @@ def set_variant(name: str = DEFAULT_VARIANT) -> str:
     Use one variant per process where you can: objects (scenes, BSDFs) made in another variant
     of the same backend must be released before tracing in this one.
 
-    Raises ``ValueError`` naming the variant when it is unknown or its backend (CUDA) is absent.
+    Raises ``ValueError`` naming the variant when it is unknown or its backend is absent (no
+    CUDA GPU, or no usable libLLVM).
     """
     usable = usable_variants()
     if name.startswith("scalar"):
@@ -66,6 +70,10 @@ def set_variant(name: str = DEFAULT_VARIANT) -> str:
     if name.startswith("cuda") and name in mi.variants() and not dr.has_backend(dr.JitBackend.CUDA):
         raise ValueError(f"variant {name!r} needs a CUDA GPU and driver, and none was found "
                          f"(use llvm_ad_mono on the CPU)")
+    if (name.startswith("llvm") and name in mi.variants()
+            and os.environ.get("DRJIT_LIBLLVM_PATH") == os.devnull):
+        raise ValueError(f"variant {name!r} needs libLLVM >= 17, and none was found (this "
+                         f"process runs a CUDA variant only)")
     if name not in usable:
         raise ValueError(f"variant {name!r} is not available (choose from {', '.join(usable)})")
     if mi.variant() != name:

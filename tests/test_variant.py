@@ -69,6 +69,17 @@ def test_cuda_is_refused_without_a_gpu(name, variant):
     assert mi.variant() == variant
 
 
+def test_llvm_variants_are_unusable_without_libllvm(monkeypatch, variant):
+    """Where ``import lidar_mitsuba`` found no libLLVM (a GPU machine; DRJIT_LIBLLVM_PATH is
+    then os.devnull) the LLVM variants are not offered, and asking for one says why."""
+    assert "llvm_ad_mono" in lidar_mitsuba.variant.usable_variants()
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", os.devnull)
+    assert not any(v.startswith("llvm") for v in lidar_mitsuba.variant.usable_variants())
+    with pytest.raises(ValueError, match="'llvm_ad_rgb' needs libLLVM"):
+        lidar_mitsuba.set_variant("llvm_ad_rgb")
+    assert mi.variant() == variant
+
+
 def test_switching_variants_keeps_plugins_registered_in_each(variant, restore_variant):
     """llvm_ad_mono -> llvm_ad_rgb -> llvm_ad_mono, through set_variant and through Mitsuba's
     own mi.set_variant (the variant callback): in each the plugins load as that variant's
