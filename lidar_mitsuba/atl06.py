@@ -390,7 +390,7 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
                  initial_window_m: float = 10.0, min_window_m: float = 3.0,
                  max_iterations: int = 20, min_photons: int = 10,
                  min_alive_pulses: float = 3.0, max_gain: float = 5.0,
-                 x0_m: float | None = None) -> SegmentTable:
+                 x0_m: float | None = None, engine: str = "auto") -> SegmentTable:
     """ATL06-style segments from detected photons (see the module docstring).
 
     Args:
@@ -419,7 +419,14 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
         max_gain: flag ``fpb_gain`` when the corrected / observed count exceeds it.
         x0_m: along-track origin of the segment grid [m] (centres at ``x0 + 20 (k + 1)``);
             default the first shot's. A track fitted in sections passes the whole track's.
+        engine: ``"compiled"`` (numba: :mod:`lidar_mitsuba._atl06_kernel`, ~10-20x faster),
+            ``"reference"`` (the plain numpy :func:`_fit_segment`, ~1 ms a segment; the tests
+            check that both give the same table) or ``"auto"``: compiled from
+            :data:`COMPILE_MIN_SEGMENTS` segments on, or once the kernel is compiled in this
+            process (its first compile takes ~20 s, then numba's on-disk cache ~1 s).
     """
+    if engine not in ("auto", "compiled", "reference"):
+        raise ValueError(f"engine must be 'auto', 'compiled' or 'reference' (got {engine!r})")
     along = np.asarray(photon_along_m, np.float64)
     h = np.asarray(h_m, np.float64)
     shot = np.asarray(shot, np.int64)
@@ -460,19 +467,56 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
     cols["segment_id"] = np.arange(1, centres.size + 1)
     cols["x_atc"] = centres
     cols["n_fit_photons"][:] = 0
+    if engine == "auto":
+        engine = ("compiled" if centres.size >= COMPILE_MIN_SEGMENTS or _kernel_ready()
+                  else "reference")
+    if engine == "compiled":
+        _fit_compiled(cols, along, h, shot_along, gate, centres, half, cfg)
     for k, c in enumerate(centres):
-        p0, p1 = np.searchsorted(along, [c - half, c + half], side="left")
         s0, s1 = np.searchsorted(shot_along, [c - half, c + half], side="left")
-        res = _fit_segment(along[p0:p1] - c, h[p0:p1], shot_along[s0:s1] - c,
-                           None if gate is None else gate[s0:s1], cfg)
-        for name, v in res.items():
-            cols[name][k] = v
+        if engine == "reference":
+            p0, p1 = np.searchsorted(along, [c - half, c + half], side="left")
+            res = _fit_segment(along[p0:p1] - c, h[p0:p1], shot_along[s0:s1] - c,
+                               None if gate is None else gate[s0:s1], cfg)
+            for name, v in res.items():
+                cols[name][k] = v
         if zref is not None and s1 - s0 >= 1:
             xs = shot_along[s0:s1] - c
             fit = _line_fit(xs, zref[s0:s1])
             cols["h_ref_m"][k] = fit[0] if fit is not None else float(np.mean(zref[s0:s1]))
     cols["atl06_quality_summary"] = (cols["flags"] != 0).astype(np.int64)
     return SegmentTable(**cols)
+
+
+COMPILE_MIN_SEGMENTS = 1000
+"""``engine="auto"`` compiles the kernel for tracks of this many segments (20 km) or more:
+fewer cost the reference less than the compile."""
+
+
+def _kernel_ready() -> bool:
+    """Whether the compiled kernel is loaded in this process (no compile to wait for)."""
+    import sys
+    kernel = sys.modules.get(f"{__package__}._atl06_kernel")
+    return kernel is not None and bool(kernel.fit_all.signatures)
+
+
+def _fit_compiled(cols: dict, along, h, shot_along, gate, centres, half: float,
+                  cfg: _Config) -> None:
+    """Every segment through the compiled kernel, into ``cols`` (pre-filled defaults)."""
+    from . import _atl06_kernel as K
+    from .fpb import IQR_PER_SIGMA
+    p0 = np.searchsorted(along, centres - half, side="left")
+    p1 = np.searchsorted(along, centres + half, side="left")
+    s0 = np.searchsorted(shot_along, centres - half, side="left")
+    s1 = np.searchsorted(shot_along, centres + half, side="left")
+    c = dataclasses.astuple(cfg)
+    cfg_v = np.array([c[0], c[1], float(c[2]), *c[3:], HALF_C, IQR_PER_SIGMA], np.float64)
+    out = np.column_stack([cols[name].astype(np.float64) for name in K.OUT_FIELDS])
+    K.fit_all(along, h, shot_along,
+              np.zeros(shot_along.size) if gate is None else gate, gate is not None,
+              np.asarray(centres, np.float64), p0, p1, s0, s1, cfg_v, out)
+    for i, name in enumerate(K.OUT_FIELDS):
+        cols[name][:] = out[:, i]
 
 
 # --------------------------------------------------------------------------- files and summary

@@ -173,3 +173,75 @@ def test_flagged_segments_are_kept_marked_and_left_out(rng):
     s = atl06.summarize(tab)
     assert s["n_good"] == ok.sum() and s["n_flagged"] == len(tab) - ok.sum()
     assert s["h_li_minus_ref_mean_m"] == pytest.approx(np.mean(tab.h_li[ok]))
+
+
+# ---------------------------------------------------------- compiled fit = numpy reference
+
+def _same_tables(a, b):
+    """Every column equal: integers exactly, floats to 1e-9 relative (numba sums in another
+    order than numpy's pairwise sums) with NaN where NaN."""
+    for name in atl06.FIELDS:
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.dtype == y.dtype, name
+        if x.dtype.kind in "iu":
+            np.testing.assert_array_equal(x, y, err_msg=name)
+        else:
+            np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-12, equal_nan=True, err_msg=name)
+
+
+@pytest.mark.parametrize("paralyzable,bg_mhz,signal", [(False, 5.0, 3.0), (True, 5.0, 3.0),
+                                                        (False, 300.0, 3.0), (True, 300.0, 3.0),
+                                                        (False, 2.0, 240.0), (True, 0.0, 60.0)])
+def test_compiled_fit_is_the_numpy_reference(rng, paralyzable, bg_mhz, signal):
+    """The numba kernel (the default) against the step-by-step numpy reference on the same
+    photons, across the regimes the reference's branches cover: weak signal, 300 MHz
+    background (dead-time-corrected background, the paralyzable one through Lambert W),
+    saturation (fpb_dead, fpb_gain), a photon gap (too few photons), with and without gate
+    centres; every column of every segment agrees."""
+    n_shots = 1500
+    along = np.arange(n_shots) * 0.7
+    inst = Instrument(beam="weak", signal_photons=signal, background_mhz=bg_mhz,
+                      paralyzable=paralyzable)
+    det = pmt.detect(gaussian_returns(rng, n_shots, inst.pulse_sigma_ns, k=400), inst, rng,
+                     gate_center_ns=np.full(n_shots, T0))
+    keep = ~((along[det.shot] >= 300) & (along[det.shot] < 400))           # a gap
+    shot, channel = det.shot[keep], det.channel[keep]
+    h = inst.altitude_m - C_M_PER_NS / 2 * det.time_ns[keep]
+    h = h + 0.02 * along[shot]                                              # a 2 % slope
+    for gate in (np.zeros(n_shots), None):
+        kw = dict(photon_along_m=along[shot], h_m=h, shot=shot, channel=channel,
+                  n_shots=n_shots, shot_along_m=along, n_channels=inst.channels,
+                  dead_time_ns=3.0, paralyzable=paralyzable,
+                  pulse_sigma_ns=inst.pulse_sigma_ns, range_gate_m=30.0,
+                  z_ref_m=0.02 * along, gate_center_h_m=gate, footprint_sigma_m=2.5)
+        ref = atl06.fit_segments(**kw, engine="reference")
+        _same_tables(ref, atl06.fit_segments(**kw, engine="compiled"))
+        assert (ref.flags != 0).any()                       # the gap at least
+        assert ref.good.any() == (signal < 100)      # saturated: every segment fpb-flagged
+
+
+def test_compiled_fit_on_a_simulated_track(fractal_tracks):
+    res = fractal_tracks[10.0]
+    _same_tables(atl06.segments_from_result(res, engine="reference"),
+                 atl06.segments_from_result(res, engine="compiled"))
+    with pytest.raises(ValueError, match="engine"):
+        atl06.segments_from_result(res, engine="fast")
+
+
+def test_auto_engine_compiles_only_for_long_tracks(monkeypatch, fractal_tracks):
+    """``engine="auto"``: the reference for a short track (the compile would cost more),
+    the kernel from COMPILE_MIN_SEGMENTS segments on or once it is loaded."""
+    calls = []
+    compiled = atl06._fit_compiled
+    monkeypatch.setattr(atl06, "_fit_compiled", lambda *a: calls.append(1) or compiled(*a))
+    monkeypatch.setattr(atl06, "_kernel_ready", lambda: False)
+    res = fractal_tracks[1.0]                                  # ~200 segments
+    atl06.segments_from_result(res)
+    assert not calls
+    monkeypatch.setattr(atl06, "COMPILE_MIN_SEGMENTS", 100)
+    atl06.segments_from_result(res)
+    assert calls == [1]
+    monkeypatch.setattr(atl06, "COMPILE_MIN_SEGMENTS", 10 ** 9)
+    monkeypatch.setattr(atl06, "_kernel_ready", lambda: True)
+    atl06.segments_from_result(res)
+    assert calls == [1, 1]
