@@ -421,9 +421,10 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
             default the first shot's. A track fitted in sections passes the whole track's.
         engine: ``"compiled"`` (numba: :mod:`lidar_mitsuba._atl06_kernel`, ~10-20x faster),
             ``"reference"`` (the plain numpy :func:`_fit_segment`, ~1 ms a segment; the tests
-            check that both give the same table) or ``"auto"``: compiled from
-            :data:`COMPILE_MIN_SEGMENTS` segments on, or once the kernel is compiled in this
-            process (its first compile takes ~20 s, then numba's on-disk cache ~1 s).
+            check that both give the same table to 1e-9) or ``"auto"``: compiled from
+            :data:`COMPILE_MIN_SEGMENTS` segments on (its first compile takes ~20 s, then
+            numba's on-disk cache <1 s). The choice depends on the track alone, so a track
+            gives the same bits in every process.
     """
     if engine not in ("auto", "compiled", "reference"):
         raise ValueError(f"engine must be 'auto', 'compiled' or 'reference' (got {engine!r})")
@@ -468,8 +469,7 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
     cols["x_atc"] = centres
     cols["n_fit_photons"][:] = 0
     if engine == "auto":
-        engine = ("compiled" if centres.size >= COMPILE_MIN_SEGMENTS or _kernel_ready()
-                  else "reference")
+        engine = "compiled" if centres.size >= COMPILE_MIN_SEGMENTS else "reference"
     if engine == "compiled":
         _fit_compiled(cols, along, h, shot_along, gate, centres, half, cfg)
     for k, c in enumerate(centres):
@@ -491,13 +491,6 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
 COMPILE_MIN_SEGMENTS = 1000
 """``engine="auto"`` compiles the kernel for tracks of this many segments (20 km) or more:
 fewer cost the reference less than the compile."""
-
-
-def _kernel_ready() -> bool:
-    """Whether the compiled kernel is loaded in this process (no compile to wait for)."""
-    import sys
-    kernel = sys.modules.get(f"{__package__}._atl06_kernel")
-    return kernel is not None and bool(kernel.fit_all.signatures)
 
 
 def _fit_compiled(cols: dict, along, h, shot_along, gate, centres, half: float,

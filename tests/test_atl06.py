@@ -230,18 +230,15 @@ def test_compiled_fit_on_a_simulated_track(fractal_tracks):
 
 def test_auto_engine_compiles_only_for_long_tracks(monkeypatch, fractal_tracks):
     """``engine="auto"``: the reference for a short track (the compile would cost more),
-    the kernel from COMPILE_MIN_SEGMENTS segments on or once it is loaded."""
+    the kernel from COMPILE_MIN_SEGMENTS segments on, whatever ran before in the process
+    (so a track gives the same bits in a sweep's workers as in the caller: test_sweep)."""
     calls = []
     compiled = atl06._fit_compiled
     monkeypatch.setattr(atl06, "_fit_compiled", lambda *a: calls.append(1) or compiled(*a))
-    monkeypatch.setattr(atl06, "_kernel_ready", lambda: False)
     res = fractal_tracks[1.0]                                  # ~200 segments
-    atl06.segments_from_result(res)
-    assert not calls
-    monkeypatch.setattr(atl06, "COMPILE_MIN_SEGMENTS", 100)
+    atl06.segments_from_result(res, engine="compiled")         # the kernel is loaded now
     atl06.segments_from_result(res)
     assert calls == [1]
-    monkeypatch.setattr(atl06, "COMPILE_MIN_SEGMENTS", 10 ** 9)
-    monkeypatch.setattr(atl06, "_kernel_ready", lambda: True)
+    monkeypatch.setattr(atl06, "COMPILE_MIN_SEGMENTS", 100)
     atl06.segments_from_result(res)
     assert calls == [1, 1]
