@@ -684,7 +684,11 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     instruments = [(b, ctx.instrument(b)) for b in beams]
     summaries = {b.name: BeamSummary(beam=b) for b in beams}
     depth = {b.name: max_depth for b in beams}
-    segs = {b.name: _SegmentStream(dict(segment_options or {})) for b in beams}
+    seg_options = dict(segment_options or {})
+    if shots * spacing / SEGMENT_M >= atl06.COMPILE_MIN_SEGMENTS:
+        # one engine for every section of a long track (its short last section too)
+        seg_options.setdefault("engine", "compiled")
+    segs = {b.name: _SegmentStream(dict(seg_options)) for b in beams}
     bar = None
     if progress:
         from tqdm.auto import tqdm
