@@ -100,7 +100,9 @@ def test_bench_quick(bench_run):
 
 def test_throughput_chart_shows_the_measured_rates(bench_run):
     """Left: one bar per detector case, its length the case's events/s in millions, named by
-    the case; right: ray_intersect and the integrator in million paths/s."""
+    the case; right: ray_intersect and the integrator in million paths/s, then each
+    end-to-end loop as the casts it makes per second (its fraction of the cast bound times
+    the ray-cast rate: shots/s x paths x bounces)."""
     doc, fig = bench_run["doc"], bench_run["figs"]["throughput"]
     ax, ax2 = fig.axes
     det = doc["detector"]
@@ -111,11 +113,17 @@ def test_throughput_chart_shows_the_measured_rates(bench_run):
     (target,) = [ln for ln in ax.get_lines() if ln.get_label() == "target 20 M/s"]
     assert list(target.get_xdata()) == [20, 20]
     integ = doc["integrator"]
-    np.testing.assert_array_equal([p.get_width() for p in ax2.patches],
-                                  [integ["rays_per_s"] / 1e6, integ["paths_per_s"] / 1e6])
-    assert [t.get_text() for t in ax2.get_yticklabels()] == ["ray_intersect (ceiling)",
-                                                             "pathlength integrator"]
-    assert "million paths / s" in ax2.get_xlabel()
+    loops = [r["loop_shots_per_s"] * r["paths_per_shot"] * r["traced_depth"] / 1e6
+             for r in doc["end_to_end"]]
+    np.testing.assert_allclose([p.get_width() for p in ax2.patches],
+                               [integ["rays_per_s"] / 1e6, integ["paths_per_s"] / 1e6, *loops],
+                               rtol=1e-12)
+    labels = [t.get_text() for t in ax2.get_yticklabels()]
+    assert labels[:2] == ["ray_intersect (ceiling)", "pathlength integrator"]
+    assert labels[2:] == [f"loop, {r['beam']}, {r['traced_depth']} bounce"
+                          f"{'s' if r['traced_depth'] > 1 else ''} (casts)"
+                          for r in doc["end_to_end"]]
+    assert "M rays or paths / s" in ax2.get_xlabel()
     assert f"{integ['triangles'] / 1e6:.1f} M triangles" in ax2.get_xlabel()
     assert f"ratio {integ['ratio_to_ceiling']:.2f}" in ax2.get_xlabel()
     assert "throughput" in fig.get_suptitle() and doc["variant"] in fig.get_suptitle()

@@ -206,14 +206,15 @@ def bench_end_to_end(*, quick: bool) -> list[dict]:
 
 
 def _chart(doc: dict, path: pathlib.Path):
-    """Throughput bars (detector cases; integrator against its ray-cast ceiling), and, when
+    """Throughput bars (detector cases; integrator and the end-to-end loops against the
+    ray-cast ceiling, the loops as the casts they make per second), and, when
     the bench measured several variants, their rates side by side; saved to ``path``.
     Returns the (closed) matplotlib Figure."""
     from ..plotting import plt
     det = doc["detector"]
     variants = doc.get("by_variant", {})
     fig, axes = plt.subplots(1, 3 if len(variants) > 1 else 2,
-                             figsize=(16.5 if len(variants) > 1 else 11, 3.8), dpi=110)
+                             figsize=(17.5 if len(variants) > 1 else 12, 3.8), dpi=110)
     ax = axes[0]
     ax.barh([r["case"] for r in det], [r["events_per_s"] / 1e6 for r in det], color="tab:blue")
     ax.axvline(20, color="k", ls="--", lw=1, label="target 20 M/s")
@@ -225,9 +226,17 @@ def _chart(doc: dict, path: pathlib.Path):
     integ = doc["integrator"]
     labels = ["ray_intersect (ceiling)", "pathlength integrator"]
     vals = [integ["rays_per_s"] / 1e6, integ["paths_per_s"] / 1e6]
-    ax.barh(labels, vals, color=["0.6", "tab:orange"])
-    ax.set_xlabel(f"million paths / s, {integ['triangles'] / 1e6:.1f} M triangles "
-                  f"(ratio {integ['ratio_to_ceiling']:.2f})")
+    colors = ["0.6", "tab:orange"]
+    for r in doc.get("end_to_end", []):       # the chunk loop, in the casts it makes per second
+        if "loop_of_cast_bound" in r:
+            labels.append(f"loop, {r['beam']}, {r['traced_depth']} "
+                          f"bounce{'s' if r['traced_depth'] > 1 else ''} (casts)")
+            vals.append(r["loop_of_cast_bound"] * integ["rays_per_s"] / 1e6)
+            colors.append("tab:green")
+    ax.barh(labels, vals, color=colors)
+    ax.set_xlabel(f"M rays or paths / s ({integ['triangles'] / 1e6:.1f} M triangles; "
+                  f"ratio {integ['ratio_to_ceiling']:.2f})\n"
+                  "loops: shots/s x paths x bounces (corridor)")
     ax.invert_yaxis()
     if len(variants) > 1:
         ax = axes[2]
