@@ -28,6 +28,12 @@ OUT_FIELDS = ("n_seg_pulses", "flags", "n_fit_photons", "h_li", "h_li_sigma", "h
  _WIN, _EXIT, _BG, _BG_N, _BG_EXP, _FPB, _FPB_SIGMA, _FPB_MED, _GAIN, _MIN_ALIVE, _N_CORR,
  _SNR) = range(len(OUT_FIELDS))
 
+#: the settings ``cfg`` holds, in order (``atl06._Config``'s fields), then half c and the
+#: Gaussian IQR per sigma
+CFG_FIELDS = ("n_channels", "dead_time_ns", "paralyzable", "sigma_pulse_m", "footprint_sigma_m",
+              "gate_m", "initial_window_m", "min_window_m", "max_iterations", "min_photons",
+              "min_span_m", "min_alive_pulses", "max_gain")
+
 _TOO_FEW, _LOW_SNR, _LARGE_SPREAD, _FPB_DEAD, _FPB_GAIN, _FPB_DIVERGED, _NOT_CONVERGED = \
     1, 2, 4, 8, 16, 32, 64
 
@@ -324,10 +330,8 @@ def _span_ok(x, sel, min_photons, min_span_m):
 @numba.njit(cache=True, nogil=True)
 def fit_segment(x, h, x_shot, gate_c, has_gate, cfg, out):
     """:func:`lidar_mitsuba.atl06._fit_segment` into ``out`` (its :data:`OUT_FIELDS` row,
-    pre-filled with the table's defaults). ``cfg``: float64 array (n_channels, dead_time_ns,
-    paralyzable, sigma_pulse_m, footprint_sigma_m, gate_m, initial_window_m, min_window_m,
-    max_iterations, min_photons, min_span_m, min_alive_pulses, max_gain, half_c,
-    iqr_scale)."""
+    pre-filled with the table's defaults). ``cfg``: float64 array of :data:`CFG_FIELDS`,
+    then half c [m/ns] and the IQR per sigma."""
     n_channels, dead_time_ns, paralyzable = int(cfg[0]), cfg[1], cfg[2] != 0.0
     sigma_pulse_m, footprint_sigma_m, gate_m = cfg[3], cfg[4], cfg[5]
     w0, min_window_m, max_iterations, min_photons = cfg[6], cfg[7], int(cfg[8]), int(cfg[9])

@@ -470,10 +470,12 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
     cols["n_fit_photons"][:] = 0
     if engine == "auto":
         engine = "compiled" if centres.size >= COMPILE_MIN_SEGMENTS else "reference"
+    shot0 = np.searchsorted(shot_along, centres - half, side="left")
+    shot1 = np.searchsorted(shot_along, centres + half, side="left")
     if engine == "compiled":
-        _fit_compiled(cols, along, h, shot_along, gate, centres, half, cfg)
+        _fit_compiled(cols, along, h, shot_along, gate, centres, half, shot0, shot1, cfg)
     for k, c in enumerate(centres):
-        s0, s1 = np.searchsorted(shot_along, [c - half, c + half], side="left")
+        s0, s1 = shot0[k], shot1[k]
         if engine == "reference":
             p0, p1 = np.searchsorted(along, [c - half, c + half], side="left")
             res = _fit_segment(along[p0:p1] - c, h[p0:p1], shot_along[s0:s1] - c,
@@ -493,17 +495,16 @@ COMPILE_MIN_SEGMENTS = 1000
 fewer cost the reference less than the compile."""
 
 
-def _fit_compiled(cols: dict, along, h, shot_along, gate, centres, half: float,
+def _fit_compiled(cols: dict, along, h, shot_along, gate, centres, half: float, s0, s1,
                   cfg: _Config) -> None:
-    """Every segment through the compiled kernel, into ``cols`` (pre-filled defaults)."""
+    """Every segment through the compiled kernel, into ``cols`` (pre-filled defaults);
+    segment ``k`` holds shots ``s0[k]:s1[k]``."""
     from . import _atl06_kernel as K
     from .fpb import IQR_PER_SIGMA
     p0 = np.searchsorted(along, centres - half, side="left")
     p1 = np.searchsorted(along, centres + half, side="left")
-    s0 = np.searchsorted(shot_along, centres - half, side="left")
-    s1 = np.searchsorted(shot_along, centres + half, side="left")
-    c = dataclasses.astuple(cfg)
-    cfg_v = np.array([c[0], c[1], float(c[2]), *c[3:], HALF_C, IQR_PER_SIGMA], np.float64)
+    cfg_v = np.array([float(getattr(cfg, name)) for name in K.CFG_FIELDS]
+                     + [HALF_C, IQR_PER_SIGMA], np.float64)
     out = np.column_stack([cols[name].astype(np.float64) for name in K.OUT_FIELDS])
     K.fit_all(along, h, shot_along,
               np.zeros(shot_along.size) if gate is None else gate, gate is not None,
