@@ -133,30 +133,8 @@ class Heightfield:
         if bad.any():
             x = np.where(bad, 0.0, x)
             y = np.where(bad, 0.0, y)
-        fx = x / self.grid_m
-        fy = y / self.grid_m
-        nx, ny = self.nx, self.ny
-        if self.periodic:
-            fx = np.mod(fx, nx)
-            fy = np.mod(fy, ny)
-            ix0 = np.floor(fx).astype(np.intp)
-            iy0 = np.floor(fy).astype(np.intp)
-            tx = fx - ix0
-            ty = fy - iy0
-            # np.mod can return exactly n for tiny negative inputs: fold back.
-            ix0 %= nx
-            iy0 %= ny
-            ix1 = (ix0 + 1) % nx
-            iy1 = (iy0 + 1) % ny
-        else:
-            fx = np.clip(fx, 0.0, nx - 1)
-            fy = np.clip(fy, 0.0, ny - 1)
-            ix0 = np.minimum(np.floor(fx).astype(np.intp), nx - 2)
-            iy0 = np.minimum(np.floor(fy).astype(np.intp), ny - 2)
-            tx = fx - ix0
-            ty = fy - iy0
-            ix1 = ix0 + 1
-            iy1 = iy0 + 1
+        ix0, ix1, tx = self._cell(x / self.grid_m, self.nx)
+        iy0, iy1, ty = self._cell(y / self.grid_m, self.ny)
         z00 = grid[iy0, ix0]
         z01 = grid[iy0, ix1]
         z10 = grid[iy1, ix0]
@@ -165,6 +143,20 @@ class Heightfield:
         if bad.any():
             out = np.where(bad, np.nan, out)
         return out
+
+    def _cell(self, f: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The bilinear cell of grid coordinates ``f`` (in nodes) along an axis of ``n``
+        nodes: ``(i0, i1, t)``, its two nodes and the fraction from ``i0``; periodic grids
+        wrap, the others clamp to the last cell."""
+        if self.periodic:
+            f = np.mod(f, n)
+            i0 = np.floor(f).astype(np.intp)
+            t = f - i0
+            i0 %= n            # np.mod can return exactly n for tiny negative inputs
+            return i0, (i0 + 1) % n, t
+        f = np.clip(f, 0.0, n - 1)
+        i0 = np.minimum(np.floor(f).astype(np.intp), n - 2)
+        return i0, i0 + 1, f - i0
 
     def height_m(self, x_m: Any, y_m: Any) -> np.ndarray:
         """Surface height [m] at points (x_m, y_m) [m] by bilinear interpolation.
@@ -229,20 +221,16 @@ class Heightfield:
     def _smoothed_rows(self, sigma_m: float, y_m: Any) -> np.ndarray | None:
         """A (ny, nx) array whose rows that :meth:`_interp` reads at ``y_m`` hold
         :meth:`smoothed_grid`'s values, bit for bit (the same two 1-D passes, axis 0
-        then axis 1, over the same inputs), the other rows unset; ``None`` when the
-        rows' filter windows would cover more than the grid (filter it all)."""
+        then axis 1, over the same inputs), the other rows zero (what ``_interp`` reads
+        there for points it returns as NaN); ``None`` when the rows' filter windows
+        would cover more than the grid (filter it all)."""
         y = np.asarray(y_m, dtype=np.float64).ravel()
         y = y[np.isfinite(y)]
         if y.size == 0:
             return None
         ny = self.ny
-        fy = y / self.grid_m
-        if self.periodic:
-            iy0 = np.floor(np.mod(fy, ny)).astype(np.intp) % ny
-            rows = np.unique(np.concatenate([iy0, (iy0 + 1) % ny]))
-        else:
-            iy0 = np.minimum(np.floor(np.clip(fy, 0.0, ny - 1)).astype(np.intp), ny - 2)
-            rows = np.unique(np.concatenate([iy0, iy0 + 1]))
+        iy0, iy1, _ = self._cell(y / self.grid_m, ny)
+        rows = np.unique(np.concatenate([iy0, iy1]))
         sd = sigma_m / self.grid_m
         radius = int(4.0 * sd + 0.5)               # gaussian_filter's, truncate = 4
         if rows.size * (2 * radius + 1) >= ny:
@@ -255,7 +243,7 @@ class Heightfield:
         # along the window; the centre is exactly the full filter's value at that row
         across = ndimage.gaussian_filter1d(self.z_m[window], sd, axis=1, mode=mode,
                                            truncate=4.0)[:, radius, :]
-        out = np.empty_like(self.z_m)
+        out = np.zeros_like(self.z_m)
         out[rows] = ndimage.gaussian_filter1d(across, sd, axis=1, mode=mode, truncate=4.0)
         return out
 

@@ -49,9 +49,14 @@ def usable_variants() -> list[str]:
     """The supported variants this machine can run: CUDA ones only where a GPU is found, LLVM
     ones only where a usable libLLVM was (``import lidar_mitsuba`` under a CUDA variant points
     Dr.Jit at ``os.devnull`` when it finds none)."""
-    llvm = os.environ.get("DRJIT_LIBLLVM_PATH") != os.devnull
-    return [v for v in SUPPORTED_VARIANTS if v in mi.variants()
-            and (dr.has_backend(dr.JitBackend.CUDA) if v.startswith("cuda") else llvm)]
+    return [v for v in SUPPORTED_VARIANTS if v in mi.variants() and _has_backend(v)]
+
+
+def _has_backend(name: str) -> bool:
+    """Whether the backend of JIT variant ``name`` can run here."""
+    if name.startswith("cuda"):
+        return bool(dr.has_backend(dr.JitBackend.CUDA))
+    return os.environ.get("DRJIT_LIBLLVM_PATH") != os.devnull
 
 
 def set_variant(name: str = DEFAULT_VARIANT) -> str:
@@ -67,12 +72,10 @@ def set_variant(name: str = DEFAULT_VARIANT) -> str:
     if name.startswith("scalar"):
         raise ValueError(f"variant {name!r} is not supported: use a JIT variant such as "
                          f"{DEFAULT_VARIANT}")
-    if name.startswith("cuda") and name in mi.variants() and not dr.has_backend(dr.JitBackend.CUDA):
+    if name in mi.variants() and not _has_backend(name):
         raise ValueError(f"variant {name!r} needs a CUDA GPU and driver, and none was found "
-                         f"(use llvm_ad_mono on the CPU)")
-    if (name.startswith("llvm") and name in mi.variants()
-            and os.environ.get("DRJIT_LIBLLVM_PATH") == os.devnull):
-        raise ValueError(f"variant {name!r} needs libLLVM >= 17, and none was found (this "
+                         f"(use llvm_ad_mono on the CPU)" if name.startswith("cuda") else
+                         f"variant {name!r} needs libLLVM >= 17, and none was found (this "
                          f"process runs a CUDA variant only)")
     if name not in usable:
         raise ValueError(f"variant {name!r} is not available (choose from {', '.join(usable)})")
