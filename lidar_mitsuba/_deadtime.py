@@ -39,13 +39,18 @@ def choose_returns(start, weight, w_max, need, exchangeable, seed):
 
     Args:
         start: (n_shots + 1,) offsets of each shot's returns; weight: (n_returns,).
-        need: (n_shots,) picks per shot. Returns (sum(need),) int64 return indices, by shot.
+        need: (n_shots,) picks per shot.
+
+    Returns:
+        ``(index, ran_out)``: (sum(need),) int64 return indices, by shot; (n_shots,) bool,
+        the shots that ran out.
     """
     n_shots = need.size
     off = np.zeros(n_shots + 1, np.int64)
     for s in range(n_shots):
         off[s + 1] = off[s] + need[s]
     out = np.empty(off[n_shots], np.int64)
+    ran_out = np.zeros(n_shots, np.bool_)
     for s in numba.prange(n_shots):
         k = need[s]
         if k == 0:
@@ -77,6 +82,7 @@ def choose_returns(start, weight, w_max, need, exchangeable, seed):
                 pos += 1
                 got += 1
         if got < k:                      # fallback: with replacement, by weight
+            ran_out[s] = True
             cw = np.empty(m, np.float64)
             acc = 0.0
             for i in range(m):
@@ -91,7 +97,7 @@ def choose_returns(start, weight, w_max, need, exchangeable, seed):
                     out[pos] = a + min(np.searchsorted(cw, u, side="right"), m - 1)
                 pos += 1
                 got += 1
-    return out
+    return out, ran_out
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)

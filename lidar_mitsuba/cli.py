@@ -108,6 +108,7 @@ def _dead_time(value: str) -> float:
 
 
 def _max_depth(value: str):
+    """An argparse type: an integer or ``auto`` (``--max-depth``, ``--paths-per-shot``)."""
     if value == "auto":
         return value
     try:
@@ -211,8 +212,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="trace a similar snow with this asymmetry (0 <= G < 0.89) and the same "
                    "sigma_s (1 - g): fewer scatterings, faster, approximate near the surface")
     r = s.add_argument_group("rendering")
-    opts.add_options(r, simulate, only=RUN_OPTIONS, types_={"max_depth": _max_depth},
-                     metavars={"max_depth": "N|auto", "variant": "NAME"})
+    opts.add_options(r, simulate, only=RUN_OPTIONS,
+                     types_={"max_depth": _max_depth, "paths_per_shot": _max_depth},
+                     metavars={"max_depth": "N|auto", "paths_per_shot": "N|auto",
+                               "variant": "NAME"})
     r.add_argument("--full-tile", action="store_true",
                    help="mesh the whole tile instead of the track's corridor (same photons)")
     o = s.add_argument_group("output")

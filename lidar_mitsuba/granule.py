@@ -106,7 +106,7 @@ class Granule:
 def simulate_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                      beams: str | list[Beam] = "all", sc_orient: int = 0,
                      instrument_options: dict | None = None, seed: int = 0,
-                     paths_per_shot: int = 128, max_depth: int | str = "auto",
+                     paths_per_shot: int | str = "auto", max_depth: int | str = "auto",
                      progress: bool = True, **simulate_options) -> Granule:
     """Simulate ``shots`` shots of each of ``beams`` along ``track`` over a DEM.
 
@@ -654,7 +654,7 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                    atl03_path: str | os.PathLike, atl06_path: str | os.PathLike | None = None,
                    beams: str | list[Beam] = "all", sc_orient: int = 0,
                    instrument_options: dict | None = None, seed: int = 0,
-                   paths_per_shot: int = 128, max_depth: int | str = "auto",
+                   paths_per_shot: int | str = "auto", max_depth: int | str = "auto",
                    progress: bool = True, section_shots: int = SECTION_SHOTS,
                    segment_options: dict | None = None, **simulate_options
                    ) -> list[BeamSummary]:
@@ -662,8 +662,8 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     memory is bounded by a section (``section_shots`` shots) for a track of any length.
 
     Arguments as :func:`simulate_granule`. Each section of each beam is an independent run
-    (its own seed); ``max_depth="auto"`` is decided by each beam's first section's pilot and
-    kept for the rest. ATL06 segments are fitted across section boundaries (see
+    (its own seed); ``max_depth="auto"`` and ``paths_per_shot="auto"`` are decided by each
+    beam's first section (its pilot and scout) and kept for the rest. ATL06 segments are fitted across section boundaries (see
     :class:`_SegmentStream`). Both files are written atomically: a failure leaves neither.
     Returns each beam's running statistics.
     """
@@ -684,6 +684,7 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     instruments = [(b, ctx.instrument(b)) for b in beams]
     summaries = {b.name: BeamSummary(beam=b) for b in beams}
     depth = {b.name: max_depth for b in beams}
+    paths = {b.name: paths_per_shot for b in beams}
     seg_options = dict(segment_options or {})
     if shots * spacing / SEGMENT_M >= atl06.COMPILE_MIN_SEGMENTS:
         # one engine for every section of a long track (its short last section too)
@@ -705,10 +706,11 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
             for k, (a, b) in enumerate(bounds):
                 for beam in beams:
                     run = ctx.beam_run(beam, a, b - a, seed=_beam_seed(seed, beam, k),
-                                       progress=False, paths_per_shot=paths_per_shot,
+                                       progress=False, paths_per_shot=paths[beam.name],
                                        max_depth=depth[beam.name], **simulate_options)
                     if run.result.config.get("snow") is None:   # a volume sets its own
                         depth[beam.name] = run.result.config["max_depth"]
+                    paths[beam.name] = run.result.config["paths_per_shot"]
                     _beam_atl03(f3, run, sc_orient)
                     if f6 is not None:
                         table, along, lat, lon, t = segs[beam.name].fit(

@@ -4,7 +4,7 @@ Pure numpy: plain typed containers with the few operations the chunk loop needs.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -141,6 +141,9 @@ class Detections:
         arrivals_per_shot: (n_shots,) photons that reached the detector (before fill factor,
             PDE and dead time).
         mean_photons_per_shot: (n_shots,) the Poisson mean ``mu_s`` of each shot.
+        run_out_shots: (n_run_out,) int64 indices of the shots whose photons needed more
+            distinct traced returns than the shot had (some reuse a path:
+            :func:`lidar_mitsuba.pmt.sample_arrivals`); empty in a well-sampled run.
     """
     shot: np.ndarray
     channel: np.ndarray
@@ -151,6 +154,7 @@ class Detections:
     hit_xyz_m: np.ndarray
     arrivals_per_shot: np.ndarray
     mean_photons_per_shot: np.ndarray
+    run_out_shots: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     def __len__(self) -> int:
         return int(self.shot.size)
@@ -164,6 +168,7 @@ class Detections:
         out = {f.name: np.concatenate([getattr(d, f.name) for d, *_ in parts])
                for f in fields(cls)}
         out["shot"] = np.concatenate([d.shot + a for d, a, _ in parts])
+        out["run_out_shots"] = np.concatenate([d.run_out_shots + a for d, a, _ in parts])
         out["return_index"] = np.concatenate(
             [np.where(d.return_index >= 0, d.return_index + r0, -1) for d, _, r0 in parts])
         return cls(**out)

@@ -51,9 +51,10 @@ def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths
         keep_probability: probability that an arriving photon is kept (fill factor x PDE).
 
     Returns:
-        ``(return_index, mu, counts)``: (n_kept,) index of the chosen return per kept photon,
-        grouped by shot; (n_shots,) Poisson means ``signal_photons * sum(w) / paths_per_shot``;
-        (n_shots,) photons arriving per shot (before fill factor and PDE).
+        ``(return_index, mu, counts, run_out)``: (n_kept,) index of the chosen return per kept
+        photon, grouped by shot; (n_shots,) Poisson means ``signal_photons * sum(w) /
+        paths_per_shot``; (n_shots,) photons arriving per shot (before fill factor and PDE);
+        (n_shots,) bool, the shots whose picks ran out of distinct returns.
     """
     shot = np.asarray(shot)
     w = np.asarray(weight)
@@ -64,10 +65,10 @@ def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths
     counts = rng.poisson(mu)
     kept = rng.binomial(counts, keep_probability) if keep_probability < 1 else counts
     if kept.sum() == 0:
-        return np.zeros(0, np.int64), mu, counts
-    idx = _deadtime.choose_returns(start, w, float(w_max), kept.astype(np.int64),
-                                   bool(exchangeable), int(rng.integers(0, 2 ** 62)))
-    return idx, mu, counts
+        return np.zeros(0, np.int64), mu, counts, np.zeros(mu.size, bool)
+    idx, run_out = _deadtime.choose_returns(start, w, float(w_max), kept.astype(np.int64),
+                                            bool(exchangeable), int(rng.integers(0, 2 ** 62)))
+    return idx, mu, counts, run_out
 
 
 def nonparalyzable_mask(group: np.ndarray, time_ns: np.ndarray, dead_time_ns: float) -> np.ndarray:
@@ -131,7 +132,7 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
     if gate_center_ns is None and (bg_mean > 0 or dc_mean > 0):
         raise ValueError("noise needs a range gate: pass gate_center_ns")
     # fill factor then PDE: two independent thinnings, i.e. one with probability ff * pde
-    idx, mu, counts = sample_arrivals(
+    idx, mu, counts, run_out = sample_arrivals(
         returns.shot, returns.weight, n_shots=n_shots,
         paths_per_shot=int(returns.paths_per_shot),
         signal_photons=float(instrument.signal_photons), rng=rng,
@@ -160,4 +161,5 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
         hit[sig, j] = axis[index[sig]]
     return Detections(shot=shot, channel=(anode // instrument.anodes_per_channel).astype(np.int16),
                       anode=anode, time_ns=time_ns, return_index=index, is_signal=sig,
-                      hit_xyz_m=hit, arrivals_per_shot=counts, mean_photons_per_shot=mu)
+                      hit_xyz_m=hit, arrivals_per_shot=counts, mean_photons_per_shot=mu,
+                      run_out_shots=np.flatnonzero(run_out).astype(np.int64))

@@ -24,7 +24,8 @@ from dataclasses import dataclass, field
 import mitsuba as mi
 import numpy as np
 
-from . import bounce_pilot, chunks, classify, retrieval, scene as scn, surface as surfaces
+from . import (bounce_pilot, chunks, classify, path_budget, retrieval, scene as scn,
+               surface as surfaces)
 from .constants import FWHM_PER_SIGMA, ParameterError, SimulationWarning
 from .instrument import Instrument
 from .photons import Detections, Returns
@@ -99,8 +100,9 @@ def _check_run(shots, seed, paths_per_shot, max_depth, chunk_shots) -> None:
         raise ParameterError("shots", f"must be an integer in [1, 1e8] (got {shots!r})")
     if not is_int(seed) or not 0 <= seed < 2 ** 63:
         raise ParameterError("seed", f"must be an integer >= 0 (got {seed!r})")
-    if not is_int(paths_per_shot) or not 1 <= paths_per_shot <= 10 ** 6:
-        raise ParameterError("paths_per_shot", f"must be an integer in [1, 1e6] "
+    if paths_per_shot != "auto" and (not is_int(paths_per_shot)
+                                     or not 1 <= paths_per_shot <= 10 ** 6):
+        raise ParameterError("paths_per_shot", f"must be 'auto' or an integer in [1, 1e6] "
                              f"(got {paths_per_shot!r})")
     if not is_int(chunk_shots) or chunk_shots < 1:
         raise ParameterError("chunk_shots", f"must be an integer >= 1 (got {chunk_shots!r})")
@@ -203,7 +205,7 @@ def simulate(*, instrument: Instrument | None = None,
              surface: SurfaceSpec | surfaces.Surface | None = None,
              scene=None, scene_file: str | None = None, params: dict | None = None,
              bsdf: dict | None = None, shots: int = 1000, seed: int = 0,
-             paths_per_shot: int = 128, max_depth: int | str = "auto",
+             paths_per_shot: int | str = "auto", max_depth: int | str = "auto",
              track: Track | None = None, variant: str | None = None, progress: bool = True,
              chunk_shots: int = chunks.CHUNK_SHOTS, keep_returns: bool | None = None,
              crop_to_track: bool = True, snow: SnowVolume | None = None) -> SimulationResult:
@@ -225,7 +227,12 @@ def simulate(*, instrument: Instrument | None = None,
         bsdf: a Mitsuba BSDF dict replacing a built-in surface's Ward BSDF.
         shots: number of laser shots (>= 1; as many as fit in memory, which is checked).
         seed: seed of the photon Monte Carlo and the detector (>= 0; same seed, same photons).
-        paths_per_shot: photon paths traced per shot to sample its return.
+        paths_per_shot: photon paths traced per shot to sample its return, or ``"auto"``:
+            the fewest (8 to 1024) that keep every detected photon on a path of its own and
+            the Monte Carlo noise of each shot's mean photon count under 1 % of its Poisson
+            variance, judged by a scout trace (:mod:`lidar_mitsuba.path_budget`; 16 for the
+            strong beam on the default snow, 8 for the weak one). The choice and its numbers
+            are in ``result.config["paths_per_shot"]`` and ``result.config["path_budget"]``.
         max_depth: surface interactions per photon path (1 = single bounce), or ``"auto"``
             (1 on a plane, where it is exact, elsewhere a two-bounce pilot decides: see
             :mod:`lidar_mitsuba.bounce_pilot`). The choice and its numbers are in
@@ -339,7 +346,9 @@ def simulate(*, instrument: Instrument | None = None,
         n_pilot = x_loc.size           # a streamed surface's pilot runs on its first tile
         pilot = bounce_pilot.run_pilot(scene=scene_, instrument=instrument, x_m=x_loc, y_m=y_loc,
                                        dz_m=dz[:n_pilot], z_ref_m=z_ref[:n_pilot],
-                                       paths_per_shot=int(paths_per_shot))
+                                       paths_per_shot=(path_budget.SCOUT_PATHS
+                                                       if paths_per_shot == "auto"
+                                                       else int(paths_per_shot)))
         max_depth = 1 if pilot["single_bounce_enough"] else 2
         timings["pilot_s"] = time.perf_counter() - t1
     integrator_dict = instrument.integrator_dict(max_depth=max_depth, **lanes)
@@ -350,6 +359,13 @@ def simulate(*, instrument: Instrument | None = None,
                                    if k in ("group_index", "snow_depth_m", "base_albedo")}})
         integrator_dict["max_depth"] = int(max_depth)
     integrator = mi.load_dict(integrator_dict)
+    budget = None
+    if paths_per_shot == "auto":
+        t1 = time.perf_counter()
+        budget = _scout(integrator, scene_, x_loc, y_loc, instrument,
+                        returns_per_path=1 if volume else int(max_depth))
+        paths_per_shot = budget["paths_per_shot"]
+        timings["scout_s"] = time.perf_counter() - t1
     if keep_returns is None:
         keep_returns = shots * paths_per_shot * (1 if volume else max_depth) <= 2 ** 24
     gate_z = chunks.gate_heights_m(z_ref)
@@ -375,7 +391,8 @@ def simulate(*, instrument: Instrument | None = None,
     timings["total_s"] = time.perf_counter() - t0
 
     choices, warns = _explain(instrument=instrument, surf=surf, max_depth=max_depth,
-                              pilot=pilot, paths_per_shot=paths_per_shot, crop=crop_to_track,
+                              pilot=pilot, paths_per_shot=paths_per_shot, budget=budget,
+                              crop=crop_to_track,
                               triangles=triangles, det=det, volume=volume, snow=snow,
                               shots=shots, timings=timings)
     if surf.streamed:
@@ -387,6 +404,7 @@ def simulate(*, instrument: Instrument | None = None,
         warnings.warn(w, SimulationWarning, stacklevel=2)
     config = {"instrument": instrument.to_dict(), "surface": surf_cfg, "track": track.to_dict(),
               "shots": int(shots), "seed": int(seed), "paths_per_shot": int(paths_per_shot),
+              "path_budget": budget,
               "max_depth": int(max_depth), "bounce_pilot": pilot, "variant": mi.variant(),
               "scene_integrator": honoured, "choices": choices, "warnings": warns,
               "snow": snow.config() if snow is not None else None,
@@ -397,8 +415,23 @@ def simulate(*, instrument: Instrument | None = None,
                             timings_s=timings)
 
 
+def _scout(integrator, scene, x_m, y_m, instrument: Instrument, *,
+           returns_per_path: int) -> dict:
+    """``paths_per_shot="auto"``: trace the run's own model on up to
+    :data:`~lidar_mitsuba.path_budget.SCOUT_SHOTS` shots spread along the track (fixed random
+    numbers) and choose the paths per shot from its weights (:func:`path_budget.choose`)."""
+    idx = path_budget.scout_indices(x_m.size)
+    ret = integrator.trace(scene, shot_x_m=x_m[idx], shot_y_m=y_m[idx],
+                           paths_per_shot=path_budget.SCOUT_PATHS, seed=path_budget.SCOUT_SEED)
+    moments = path_budget.shot_moments(ret.shot, ret.weight, ret.depth, n_shots=idx.size,
+                                       paths_per_shot=path_budget.SCOUT_PATHS,
+                                       max_depth=returns_per_path)
+    return path_budget.choose(moments=moments, kept_per_weight=(
+        instrument.signal_photons * instrument.fill_factor * instrument.pde))
+
+
 def _explain(*, instrument, surf, max_depth, pilot, paths_per_shot, crop, triangles,
-             det, volume=False, snow=None, shots=0, timings=None
+             det, volume=False, snow=None, shots=0, timings=None, budget=None
              ) -> tuple[list[str], list[str]]:
     """The modelling choices of a run in words (``lidar-mitsuba simulate --explain``), and
     the ones that deserve a warning."""
@@ -433,12 +466,15 @@ def _explain(*, instrument, surf, max_depth, pilot, paths_per_shot, crop, triang
     warns = surf.warnings(instrument=instrument)
     peak = float(np.max(det.mean_photons_per_shot)) if det.mean_photons_per_shot.size else 0.0
     kept = peak * instrument.fill_factor * instrument.pde
+    if budget is not None:
+        out.append(path_budget.explain(budget))
     msg = (f"{paths_per_shot} paths per shot for up to {peak:.1f} photons per shot "
-           f"({kept:.1f} after fill factor and PDE)")
-    if paths_per_shot < 3 * max(kept, 1e-9):
-        msg += ": too few, photons share paths; raise --paths-per-shot above 3x the photons"
-        warns.append(msg)
+           f"({kept:.1f} after fill factor and PDE); "
+           f"{det.run_out_shots.size} of {shots} shots ran out of distinct paths")
     out.append(msg)
+    ran_out = path_budget.run_out_warning(int(det.run_out_shots.size), int(shots))
+    if ran_out is not None:
+        warns.append(ran_out)
     return out, warns
 
 

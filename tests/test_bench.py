@@ -68,6 +68,17 @@ def test_bench_quick(bench_run):
         assert r["loop_of_cast_bound"] == pytest.approx(
             r["loop_shots_per_s"] / r["cast_bound_shots_per_s"])
     assert "of its ray casts' bound" in printed
+    # paths_per_shot auto against the fixed 128 it replaced, both measured in this run
+    e2e = {(r["beam"], str(r["max_depth"]), str(r["paths"])): r for r in doc["end_to_end"]}
+    assert [(r["beam"], str(r["max_depth"])) for r in doc["paths_speedup"]] == [
+        ("strong", "auto"), ("strong", "1")]
+    for r in doc["paths_speedup"]:
+        auto, fixed = (e2e[("strong", str(r["max_depth"]), p)] for p in ("auto", "128"))
+        assert fixed["paths_per_shot"] == 128 and auto["paths_per_shot"] < 128
+        assert r["whole_call"] == pytest.approx(auto["shots_per_s"] / fixed["shots_per_s"])
+        assert r["loop"] == pytest.approx(auto["loop_shots_per_s"] / fixed["loop_shots_per_s"])
+        assert r["d_bias_m"] == pytest.approx(auto["bias_m"] - fixed["bias_m"])
+    assert "paths_per_shot auto (" in printed
     assert "M events/s" in printed and "simplifications of the default run" in printed
     simp = doc["simplifications"]
     assert simp["mc_std_m"] > 0 and len(simp["rows"]) == 4
@@ -121,8 +132,8 @@ def test_throughput_chart_shows_the_measured_rates(bench_run):
     labels = [t.get_text() for t in ax2.get_yticklabels()]
     assert labels[:2] == ["ray_intersect (ceiling)", "pathlength integrator"]
     assert labels[2:] == [f"loop, {r['beam']}, {r['traced_depth']} bounce"
-                          f"{'s' if r['traced_depth'] > 1 else ''} (casts)"
-                          for r in doc["end_to_end"]]
+                          f"{'s' if r['traced_depth'] > 1 else ''}, {r['paths_per_shot']} "
+                          f"paths (casts)" for r in doc["end_to_end"]]
     assert "M rays or paths / s" in ax2.get_xlabel()
     assert f"{integ['triangles'] / 1e6:.1f} M triangles" in ax2.get_xlabel()
     assert f"ratio {integ['ratio_to_ceiling']:.2f}" in ax2.get_xlabel()

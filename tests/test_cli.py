@@ -205,7 +205,14 @@ def test_simulate_then_stats(tmp_path, capsys, monkeypatch):
     for key in ("bias_m", "std_m", "photons_per_shot", "shots"):
         assert key in doc
     assert doc["shots"] == 300 and len(doc["windows"]) == 3 and len(doc["channels"]) == 4
-    assert abs(doc["bias_m"]) < 0.1 and 0.05 < doc["std_m"] < 0.5
+    # stats reads back what simulate wrote: the signal photons' h - z_ref, recomputed here
+    with h5py.File(out) as f:
+        sig = f["truth/photons/is_signal"][()].astype(bool)
+        dh = (f["gt1r/heights/h_ph"][()]
+              - f["truth/shots/z_ref_m"][()][f["truth/photons/shot"][()]])[sig]
+    assert doc["bias_m"] == pytest.approx(dh.mean(), rel=1e-9)
+    assert doc["std_m"] == pytest.approx(dh.std(ddof=1), rel=1e-9)
+    assert abs(doc["bias_m"]) < 0.1
     assert title.startswith("weak beam over fractal surface")   # the plot's title: the stats
     assert (f"bias {100 * doc['bias_m']:.1f} cm" in title
             and f"precision {100 * doc['std_m']:.1f} cm" in title), title
@@ -289,8 +296,14 @@ def test_explain_reports_choices_and_warns(tmp_path, capsys):
     assert "corridor" in text and "footprint sigma / 2.5" in text
     assert "too few" not in text
     assert main(["simulate", "--surface", "flat", "--shots", "50", "--signal-photons", "300",
-                 "--explain", "--out", str(out), "--no-progress"]) == 0
-    assert "too few, photons share paths" in capsys.readouterr().out
+                 "--paths-per-shot", "128", "--explain", "--out", str(out),
+                 "--no-progress"]) == 0
+    c = capsys.readouterr()
+    assert "too few paths, photons share paths" in c.err and "of 50 shots ran out" in c.out
+    assert main(["simulate", "--surface", "flat", "--shots", "50", "--signal-photons", "300",
+                 "--explain", "--out", str(out), "--no-progress"]) == 0   # auto: enough paths
+    text = capsys.readouterr().out
+    assert "too few" not in text and "0 of 50 shots ran out" in text
     assert main(["simulate", "--surface", "fractal", "--size-m", "128", "--shots", "100",
                  "--full-tile", "--explain", "--out", str(out), "--no-progress"]) == 0
     assert "whole 128 m tile" in capsys.readouterr().out
@@ -319,9 +332,9 @@ def test_generated_options_show_the_api_defaults(capsys):
 def test_warnings_are_printed_without_explain(tmp_path, capsys):
     out = tmp_path / "w.h5"
     assert main(["simulate", "--surface", "flat", "--shots", "50", "--signal-photons", "300",
-                 "--out", str(out), "--no-progress"]) == 0
+                 "--paths-per-shot", "128", "--out", str(out), "--no-progress"]) == 0
     err = capsys.readouterr().err
-    assert "warning: " in err and "too few, photons share paths" in err
+    assert "warning: " in err and "too few paths, photons share paths" in err
     assert main(["simulate", "--surface", "fractal", "--size-m", "64", "--grid-m", "2",
                  "--shots", "50", "--max-depth", "1", "--out", str(out), "--no-progress"]) == 0
     assert "coarser than half the footprint sigma" in capsys.readouterr().err

@@ -41,8 +41,8 @@ def test_arrivals_poisson_and_weighted(rng):
     n_shots, k = 20000, 32
     shot = np.repeat(np.arange(n_shots), k)
     w = np.where(np.arange(shot.size) % 2 == 0, 0.5, 1.5)       # mean weight 1
-    idx, mu, counts = pmt.sample_arrivals(shot, w, n_shots=n_shots, paths_per_shot=k,
-                                          signal_photons=3.0, rng=rng)
+    idx, mu, counts, run_out = pmt.sample_arrivals(shot, w, n_shots=n_shots, paths_per_shot=k,
+                                                   signal_photons=3.0, rng=rng)
     assert np.allclose(mu, 3.0)
     # Poisson: mean 3 and variance 3; SE of the mean sqrt(3/n), of the variance ~ sqrt(2*9/n)
     assert abs(counts.mean() - 3.0) < Z * math.sqrt(3.0 / n_shots)
@@ -52,7 +52,7 @@ def test_arrivals_poisson_and_weighted(rng):
     assert abs(frac - 0.75) < Z * math.sqrt(0.75 * 0.25 / idx.size)
     # distinct paths within a shot
     pairs = shot[idx] * shot.size + idx
-    assert np.unique(pairs).size == idx.size
+    assert np.unique(pairs).size == idx.size and not run_out.any()
     assert np.all(shot[idx] == np.repeat(np.arange(n_shots), counts))
 
 
@@ -61,8 +61,9 @@ def test_arrivals_exchangeable_fast_path(rng):
     n_shots, k = 20000, 32
     shot = np.repeat(np.arange(n_shots), k)
     w = rng.choice([0.5, 1.5], shot.size)
-    idx, mu, counts = pmt.sample_arrivals(shot, w, n_shots=n_shots, paths_per_shot=k,
-                                          signal_photons=3.0, rng=rng, exchangeable=True)
+    idx, mu, counts, run_out = pmt.sample_arrivals(shot, w, n_shots=n_shots, paths_per_shot=k,
+                                                   signal_photons=3.0, rng=rng,
+                                                   exchangeable=True)
     frac = np.mean(w[idx] == 1.5)
     p_heavy = 1.5 * np.mean(w == 1.5) / np.mean(w)     # weight share of the heavy returns
     assert abs(frac - p_heavy) < Z * math.sqrt(p_heavy * (1 - p_heavy) / idx.size)
@@ -75,11 +76,16 @@ def test_arrivals_fallback_keeps_weights(rng):
     n_shots, k = 5000, 2
     shot = np.repeat(np.arange(n_shots), k)
     w = np.tile([1.0, 3.0], n_shots)
-    idx, mu, counts = pmt.sample_arrivals(shot, w, n_shots=n_shots, paths_per_shot=k,
-                                          signal_photons=6.0, rng=rng)
+    idx, mu, counts, run_out = pmt.sample_arrivals(shot, w, n_shots=n_shots, paths_per_shot=k,
+                                                   signal_photons=6.0, rng=rng)
     frac = np.mean(idx % 2 == 1)
     assert abs(frac - 0.75) < Z * math.sqrt(0.75 * 0.25 / idx.size) * 3  # clustered draws: 3x SE
     assert np.all(shot[idx] == np.repeat(np.arange(n_shots), counts))
+    # one pass accepts the heavy return and the light one with probability 1/3: a shot runs
+    # out always with 3 or more picks, never with 0 or 1, and with 2 with probability 2/3
+    assert run_out[counts >= 3].all() and not run_out[counts <= 1].any()
+    two = run_out[counts == 2]
+    assert abs(two.mean() - 2 / 3) < Z * math.sqrt(2 / 9 / two.size)
 
 
 @pytest.mark.parametrize("channels", [1, 4, 16])

@@ -292,7 +292,7 @@ def test_flat_plate_tracks_equal_simulate():
     tracks = reproduce.flat_plate_tracks(insts, shots=2500, seed=4, chunk_shots=1000)
     for name, inst in insts.items():
         res = simulate(instrument=inst, surface=SurfaceSpec(kind="flat"), shots=2500, seed=4,
-                       chunk_shots=1000, progress=False)
+                       chunk_shots=1000, paths_per_shot=128, progress=False)
         t = reproduce.track_of(res)
         assert t.dh_m.size > 1000
         np.testing.assert_array_equal(t.shot, tracks[name].shot)
@@ -309,8 +309,10 @@ def test_redetect_equals_simulate():
                    chunk_shots=150, keep_returns=True, progress=False)
     weak = Instrument(beam="weak")
     t = reproduce.redetect(res, weak, seed=8, chunk_shots=150)
+    # the same traced paths: the strong run's (paths_per_shot="auto" chose them for it)
     ref = reproduce.track_of(simulate(instrument=weak, surface=surface, shots=400, seed=8,
-                                      chunk_shots=150, progress=False))
+                                      chunk_shots=150, paths_per_shot=res.config[
+                                          "paths_per_shot"], progress=False))
     np.testing.assert_array_equal(t.shot, ref.shot)
     np.testing.assert_array_equal(t.channel, ref.channel)
     np.testing.assert_allclose(t.dh_m, ref.dh_m, rtol=0, atol=1e-9)

@@ -137,7 +137,8 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
         """The photons of ``len(sx)`` shots: per lane its shot, the shot centre, the sampler
         (seeded), the first ray and the emission time [ns]."""
         n = dr.width(sx) * paths_per_shot
-        shot = dr.arange(mi.UInt32, n) // paths_per_shot
+        # opaque: one kernel serves every paths_per_shot (paths_per_shot="auto" varies it)
+        shot = dr.arange(mi.UInt32, n) // dr.opaque(mi.UInt32, paths_per_shot)
         x0 = dr.gather(mi.Float, sx, shot)
         y0 = dr.gather(mi.Float, sy, shot)
         sampler = mi.load_dict({"type": "independent"})
@@ -376,7 +377,7 @@ class PendingReturns:
         idx = dr.compress(w > 0.0)                        # synchronises; keeps slot order
         if dr.width(idx) == 0:
             return Returns.empty(n_shots=n_shots, paths_per_shot=self.paths_per_shot)
-        shot = idx // (self.paths_per_shot * self.max_depth)
+        shot = idx // dr.opaque(mi.UInt32, self.paths_per_shot * self.max_depth)
         if dr.width(idx) < dr.width(w):   # (single bounce on terrain often keeps every slot)
             t, w = dr.gather(mi.Float64, t, idx), dr.gather(mi.Float, w, idx)
             x, y, z = (dr.gather(mi.Float, a, idx) for a in (x, y, z))

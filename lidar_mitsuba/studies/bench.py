@@ -179,30 +179,64 @@ def bench_integrator(*, quick: bool) -> dict:
     return doc
 
 
+#: end-to-end cases: beam, max_depth, paths per shot ("auto", the default, or the fixed 128
+#: it replaced, measured in the same run for the ratio)
+END_TO_END_CASES = (("strong", "auto", "auto"), ("weak", "auto", "auto"), ("strong", 1, "auto"),
+                    ("strong", "auto", 128), ("strong", 1, 128))
+
+
 def bench_end_to_end(*, quick: bool) -> list[dict]:
     """Shots/s of ``simulate`` over the p = 1.8 fractal: both beams with the default
-    ``max_depth="auto"`` (two bounces on this terrain) and the strong beam with one bounce.
-    ``shots_per_s`` counts the whole call (scene build and bounce pilot included);
-    ``loop_shots_per_s`` the trace-and-detect chunk loop alone, what a long track runs at.
-    On a GPU each run is 1 M shots."""
+    ``max_depth="auto"`` (two bounces on this terrain) and the strong beam with one bounce,
+    all with the default ``paths_per_shot="auto"``; and the strong beam's two cases again
+    with the fixed 128 paths per shot that ``auto`` replaced (``paths`` says which), with
+    their bias and precision beside the speed. ``shots_per_s`` counts the whole call (scene
+    build, bounce pilot and path scout included); ``loop_shots_per_s`` the trace-and-detect
+    chunk loop alone, what a long track runs at. On a GPU each run is 1 M shots."""
     rows = []
     shots = 2000 if quick else (2 ** 20 if _on_gpu() else 20000)
-    for beam, max_depth in (("strong", "auto"), ("weak", "auto"), ("strong", 1)):
+    for beam, max_depth, paths in END_TO_END_CASES:
         out = {}
 
         def run():
             out["res"] = simulate(instrument=Instrument(beam=beam), shots=shots, seed=1,
                                   surface=SurfaceSpec(kind="fractal", p=1.8), progress=False,
-                                  max_depth=max_depth)
+                                  max_depth=max_depth, paths_per_shot=paths)
 
         sec = _median_time(run, repeats=1 if quick else 3)
         st = out["res"].timings_s
-        rows.append({"beam": beam, "max_depth": max_depth,
+        o = out["res"].report().overall
+        rows.append({"beam": beam, "max_depth": max_depth, "paths": paths,
                      "traced_depth": out["res"].config["max_depth"], "shots": shots,
                      "paths_per_shot": out["res"].config["paths_per_shot"],
                      "seconds": sec, "shots_per_s": shots / sec, "stage_seconds": st,
-                     "loop_shots_per_s": shots / max(st["trace_s"] + st["detect_s"], 1e-9)})
+                     "loop_shots_per_s": shots / max(st["trace_s"] + st["detect_s"], 1e-9),
+                     "bias_m": o.bias_m, "bias_se_m": o.bias_se_m, "std_m": o.std_m,
+                     "std_se_m": o.std_se_m})
     return rows
+
+
+def paths_speedup(end_to_end: list[dict]) -> list[dict]:
+    """For each case measured with both ``paths_per_shot="auto"`` and the fixed 128: the
+    speed-ups of ``auto`` (whole call and chunk loop, same run) and its bias and precision
+    minus the fixed count's [m] (two runs of different paths, so they differ by Monte Carlo
+    noise: compare with the standard errors)."""
+    by = {(r["beam"], str(r["max_depth"]), str(r["paths"])): r for r in end_to_end}
+    out = []
+    for (beam, depth, paths), fixed in by.items():
+        auto = by.get((beam, depth, "auto"))
+        if paths == "auto" or auto is None:
+            continue
+        out.append({"beam": beam, "max_depth": fixed["max_depth"],
+                    "auto_paths_per_shot": auto["paths_per_shot"],
+                    "fixed_paths_per_shot": fixed["paths_per_shot"],
+                    "whole_call": auto["shots_per_s"] / fixed["shots_per_s"],
+                    "loop": auto["loop_shots_per_s"] / fixed["loop_shots_per_s"],
+                    "d_bias_m": auto["bias_m"] - fixed["bias_m"],
+                    "d_bias_se_m": float(np.hypot(auto["bias_se_m"], fixed["bias_se_m"])),
+                    "d_std_m": auto["std_m"] - fixed["std_m"],
+                    "d_std_se_m": float(np.hypot(auto["std_se_m"], fixed["std_se_m"]))})
+    return out
 
 
 def _chart(doc: dict, path: pathlib.Path):
@@ -230,7 +264,8 @@ def _chart(doc: dict, path: pathlib.Path):
     for r in doc.get("end_to_end", []):       # the chunk loop, in the casts it makes per second
         if "loop_of_cast_bound" in r:
             labels.append(f"loop, {r['beam']}, {r['traced_depth']} "
-                          f"bounce{'s' if r['traced_depth'] > 1 else ''} (casts)")
+                          f"bounce{'s' if r['traced_depth'] > 1 else ''}, "
+                          f"{r['paths_per_shot']} paths (casts)")
             vals.append(r["loop_of_cast_bound"] * integ["rays_per_s"] / 1e6)
             colors.append("tab:green")
     ax.barh(labels, vals, color=colors)
@@ -267,7 +302,8 @@ def variant_rates(variants: dict) -> tuple[list[str], dict[str, list[float]]]:
     rates = {}
     for variant, d in variants.items():
         integ = d["integrator"]
-        e2e = {(r["beam"], str(r["max_depth"])): r for r in d["end_to_end"]}
+        e2e = {(r["beam"], str(r["max_depth"])): r for r in d["end_to_end"]
+               if r.get("paths", "auto") == "auto"}
         rates[variant] = [integ["rays_per_s"] / 1e6, integ["paths_per_s"] / 1e6,
                           integ["two_bounces"]["paths_per_s"] / 1e6,
                           e2e[("strong", "1")]["loop_shots_per_s"] / 1e6,
@@ -296,6 +332,7 @@ def throughput(*, quick: bool) -> dict:
            "detector": bench_detector(quick=quick), "integrator": bench_integrator(quick=quick),
            "end_to_end": bench_end_to_end(quick=quick)}
     cast_bound(doc["end_to_end"], doc["integrator"]["rays_per_s"])
+    doc["paths_speedup"] = paths_speedup(doc["end_to_end"])
     return doc
 
 
@@ -370,11 +407,19 @@ def _format_rates(d: dict) -> list[str]:
              f"{two['ratio_to_ceiling']:.2f}, host share {two['host_share']:.0%}"]
     for r in d["end_to_end"]:
         lines.append(f"end to end, {r['beam']} beam, max_depth {r['max_depth']} "
-                     f"({r['traced_depth']} traced): {r['shots_per_s']:.0f} shots/s "
+                     f"({r['traced_depth']} traced), paths_per_shot {r.get('paths', 'auto')} "
+                     f"({r['paths_per_shot']}): {r['shots_per_s']:.0f} shots/s "
                      f"({r['shots']} shots in {r['seconds']:.2f} s); chunk loop "
                      f"{r['loop_shots_per_s']:.0f} shots/s, "
                      f"{r['loop_of_cast_bound']:.2f} of its ray casts' bound "
                      f"({r['cast_bound_shots_per_s']:.0f})")
+    for r in d.get("paths_speedup", []):
+        lines.append(f"paths_per_shot auto ({r['auto_paths_per_shot']}) vs "
+                     f"{r['fixed_paths_per_shot']}, {r['beam']} beam, max_depth "
+                     f"{r['max_depth']}: {r['whole_call']:.2f}x whole call, {r['loop']:.2f}x "
+                     f"chunk loop; bias {100 * r['d_bias_m']:+.2f} +- "
+                     f"{100 * r['d_bias_se_m']:.2f} cm, std {100 * r['d_std_m']:+.2f} +- "
+                     f"{100 * r['d_std_se_m']:.2f} cm (normal-theory SE)")
     return lines
 
 

@@ -55,7 +55,7 @@ def measure(dem_path: str, length_km: float) -> dict:
         out = granule.stream_granule(
             surface=surf, track=geotrack.GeoTrack(start_lat_deg=START_LAT, start_lon_deg=-45.0,
                                                   azimuth_deg=0.0),
-            shots=shots, beams="gt2l", max_depth=1, progress=False, paths_per_shot=64,
+            shots=shots, beams="gt2l", max_depth=1, progress=False, paths_per_shot="auto",
             atl03_path=a3, atl06_path=a6)
         seconds = time.perf_counter() - t0
         files_mb = (a3.stat().st_size + a6.stat().st_size) / 2 ** 20
