@@ -468,8 +468,8 @@ def _explain(*, instrument, surf, max_depth, pilot, paths_per_shot, crop, triang
     kept = peak * instrument.fill_factor * instrument.pde
     if budget is not None:
         out.append(path_budget.explain(budget))
-    msg = (f"{paths_per_shot} paths per shot for up to {peak:.1f} photons per shot "
-           f"({kept:.1f} after fill factor and PDE); "
+    msg = (("" if budget is not None else f"{paths_per_shot} paths per shot for ")
+           + f"up to {peak:.1f} photons per shot ({kept:.1f} after fill factor and PDE); "
            f"{det.run_out_shots.size} of {shots} shots ran out of distinct paths")
     out.append(msg)
     ran_out = path_budget.run_out_warning(int(det.run_out_shots.size), int(shots))

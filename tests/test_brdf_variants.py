@@ -127,14 +127,16 @@ def check_sweep_figure(fig, rows):
 
 
 def test_errors_scale_with_sample():
-    """row_of's standard errors: std / sqrt(n) and std / sqrt(2 (n - 1))."""
+    """row_of's standard errors: std / sqrt(n), and the std's from the photons' kurtosis
+    (std / sqrt(2 (n - 1)) for normal residuals: within a few per cent of it for this flat
+    plate's near-Gaussian returns)."""
     (r,) = compare.sweep(variants={"Lambertian": compare.BRDF_VARIANTS["Lambertian"]},
                          surfaces=[SurfaceSpec(kind="flat")], shots=200, seed=5, beam="weak",
                          ideal_detector=True)
     n = r["n_photons"]
     assert r["beam"] == "weak" and r["ideal_detector"]
     assert r["bias_se_m"] == pytest.approx(r["std_m"] / np.sqrt(n))
-    assert r["std_se_m"] == pytest.approx(r["std_m"] / np.sqrt(2 * (n - 1)))
+    assert r["std_se_m"] == pytest.approx(r["std_m"] / np.sqrt(2 * (n - 1)), rel=0.15)
     with pytest.raises(ValueError):
         compare.sweep(variants={}, surfaces=[SurfaceSpec(kind="flat")], shots=10)
 

@@ -419,7 +419,7 @@ def _format_rates(d: dict) -> list[str]:
                      f"{r['max_depth']}: {r['whole_call']:.2f}x whole call, {r['loop']:.2f}x "
                      f"chunk loop; bias {100 * r['d_bias_m']:+.2f} +- "
                      f"{100 * r['d_bias_se_m']:.2f} cm, std {100 * r['d_std_m']:+.2f} +- "
-                     f"{100 * r['d_std_se_m']:.2f} cm (normal-theory SE)")
+                     f"{100 * r['d_std_se_m']:.2f} cm")
     return lines
 
 

@@ -108,7 +108,7 @@ def row_of(res: SimulationResult) -> dict:
             before fill factor, PDE and dead time) [-].
         bias_m, bias_se_m: mean of h - z_ref [m] and its standard error std / sqrt(n) [m].
         std_m, std_se_m: precision, the standard deviation of h - z_ref [m], and its standard
-            error std / sqrt(2 (n - 1)) (normal approximation) [m].
+            error from the photons' kurtosis (std / sqrt(2 (n - 1)) for normal residuals) [m].
     Also ``n_photons`` (int) and ``shots`` (int).
     """
     st = res.report().overall

@@ -42,7 +42,8 @@ COLUMNS: dict[str, str] = {
     "bias_m": "mean of h - z_ref over the signal photons [m]",
     "bias_se_m": "standard error of bias_m, std / sqrt(n) [m]",
     "std_m": "precision: standard deviation of h - z_ref [m]",
-    "std_se_m": "standard error of std_m, std / sqrt(2 (n - 1)) (normal approximation) [m]",
+    "std_se_m": "standard error of std_m, from the photons' kurtosis (std / sqrt(2 (n - 1)) "
+                "for normal residuals) [m]",
     "robust_std_m": "robust spread: 1.4826 x median absolute deviation of h - z_ref [m] (the "
                     "precision without the late tail of multiply scattered photons)",
     "robust_std_se_m": "standard error of robust_std_m, 1.1664 robust_std_m / sqrt(n) (normal "

@@ -13,7 +13,9 @@ run's kept returns, and :func:`flat_plate_tracks` (Fig. 7, 200,000 shots) runs s
 on one trace chunk by chunk without keeping it; both give exactly what ``simulate`` would give
 for that detector with the same seed (tests check this).
 
-Monte Carlo errors: bias SE = std / sqrt(n), std SE = std / sqrt(2 (n - 1)), n the photons. On a
+Monte Carlo errors: bias SE = std / sqrt(n), std SE from the photons' kurtosis
+(:func:`lidar_mitsuba.retrieval.std_standard_error`; std / sqrt(2 (n - 1)) for normal
+residuals), n the photons. On a
 single 1000-shot fractal track the photon noise is not the whole story: the terrain under that
 one track is one realisation, so every complex-surface configuration is also run over
 ``terrain_seeds`` independent fractal realisations (ours, not the paper's) and the report gives
