@@ -1,5 +1,7 @@
 """Shared fixtures. The Mitsuba variant is the one ``import lidar_mitsuba`` chose from
 LIDAR_MITSUBA_VARIANT (default llvm_ad_mono), with our plugins registered in it."""
+import gc
+
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -18,3 +20,15 @@ def rng():
 @pytest.fixture(scope="session")
 def variant():
     return VARIANT
+
+
+@pytest.fixture(autouse=True)
+def _free_mitsuba_objects():
+    """Collect each test's garbage when it ends, so that the scenes of earlier tests (Mitsuba
+    objects held in reference cycles) do not stay registered. Dr.Jit compiles a call on a
+    shape or BSDF for every live instance of its kind; with stale meshes of two kinds
+    interleaved in the registry, drjit 1.5's LLVM backend once emitted one merged callable
+    twice and aborted the process ("invalid redefinition of function"), in the full suite
+    only (test_xml_scenes::test_flipped_ply_is_diagnosed)."""
+    yield
+    gc.collect()
