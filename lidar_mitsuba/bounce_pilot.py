@@ -17,6 +17,7 @@ import numpy as np
 from . import retrieval
 from .constants import C_M_PER_NS
 from .instrument import Instrument
+from .track import spread_shots
 
 PILOT_SHOTS = 1024      # shots (spread along the track) of the multiple-scattering pilot
 PILOT_SEED = 0x50494C4F54   # fixed: a scene's choice does not depend on the run's seed
@@ -97,7 +98,7 @@ def run_pilot(*, scene: mi.Scene, instrument: Instrument, x_m: np.ndarray, y_m: 
         and ``single_bounce_enough`` False when nothing returned inside the range gate.
     """
     shots = int(np.asarray(x_m).size)
-    idx = np.unique(np.linspace(0, shots - 1, min(shots, PILOT_SHOTS)).round().astype(np.int64))
+    idx = spread_shots(shots, PILOT_SHOTS)
     integrator = mi.load_dict(instrument.integrator_dict(max_depth=2))
     ret = integrator.trace(scene, shot_x_m=x_m[idx], shot_y_m=y_m[idx],
                            paths_per_shot=int(paths_per_shot), seed=PILOT_SEED)

@@ -162,12 +162,6 @@ def explain(budget: dict) -> str:
                    f"<= {100 * EXTRA_VARIANCE_MAX:g} %)")
 
 
-def scout_indices(n_shots: int) -> np.ndarray:
-    """Up to :data:`SCOUT_SHOTS` shot indices spread evenly along a track of ``n_shots``."""
-    return np.unique(np.linspace(0, n_shots - 1, min(n_shots, SCOUT_SHOTS))
-                     .round().astype(np.int64))
-
-
 def run_out_warning(run_out: int, shots: int) -> str | None:
     """A warning when more than ten times :data:`RUN_OUT_MAX` of the shots (and more than one)
     ran out of distinct returns, else ``None``."""

@@ -32,7 +32,7 @@ from .photons import Detections, Returns
 from .snow import SnowVolume, medium_events_cap
 from .resources import check_memory
 from .surface import SceneSurface, SurfaceSpec
-from .track import Track
+from .track import Track, spread_shots
 from .variant import set_variant
 
 
@@ -420,7 +420,7 @@ def _scout(integrator, scene, x_m, y_m, instrument: Instrument, *,
     """``paths_per_shot="auto"``: trace the run's own model on up to
     :data:`~lidar_mitsuba.path_budget.SCOUT_SHOTS` shots spread along the track (fixed random
     numbers) and choose the paths per shot from its weights (:func:`path_budget.choose`)."""
-    idx = path_budget.scout_indices(x_m.size)
+    idx = spread_shots(x_m.size, path_budget.SCOUT_SHOTS)
     ret = integrator.trace(scene, shot_x_m=x_m[idx], shot_y_m=y_m[idx],
                            paths_per_shot=path_budget.SCOUT_PATHS, seed=path_budget.SCOUT_SEED)
     moments = path_budget.shot_moments(ret.shot, ret.weight, ret.depth, n_shots=idx.size,

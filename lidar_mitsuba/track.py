@@ -77,3 +77,10 @@ def _numbers(values) -> tuple[float, ...] | None:
     except (TypeError, ValueError):
         return None
     return out if all(math.isfinite(v) for v in out) else None
+
+
+def spread_shots(n_shots: int, at_most: int) -> np.ndarray:
+    """Indices of up to ``at_most`` shots spread evenly along a track of ``n_shots`` (first
+    and last included; sorted, unique): where the bounce pilot and the path scout trace."""
+    return np.unique(np.linspace(0, n_shots - 1, min(n_shots, at_most)).round()
+                     .astype(np.int64))
