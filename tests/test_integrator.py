@@ -211,3 +211,36 @@ def test_corridor_crop_gives_the_full_tiles_photons(shots, size_m):
     assert crop.config["surface"]["mesh_triangles"] <= full.config["surface"]["mesh_triangles"]
     assert np.array_equal(full.detections.shot, crop.detections.shot)
     assert np.allclose(full.h_m, crop.h_m, atol=1e-4)
+
+
+def _square(z0, tilt=0.0, half=300.0):
+    """Two triangles, ``half`` [m] about the origin, at height ``z0`` [m], sloped by ``tilt``."""
+    v = np.array([[-half, -half, 0], [half, -half, 0], [half, half, 0], [-half, half, 0]], float)
+    v[:, 2] = z0 + tilt * v[:, 0]
+    return v, np.array([[0, 1, 2], [0, 2, 3]])
+
+
+@pytest.mark.parametrize("kind", ["single", "two_bounces", "snow"])
+def test_new_terrain_reuses_the_compiled_trace(kind):
+    """A long DEM track is traced tile by tile, each tile a new scene at its own height: the
+    trace must compile once, not once per tile (an orbit has thousands of tiles, ~0.2 s of
+    LLVM each). Tracing a second and a third mesh, at other heights and slopes, launches no
+    kernel the first trace did not (Dr.Jit's kernel history: kernels are named by the hash
+    of their code, so a value baked in as a constant would show as a new hash)."""
+    import drjit as dr
+    from lidar_mitsuba import snow
+    from lidar_mitsuba.scene import scene_from_mesh
+    vol = snow.snow_from_grains(grain_radius_um=200) if kind == "snow" else None
+    integ = (mi.load_dict(vol.integrator_params()) if vol is not None else
+             integrator(max_depth=2 if kind == "two_bounces" else 1))
+    scenes = [scene_from_mesh(*_square(z0, tilt), bsdf=vol)
+              for z0, tilt in ((0.0, 0.0), (37.25, 0.0), (-812.5, 0.1))]
+    xs = np.linspace(-40, 40, 64)
+    runs = []
+    for sc in scenes:
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory):
+            out = integ.trace(sc, shot_x_m=xs, shot_y_m=np.zeros(64), paths_per_shot=8, seed=3)
+            hist = dr.kernel_history([dr.KernelType.JIT])
+        assert len(out) > 0
+        runs.append({h["hash"] for h in hist})
+    assert runs[1] <= runs[0] and runs[2] <= runs[0], (runs[1] - runs[0], runs[2] - runs[0])

@@ -133,7 +133,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
                            mi.Float((mi.Float64(self.altitude_m) - mi.Float64(p.z)) / leg))
 
     def _emit(self, sx: mi.Float, sy: mi.Float, paths_per_shot: int, seed: mi.UInt32,
-              z_start: float):
+              z_start: mi.Float):
         """The photons of ``len(sx)`` shots: per lane its shot, the shot centre, the sampler
         (seeded), the first ray and the emission time [ns]."""
         n = dr.width(sx) * paths_per_shot
@@ -155,7 +155,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
         return x0, y0, sampler, ray, t_emit_ns
 
     def _first_hit(self, scene: mi.Scene, sx: mi.Float, sy: mi.Float, paths_per_shot: int,
-                   seed: mi.UInt32, z_start: float):
+                   seed: mi.UInt32, z_start: mi.Float):
         """Emit the photons (:meth:`_emit`) and find their first surface. Returns ``(x0, y0,
         sampler, ray, t_emit_ns, si, leg_m, wo, in_fov)``: :meth:`_emit`'s, the interaction,
         the float64 leg between the spacecraft and it [m], the direction to the receiver,
@@ -170,7 +170,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
         return x0, y0, sampler, ray, t_emit_ns, si, leg_m, wo, in_fov
 
     def _first_surface(self, scene: mi.Scene, sx: mi.Float, sy: mi.Float, paths_per_shot: int,
-                       seed: mi.UInt32, z_start: float):
+                       seed: mi.UInt32, z_start: mi.Float):
         """``max_depth == 1``: one return per photon, straight-line code (no loop, no
         scatter). Returns Dr.Jit arrays of length ``n`` (one slot per photon): time [ns]
         (float64), weight (0 where nothing returns), hit x, y, z [m]."""
@@ -182,7 +182,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
 
     @dr.syntax
     def _multi_bounce(self, scene: mi.Scene, sx: mi.Float, sy: mi.Float, paths_per_shot: int,
-                      seed: mi.UInt32, z_start: float):
+                      seed: mi.UInt32, z_start: mi.Float):
         """``max_depth > 1``: a symbolic loop over the vertices of each path. Returns Dr.Jit
         arrays of length ``n * max_depth`` (slot ``lane * max_depth + depth - 1``): time [ns]
         (float64), weight (0 where nothing returns), hit x, y, z [m]."""
@@ -270,7 +270,8 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
 
         def make(k: int, start: int, stop: int):
             out = core(scene, mi.Float(shot_x_m[start:stop]), mi.Float(shot_y_m[start:stop]),
-                       int(paths_per_shot), dr.opaque(mi.UInt32, _mix_seed(seed, k)), z_start)
+                       int(paths_per_shot), dr.opaque(mi.UInt32, _mix_seed(seed, k)),
+                       dr.opaque(mi.Float, z_start))
             dr.eval(*out)                  # asynchronous on CUDA
             shift = None
             if offset_m is not None and any(np.any(d[start:stop]) for d in offset_m):

@@ -134,7 +134,7 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
         return self._volume, 1
 
     def _volume(self, scene: mi.Scene, sx: mi.Float, sy: mi.Float, paths_per_shot: int,
-                seed: mi.UInt32, z_start: float):
+                seed: mi.UInt32, z_start: mi.Float):
         """Per photon: the first surface; an opaque one returns as in ``pathlength``
         (single bounce), the medium's boundary starts a random walk below its tangent plane
         (a symbolic loop). Returns Dr.Jit arrays of length ``n`` (one slot per photon): time
