@@ -224,23 +224,29 @@ def _square(z0, tilt=0.0, half=300.0):
 def test_new_terrain_reuses_the_compiled_trace(kind):
     """A long DEM track is traced tile by tile, each tile a new scene at its own height: the
     trace must compile once, not once per tile (an orbit has thousands of tiles, ~0.2 s of
-    LLVM each). Tracing a second and a third mesh, at other heights and slopes, launches no
-    kernel the first trace did not (Dr.Jit's kernel history: kernels are named by the hash
+    LLVM each), and a BRDF or snow study changes only the material's numbers. Tracing a
+    second and a third mesh, at other heights and slopes, the third with another Ward BRDF
+    or a shallower, lighter snowpack, launches no kernel the first trace did not (Dr.Jit's kernel history: kernels are named by the hash
     of their code, so a value baked in as a constant would show as a new hash)."""
+    import gc
+
     import drjit as dr
     from lidar_mitsuba import snow
-    from lidar_mitsuba.scene import scene_from_mesh
+    from lidar_mitsuba.scene import scene_from_mesh, ward_bsdf_dict
     vol = snow.snow_from_grains(grain_radius_um=200) if kind == "snow" else None
-    integ = (mi.load_dict(vol.integrator_params()) if vol is not None else
-             integrator(max_depth=2 if kind == "two_bounces" else 1))
-    scenes = [scene_from_mesh(*_square(z0, tilt), bsdf=vol)
-              for z0, tilt in ((0.0, 0.0), (37.25, 0.0), (-812.5, 0.1))]
+    other = (snow.snow_from_grains(grain_radius_um=200, density_kg_m3=250, depth_m=0.5)
+             if vol is not None else ward_bsdf_dict(rho_d=0.6, rho_s=0.1, alpha=0.2))
     xs = np.linspace(-40, 40, 64)
     runs = []
-    for sc in scenes:
+    for z0, tilt, bsdf in ((0.0, 0.0, vol), (37.25, 0.0, vol), (-812.5, 0.1, other)):
+        gc.collect()            # one terrain alive at a time, as tile after tile of a track
+        sc = scene_from_mesh(*_square(z0, tilt), bsdf=bsdf)
+        integ = (mi.load_dict(bsdf.integrator_params()) if vol is not None else
+                 integrator(max_depth=2 if kind == "two_bounces" else 1))
         with dr.scoped_set_flag(dr.JitFlag.KernelHistory):
             out = integ.trace(sc, shot_x_m=xs, shot_y_m=np.zeros(64), paths_per_shot=8, seed=3)
             hist = dr.kernel_history([dr.KernelType.JIT])
         assert len(out) > 0
         runs.append({h["hash"] for h in hist})
+        del sc, out, integ
     assert runs[1] <= runs[0] and runs[2] <= runs[0], (runs[1] - runs[0], runs[2] - runs[0])

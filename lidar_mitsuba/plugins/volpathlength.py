@@ -220,13 +220,14 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
         # the walk, in a frame at the entry point: q = position - entry [m], float32 (exact
         # to ~1e-9 m over a walk), below the entry facet's plane (normal n) while q.n < 0;
         # a finite layer ends at the base plane, depth_m below it vertically
-        base_n = -self.snow_depth_m * dr.abs(n.z)              # q.n of the base plane
-        n_g = self.group_index
+        # opaque: another snowpack (density, depth, base) reuses the compiled walk
+        base_n = -dr.opaque(mi.Float, self.snow_depth_m) * dr.abs(n.z)   # q.n of the base
+        n_g = dr.opaque(mi.Float, self.group_index)
         pctx = mi.PhaseFunctionContext(None)
         # the direction to the receiver is the same for every vertex of a walk (to 1e-7 rad)
         wo_n = dr.dot(wo, n)
         hemisphere = self.tally == "hemisphere"
-        base_albedo = self.base_albedo
+        base_albedo = dr.opaque(mi.Float, self.base_albedo)
 
         while active & (events < limit):
             # -- the flight: to the surface (up), to the base (down) or a scattering

@@ -175,9 +175,10 @@ class WardBSDF(mi.BSDF):
             raise _param_error("normalization", f"must be one of {', '.join(NORMALIZATIONS)} "
                                f"(got {normalization!r})")
         self.normalization = normalization
-        self.rho_s = mi.Float(rho_s)
-        self.alpha_u = mi.Float(alpha_u)
-        self.alpha_v = mi.Float(alpha_v)
+        # opaque: kernels take the values as inputs, so a new roughness or albedo reuses them
+        self.rho_s = dr.opaque(mi.Float, rho_s)
+        self.alpha_u = dr.opaque(mi.Float, alpha_u)
+        self.alpha_v = dr.opaque(mi.Float, alpha_v)
         self._set_flags(alpha_u != alpha_v)
 
     def _set_flags(self, anisotropic: bool) -> None:
@@ -312,6 +313,7 @@ class WardBSDF(mi.BSDF):
         # (No validation here: an optimiser may step through any values.)
         if "alpha_u" in keys or "alpha_v" in keys:
             self._set_flags(bool(dr.any(self.alpha_u != self.alpha_v)))
+        dr.make_opaque(self.rho_s, self.alpha_u, self.alpha_v)
 
     def to_string(self):
         return (f"WardBSDF[rho_s={self.rho_s}, alpha_u={self.alpha_u}, alpha_v={self.alpha_v}, "
