@@ -198,6 +198,7 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
         for i, (k, a, b) in enumerate(spans):
             t0 = time.perf_counter()
             ret = pending.result()
+            pending = None            # its scene (a corridor tile) may go before the next's
             if i + 1 < len(spans):    # the device traces the next chunk while we detect this
                 k1, a1, b1 = spans[i + 1]
                 pending = launch(a1, b1, trace_seed(seed, k1))

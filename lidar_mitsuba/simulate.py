@@ -373,10 +373,21 @@ def simulate(*, instrument: Instrument | None = None,
         source = chunks.CorridorSource(integrator, surf, x_m=x, y_m=y,
                                        paths_per_shot=int(paths_per_shot), reach_m=reach,
                                        bsdf=bsdf_used, first=first_tile)
+        # the first tile goes with its chunk: a live stale scene would join every later
+        # tile's kernel calls. The rare diagnosis that needs it builds it again.
+        first_tile = scene_ = None
+        n_first = x_loc.size
+
+        def scene_of():
+            return surf.corridor_tile(x[:n_first], y[:n_first], reach_m=reach,
+                                      bsdf=bsdf_used)[0]
     else:
         source = chunks.traced(integrator, scene_, x_m=x_loc, y_m=y_loc,
                                paths_per_shot=int(paths_per_shot), dx_m=x - x_loc,
                                dy_m=y - y_loc, dz_m=dz)
+
+        def scene_of():
+            return scene_
     run = chunks.run(
         source=source,
         detectors={"run": instrument}, z_ref_m=z_ref, seed=seed, chunk_shots=chunk_shots,
@@ -397,7 +408,7 @@ def simulate(*, instrument: Instrument | None = None,
                               shots=shots, timings=timings)
     if surf.streamed:
         surf_cfg.update(tiles=source.tiles, max_tile_triangles=source.triangles)
-    warns += _diagnose(surf=surf, scene=scene_, x_m=x_loc, y_m=y_loc,
+    warns += _diagnose(surf=surf, scene_of=scene_of, x_m=x_loc, y_m=y_loc,
                        surface_z=surface_z[:x_loc.size],
                        n_returns=run.n_returns, det=det, instrument=instrument)
     for w in warns:
@@ -478,14 +489,16 @@ def _explain(*, instrument, surf, max_depth, pilot, paths_per_shot, crop, triang
     return out, warns
 
 
-def _diagnose(*, surf, scene, x_m, y_m, surface_z, n_returns, det, instrument) -> list[str]:
+def _diagnose(*, surf, scene_of, x_m, y_m, surface_z, n_returns, det,
+              instrument) -> list[str]:
     """Warnings for shots with no surface under them and for a run that detected no signal
-    photon, with the likely cause."""
+    photon, with the likely cause. ``scene_of()``: the scene of the shots ``x_m``, ``y_m``
+    (called only when a warning needs it)."""
     out = []
     missing = ~np.isfinite(surface_z)
     n = surface_z.size
     if missing.all():
-        lo, hi = scn.scene_bounds(scene)
+        lo, hi = scn.scene_bounds(scene_of())
         return [f"no surface under any of the {n} footprint centres: the track (x "
                 f"{np.min(x_m):g} .. {np.max(x_m):g} m, y {np.min(y_m):g} .. {np.max(y_m):g} m) "
                 f"misses the geometry (x {lo[0]:g} .. {hi[0]:g} m, y {lo[1]:g} .. {hi[1]:g} m); "
@@ -496,7 +509,7 @@ def _diagnose(*, surf, scene, x_m, y_m, surface_z, n_returns, det, instrument) -
     if det.is_signal.any():
         return out
     if n_returns == 0:
-        _, nz = scn.cast_down(scene, x_m[~missing], y_m[~missing])
+        _, nz = scn.cast_down(scene_of(), x_m[~missing], y_m[~missing])
         if np.nanmean(nz < 0) > 0.5:
             out.append("no photon came back: the surfaces under the track face down, away from "
                        "the lidar (a face-down rectangle, or a mesh whose triangles wind the "

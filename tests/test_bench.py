@@ -90,6 +90,8 @@ def test_bench_quick(bench_run):
     assert [r["length_km"] for r in tl] == [1.0, 4.0]
     assert all(r["peak_rss_mb"] >= r["rss_before_mb"] > 0 and r["photons"] > 0 for r in tl)
     assert tl[1]["tiles"] > tl[0]["tiles"] and "DEM track 4 km" in printed
+    # every tile is a new scene: the kernels launched must not grow with the tiles
+    assert tl[1]["kernels"] == tl[0]["kernels"]
     assert (out / "track_length.png").stat().st_size > 10_000
     # snow: the volume costs time and biases elevations low, more for larger grains
     sn = doc["snow"]

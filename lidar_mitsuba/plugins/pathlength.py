@@ -364,6 +364,9 @@ class PendingReturns:
             self.timings_s["fetch_s"] += time.perf_counter() - t1
             if progress is not None:
                 progress(stop - start)
+        # let the scene go: a live stale scene joins every later kernel's calls (a dispatch
+        # loop over its instances, and a kernel of its own for each number of them)
+        self._make = None
         if len(parts) == 1:
             return parts[0][0]
         out = Returns.concatenate(parts, n_shots=self.n_shots)

@@ -5,7 +5,9 @@ RSS is its own.
 
 Reported per length: shots, sections, corridor tiles, wall time, shots/s, the process's
 peak RSS and its RSS before the run (imports, DEM opened), ``working_mb`` = peak - before,
-and the size of the files written.
+the size of the files written, and ``kernels``, the distinct Dr.Jit kernels the run
+launched: it must not grow with the tiles (each new kernel is an LLVM or CUDA compile, ~0.2 s,
+that the disk cache hides only on a repeat of the same terrain).
 """
 from __future__ import annotations
 
@@ -45,6 +47,7 @@ def measure(dem_path: str, length_km: float) -> dict:
     """Run one length in this process (call in a fresh one)."""
     import tempfile
     import lidar_mitsuba  # noqa: F401  (libLLVM, variant)
+    import drjit as dr
     from .. import dem, geotrack, granule
     surf = dem.DEMSurface(dem.DEM.open(dem_path))
     shots = int(round(length_km * 1e3 / 0.7))
@@ -52,11 +55,13 @@ def measure(dem_path: str, length_km: float) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         a3, a6 = pathlib.Path(tmp) / "ATL03.h5", pathlib.Path(tmp) / "ATL06.h5"
         t0 = time.perf_counter()
-        out = granule.stream_granule(
-            surface=surf, track=geotrack.GeoTrack(start_lat_deg=START_LAT, start_lon_deg=-45.0,
-                                                  azimuth_deg=0.0),
-            shots=shots, beams="gt2l", max_depth=1, progress=False, paths_per_shot="auto",
-            atl03_path=a3, atl06_path=a6)
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory):
+            out = granule.stream_granule(
+                surface=surf, track=geotrack.GeoTrack(start_lat_deg=START_LAT,
+                                                      start_lon_deg=-45.0, azimuth_deg=0.0),
+                shots=shots, beams="gt2l", max_depth=1, progress=False, paths_per_shot="auto",
+                atl03_path=a3, atl06_path=a6)
+            kernels = len({k["hash"] for k in dr.kernel_history([dr.KernelType.JIT])})
         seconds = time.perf_counter() - t0
         files_mb = (a3.stat().st_size + a6.stat().st_size) / 2 ** 20
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
@@ -65,7 +70,7 @@ def measure(dem_path: str, length_km: float) -> dict:
     return {"length_km": float(length_km), "shots": shots, "seconds": seconds,
             "shots_per_s": shots / seconds, "peak_rss_mb": peak, "rss_before_mb": before,
             "working_mb": peak - before, "files_mb": files_mb, "sections": sections,
-            "tiles": -(-shots // surf.tile_shots), "photons": out[0].photons,
+            "tiles": -(-shots // surf.tile_shots), "kernels": kernels, "photons": out[0].photons,
             "bias_m": out[0].bias_m, "std_m": out[0].std_m}
 
 
