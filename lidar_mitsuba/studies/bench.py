@@ -445,7 +445,9 @@ def format_summary(doc: dict) -> str:
         lines.append(peer.format_summary(doc["peer"]))
     for r in doc.get("track_length", []):
         lines.append(f"DEM track {r['length_km']:g} km ({r['shots']} shots, {r['sections']} "
-                     f"sections, {r['tiles']} tiles, {r['kernels']} kernels): "
+                     f"sections, {r['tiles']} tiles"
+                     + (f", {r['kernels']} kernels" if r.get("kernels") is not None else "")
+                     + "): "
                      f"{r['shots_per_s']:.0f} shots/s, peak RSS "
                      f"{r['peak_rss_mb']:.0f} MB (before the run {r['rss_before_mb']:.0f}), "
                      f"files {r['files_mb']:.0f} MB")
