@@ -192,8 +192,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="add fractal roughness below the DEM's posting with this relief")
     d.add_argument("--roughness-p", type=float, default=1.8, metavar="P",
                    help="spectral exponent of the roughness (1.8)")
-    d.add_argument("--mesh-grid-m", type=float, default=1.0, metavar="M",
-                   help="spacing of the corridor mesh (1 m)")
+    d.add_argument("--mesh-grid-m", type=float, default=None, metavar="M",
+                   help="spacing of a corridor mesh along the track (default: 1 m with "
+                        "--roughness-relief-m, else the DEM's own pixels, split to 1 mm of its "
+                        "bilinear surface)")
     d.add_argument("--atl06", metavar="FILE.h5", help="also write ATL06 land-ice segments")
     v = s.add_argument_group("snow volume (off by default: the surface's BSDF is the snow)")
     v.add_argument("--snow-grain-um", type=float, metavar="UM",
@@ -455,7 +457,7 @@ def _simulate_dem(a, out, plot) -> int:
     rough = None
     if a.roughness_relief_m is not None:
         rough = dems.roughness(p=a.roughness_p, relief_m=a.roughness_relief_m,
-                               posting_m=dem.posting_m, grid_m=a.mesh_grid_m,
+                               posting_m=dem.posting_m, grid_m=a.mesh_grid_m or 1.0,
                                seed=run.get("seed", 0))
     surface = dems.DEMSurface(dem, roughness=rough, mesh_grid_m=a.mesh_grid_m)
     track = geotrack.GeoTrack.parse(a.track, epoch_utc=a.epoch)
