@@ -33,12 +33,15 @@ from .surface import MESH_BYTES_PER_VERTEX, Surface, grid_faces
 from .terrain import Heightfield
 
 #: Gauss-Hermite nodes per axis of the footprint-weighted reference elevation of the DEM part
-_GH_NODES = 7
 #: most shots per corridor tile (about 2.9 km at 0.7 m): bounds a tile's mesh
 TILE_SHOTS = 4096
 MESH_TOLERANCE_M = 1e-3
 """Largest height error [m] of the pixel mesh (:meth:`DEMSurface.pixel_tile`) against the
 DEM's bilinear surface."""
+
+
+#: the largest footprint weight of missing DEM pixels a reference elevation spreads over the rest
+_MISSING_WEIGHT_MAX = 1e-4
 
 
 def _rasterio():
@@ -258,6 +261,58 @@ class DEMSurface(Surface):
                                 for w, (dx, dy) in zip(weights, offs))
         return out.reshape(x.shape) if weights is not None else out.reshape((rows,) + x.shape)
 
+    def _gaussian_mean(self, x_m, y_m, sigma_m: float) -> np.ndarray:
+        """The mean of the DEM's bilinear surface over a Gaussian footprint (sigma ``sigma_m``
+        [m]) at each point, exact. The bilinear interpolant is ``sum_ij z_ij h_i(x) h_j(y)``
+        with hat functions of the posting ``P``, and a hat is a sum of three ramps, whose
+        Gaussian mean is ``R(d) = d Phi(d / s) + s phi(d / s)``; so each pixel weighs
+        ``a_j(x) b_i(y)``, ``a_j(x) = (R(d + P) - 2 R(d) + R(d - P)) / P`` with ``d = x -
+        x_j``. Pixels farther than ``P + 5 sigma`` on either axis are left out (weight below
+        3e-7). Near nodata or the DEM's edge the missing pixels' weight, when at most
+        :data:`_MISSING_WEIGHT_MAX` (the footprint's tail beyond ~3.7 sigma), is spread over
+        the present ones (an error of that weight times the height change across the
+        footprint); beyond it the mean is NaN."""
+        from scipy.special import ndtr
+        x, y = np.broadcast_arrays(np.asarray(x_m, np.float64) + self.origin_m[0],
+                                   np.asarray(y_m, np.float64) + self.origin_m[1])
+        xf, yf = x.ravel(), y.ravel()
+        out = np.full(xf.size, np.nan)
+        P = self.dem.posting_m
+        reach = P + 5.0 * sigma_m
+        n = 2 * math.ceil(reach / P) + 2                  # stencil pixels per axis
+        step = np.arange(n)
+
+        def weights(p):                                   # (m,) -> first pixel, (m, n)
+            p = np.where(np.isfinite(p), p, 0.0)          # (NaN points: NaN at the end)
+            first = np.floor((p - reach) / P).astype(np.int64)
+            d = p[:, None] - (first[:, None] + step) * P
+            if sigma_m > 0:
+                def ramp(u):
+                    return u * ndtr(u / sigma_m) + sigma_m * np.exp(
+                        -0.5 * (u / sigma_m) ** 2) / math.sqrt(2.0 * math.pi)
+                w = (ramp(d + P) - 2.0 * ramp(d) + ramp(d - P)) / P
+            else:
+                w = np.maximum(0.0, 1.0 - np.abs(d) / P)
+            return first, w
+
+        for s, z, (ox, oy) in self._blocks(xf, yf, reach):
+            if z is None:
+                continue
+            ny, nx = z.shape
+            j0, a = weights(xf[s] - ox)
+            i0, b = weights(yf[s] - oy)
+            jj, ii = j0[:, None] + step, i0[:, None] + step
+            on = ((ii >= 0) & (ii < ny))[:, :, None] & ((jj >= 0) & (jj < nx))[:, None, :]
+            zz = z[np.clip(ii, 0, ny - 1)[:, :, None], np.clip(jj, 0, nx - 1)[:, None, :]]
+            w = b[:, :, None] * a[:, None, :]
+            good = on & np.isfinite(zz)
+            present = np.sum(np.where(good, w, 0.0), axis=(1, 2))
+            total = np.sum(np.where(good, w * np.where(good, zz, 0.0), 0.0), axis=(1, 2))
+            bad = (1.0 - present > _MISSING_WEIGHT_MAX) | ~(np.isfinite(xf[s])
+                                                           & np.isfinite(yf[s]))
+            out[s] = np.where(bad, np.nan, total / np.where(bad, 1.0, present))
+        return out.reshape(x.shape)
+
     def height_m(self, x_m, y_m, *, block: int | None = None) -> np.ndarray:
         """DEM (+ roughness) height at each point [m]; NaN over nodata or off the DEM.
         ``block``: points per DEM window read (default ``tile_shots``; points in a block
@@ -268,14 +323,10 @@ class DEMSurface(Surface):
         return z
 
     def reference_elevation_m(self, x_m, y_m, *, sigma_m: float) -> np.ndarray:
-        """Gaussian-footprint-weighted mean height [m]: the DEM part by a
-        ``_GH_NODES`` x ``_GH_NODES`` Gauss-Hermite rule (exact for polynomials of degree
-        < 14 in each axis; the bilinear DEM is smooth at the footprint's scale), the
-        roughness part by its exact Gaussian filter (:meth:`Heightfield.reference_elevation_m`)."""
-        t, w = np.polynomial.hermite_e.hermegauss(_GH_NODES)
-        w = w / w.sum()
-        offs = [(sigma_m * ti, sigma_m * tj) for ti in t for tj in t]
-        z = self._dem_at(x_m, y_m, offs, weights=np.outer(w, w).ravel())
+        """Gaussian-footprint-weighted mean height [m], exactly: the DEM part in closed form
+        (:meth:`_gaussian_mean`), the roughness part by its exact Gaussian filter
+        (:meth:`Heightfield.reference_elevation_m`)."""
+        z = self._gaussian_mean(x_m, y_m, float(sigma_m))
         if self.roughness is not None:
             z = z + self.roughness.reference_elevation_m(x_m, y_m, sigma_m=sigma_m)
         return z

@@ -111,6 +111,34 @@ def test_pixel_mesh_is_the_dem_within_its_tolerance(tmp_path, monkeypatch, posti
                 assert n_tri < 0.5 * grid, (n_tri, grid)
 
 
+def test_reference_elevation_is_the_exact_footprint_mean(tmp_path):
+    """The footprint-weighted mean of the bilinear DEM, in closed form, against a fine
+    quadrature (trapezoid on a 0.05 sigma grid over +-7 sigma: measured within ~1 um of the
+    closed form here) at points along and across a 20 m DEM, within 0.02 mm. (The 7 x 7
+    Gauss-Hermite rule it replaced missed by up to 0.7 mm here: the pixel creases are not
+    smooth at the footprint's scale.) A point whose footprint reaches nodata is NaN."""
+    path = dems.synthetic_ice_sheet(tmp_path / "d.tif", width_m=6000.0, length_m=6000.0)
+    surf = dems.DEMSurface(dems.DEM.open(path))
+    cx, cy = surf.centre_xy_m()
+    rng = np.random.default_rng(8)
+    x, y = cx + rng.uniform(-2500, 2500, 40), cy + rng.uniform(-2500, 2500, 40)
+    sigma = 2.75
+    u = np.arange(-7.0, 7.0 + 1e-9, 0.05)
+    w = np.outer(np.exp(-0.5 * u ** 2), np.exp(-0.5 * u ** 2))
+    w /= w.sum()
+    fine = np.array([np.sum(w * surf.height_m(xi + sigma * u[None, :], yi + sigma * u[:, None]))
+                     for xi, yi in zip(x, y)])
+    got = surf.reference_elevation_m(x, y, sigma_m=sigma)
+    ok = np.isfinite(fine)
+    assert ok.sum() >= 30 and np.isfinite(got[ok]).all()
+    assert np.max(np.abs(got[ok] - fine[ok])) < 2e-5
+    gx, gy = np.meshgrid(cx + np.linspace(-2900, 2900, 150), cy + np.linspace(-2900, 2900, 150))
+    hole = np.isnan(surf.height_m(gx.ravel(), gy.ravel()))          # over the nodata hole
+    assert hole.any()
+    assert np.isnan(surf.reference_elevation_m(gx.ravel()[hole], gy.ravel()[hole],
+                                               sigma_m=sigma)).all()
+
+
 def test_roughness_has_no_wavelength_longer_than_the_posting():
     r = dems.roughness(p=1.8, relief_m=0.5, posting_m=16.0, grid_m=1.0, size_m=256.0)
     assert r.relief_m == pytest.approx(0.5)
