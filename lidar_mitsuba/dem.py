@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import os
 import pathlib
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,6 +48,30 @@ _MISSING_WEIGHT_MAX = 1e-4
 def _rasterio():
     import rasterio          # imported when a DEM is used: the rest of the package needs no GDAL
     return rasterio
+
+
+_OPEN = threading.local()
+_OPEN_MAX = 8
+
+
+def _open_for_reading(path):
+    """A rasterio dataset of ``path`` kept open for window reads (opening a GeoTIFF costs ~2 ms,
+    and a track reads a window per tile and per block of points). Per thread (datasets are
+    not shared between threads) and process, one per file version (path, modification time,
+    size); at most :data:`_OPEN_MAX` per thread."""
+    st = os.stat(path)
+    key = (str(path), st.st_mtime_ns, st.st_size, os.getpid())
+    cache = getattr(_OPEN, "datasets", None)
+    if cache is None:
+        cache = _OPEN.datasets = {}
+    ds = cache.get(key)
+    if ds is None or ds.closed:
+        if len(cache) >= _OPEN_MAX:
+            for old in cache.values():
+                old.close()
+            cache.clear()
+        ds = cache[key] = _rasterio().open(path)
+    return ds
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,9 +150,9 @@ class DEM:
                      "use a shorter track chunk")
         win = rio.windows.Window(col0, row0, col1 - col0 + 1, row1 - row0 + 1)
         inside = col0 >= 0 and row0 >= 0 and col1 < self.width and row1 < self.height
-        with rio.open(self.path) as ds:         # (boundless reads go through a slow VRT)
-            z = ds.read(1, window=win, boundless=not inside, masked=True,
-                        fill_value=self.nodata if self.nodata is not None else np.nan)
+        ds = _open_for_reading(self.path)       # (boundless reads go through a slow VRT)
+        z = ds.read(1, window=win, boundless=not inside, masked=True,
+                    fill_value=self.nodata if self.nodata is not None else np.nan)
         z = np.ma.filled(z.astype(np.float64), np.nan)
         z[~np.isfinite(z)] = np.nan
         origin = (tr.c + (col0 + 0.5) * g, tr.f - (row1 + 0.5) * g)

@@ -139,6 +139,18 @@ def test_reference_elevation_is_the_exact_footprint_mean(tmp_path):
                                                sigma_m=sigma)).all()
 
 
+def test_a_rewritten_dem_is_read_anew(tmp_path):
+    """Window reads keep the GeoTIFF open (per thread and file version): writing another DEM
+    to the same path gives the new heights, not the open file's."""
+    path = tmp_path / "flat.tif"
+    for level in (10.0, 20.0):
+        dems.write_geotiff(path, np.full((20, 20), level), x0_m=500_000.0, y1_m=7_000_000.0,
+                           posting_m=10.0, crs="EPSG:32624")
+        surf = dems.DEMSurface(dems.DEM.open(path))
+        cx, cy = surf.centre_xy_m()
+        assert surf.height_m(cx, cy) == pytest.approx(level)
+
+
 def test_roughness_has_no_wavelength_longer_than_the_posting():
     r = dems.roughness(p=1.8, relief_m=0.5, posting_m=16.0, grid_m=1.0, size_m=256.0)
     assert r.relief_m == pytest.approx(0.5)
