@@ -310,15 +310,12 @@ class DEMSurface(Surface):
         def weights(p):                                   # (m,) -> first pixel, (m, n)
             p = np.where(np.isfinite(p), p, 0.0)          # (NaN points: NaN at the end)
             first = np.floor((p - reach) / P).astype(np.int64)
+            if sigma_m > 0:             # ramps at d + P, d, d - P: neighbours share them
+                u = (p[:, None] - (first[:, None] + np.arange(-1, n + 1)) * P) / sigma_m
+                r = sigma_m * (u * ndtr(u) + np.exp(-0.5 * u * u) / math.sqrt(2.0 * math.pi))
+                return first, (r[:, :-2] - 2.0 * r[:, 1:-1] + r[:, 2:]) / P
             d = p[:, None] - (first[:, None] + step) * P
-            if sigma_m > 0:
-                def ramp(u):
-                    return u * ndtr(u / sigma_m) + sigma_m * np.exp(
-                        -0.5 * (u / sigma_m) ** 2) / math.sqrt(2.0 * math.pi)
-                w = (ramp(d + P) - 2.0 * ramp(d) + ramp(d - P)) / P
-            else:
-                w = np.maximum(0.0, 1.0 - np.abs(d) / P)
-            return first, w
+            return first, np.maximum(0.0, 1.0 - np.abs(d) / P)
 
         for s, z, (ox, oy) in self._blocks(xf, yf, reach):
             if z is None:
