@@ -33,7 +33,6 @@ from .resources import check_memory
 from .surface import MESH_BYTES_PER_VERTEX, Surface, grid_faces
 from .terrain import Heightfield
 
-#: Gauss-Hermite nodes per axis of the footprint-weighted reference elevation of the DEM part
 #: most shots per corridor tile (about 2.9 km at 0.7 m): bounds a tile's mesh
 TILE_SHOTS = 4096
 MESH_TOLERANCE_M = 1e-3
@@ -399,14 +398,20 @@ class DEMSurface(Surface):
         z = self.height_m(ox + lx, oy + ly, block=lx.size)       # one window per tile
         if not np.isfinite(z).all():
             bad = np.flatnonzero(~np.isfinite(z.ravel()))[0]
-            raise ParameterError(
-                "track", f"the track's corridor ({reach_m:g} m about its shots) crosses the "
-                f"DEM's nodata or edge at x {ox + lx.flat[bad] + self.origin_m[0]:.1f} m, y "
-                f"{oy + ly.flat[bad] + self.origin_m[1]:.1f} m ({self.dem.crs.to_string()}); "
-                f"move the track")
+            raise self._nodata_in_corridor(reach_m, ox + lx.flat[bad] + self.origin_m[0],
+                                           oy + ly.flat[bad] + self.origin_m[1])
         vertices = np.column_stack([lx.ravel(), ly.ravel(), z.ravel()])
         faces = grid_faces(*A.shape)     # (u, v) is right-handed like (x, y): normals up
         return scn.scene_from_mesh(vertices, faces, bsdf=bsdf), (ox, oy), int(len(faces))
+
+    def _nodata_in_corridor(self, reach_m: float, x_crs: float, y_crs: float
+                            ) -> ParameterError:
+        """The error for a corridor tile that reaches nodata or the DEM's edge at the CRS
+        point (``x_crs``, ``y_crs``) [m]."""
+        return ParameterError(
+            "track", f"the track's corridor ({reach_m:g} m about its shots) crosses the DEM's "
+            f"nodata or edge at x {x_crs:.1f} m, y {y_crs:.1f} m ({self.dem.crs.to_string()}); "
+            f"move the track")
 
     def pixel_tile(self, x_m: np.ndarray, y_m: np.ndarray, *, reach_m: float
                    ) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
@@ -447,10 +452,8 @@ class DEMSurface(Surface):
         bad = ~np.isfinite(z00 + z10 + z01 + z11)
         if bad.any():
             k = np.flatnonzero(bad)[0]
-            raise ParameterError(
-                "track", f"the track's corridor ({reach_m:g} m about its shots) crosses the "
-                f"DEM's nodata or edge at x {wx + (j[k] + 0.5) * P:.1f} m, y "
-                f"{wy + (i[k] + 0.5) * P:.1f} m ({self.dem.crs.to_string()}); move the track")
+            raise self._nodata_in_corridor(reach_m, wx + (j[k] + 0.5) * P,
+                                           wy + (i[k] + 0.5) * P)
         twist = float(np.max(np.abs(z00 + z11 - z10 - z01), initial=0.0))
         k = max(1, math.ceil(math.sqrt(twist / (4.0 * MESH_TOLERANCE_M))))
         check_memory("mesh_grid_m", MESH_BYTES_PER_VERTEX * i.size * (k + 1) ** 2,

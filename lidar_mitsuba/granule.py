@@ -664,8 +664,8 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     Arguments as :func:`simulate_granule`. Each section of each beam is an independent run
     (its own seed); ``max_depth="auto"`` and ``paths_per_shot="auto"`` are decided by each
     beam's first section (its pilot and scout) and kept for the rest. ATL06 segments are
-    fitted across section boundaries (see :class:`_SegmentStream`). Both files are written atomically: a failure leaves neither.
-    Returns each beam's running statistics.
+    fitted across section boundaries (see :class:`_SegmentStream`). Both files are written
+    atomically: a failure leaves neither. Returns each beam's running statistics.
     """
     import contextlib
     if isinstance(beams, str):

@@ -444,12 +444,11 @@ def format_summary(doc: dict) -> str:
     if "peer" in doc:
         lines.append(peer.format_summary(doc["peer"]))
     for r in doc.get("track_length", []):
+        kernels = f", {r['kernels']} kernels" if r.get("kernels") is not None else ""
         lines.append(f"DEM track {r['length_km']:g} km ({r['shots']} shots, {r['sections']} "
-                     f"sections, {r['tiles']} tiles"
-                     + (f", {r['kernels']} kernels" if r.get("kernels") is not None else "")
-                     + "): "
-                     f"{r['shots_per_s']:.0f} shots/s, peak RSS "
-                     f"{r['peak_rss_mb']:.0f} MB (before the run {r['rss_before_mb']:.0f}), "
+                     f"sections, {r['tiles']} tiles{kernels}): {r['shots_per_s']:.0f} shots/s, "
+                     f"peak RSS {r['peak_rss_mb']:.0f} MB (before the run "
+                     f"{r['rss_before_mb']:.0f}), "
                      f"files {r['files_mb']:.0f} MB")
     if "snow" in doc:
         from . import snow_bias

@@ -58,14 +58,15 @@ def measure(dem_path: str, length_km: float) -> dict:
         t0 = time.perf_counter()
         # the history keeps every launch's code (~14 KB each: ~50 MB over 1000 km), which
         # the memory figures would count: kernels are counted up to KERNELS_UP_TO_KM only
-        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, length_km <= KERNELS_UP_TO_KM):
+        count_kernels = length_km <= KERNELS_UP_TO_KM
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, count_kernels):
             out = granule.stream_granule(
                 surface=surf, track=geotrack.GeoTrack(start_lat_deg=START_LAT,
                                                       start_lon_deg=-45.0, azimuth_deg=0.0),
                 shots=shots, beams="gt2l", max_depth=1, progress=False, paths_per_shot="auto",
                 atl03_path=a3, atl06_path=a6)
             kernels = (len({k["hash"] for k in dr.kernel_history([dr.KernelType.JIT])})
-                       if length_km <= KERNELS_UP_TO_KM else None)
+                       if count_kernels else None)
         seconds = time.perf_counter() - t0
         files_mb = (a3.stat().st_size + a6.stat().st_size) / 2 ** 20
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
