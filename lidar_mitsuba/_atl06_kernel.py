@@ -4,8 +4,9 @@
 The numpy functions stay the reference (the module docstring of :mod:`lidar_mitsuba.atl06`
 describes the algorithm, and the tests compare the two on the same segments): this file only
 removes the per-segment Python overhead (~0.9 ms a segment, 44 % of a DEM granule's time).
-Segments run one after the other: ``parallel=True`` made the compile twice as long, and sweeps
-already run one process per core.
+:func:`fit_all` runs its segments one after the other (``parallel=True`` made the compile twice
+as long) without the GIL: :func:`lidar_mitsuba.atl06._fit_compiled` gives contiguous blocks of
+segments to the host's threads (a sweep task's thread count included).
 Sums run in a different order than numpy's pairwise ones, so results agree to rounding
 (~1e-15 relative), except where a photon sits on a window edge within that rounding.
 Python's ``min``/``max`` keep the first argument on NaN; :func:`_pmax` and :func:`_pmin` do

@@ -37,7 +37,7 @@ import tempfile
 import h5py
 import numpy as np
 
-from . import __version__
+from . import __version__, h5chunks
 
 BEAM_GROUPS = {"strong": "gt1l", "weak": "gt1r"}
 
@@ -105,7 +105,12 @@ def atomic_h5file(path: str | os.PathLike):
     os.close(fd)
     try:
         with h5py.File(tmp, "w") as f:
-            yield f
+            try:
+                yield f
+                h5chunks.drain(f)          # the chunks still being compressed
+            except BaseException:
+                h5chunks.discard(f)
+                raise
         os.chmod(tmp, 0o666 & ~_umask())      # mkstemp makes 0600; a new file follows the umask
         os.replace(tmp, path)
     except BaseException:
@@ -121,11 +126,7 @@ def _umask() -> int:
 
 
 def _ds(group, name, data, units, description):
-    d = group.create_dataset(name, data=np.asarray(data), compression="gzip", compression_opts=1,
-                             shuffle=True) if np.ndim(data) else group.create_dataset(name, data=data)
-    d.attrs["units"] = units
-    d.attrs["description"] = description
-    return d
+    return h5chunks.put(group, name, data, units, description)
 
 
 def read(path: str | os.PathLike) -> dict:

@@ -69,6 +69,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .constants import C_M_PER_NS, FWHM_PER_SIGMA
+from .resources import host_pool, host_threads
 from .fpb import (corrected_background_mhz, dead_time_weights, robust_spread,
                   weighted_median_minus_uniform)
 
@@ -491,6 +492,8 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
 
 
 COMPILE_MIN_SEGMENTS = 1000
+#: fewest segments worth a thread of their own in the compiled fit
+_SEGMENTS_PER_THREAD_MIN = 256
 """``engine="auto"`` compiles the kernel for tracks of this many segments (20 km) or more:
 fewer cost the reference less than the compile."""
 
@@ -506,9 +509,19 @@ def _fit_compiled(cols: dict, along, h, shot_along, gate, centres, half: float, 
     cfg_v = np.array([float(getattr(cfg, name)) for name in K.CFG_FIELDS]
                      + [HALF_C, IQR_PER_SIGMA], np.float64)
     out = np.column_stack([cols[name].astype(np.float64) for name in K.OUT_FIELDS])
-    K.fit_all(along, h, shot_along,
-              np.zeros(shot_along.size) if gate is None else gate, gate is not None,
-              np.asarray(centres, np.float64), p0, p1, s0, s1, cfg_v, out)
+    gate_v = np.zeros(shot_along.size) if gate is None else gate
+    centres = np.asarray(centres, np.float64)
+
+    def fit(a: int, b: int) -> None:      # segments a..b-1 (the kernel releases the GIL)
+        K.fit_all(along, h, shot_along, gate_v, gate is not None, centres[a:b], p0[a:b],
+                  p1[a:b], s0[a:b], s1[a:b], cfg_v, out[a:b])
+
+    # segments are independent: contiguous blocks on the host's threads, same results
+    pool = host_pool()
+    blocks = max(1, min(host_threads(), centres.size // _SEGMENTS_PER_THREAD_MIN))
+    cuts = np.linspace(0, centres.size, blocks + 1).astype(int)
+    for job in [pool.submit(fit, a, b) for a, b in zip(cuts[:-1], cuts[1:])]:
+        job.result()
     for i, name in enumerate(K.OUT_FIELDS):
         cols[name][:] = out[:, i]
 

@@ -49,7 +49,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import __version__, atl03, atl06, geotrack
+from . import __version__, atl03, atl06, geotrack, h5chunks
 from .atl03 import _ds, atomic_h5file
 from .constants import FWHM_PER_SIGMA, ParameterError
 from .dem import DEMSurface
@@ -208,20 +208,9 @@ def _gps_week_sow(delta_time_s: float) -> tuple[int, float]:
 
 def _put(group, name, data, units, description):
     """Create a resizable, compressed dataset, or append ``data`` to it along axis 0 (a
-    streamed granule writes each section's rows after the last)."""
-    data = np.asarray(data)
-    if name in group:
-        d = group[name]
-        n = d.shape[0]
-        d.resize(n + data.shape[0], axis=0)
-        d[n:] = data
-        return d
-    d = group.create_dataset(name, data=data, maxshape=(None,) + data.shape[1:],
-                             chunks=(16384,) + data.shape[1:], compression="gzip",
-                             compression_opts=1, shuffle=True)
-    d.attrs["units"] = units
-    d.attrs["description"] = description
-    return d
+    streamed granule writes each section's rows after the last); whole chunks are compressed
+    on every core (:mod:`lidar_mitsuba.h5chunks`)."""
+    return h5chunks.put(group, name, data, units, description, append=True)
 
 
 def _photon_order(res) -> np.ndarray:

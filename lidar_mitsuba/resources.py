@@ -4,6 +4,7 @@ killer), and the versions of the packages that run it."""
 from __future__ import annotations
 
 import os
+from concurrent.futures import ThreadPoolExecutor
 
 from .constants import ParameterError
 
@@ -25,6 +26,28 @@ def available_memory_bytes() -> int:
         return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (ValueError, OSError, AttributeError):
         return 2 ** 62          # unknown: do not refuse
+
+
+_pool: tuple[tuple[int, int], ThreadPoolExecutor] | None = None
+
+
+def host_threads() -> int:
+    """Threads the host may use: as many as Dr.Jit's own pool (``dr.thread_count()``: the
+    cores, or what a sweep task was given)."""
+    import drjit as dr
+    return max(1, int(dr.thread_count()))
+
+
+def host_pool() -> ThreadPoolExecutor:
+    """A pool of :func:`host_threads` threads for host work that runs without the GIL (zlib,
+    ``nogil`` numba kernels), made anew when that number changes or in a forked child."""
+    global _pool
+    key = (os.getpid(), host_threads())
+    if _pool is None or _pool[0] != key:
+        if _pool is not None and _pool[0][0] == key[0]:
+            _pool[1].shutdown(wait=False)
+        _pool = (key, ThreadPoolExecutor(max_workers=key[1], thread_name_prefix="lidar-host"))
+    return _pool[1]
 
 
 def check_memory(name: str, need_bytes: float, what: str, hint: str) -> None:

@@ -228,6 +228,18 @@ def test_compiled_fit_on_a_simulated_track(fractal_tracks):
         atl06.segments_from_result(res, engine="fast")
 
 
+def test_compiled_fit_in_blocks_on_threads_is_bit_identical(monkeypatch, fractal_tracks):
+    """The compiled fit split into contiguous blocks of segments on the host's threads gives
+    the same bits as one block (segments are independent; each writes its own row)."""
+    res = fractal_tracks[10.0]
+    one = atl06.segments_from_result(res, engine="compiled")
+    monkeypatch.setattr(atl06, "_SEGMENTS_PER_THREAD_MIN", 1)
+    monkeypatch.setattr(atl06, "host_threads", lambda: 7)      # 7 uneven blocks
+    split = atl06.segments_from_result(res, engine="compiled")
+    for name in atl06.FIELDS:
+        np.testing.assert_array_equal(getattr(one, name), getattr(split, name), err_msg=name)
+
+
 def test_auto_engine_compiles_only_for_long_tracks(monkeypatch, fractal_tracks):
     """``engine="auto"``: the reference for a short track (the compile would cost more),
     the kernel from COMPILE_MIN_SEGMENTS segments on, whatever ran before in the process

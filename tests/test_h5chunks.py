@@ -1,0 +1,107 @@
+"""Chunks compressed on the thread pool (lidar_mitsuba.h5chunks) against HDF5's own filters."""
+import h5py
+import numpy as np
+import pytest
+
+from lidar_mitsuba import atl03, h5chunks
+
+C = h5chunks.CHUNK_ROWS
+
+
+def _appended(path, parts, name="a"):
+    with atl03.atomic_h5file(path) as f:
+        for p in parts:
+            h5chunks.put(f, name, p, "m", "test", append=True)
+
+
+@pytest.mark.parametrize("dtype,cols", [(np.float64, None), (np.float32, None), (np.int8, 5),
+                                        (np.uint32, None), (np.int64, 3), ("S3", None)])
+def test_appended_rows_read_back_exactly(tmp_path, rng, dtype, cols):
+    """Appends of every kind of length (empty, shorter than a chunk, exactly one, crossing
+    several boundaries) read back as their concatenation."""
+    lengths = (0, 100, C - 100, C, 5, 3 * C + 17, 1, 2 * C - 1, 0, C + 1)
+    shape = lambda n: (n,) if cols is None else (n, cols)     # noqa: E731
+    parts = [(rng.normal(size=shape(n)) * 1e3).astype(np.int64).astype(dtype) for n in lengths]
+    path = tmp_path / "a.h5"
+    _appended(path, parts)
+    with h5py.File(path) as f:
+        d = f["a"]
+        assert d.compression == "gzip" and d.compression_opts == h5chunks.GZIP_LEVEL
+        assert d.shuffle and d.chunks[0] == C
+        np.testing.assert_array_equal(d[:], np.concatenate(parts))
+        assert d.attrs["units"] == "m"
+
+
+def test_chunks_are_the_bytes_hdf5_stores(tmp_path, rng):
+    """Every chunk compressed on the pool, the edge chunk padded at drain included, is byte
+    for byte the chunk HDF5's filter pipeline (shuffle, deflate at the same level) stores for
+    the same rows, with no filter skipped."""
+    data = 3.3e6 + rng.normal(0, 5, 3 * C + 500)
+    ours, theirs = tmp_path / "ours.h5", tmp_path / "theirs.h5"
+    _appended(ours, [data[:10], data[10:C + 7], data[C + 7:]])
+    with h5py.File(theirs, "w") as g:
+        g.create_dataset("a", data=data, chunks=(C,), maxshape=(None,), compression="gzip",
+                         compression_opts=h5chunks.GZIP_LEVEL, shuffle=True)
+    with h5py.File(ours) as f, h5py.File(theirs) as g:
+        for k in range(4):
+            mask_f, bytes_f = f["a"].id.read_direct_chunk((k * C,))
+            mask_g, bytes_g = g["a"].id.read_direct_chunk((k * C,))
+            assert mask_f == mask_g == 0
+            assert bytes_f == bytes_g
+
+
+def test_other_filter_pipelines_are_left_to_hdf5(tmp_path, rng):
+    """A dataset with another pipeline (deflate without shuffle, or none) is written by HDF5."""
+    data = rng.normal(size=2 * C + 3)
+    with atl03.atomic_h5file(tmp_path / "b.h5") as f:
+        for name, kw in (("gz", dict(compression="gzip")), ("raw", {})):
+            d = f.create_dataset(name, shape=(data.size,), dtype=data.dtype, chunks=(C,), **kw)
+            h5chunks.write_rows(d, 0, data)
+        assert not h5chunks._pending
+    with h5py.File(tmp_path / "b.h5") as f:
+        for name in ("gz", "raw"):
+            np.testing.assert_array_equal(f[name][:], data)
+
+
+def test_a_small_queue_bound_blocks_and_keeps_every_row(tmp_path, rng, monkeypatch):
+    """With the bound below one chunk every put waits for its chunks: same rows."""
+    monkeypatch.setattr(h5chunks, "MAX_PENDING_BYTES", 1)
+    parts = [rng.normal(size=n) for n in (C + 5, 4 * C, 7)]
+    _appended(tmp_path / "c.h5", parts)
+    with h5py.File(tmp_path / "c.h5") as f:
+        np.testing.assert_array_equal(f["a"][:], np.concatenate(parts))
+
+
+def test_a_failed_write_leaves_no_file_and_spares_another(tmp_path, rng):
+    """A failure inside atomic_h5file removes its file and forgets its waiting chunks; a
+    file open beside it keeps its own and is complete."""
+    data = rng.normal(size=4 * C)
+    with atl03.atomic_h5file(tmp_path / "kept.h5") as kept:
+        h5chunks.put(kept, "a", data, "m", "kept", append=True)
+        with pytest.raises(RuntimeError, match="boom"):
+            with atl03.atomic_h5file(tmp_path / "failed.h5") as failed:
+                h5chunks.put(failed, "a", data, "m", "failed", append=True)
+                raise RuntimeError("boom")
+        assert all(e[0] == str(kept.filename) for e in h5chunks._pending)
+    assert not h5chunks._pending
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept.h5"]
+    with h5py.File(tmp_path / "kept.h5") as f:
+        np.testing.assert_array_equal(f["a"][:], data)
+
+
+def test_rows_begun_elsewhere_and_another_fill_value(tmp_path, rng):
+    """A dataset HDF5 filled to a length off the chunk grid is continued through HDF5 up to
+    the next boundary; an edge chunk is padded with the dataset's own fill value, so rows
+    added later by HDF5 beyond it read as that value until written."""
+    data = rng.normal(size=3 * C)
+    path = tmp_path / "e.h5"
+    with atl03.atomic_h5file(path) as f:
+        d = f.create_dataset("a", shape=(100,), maxshape=(None,), dtype=np.float64,
+                             chunks=(C,), compression="gzip", compression_opts=1,
+                             shuffle=True, fillvalue=-9.0)
+        d[:] = data[:100]
+        h5chunks.put(f, "a", data[100:C + 300], "m", "x", append=True)
+    with h5py.File(path, "a") as f:
+        np.testing.assert_array_equal(f["a"][:], data[:C + 300])
+        f["a"].resize(2 * C, axis=0)
+        np.testing.assert_array_equal(f["a"][C + 300:], -9.0)
