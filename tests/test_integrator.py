@@ -250,3 +250,13 @@ def test_new_terrain_reuses_the_compiled_trace(kind):
         runs.append({h["hash"] for h in hist})
         del sc, out, integ
     assert runs[1] <= runs[0] and runs[2] <= runs[0], (runs[1] - runs[0], runs[2] - runs[0])
+
+
+@pytest.mark.parametrize("divisor", [1, 3, 16, 255, 1000, 12345, 2 ** 20 - 1, 2 ** 20])
+def test_shot_index_without_integer_division_is_exact(divisor):
+    """The float64 quotient that gives a lane its shot equals integer division over the whole
+    uint32 range it can meet (the lanes of one launch, and the top of the range)."""
+    from lidar_mitsuba.plugins.pathlength import _quotient
+    i = np.concatenate([np.arange(0, 2 ** 21), np.arange(2 ** 30 - 2 ** 20, 2 ** 30),
+                        np.arange(2 ** 32 - 2 ** 20, 2 ** 32)]).astype(np.uint32)
+    np.testing.assert_array_equal(_quotient(mi.UInt32(i), divisor).numpy(), i // divisor)

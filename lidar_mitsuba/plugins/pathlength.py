@@ -138,7 +138,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
         (seeded), the first ray and the emission time [ns]."""
         n = dr.width(sx) * paths_per_shot
         # opaque: one kernel serves every paths_per_shot (paths_per_shot="auto" varies it)
-        shot = dr.arange(mi.UInt32, n) // dr.opaque(mi.UInt32, paths_per_shot)
+        shot = _quotient(dr.arange(mi.UInt32, n), paths_per_shot)
         x0 = dr.gather(mi.Float, sx, shot)
         y0 = dr.gather(mi.Float, sy, shot)
         sampler = mi.load_dict({"type": "independent"})
@@ -381,7 +381,7 @@ class PendingReturns:
         idx = dr.compress(w > 0.0)                        # synchronises; keeps slot order
         if dr.width(idx) == 0:
             return Returns.empty(n_shots=n_shots, paths_per_shot=self.paths_per_shot)
-        shot = idx // dr.opaque(mi.UInt32, self.paths_per_shot * self.max_depth)
+        shot = _quotient(idx, self.paths_per_shot * self.max_depth)
         if dr.width(idx) < dr.width(w):   # (single bounce on terrain often keeps every slot)
             t, w = dr.gather(mi.Float64, t, idx), dr.gather(mi.Float, w, idx)
             x, y, z = (dr.gather(mi.Float, a, idx) for a in (x, y, z))
@@ -418,6 +418,16 @@ def _fov_exit(ray: mi.Ray3f, cx: mi.Float, cy: mi.Float, radius_m: float) -> mi.
     t_out = (dr.sqrt(dr.maximum(disc, 0.0)) - b) / dr.maximum(a, 1e-30)
     t_out = dr.select(disc >= 0.0, dr.maximum(t_out, 0.0), 0.0)
     return dr.select(a > 1e-12, t_out, dr.select(c <= 0.0, dr.inf, 0.0))
+
+
+def _quotient(index: mi.UInt32, divisor: int) -> mi.UInt32:
+    """``index // divisor`` for a divisor known only when the kernel runs (opaque: one kernel
+    serves every paths_per_shot), without an integer division (x86 has no vector one, so it
+    runs lane by lane: 5.4 ms of a 5 M-lane fetch against 1.8 ms). floor((i + 1/2) / d) in
+    float64 is exact: the true value is at least 1/(2d) from an integer, the rounding error
+    at most i d^-1 2^-52."""
+    inv = dr.opaque(mi.Float64, 1.0 / int(divisor))
+    return mi.UInt32((mi.Float64(index) + 0.5) * inv)
 
 
 def _spawn(si: mi.SurfaceInteraction3f, d: mi.Vector3f) -> mi.Ray3f:

@@ -127,7 +127,12 @@ def bench_integrator(*, quick: bool) -> dict:
     same rays and mesh (the 1024 m fractal tile at 1 m, about 2 million triangles), cast in the
     same launches of ``max_lanes`` rays; and where a trace's host time goes: building and
     launching kernels, waiting for the device, compacting and copying returns to numpy.
-    On a GPU the track is 1 M shots x 128 paths (the size of an orbit's chunk stream)."""
+    On a GPU the track is 1 M shots x 128 paths (the size of an orbit's chunk stream).
+
+    Each repetition times the single- and two-bounce traces and the casts one after the other,
+    and a ratio is the median of the repetitions' own ratios, so a machine whose speed drifts
+    during the run (this VM's does, by tens of per cent within a minute) biases none of them.
+    """
     size = 256.0 if quick else 1024.0
     hf = terrain.fractal(p=1.8, size_m=size, grid_m=1.0, relief_m=10.0, seed=0)
     t = time.perf_counter()
@@ -140,25 +145,20 @@ def bench_integrator(*, quick: bool) -> dict:
     reps = 3 if quick else 5
     doc = {"triangles": int(len(tm.faces)), "mesh_build_s": build_s, "paths": n_shots * k,
            "shots": n_shots, "paths_per_shot": k}
-    for depth in (1, 2):
-        integ = mi.load_dict(Instrument().integrator_dict(max_depth=depth))
-        split = []
+    integs = {depth: mi.load_dict(Instrument().integrator_dict(max_depth=depth))
+              for depth in (1, 2)}
+    splits = {1: [], 2: []}
 
+    def tracer(depth):
         def trace():
-            pending = integ.launch(scene, shot_x_m=xs, shot_y_m=ys, paths_per_shot=k, seed=1)
+            pending = integs[depth].launch(scene, shot_x_m=xs, shot_y_m=ys, paths_per_shot=k,
+                                           seed=1)
             pending.result()
-            split.append(pending.timings_s)
+            splits[depth].append(pending.timings_s)
+        return trace
 
-        trace_s = _median_time(trace, repeats=reps)
-        host = {key: statistics.median(d[key] for d in split[1:]) for key in split[0]}
-        row = {"trace_s": trace_s, "paths_per_s": n_shots * k / trace_s, **host,
-               "host_share": (host["launch_s"] + host["fetch_s"]) / trace_s}
-        if depth == 1:
-            doc.update(row)
-        else:
-            doc["two_bounces"] = row
     rng = np.random.default_rng(3)
-    per = max(1, integ.max_lanes // k)          # the single-bounce trace's launches
+    per = max(1, integs[1].max_lanes // k)          # the single-bounce trace's launches
     batches = []
     top = float(tm.vertices[:, 2].max()) + 1.0
     for a in range(0, n_shots, per):
@@ -172,10 +172,29 @@ def bench_integrator(*, quick: bool) -> dict:
             si = scene.ray_intersect(mi.Ray3f(mi.Point3f(ox, oy, top), mi.Vector3f(0, 0, -1)))
             si.p.z.numpy()            # the same device -> host copy the integrator makes
 
-    cast_s = _median_time(cast, repeats=reps)
-    doc.update(raycast_s=cast_s, rays_per_s=n_shots * k / cast_s,
-               ratio_to_ceiling=cast_s / doc["trace_s"])
-    doc["two_bounces"]["ratio_to_ceiling"] = cast_s / doc["two_bounces"]["trace_s"]
+    runs = {"trace1": tracer(1), "trace2": tracer(2), "cast": cast}
+    times = {name: [] for name in runs}
+    for fn in runs.values():
+        fn()                                        # warm-up: compile, caches
+    for _ in range(reps):
+        for name, fn in runs.items():
+            t = time.perf_counter()
+            fn()
+            times[name].append(time.perf_counter() - t)
+    cast_s = statistics.median(times["cast"])
+    for depth in (1, 2):
+        trace_s = statistics.median(times[f"trace{depth}"])
+        host = {key: statistics.median(d[key] for d in splits[depth][1:])
+                for key in splits[depth][0]}
+        row = {"trace_s": trace_s, "paths_per_s": n_shots * k / trace_s, **host,
+               "host_share": (host["launch_s"] + host["fetch_s"]) / trace_s,
+               "ratio_to_ceiling": statistics.median(
+                   c / tr for c, tr in zip(times["cast"], times[f"trace{depth}"]))}
+        if depth == 1:
+            doc.update(row)
+        else:
+            doc["two_bounces"] = row
+    doc.update(raycast_s=cast_s, rays_per_s=n_shots * k / cast_s)
     return doc
 
 
