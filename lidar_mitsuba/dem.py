@@ -29,7 +29,7 @@ import numpy as np
 
 from . import scene as scn, terrain
 from .constants import ParameterError, check
-from .resources import check_memory
+from .resources import check_memory, host_pool
 from .surface import MESH_BYTES_PER_VERTEX, Surface, grid_faces
 from .terrain import Heightfield
 
@@ -309,9 +309,7 @@ class DEMSurface(Surface):
             d = p[:, None] - (first[:, None] + step) * P
             return first, np.maximum(0.0, 1.0 - np.abs(d) / P)
 
-        for s, z, (ox, oy) in self._blocks(xf, yf, reach):
-            if z is None:
-                continue
+        def block_mean(s, z, ox, oy):
             ny, nx = z.shape
             j0, a = weights(xf[s] - ox)
             i0, b = weights(yf[s] - oy)
@@ -325,6 +323,14 @@ class DEMSurface(Surface):
             bad = (1.0 - present > _MISSING_WEIGHT_MAX) | ~(np.isfinite(xf[s])
                                                            & np.isfinite(yf[s]))
             out[s] = np.where(bad, np.nan, total / np.where(bad, 1.0, present))
+
+        # windows are read here, one after another; their sums (numpy, which lets go of the
+        # GIL) run on the host's threads, each block into its own points
+        pool = host_pool()
+        jobs = [pool.submit(block_mean, s, z, ox, oy)
+                for s, z, (ox, oy) in self._blocks(xf, yf, reach) if z is not None]
+        for job in jobs:
+            job.result()
         return out.reshape(x.shape)
 
     def height_m(self, x_m, y_m, *, block: int | None = None) -> np.ndarray:
