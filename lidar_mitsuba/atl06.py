@@ -69,9 +69,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .constants import C_M_PER_NS, FWHM_PER_SIGMA
-from .resources import host_pool, host_threads
 from .fpb import (corrected_background_mhz, dead_time_weights, robust_spread,
                   weighted_median_minus_uniform)
+from .resources import host_pool, host_threads
 
 HALF_C = C_M_PER_NS / 2.0   # metres of height per ns of round-trip time
 
@@ -492,10 +492,10 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
 
 
 COMPILE_MIN_SEGMENTS = 1000
-#: fewest segments worth a thread of their own in the compiled fit
-_SEGMENTS_PER_THREAD_MIN = 256
 """``engine="auto"`` compiles the kernel for tracks of this many segments (20 km) or more:
 fewer cost the reference less than the compile."""
+#: fewest segments worth a thread of their own in the compiled fit
+_SEGMENTS_PER_THREAD_MIN = 256
 
 
 def _fit_compiled(cols: dict, along, h, shot_along, gate, centres, half: float, s0, s1,

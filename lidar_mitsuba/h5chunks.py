@@ -92,19 +92,19 @@ def write_rows(dset, start: int, data) -> None:
         if held[1] + held[2].shape[0] == start:          # continue the waiting rows
             start, data = held[1], np.concatenate([held[2], data])
         else:                                            # (rows written around us)
-            _submit(*held)
+            _submit(key[0], *held)
     stop = start + data.shape[0]
-    level = _shuffle_deflate_level(dset)
-    rows = dset.chunks[0] if dset.chunks else 0
+    level = _shuffle_deflate_level(dset)                 # (None: not chunked and filtered)
     if level is None or dset.chunks[1:] != dset.shape[1:]:
         if stop > start:
             dset[start:stop] = data
         return
+    rows = dset.chunks[0]
     a = -(-start // rows) * rows                       # first chunk boundary at or after start
     if start < a:                                      # a chunk begun by someone else
         dset[start:min(a, stop)] = data[:a - start]
     for c0 in range(a, stop - rows + 1, rows):
-        _submit(dset, c0, data[c0 - start:c0 - start + rows], level)
+        _submit(key[0], dset, c0, data[c0 - start:c0 - start + rows], level)
     b = max(a, stop // rows * rows)
     if b < stop:
         _tails[key] = (dset, b, data[b - start:].copy(), level)
@@ -116,7 +116,7 @@ def drain(f) -> None:
     compressed chunk still queued."""
     key = _file_key(f)
     for k in [k for k in _tails if k[0] == key]:
-        _submit(*_tails.pop(k))
+        _submit(key, *_tails.pop(k))
     _store(block_above=0)
 
 
@@ -136,9 +136,10 @@ def discard(f) -> None:
         _queued[0] = sum(e[4] for e in keep)
 
 
-def _submit(dset, first_row: int, rows: np.ndarray, level: int) -> None:
-    """Queue the chunk that starts at ``first_row`` (``rows``: all of it, or its first rows,
-    then padded with the dataset's fill value) for compression."""
+def _submit(file_key: str, dset, first_row: int, rows: np.ndarray, level: int) -> None:
+    """Queue the chunk of ``dset`` (in the file ``file_key`` names) that starts at
+    ``first_row`` (``rows``: all of it, or its first rows, then padded with the dataset's fill
+    value) for compression."""
     n = dset.chunks[0]
     if rows.shape[0] < n:
         rows = np.concatenate([rows, np.full((n - rows.shape[0],) + rows.shape[1:],
@@ -146,7 +147,7 @@ def _submit(dset, first_row: int, rows: np.ndarray, level: int) -> None:
     future = host_pool().submit(_encode, rows, level)
     offset = (first_row,) + (0,) * (rows.ndim - 1)
     with _lock:
-        _pending.append((_file_key(dset), dset, offset, future, rows.nbytes))
+        _pending.append((file_key, dset, offset, future, rows.nbytes))
         _queued[0] += rows.nbytes
 
 
