@@ -1,34 +1,14 @@
 """The ground floor: physical constants, the instrument's nominal geometry and the error type
-that names a bad parameter. Imports nothing of the package, so every module (the Mitsuba
-plugins included) can use it.
+that names a bad parameter. Imports nothing of the package, so every module can use it. The
+constants the Mitsuba plugins share with the pipeline (c, the FWHM factor, the reference
+plate, the nominal geometry, the Ward normalisations) are defined once, on the plugins' side
+(``lidar_mitsuba_plugins.constants``), and re-exported here.
 """
 from __future__ import annotations
 
-import math
-
-C_M_PER_NS = 0.299792458
-"""Speed of light [m/ns]."""
-
-FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
-"""Full width at half maximum of a Gaussian in units of its standard deviation (2.3548)."""
-
-REFERENCE_ALBEDO = 0.9
-"""A flat, horizontal Lambertian plate of this albedo returns weight 1 at nadir: the plate that
-defines ``Instrument.signal_photons``."""
-
-# Nominal ICESat-2 / ATLAS geometry (the paper's values); Instrument and the pathlength plugin
-# both default to these.
-ALTITUDE_M = 496e3
-"""Spacecraft altitude above the scene's z = 0 [m]."""
-FOOTPRINT_DIAMETER_M = 10.0
-"""1/e^2 diameter of the Gaussian footprint on the ground [m] (sigma = diameter / 4)."""
-PULSE_FWHM_NS = 1.0
-"""Full width at half maximum of the Gaussian laser pulse [ns]."""
-FOV_DIAMETER_M = 41.3
-"""Receiver field of view on the ground [m] (83.3 microradians at 496 km)."""
-
-WARD_NORMALIZATIONS = ("ward1992", "duer", "balanced")
-"""Normalisations of the Ward specular lobe (see ``plugins/ward.py`` and :mod:`.brdf`)."""
+from lidar_mitsuba_plugins.constants import (  # noqa: F401 (defined once, with the plugins)
+    ALTITUDE_M, C_M_PER_NS, FOOTPRINT_DIAMETER_M, FOV_DIAMETER_M, FWHM_PER_SIGMA,
+    PULSE_FWHM_NS, REFERENCE_ALBEDO, WARD_NORMALIZATIONS)
 
 
 class ParameterError(ValueError):

@@ -1,48 +1,17 @@
-"""Mitsuba variant selection and registration of our plugins in every variant.
-
-Python plugins subclass variant-specific classes (``mi.BSDF`` differs between ``llvm_ad_mono``
-and ``cuda_ad_mono``), so each plugin file is executed once per variant, under its own module
-name, whenever that variant becomes active.
+"""Mitsuba variant selection for the pipeline. The plugins (``lidar_mitsuba_plugins``, the
+top-level ``plugins/`` folder) register themselves in every variant that becomes active.
 """
 from __future__ import annotations
 
-import gc
-import importlib.util
 import os
-import pathlib
-import sys
 
 import drjit as dr
 import mitsuba as mi
 
+import lidar_mitsuba_plugins
+
 DEFAULT_VARIANT = "llvm_ad_mono"
 SUPPORTED_VARIANTS = ("llvm_ad_mono", "cuda_ad_mono", "llvm_ad_rgb", "cuda_ad_rgb")
-PLUGIN_FILES = ("ward", "pathlength", "volpathlength")
-
-_registered: set[str] = set()
-
-
-def _register_plugins(variant: str | None) -> None:
-    if variant is None or variant.startswith("scalar") or variant in _registered:
-        return
-    plugin_dir = pathlib.Path(__file__).parent / "plugins"
-    for name in PLUGIN_FILES:
-        path = plugin_dir / f"{name}.py"
-        spec = importlib.util.spec_from_file_location(
-            f"lidar_mitsuba.plugins._{variant}_{name}", path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[spec.name] = module   # a later plugin may build on it (volpathlength)
-        spec.loader.exec_module(module)  # registers itself with mi.register_*
-    _registered.add(variant)
-
-
-def _on_variant_change(old: str | None, new: str | None) -> None:
-    # Free what the previous variant left unreachable (Python plugin objects sit in reference
-    # cycles): Dr.Jit's virtual-call registry is shared by the variants of one backend, and a
-    # dead object of another variant still registered there can break the compilation of
-    # this variant's kernels ("invalid redefinition of function").
-    gc.collect()
-    _register_plugins(new)
 
 
 def usable_variants() -> list[str]:
@@ -81,17 +50,18 @@ def set_variant(name: str = DEFAULT_VARIANT) -> str:
         raise ValueError(f"variant {name!r} is not available (choose from {', '.join(usable)})")
     if mi.variant() != name:
         mi.set_variant(name)
-    _register_plugins(name)
+    lidar_mitsuba_plugins.register(name)
     return name
 
 
 def init() -> None:
-    """Called on ``import lidar_mitsuba``: keep plugins registered in whatever variant is active."""
-    mi.detail.add_variant_callback(_on_variant_change)
+    """Called on ``import lidar_mitsuba``: activate ``LIDAR_MITSUBA_VARIANT`` (default
+    ``llvm_ad_mono``) unless a variant is active; the plugins follow every variant (their
+    package's own variant callback)."""
     if mi.variant() is None:
         wanted = os.environ.get("LIDAR_MITSUBA_VARIANT") or DEFAULT_VARIANT
         try:
             set_variant(wanted)
         except ValueError as e:
             raise ImportError(f"LIDAR_MITSUBA_VARIANT: {e}") from None
-    _register_plugins(mi.variant())
+    lidar_mitsuba_plugins.register()

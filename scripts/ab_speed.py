@@ -15,6 +15,7 @@ Cases: strong beam over the p = 1.8 fractal (the bench's end-to-end track), max_
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import pathlib
@@ -57,14 +58,27 @@ def checkout(rev: str) -> pathlib.Path:
     if not path.exists():
         subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(path), sha],
                        check=True, capture_output=True)
-    inside = path / "lidar_mitsuba" / "plugins"
-    if (path / "plugins").is_dir() and not inside.exists():
-        inside.symlink_to(path / "plugins")  # older layout: installed as lidar_mitsuba.plugins
     return path
 
 
+def pythonpath(tree: pathlib.Path) -> str:
+    """``PYTHONPATH`` that imports ``tree``'s packages ahead of the installed ones. Since the
+    plugins moved to the top-level ``plugins/`` folder (installed as ``lidar_mitsuba_plugins``),
+    that name is a link, outside the tree, to the tree's folder; older trees keep them inside
+    ``lidar_mitsuba/plugins``."""
+    paths = [str(tree)]
+    if "lidar_mitsuba_plugins" in (tree / "pyproject.toml").read_text():
+        key = hashlib.sha1(str(tree).encode()).hexdigest()[:12]
+        links = pathlib.Path(tempfile.gettempdir()) / f"lidar_mitsuba_ab_path_{key}"
+        links.mkdir(exist_ok=True)
+        if not (links / "lidar_mitsuba_plugins").exists():
+            (links / "lidar_mitsuba_plugins").symlink_to(tree / "plugins")
+        paths.append(str(links))
+    return os.pathsep.join(paths)
+
+
 def measure(tree: pathlib.Path, beam: str, depth, shots: int) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    env = dict(os.environ, PYTHONPATH=pythonpath(tree))
     out = subprocess.run([sys.executable, "-c", CHILD, beam, str(depth), str(shots)],
                          env=env, cwd=tree, capture_output=True, text=True)
     if out.returncode:

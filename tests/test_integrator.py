@@ -256,7 +256,8 @@ def test_new_terrain_reuses_the_compiled_trace(kind):
 def test_shot_index_without_integer_division_is_exact(divisor):
     """The float64 quotient that gives a lane its shot equals integer division over the whole
     uint32 range it can meet (the lanes of one launch, and the top of the range)."""
-    from lidar_mitsuba.plugins.pathlength import _quotient
+    import lidar_mitsuba_plugins
+    _quotient = lidar_mitsuba_plugins.module("pathlength")._quotient
     i = np.concatenate([np.arange(0, 2 ** 21), np.arange(2 ** 30 - 2 ** 20, 2 ** 30),
                         np.arange(2 ** 32 - 2 ** 20, 2 ** 32)]).astype(np.uint32)
     np.testing.assert_array_equal(_quotient(mi.UInt32(i), divisor).numpy(), i // divisor)

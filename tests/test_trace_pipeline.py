@@ -10,12 +10,14 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import lidar_mitsuba_plugins
 from lidar_mitsuba import _deadtime, chunks, terrain
 from lidar_mitsuba.instrument import Instrument
 from lidar_mitsuba.photons import Returns
-from lidar_mitsuba.plugins import pathlength
 from lidar_mitsuba.scene import scene_from_mesh
 from lidar_mitsuba.surface import heightfield_to_trimesh
+
+pathlength = lidar_mitsuba_plugins.module("pathlength")
 
 
 @pytest.fixture(scope="module")

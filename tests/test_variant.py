@@ -1,4 +1,5 @@
-"""Mitsuba variant selection and plugin registration (lidar_mitsuba.variant).
+"""Mitsuba variant selection (lidar_mitsuba.variant) and plugin registration
+(lidar_mitsuba_plugins).
 
 The conftest activates the session's variant once; tests here that switch variants put it
 back afterwards (the ``restore_variant`` fixture), whatever happens."""
@@ -13,7 +14,7 @@ import mitsuba as mi
 import pytest
 
 import lidar_mitsuba
-from lidar_mitsuba import variant as V
+import lidar_mitsuba_plugins as P
 
 
 @pytest.fixture
@@ -37,7 +38,7 @@ def plugins_load():
 def test_session_variant_is_active_with_plugins(variant):
     assert mi.variant() == variant
     assert lidar_mitsuba.set_variant(variant) == variant       # re-selecting is a no-op
-    assert variant in V._registered
+    assert variant in P._registered
     plugins_load()
 
 
@@ -90,7 +91,7 @@ def test_switching_variants_keeps_plugins_registered_in_each(variant, restore_va
     mono_bsdf_class = mi.BSDF
     mono = plugins_load()
     assert lidar_mitsuba.set_variant("llvm_ad_rgb") == "llvm_ad_rgb"
-    assert mi.variant() == "llvm_ad_rgb" and "llvm_ad_rgb" in V._registered
+    assert mi.variant() == "llvm_ad_rgb" and "llvm_ad_rgb" in P._registered
     rgb = plugins_load()
     assert mi.BSDF is not mono_bsdf_class                       # a different class hierarchy
     assert type(rgb[0]) is not type(mono[0]) and not isinstance(rgb[0], mono_bsdf_class)
@@ -114,12 +115,12 @@ def test_fresh_process_registers_in_the_active_variant_and_on_every_switch():
         import mitsuba as mi
         mi.set_variant("llvm_ad_rgb")
         import lidar_mitsuba
-        from lidar_mitsuba import variant as V
+        import lidar_mitsuba_plugins as P
         assert mi.variant() == "llvm_ad_rgb", mi.variant()
-        assert V._registered == {"llvm_ad_rgb"}, V._registered
+        assert P._registered == {"llvm_ad_rgb"}, P._registered
         mi.load_dict({"type": "ward"}); mi.load_dict({"type": "pathlength"})
         mi.set_variant("llvm_ad_mono")
-        assert V._registered == {"llvm_ad_rgb", "llvm_ad_mono"}, V._registered
+        assert P._registered == {"llvm_ad_rgb", "llvm_ad_mono"}, P._registered
         mi.load_dict({"type": "ward"}); mi.load_dict({"type": "pathlength"})
         print("ok")
     """)

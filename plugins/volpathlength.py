@@ -1,7 +1,7 @@
 """Lidar path-length integrator with a participating medium (``<integrator type="volpathlength">``).
 
-Registered in every JIT variant by ``import lidar_mitsuba`` (after ``pathlength``, on which it
-builds).
+Registered in every JIT variant by ``import lidar_mitsuba_plugins`` (or ``import lidar_mitsuba``),
+after ``pathlength``, on which it builds.
 """
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ import sys
 import drjit as dr
 import mitsuba as mi
 
-from lidar_mitsuba.constants import C_M_PER_NS, REFERENCE_ALBEDO
-from lidar_mitsuba.scene import scene_medium
+from lidar_mitsuba_plugins.constants import C_M_PER_NS, REFERENCE_ALBEDO
+from lidar_mitsuba_plugins.scene_utils import scene_medium
 
-_pathlength = sys.modules[f"lidar_mitsuba.plugins._{mi.variant()}_pathlength"]
+_pathlength = sys.modules[f"lidar_mitsuba_plugins._{mi.variant()}_pathlength"]
 
 
 class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):

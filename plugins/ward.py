@@ -1,6 +1,6 @@
 """Ward BRDF as a Mitsuba 3 BSDF plugin (``<bsdf type="ward">``).
 
-Registered in every JIT variant by ``import lidar_mitsuba``.
+Registered in every JIT variant by ``import lidar_mitsuba_plugins`` (or ``import lidar_mitsuba``).
 """
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from lidar_mitsuba.constants import WARD_NORMALIZATIONS as NORMALIZATIONS
+from lidar_mitsuba_plugins.constants import WARD_NORMALIZATIONS as NORMALIZATIONS
 
 
 def _param_error(name: str, message: str) -> ValueError:

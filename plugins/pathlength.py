@@ -1,6 +1,6 @@
 """Lidar path-length integrator as a Mitsuba 3 integrator plugin (``<integrator type="pathlength">``).
 
-Registered in every JIT variant by ``import lidar_mitsuba``.
+Registered in every JIT variant by ``import lidar_mitsuba_plugins`` (or ``import lidar_mitsuba``).
 """
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from lidar_mitsuba import constants as K
-from lidar_mitsuba.constants import C_M_PER_NS, REFERENCE_ALBEDO
-from lidar_mitsuba.photons import Returns
-from lidar_mitsuba.scene import scene_bounds, scene_medium
+from lidar_mitsuba_plugins import constants as K
+from lidar_mitsuba_plugins.constants import C_M_PER_NS, REFERENCE_ALBEDO
+from lidar_mitsuba_plugins.returns import Returns
+from lidar_mitsuba_plugins.scene_utils import scene_bounds, scene_medium
 
 
 class PathLengthIntegrator(mi.SamplingIntegrator):
@@ -23,7 +23,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
 
     Traces the photons of a nadir-pointing, monostatic, pulsed lidar and records, per photon
     return, its shot, its round-trip time and its radiometric weight. It does not bin, detect or
-    add noise: those are separate steps (``lidar_mitsuba.pmt``).
+    add noise: those are separate steps (in the lidar pipeline, ``lidar_mitsuba.pmt``).
 
     .. pluginparameters::
 
@@ -310,7 +310,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
             progress: optional callable ``progress(n_shots_done)`` called after each chunk.
 
         Returns:
-            :class:`~lidar_mitsuba.photons.Returns`, one entry per photon return of non-zero
+            :class:`~lidar_mitsuba_plugins.returns.Returns`, one entry per photon return of non-zero
             weight (at most ``n_shots * paths_per_shot * max_depth``), sorted by shot:
             ``shot`` (uint32), ``time_ns`` (float64 round-trip time [ns] from the pulse
             centre's emission), ``weight`` (float32), ``x_m``, ``y_m``, ``z_m`` (float32
@@ -329,7 +329,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
 
 class PendingReturns:
     """A trace under way (:meth:`PathLengthIntegrator.launch`); :meth:`result` gives its
-    :class:`~lidar_mitsuba.photons.Returns`. The first integrator chunk is launched at
+    :class:`~lidar_mitsuba_plugins.returns.Returns`. The first integrator chunk is launched at
     creation; later ones are launched and fetched one by one in ``result()``."""
 
     def __init__(self, make, steps, *, n_shots: int, paths_per_shot: int, max_depth: int):

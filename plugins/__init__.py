@@ -1,0 +1,87 @@
+"""Standalone Mitsuba 3 plugins for photon-counting lidar (``lidar_mitsuba_plugins``).
+
+They depend on Mitsuba and Dr.Jit only; the lidar pipeline (``lidar_mitsuba``) builds on
+them, never the other way round.
+
+- ``ward.py``: ``<bsdf type="ward">``, the Ward BRDF (three normalisations, importance
+  sampled, textures as albedo).
+- ``pathlength.py``: ``<integrator type="pathlength">``, the lidar path-length integrator:
+  per photon return, its shot, exact round-trip time and radiometric weight.
+- ``volpathlength.py``: ``<integrator type="volpathlength">``, the same with a participating
+  medium (snow as a volume); it subclasses ``pathlength`` and is loaded after it.
+
+Use from plain Mitsuba::
+
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_mono")
+    import lidar_mitsuba_plugins          # registers ward, pathlength, volpathlength
+    scene = mi.load_file("scene.xml")      # <bsdf type="ward"/>, <integrator type="pathlength"/>
+    image = mi.render(scene)               # a lidar-intensity image
+    returns = scene.integrator().trace(scene, shot_x_m=..., shot_y_m=...)
+
+Python plugins subclass variant-specific classes (``mi.BSDF`` differs between
+``llvm_ad_mono`` and ``cuda_ad_mono``), so each plugin file is executed once per variant,
+under its own module name (``lidar_mitsuba_plugins._<variant>_<name>``), and registers
+itself with ``mi.register_*`` there. Importing this package registers them in the active
+variant and, through a Mitsuba variant callback, in every variant activated later. Scalar
+variants are skipped: the plugins are vectorised.
+
+Shared, variant-independent modules: ``constants`` (c, the FWHM factor, the reference plate,
+the nominal geometry), ``returns`` (the integrators' output record), ``scene_utils`` (scene
+bounds and medium).
+"""
+from __future__ import annotations
+
+import gc
+import importlib.util
+import pathlib
+import sys
+import types
+
+import mitsuba as mi
+
+PLUGIN_FILES = ("ward", "pathlength", "volpathlength")
+"""The plugin files, in load order (``volpathlength`` builds on ``pathlength``)."""
+
+_registered: set[str] = set()
+
+
+def register(variant: str | None = None) -> None:
+    """Execute every plugin file once in ``variant`` (default: the active one), so that
+    ``ward``, ``pathlength`` and ``volpathlength`` can be loaded there. Idempotent; a scalar
+    variant or no variant is skipped."""
+    variant = variant if variant is not None else mi.variant()
+    if variant is None or variant.startswith("scalar") or variant in _registered:
+        return
+    if mi.variant() != variant:
+        raise ValueError(f"register({variant!r}): activate the variant first "
+                         f"(mi.set_variant), the plugins subclass its classes")
+    here = pathlib.Path(__file__).parent
+    for name in PLUGIN_FILES:
+        spec = importlib.util.spec_from_file_location(f"{__name__}._{variant}_{name}",
+                                                      here / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module   # a later plugin may build on it (volpathlength)
+        spec.loader.exec_module(module)   # registers itself with mi.register_*
+    _registered.add(variant)
+
+
+def module(name: str, variant: str | None = None) -> types.ModuleType:
+    """The plugin file ``name`` (``"pathlength"``, ...) as executed in ``variant`` (default:
+    the active one), e.g. to reach its helpers or classes. Registers the plugins first."""
+    variant = variant if variant is not None else mi.variant()
+    register(variant)
+    return sys.modules[f"{__name__}._{variant}_{name}"]
+
+
+def _on_variant_change(old: str | None, new: str | None) -> None:
+    # Free what the previous variant left unreachable (Python plugin objects sit in reference
+    # cycles): Dr.Jit's virtual-call registry is shared by the variants of one backend, and a
+    # dead object of another variant still registered there can break the compilation of
+    # this variant's kernels ("invalid redefinition of function").
+    gc.collect()
+    register(new)
+
+
+mi.detail.add_variant_callback(_on_variant_change)
+register()

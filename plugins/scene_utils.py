@@ -1,0 +1,77 @@
+"""Scene queries the integrators need before tracing: the one participating medium of a scene
+and the scene's bounds from its geometry (Mitsuba merges meshes that share a BSDF and keeps a
+stale box). Shared by ``pathlength`` and ``volpathlength``; ``lidar_mitsuba.scene`` re-exports
+them.
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+
+def scene_medium(scene: mi.Scene):
+    """The one participating medium of a scene (the interior medium of its shapes), or
+    ``None``. Raises ``ValueError`` for more than one medium, a medium that is not
+    ``homogeneous``, or a shape bounding it whose BSDF is not ``null`` (index-matched)."""
+    found = []
+    for shape in scene.shapes():
+        for med in (shape.interior_medium(), shape.exterior_medium()):
+            if med is None:
+                continue
+            if not med.is_homogeneous():
+                raise ValueError(f"shape '{shape.id()}': only homogeneous media are supported "
+                                 f"(got {med.class_name()})")
+            if not mi.has_flag(shape.bsdf().flags(), mi.BSDFFlags.Null):
+                raise ValueError(f"shape '{shape.id()}' bounds a medium: give it "
+                                 f'<bsdf type="null"/> (an index-matched surface)')
+            if not any(med is m for m in found):
+                found.append(med)
+    if len(found) > 1:
+        raise ValueError(f"the scene has {len(found)} media; one (the snow) is supported")
+    return found[0] if found else None
+
+
+def scene_bounds(scene: mi.Scene) -> tuple[np.ndarray, np.ndarray]:
+    """(min, max) corners [m] of the union of the scene's shapes, as float64 (3,) arrays.
+
+    Meshes are bounded by their vertex buffers: when Mitsuba merges meshes that share a BSDF,
+    the merged mesh keeps the bounding box of the first one. Other shapes use ``bbox()``.
+    Raises ``ValueError`` for a scene without shapes, or whose shapes all have non-finite
+    coordinates (e.g. a NaN in a transform).
+    """
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    n_bad = 0
+    for shape in scene.shapes():
+        if shape.is_mesh():
+            if not shape.vertex_count():
+                continue
+            blo, bhi = _vertex_bounds(shape)
+        else:
+            b = shape.bbox()
+            blo = np.array([float(c) for c in b.min])
+            bhi = np.array([float(c) for c in b.max])
+        if np.all(np.isfinite(blo)) and np.all(np.isfinite(bhi)) and np.all(blo <= bhi):
+            lo, hi = np.minimum(lo, blo), np.maximum(hi, bhi)
+        else:
+            n_bad += 1
+    if not np.all(np.isfinite(lo)):
+        if n_bad:
+            raise ValueError(f"the scene's {n_bad} shape(s) have non-finite coordinates "
+                             "(a NaN or inf in a transform or a vertex?)")
+        raise ValueError("the scene has no shapes to trace")
+    return lo, hi
+
+
+def _vertex_bounds(shape) -> tuple[np.ndarray, np.ndarray]:
+    """(min, max) of a mesh's vertices, reduced on the device (only six numbers cross to the
+    host); NaN corners when any vertex is not finite."""
+    p = dr.unravel(mi.Point3f, shape.vertex_positions_buffer())
+    finite = dr.all(dr.isfinite(p.x) & dr.isfinite(p.y) & dr.isfinite(p.z))
+    lo = [dr.min(c) for c in (p.x, p.y, p.z)]
+    hi = [dr.max(c) for c in (p.x, p.y, p.z)]
+    dr.eval(finite, lo, hi)
+    if not bool(finite[0]):
+        return np.full(3, np.nan), np.full(3, np.nan)
+    return np.array([float(c[0]) for c in lo]), np.array([float(c[0]) for c in hi])
