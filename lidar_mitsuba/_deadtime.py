@@ -215,82 +215,145 @@ def _shot_events(s, sig_start, sig_time, sig_anode, sig_index, g0, gate_ns, nois
     return w
 
 
+#: shots per block of :func:`detect_shots` (blocks run in parallel, each reusing its buffers)
+BLOCK_SHOTS = 256
+
+
 @numba.njit(cache=True, nogil=True)
-def _run_shot(s, sig_start, sig_time, sig_anode, sig_index, g0, gate_ns, noise_per_ns, anodes,
-              n_channels, dead_time_ns, paralyzable, seed):
-    mean = noise_per_ns * gate_ns if noise_per_ns > 0 else 0.0
-    cap = (sig_start[s + 1] - sig_start[s]) + int(mean + 8.0 * np.sqrt(mean) + 16.0)
-    while True:
-        t_buf = np.empty(cap, np.float64)
-        a_buf = np.empty(cap, sig_anode.dtype)
-        i_buf = np.empty(cap, sig_index.dtype)
-        r_buf = np.empty(cap, np.bool_)
-        w = _shot_events(s, sig_start, sig_time, sig_anode, sig_index, g0, gate_ns, noise_per_ns,
-                         anodes, n_channels, dead_time_ns, paralyzable, seed,
-                         t_buf, a_buf, i_buf, r_buf)
-        if w >= 0:
-            return w, t_buf, a_buf, i_buf, r_buf
-        cap *= 2
+def _block_events(s0, s1, sig_start, sig_time, sig_anode, sig_index, gate_start, gate_ns,
+                  noise_per_ns, anodes, n_channels, dead_time_ns, paralyzable, seed,
+                  out_shot, out_t, out_a, out_i, o0, o1, noise):
+    """Shots ``s0 .. s1 - 1`` (:func:`_shot_events` each, with one set of buffers grown as a
+    shot needs), their recorded events written to the ``out_*`` arrays from ``o0`` on, never
+    at or past ``o1``; the noise events generated per shot go to ``noise``. Returns the
+    number written, or -1 when ``o1 - o0`` is too small (the caller retries with more)."""
+    cap = 64
+    t_buf = np.empty(cap, np.float64)
+    a_buf = np.empty(cap, sig_anode.dtype)
+    i_buf = np.empty(cap, sig_index.dtype)
+    r_buf = np.empty(cap, np.bool_)
+    o = o0
+    for s in range(s0, s1):
+        rate = noise_per_ns[s]
+        mean = rate * gate_ns if rate > 0 else 0.0
+        need = (sig_start[s + 1] - sig_start[s]) + int(mean + 8.0 * np.sqrt(mean) + 16.0)
+        while True:
+            if need > cap:
+                cap = max(need, 2 * cap)
+                t_buf = np.empty(cap, np.float64)
+                a_buf = np.empty(cap, sig_anode.dtype)
+                i_buf = np.empty(cap, sig_index.dtype)
+                r_buf = np.empty(cap, np.bool_)
+            w = _shot_events(s, sig_start, sig_time, sig_anode, sig_index, gate_start[s],
+                             gate_ns, rate, anodes, n_channels, dead_time_ns, paralyzable, seed,
+                             t_buf, a_buf, i_buf, r_buf)
+            if w >= 0:
+                break
+            need = 2 * cap
+        nz = 0
+        for j in range(w):
+            if i_buf[j] < 0:
+                nz += 1
+            if r_buf[j]:
+                if o >= o1:
+                    return -1
+                out_shot[o] = s
+                out_t[o] = t_buf[j]
+                out_a[o] = a_buf[j]
+                out_i[o] = i_buf[j]
+                o += 1
+        noise[s] = nz
+    return o - o0
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
 def detect_shots(sig_start, sig_time, sig_anode, sig_index, gate_start, gate_ns, noise_per_ns,
-                 anodes, n_channels, dead_time_ns, paralyzable, seed):
+                 anodes, n_channels, dead_time_ns, paralyzable, seed, spare=1):
     """The whole detector stage per shot, in parallel, writing only the recorded events.
 
     For each shot: its signal photons inside the gate, and noise (background photons and dark
-    counts) as a Poisson process of rate ``noise_per_ns`` over the gate, uniform over the
+    counts) as a Poisson process of rate ``noise_per_ns[s]`` over the gate, uniform over the
     anodes (every channel has the same dark rate), in time order; then dead time per channel
     (non-paralyzable or paralyzable). Noise comes from a counter-based RNG keyed by
-    (seed, shot, j), so two passes see the same events: the first counts what each shot
-    records, the second writes it at its final offset. Memory traffic is the input plus the
-    output.
+    (seed, shot, j), so the result does not depend on how shots are split among threads.
+
+    Shots run in blocks of :data:`BLOCK_SHOTS` in parallel, each block reusing one set of
+    buffers and writing its recorded events into a region of a shared array reserved for it
+    (its signal photons plus its expected noise with 10 standard deviations and 64 events to
+    spare); the regions are then packed. A block that would overflow its region (which no
+    run has yet met) makes the whole pass run again with twice the room: the same events
+    (``spare``: the first pass's multiple of that allowance; the tests pass 0 to force a retry).
 
     Args:
         sig_start: (n_shots + 1,) offsets of each shot's signal photons in ``sig_*``.
         sig_time, sig_anode, sig_index: signal photons' time [ns], anode, traced-return index.
         gate_start: (n_shots,) gate opening [ns]; gate_ns: gate length [ns] (inf: no gate, and
             then no noise).
-        noise_per_ns: rate of noise events inside the gate [1/ns].
+        noise_per_ns: (n_shots,) rate of noise events inside each shot's gate [1/ns].
     Returns:
         ``(shot, time_ns, anode, index, noise_per_shot)``: the recorded events by shot then
         time (``index`` -1 for noise), and the noise events generated per shot.
     """
     n_shots = gate_start.size
-    counts = np.zeros(n_shots + 1, np.int64)
+    n_blocks = (n_shots + BLOCK_SHOTS - 1) // BLOCK_SHOTS
+    room = np.zeros(n_blocks + 1, np.int64)
     noise = np.zeros(n_shots, np.int64)
-    for s in numba.prange(n_shots):
-        w, t_buf, a_buf, i_buf, r_buf = _run_shot(
-            s, sig_start, sig_time, sig_anode, sig_index, gate_start[s], gate_ns, noise_per_ns,
-            anodes, n_channels, dead_time_ns, paralyzable, seed)
-        c = 0
-        nz = 0
-        for j in range(w):
-            if r_buf[j]:
-                c += 1
-            if i_buf[j] < 0:
-                nz += 1
-        counts[s + 1] = c
-        noise[s] = nz
-    for s in range(n_shots):
-        counts[s + 1] += counts[s]
-    total = counts[n_shots]
-    shot_out = np.empty(total, np.int64)
-    t_out = np.empty(total, np.float64)
-    a_out = np.empty(total, sig_anode.dtype)
-    i_out = np.empty(total, sig_index.dtype)
-    for s in numba.prange(n_shots):
-        if counts[s + 1] == counts[s]:
-            continue
-        w, t_buf, a_buf, i_buf, r_buf = _run_shot(
-            s, sig_start, sig_time, sig_anode, sig_index, gate_start[s], gate_ns, noise_per_ns,
-            anodes, n_channels, dead_time_ns, paralyzable, seed)
-        o = counts[s]
-        for j in range(w):
-            if r_buf[j]:
-                shot_out[o] = s
-                t_out[o] = t_buf[j]
-                a_out[o] = a_buf[j]
-                i_out[o] = i_buf[j]
-                o += 1
+    used = np.zeros(n_blocks, np.int64)
+    while True:
+        for b in range(n_blocks):
+            s0, s1 = b * BLOCK_SHOTS, min(n_shots, (b + 1) * BLOCK_SHOTS)
+            mean = 0.0
+            for s in range(s0, s1):
+                if noise_per_ns[s] > 0 and gate_ns < np.inf:
+                    mean += noise_per_ns[s] * gate_ns
+            room[b + 1] = room[b] + (sig_start[s1] - sig_start[s0]) + spare * int(
+                mean + 10.0 * np.sqrt(mean) + 64.0)
+        total = room[n_blocks]
+        t_all = np.empty(total, np.float64)
+        s_all = np.empty(total, np.int64)
+        a_all = np.empty(total, sig_anode.dtype)
+        i_all = np.empty(total, sig_index.dtype)
+        for b in numba.prange(n_blocks):
+            used[b] = _block_events(
+                b * BLOCK_SHOTS, min(n_shots, (b + 1) * BLOCK_SHOTS), sig_start, sig_time,
+                sig_anode, sig_index, gate_start, gate_ns, noise_per_ns, anodes, n_channels,
+                dead_time_ns, paralyzable, seed, s_all, t_all, a_all, i_all, room[b],
+                room[b + 1], noise)
+        if n_blocks == 0 or used.min() >= 0:
+            break
+        spare = max(1, 2 * spare)
+    start = np.zeros(n_blocks + 1, np.int64)
+    for b in range(n_blocks):
+        start[b + 1] = start[b] + used[b]
+    n_out = start[n_blocks]
+    shot_out = np.empty(n_out, np.int64)
+    t_out = np.empty(n_out, np.float64)
+    a_out = np.empty(n_out, sig_anode.dtype)
+    i_out = np.empty(n_out, sig_index.dtype)
+    for b in numba.prange(n_blocks):
+        src, dst = room[b], start[b]
+        for j in range(used[b]):
+            shot_out[dst + j] = s_all[src + j]
+            t_out[dst + j] = t_all[src + j]
+            a_out[dst + j] = a_all[src + j]
+            i_out[dst + j] = i_all[src + j]
     return shot_out, t_out, a_out, i_out, noise
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def signal_hits(index, x_m, y_m, z_m):
+    """(n_events, 3) float32 scattering points of the events: ``(x, y, z)[index]`` where
+    ``index >= 0`` (signal), NaN for noise (``index`` -1)."""
+    n = index.size
+    out = np.empty((n, 3), np.float32)
+    for j in numba.prange(n):
+        i = index[j]
+        if i >= 0:
+            out[j, 0] = x_m[i]
+            out[j, 1] = y_m[i]
+            out[j, 2] = z_m[i]
+        else:
+            out[j, 0] = np.nan
+            out[j, 1] = np.nan
+            out[j, 2] = np.nan
+    return out

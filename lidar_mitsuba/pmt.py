@@ -99,7 +99,8 @@ def _mask(group, time_ns, dead_time_ns, *, paralyzable):
     start = np.searchsorted(inverse[order], np.arange(n_groups + 1)).astype(np.int64)
     *_, index, _ = _deadtime.detect_shots(
         start, time_ns[order], np.zeros(group.size, np.int16), order.astype(np.int64),
-        np.full(n_groups, float(time_ns.min())), np.inf, 0.0, 1, 1, float(dead_time_ns),
+        np.full(n_groups, float(time_ns.min())), np.inf, np.zeros(n_groups), 1, 1,
+        float(dead_time_ns),
         paralyzable, 0)
     keep = np.zeros(group.size, bool)
     keep[index] = True
@@ -144,9 +145,9 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
     if gate_center_ns is not None:
         gate_start = np.asarray(gate_center_ns, np.float64) - instrument.range_gate_ns / 2.0
         gate_ns = instrument.range_gate_ns
-        noise_rate = noise_rate_per_ns(instrument)
+        noise_rate = np.full(n_shots, noise_rate_per_ns(instrument))
     else:
-        gate_start, gate_ns, noise_rate = np.zeros(n_shots), np.inf, 0.0
+        gate_start, gate_ns, noise_rate = np.zeros(n_shots), np.inf, np.zeros(n_shots)
     # narrow types: less memory to touch (the stage is memory-bound)
     index_type = np.int32 if len(returns) < 2 ** 31 else np.int64
     shot, time_ns, anode, index, _ = _deadtime.detect_shots(
@@ -154,12 +155,10 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
         idx.astype(index_type), np.nan_to_num(gate_start, nan=np.inf), float(gate_ns), noise_rate,
         instrument.anodes, instrument.channels, float(instrument.effective_dead_time_ns),
         instrument.paralyzable, int(rng.integers(0, 2 ** 62)))
+    hit = _deadtime.signal_hits(index, *(np.asarray(a, np.float32)
+                                         for a in (returns.x_m, returns.y_m, returns.z_m)))
     index = index.astype(np.int64)
-    sig = index >= 0
-    hit = np.full((index.size, 3), np.nan, np.float32)
-    for j, axis in enumerate((returns.x_m, returns.y_m, returns.z_m)):
-        hit[sig, j] = axis[index[sig]]
     return Detections(shot=shot, channel=(anode // instrument.anodes_per_channel).astype(np.int16),
-                      anode=anode, time_ns=time_ns, return_index=index, is_signal=sig,
+                      anode=anode, time_ns=time_ns, return_index=index, is_signal=index >= 0,
                       hit_xyz_m=hit, arrivals_per_shot=counts, mean_photons_per_shot=mu,
                       run_out_shots=np.flatnonzero(run_out).astype(np.int64))

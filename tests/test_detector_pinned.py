@@ -93,3 +93,23 @@ if __name__ == "__main__":          # print the digests of this code
     for c in CASES:
         print(f'    "{c}": "{digest(c)}",')
     sys.exit(0)
+
+
+def test_a_block_that_overflows_its_room_runs_again_with_the_same_events():
+    """``detect_shots`` reserves each block of shots room for its signal and expected noise;
+    with no allowance for noise (``spare=0``) every noisy block overflows and the pass runs
+    again with room to spare: the events must be those of a pass that fitted at once."""
+    from lidar_mitsuba import _deadtime
+    rng = np.random.default_rng(3)
+    n_shots = 2 * _deadtime.BLOCK_SHOTS + 17
+    n_sig = rng.poisson(5.0, n_shots)
+    start = np.concatenate([[0], np.cumsum(n_sig)]).astype(np.int64)
+    t = np.repeat(np.linspace(0.0, 50.0, n_shots), n_sig) + rng.normal(0, 2.0, start[-1])
+    args = (start, t, rng.integers(0, 16, t.size).astype(np.int16),
+            np.arange(t.size, dtype=np.int32), np.full(n_shots, -100.0), 300.0,
+            rng.uniform(0.0, 0.5, n_shots), 16, 4, 3.0, False, 99)
+    fitted = _deadtime.detect_shots(*args, 1)
+    retried = _deadtime.detect_shots(*args, 0)
+    assert fitted[0].size > n_sig.sum()                      # noise was recorded
+    for a, b in zip(fitted, retried):
+        np.testing.assert_array_equal(a, b)
