@@ -165,7 +165,8 @@ class ChunkedRun:
 
 def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndarray,
         seed: int, chunk_shots: int = CHUNK_SHOTS, keep_returns: bool = False,
-        progress: bool = False) -> ChunkedRun:
+        progress: bool = False,
+        detector_inputs: Callable[[int, int], dict] | None = None) -> ChunkedRun:
     """Trace and detect a track in chunks of ``chunk_shots`` shots.
 
     Args:
@@ -178,6 +179,9 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
         chunk_shots: shots per chunk.
         keep_returns: keep every traced return in ``ChunkedRun.returns``.
         progress: show a progress bar on runs longer than ~2 s.
+        detector_inputs: ``detector_inputs(a, b)`` gives ``pmt.detect``'s per-shot keywords
+            (``signal_scale``, ``background_mhz``) for shots ``a`` .. ``b - 1``
+            (:meth:`lidar_mitsuba.radiometry.ShotRadiometry.detector_inputs`), or ``None``.
     """
     n_shots = int(np.asarray(z_ref_m).size)
     if not (isinstance(chunk_shots, (int, np.integer)) and chunk_shots >= 1):
@@ -203,9 +207,10 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
                 k1, a1, b1 = spans[i + 1]
                 pending = launch(a1, b1, trace_seed(seed, k1))
             t1 = time.perf_counter()
+            per_shot = {} if detector_inputs is None else detector_inputs(a, b)
             for name, inst in detectors.items():
                 det = pmt.detect(ret, inst, detector_rng(seed, k),
-                                 gate_center_ns=gates[name][a:b])
+                                 gate_center_ns=gates[name][a:b], **per_shot)
                 parts[name].append((det, a, n_returns))
             if keep_returns:
                 kept.append((ret, a))

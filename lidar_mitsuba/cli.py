@@ -22,7 +22,9 @@ import warnings
 
 from . import cli_options as opts
 from .constants import ParameterError, SimulationWarning
-from .instrument import DEAD_TIME_PRESETS_NS, Instrument
+from .geotrack import Site
+from .instrument import DEAD_TIME_PRESETS_NS, INSTRUMENT_PRESETS, Instrument
+from .radiometry import Atmosphere, LinkBudget
 from .track import Track
 
 PROG = "lidar-mitsuba"
@@ -172,8 +174,18 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(_surface_opts=surface_opts)
     g._group_actions[0].choices = SURFACES
     i = s.add_argument_group("instrument")
+    i.add_argument("--instrument", choices=INSTRUMENT_PRESETS, default="paper",
+                   help="paper: Zhang & Kerekes' instrument, signal and background as given; "
+                   "atlas: ATLAS as flown, signal from its link budget, background from the "
+                   "sun and the air at each shot (README: where each number comes from)")
     s.set_defaults(_instrument_opts=opts.add_options(
-        i, Instrument, types_={"dead_time_ns": _dead_time}))
+        i, Instrument, types_={"dead_time_ns": _dead_time}, skip=("link_budget",)))
+    lb = s.add_argument_group("link budget (--instrument atlas)")
+    s.set_defaults(_link_opts=opts.add_options(
+        lb, LinkBudget, skip=("atmosphere", "solar_background", "laser_backscatter"))
+        + opts.add_options(lb, Atmosphere, only=("aerosol_optical_depth",)))
+    s.set_defaults(_site_opts=opts.add_options(
+        i, Site, only=("lat_deg", "lon_deg"), metavars={"lat_deg": "DEG", "lon_deg": "DEG"}))
     t = s.add_argument_group("track (default: along +x through the middle of the surface)")
     s.set_defaults(_track_opts=opts.add_options(t, Track, metavars={"start_xy_m": ("X", "Y")}))
     d = s.add_argument_group("real terrain and orbit (--dem: a granule of up to six beams)")
@@ -186,8 +198,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="beams to simulate (all)")
     d.add_argument("--sc-orient", type=int, choices=(0, 1), default=0,
                    help="spacecraft orientation: 0 backward (left beams strong), 1 forward")
-    d.add_argument("--epoch", default="2019-06-01T00:00:00Z", metavar="UTC",
-                   help="time of the first shot (ISO 8601 UTC)")
+    d.add_argument("--epoch", default=None, metavar="UTC",
+                   help="time of the first shot (ISO 8601 UTC; default 2019-06-01T00:00:00Z "
+                   "with --dem, 2019-06-21T16:00:00Z at --lat/--lon otherwise)")
     d.add_argument("--roughness-relief-m", type=float, metavar="M",
                    help="add fractal roughness below the DEM's posting with this relief")
     d.add_argument("--roughness-p", type=float, default=1.8, metavar="P",
@@ -330,7 +343,9 @@ def _cmd_simulate(a) -> int:
             raise UsageError("-D", "only applies to --scene")
         if "kind" not in surface_given and "slope_deg" in surface_given:
             surface_given["kind"] = "slope"
-    inst = Instrument(**opts.given(a, a._instrument_opts))
+    inst = _instrument(a)
+    site_opts = opts.given(a, a._site_opts)
+    site = Site(**site_opts, **({} if a.epoch is None else {"epoch_utc": a.epoch}))
     if a.scene is not None and a.snow_grain_um is not None:
         raise UsageError("--snow-grain-um", "does not apply to --scene: put a <medium> inside "
                          "its terrain shape")
@@ -340,7 +355,7 @@ def _cmd_simulate(a) -> int:
                        scene_file=a.scene, params=params or None,
                        track=Track(**opts.given(a, a._track_opts)),
                        progress=not a.no_progress, crop_to_track=not a.full_tile,
-                       snow=_snow(a), **opts.given(a, RUN_OPTIONS))
+                       snow=_snow(a), site=site, **opts.given(a, RUN_OPTIONS))
     inst = res.instrument           # as run (an XML <integrator> may set its geometry)
     for w in res.config["warnings"]:
         sys.stderr.write(f"{PROG} simulate: warning: {w}\n")
@@ -366,6 +381,19 @@ def _cmd_simulate(a) -> int:
                            f"precision {100 * rep.overall.std_m:.1f} cm")
         print(f"wrote {plot}")
     return 0
+
+
+def _instrument(a) -> Instrument:
+    """The instrument of ``simulate``'s options: ``--instrument paper`` (the fields as given)
+    or ``atlas`` (:meth:`Instrument.atlas`, with the given fields and link-budget options)."""
+    given = opts.given(a, a._instrument_opts)
+    link = opts.given(a, a._link_opts)
+    if a.instrument == "atlas":
+        return Instrument.atlas(given.pop("beam", "strong"), **given, **link)
+    if link:
+        raise UsageError(opts.option_name(next(iter(link))),
+                         "only applies with --instrument atlas (a link budget)")
+    return Instrument(**given)
 
 
 def _snow(a):
@@ -452,6 +480,15 @@ def _simulate_dem(a, out, plot) -> int:
     inst_opts = opts.given(a, a._instrument_opts)
     if "beam" in inst_opts:
         raise UsageError("--beam", "does not apply to --dem: use --beams")
+    site_opts = opts.given(a, a._site_opts)
+    if site_opts:
+        raise UsageError(opts.option_name(next(iter(site_opts))), "does not apply to --dem "
+                         "(--track places the shots on the Earth)")
+    link = opts.given(a, a._link_opts)
+    if link and a.instrument != "atlas":
+        raise UsageError(opts.option_name(next(iter(link))),
+                         "only applies with --instrument atlas (a link budget)")
+    inst_opts.update(link)
     run = opts.given(a, RUN_OPTIONS)
     dem = dems.DEM.open(a.dem)
     rough = None
@@ -460,14 +497,16 @@ def _simulate_dem(a, out, plot) -> int:
                                posting_m=dem.posting_m, grid_m=a.mesh_grid_m or 1.0,
                                seed=run.get("seed", 0))
     surface = dems.DEMSurface(dem, roughness=rough, mesh_grid_m=a.mesh_grid_m)
-    track = geotrack.GeoTrack.parse(a.track, epoch_utc=a.epoch)
+    track = geotrack.GeoTrack.parse(a.track, **({} if a.epoch is None else
+                                               {"epoch_utc": a.epoch}))
     beams = geotrack.select_beams(a.beams, a.sc_orient)
     shots = run.pop("shots", 1000)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SimulationWarning)
         summaries = granule.stream_granule(
             surface=surface, track=track, beams=beams, sc_orient=a.sc_orient,
-            instrument_options=inst_opts, progress=not a.no_progress, shots=shots,
+            instrument_options=inst_opts, instrument=a.instrument,
+            progress=not a.no_progress, shots=shots,
             atl03_path=out, atl06_path=atl06_out, snow=_snow(a), **run)
     for sm in summaries:
         for w in sm.config["warnings"]:

@@ -22,7 +22,8 @@ def option_name(name: str) -> str:
 
 
 #: API names whose option is spelled differently
-RENAMED = {"kind": "--surface", "scene": "--scene", "scene_file": "--scene", "params": "-D"}
+RENAMED = {"kind": "--surface", "scene": "--scene", "scene_file": "--scene", "params": "-D",
+           "lat_deg": "--lat", "lon_deg": "--lon"}
 
 
 def doc_entries(obj) -> dict[str, str]:

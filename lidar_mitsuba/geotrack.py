@@ -237,6 +237,87 @@ def beam_shots(lat_deg, lon_deg, azimuth_deg, beam: Beam) -> tuple[np.ndarray, n
 
 
 @dataclass(frozen=True)
+class Geolocation:
+    """Where and when each shot was: its footprint centre on the WGS84 ellipsoid and its
+    transmit time. Every array has shape (n_shots,), float64.
+
+    Attributes:
+        lat_deg, lon_deg: footprint centre [deg].
+        azimuth_deg: direction of travel [deg clockwise from north].
+        delta_time_s: transmit time [s since 2018-01-01T00:00:00Z, the ATLAS SDP epoch].
+    """
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    azimuth_deg: np.ndarray
+    delta_time_s: np.ndarray
+
+    def select(self, index) -> "Geolocation":
+        """The shots at ``index`` (a slice, mask or indices)."""
+        return Geolocation(*(np.asarray(a)[index] for a in (
+            self.lat_deg, self.lon_deg, self.azimuth_deg, self.delta_time_s)))
+
+
+#: where and when a built-in surface or XML scene lies by default: the paper's ATM profile in
+#: northern Greenland (76 deg 46' 48" N, 66 deg 12' W; Zhang & Kerekes, Fig. 2) at 16:00 UTC on
+#: the June solstice, local noon there (the sun 37 deg high)
+DEFAULT_SITE = {"lat_deg": 76.78, "lon_deg": -66.2, "epoch_utc": "2019-06-21T16:00:00Z"}
+
+
+@dataclass(frozen=True)
+class Site:
+    """Where and when a scene lies on the Earth, for runs on built-in surfaces and Mitsuba
+    scenes: its origin (x = y = 0) is at ``lat_deg``, ``lon_deg``, x points east, y north and
+    z up from the ellipsoid, and the first shot fires at ``epoch_utc``. Photons then get
+    latitudes, longitudes and times, and the sun a position (``--instrument atlas``'s solar
+    background).
+
+    Attributes:
+        lat_deg, lon_deg: the scene origin [deg] (default: the paper's site in northern
+            Greenland, 76.78 N, 66.2 W).
+        epoch_utc: time of the first shot, ISO 8601 UTC (default 2019-06-21T16:00:00Z: local
+            noon there, the sun 37 deg high).
+    """
+    lat_deg: float = DEFAULT_SITE["lat_deg"]
+    lon_deg: float = DEFAULT_SITE["lon_deg"]
+    epoch_utc: str = DEFAULT_SITE["epoch_utc"]
+
+    def __post_init__(self):
+        check("lat", self.lat_deg, isinstance(self.lat_deg, (int, float))
+              and math.isfinite(self.lat_deg) and abs(self.lat_deg) < 90,
+              "must be a latitude in (-90, 90) degrees")
+        check("lon", self.lon_deg, isinstance(self.lon_deg, (int, float))
+              and math.isfinite(self.lon_deg), "must be a finite longitude in degrees")
+        parse_utc(self.epoch_utc)
+
+    def geolocation(self, x_m: np.ndarray, y_m: np.ndarray, *, prf_hz: float,
+                    first: int = 0) -> Geolocation:
+        """Shots at scene positions ``x_m``, ``y_m`` [m] ((n_shots,) each), fired at the PRF
+        from ``epoch_utc``: latitudes and longitudes through the azimuthal equidistant
+        projection centred on the origin (exact distances and bearings from it: a track
+        kilometres long keeps its shape to millimetres), and the direction of travel from
+        shot to shot (the projection's north at a single shot)."""
+        from pyproj import Transformer
+        aeqd = (f"+proj=aeqd +lat_0={self.lat_deg!r} +lon_0={self.lon_deg!r} +x_0=0 +y_0=0 "
+                "+ellps=WGS84 +units=m")
+        to_lonlat = Transformer.from_crs(aeqd, "EPSG:4326", always_xy=True)
+        x = np.asarray(x_m, np.float64)
+        y = np.asarray(y_m, np.float64)
+        lon, lat = (np.asarray(a) for a in to_lonlat.transform(x, y))
+        if x.size > 1:
+            az, _, _ = _geod().inv(lon[:-1], lat[:-1], lon[1:], lat[1:])
+            az = np.mod(np.append(az, az[-1]), 360.0)
+        else:
+            az = np.zeros(x.size)
+        return Geolocation(lat_deg=lat, lon_deg=np.mod(lon + 180.0, 360.0) - 180.0,
+                           azimuth_deg=np.asarray(az, np.float64),
+                           delta_time_s=delta_time_s(self.epoch_utc, x.size, prf_hz=prf_hz,
+                                                     first=first))
+
+    def to_dict(self) -> dict:
+        return {"lat_deg": self.lat_deg, "lon_deg": self.lon_deg, "epoch_utc": self.epoch_utc}
+
+
+@dataclass(frozen=True)
 class ProjectedTrack:
     """Precomputed shot positions in a surface's frame, in the shape
     :func:`~lidar_mitsuba.simulate.simulate` takes as ``track``.
@@ -245,11 +326,14 @@ class ProjectedTrack:
         x_m, y_m: (n_shots,) footprint centres in the simulation frame [m].
         along_m: (n_shots,) distance along the track from the first shot [m].
         info: a JSON-serialisable description (recorded in the output).
+        geolocation: the shots on the Earth (latitude, longitude, direction, time), or
+            ``None`` (then ``simulate`` places them with its ``site``).
     """
     x_m: np.ndarray
     y_m: np.ndarray
     along_m: np.ndarray
     info: dict
+    geolocation: Geolocation | None = None
 
     def positions(self, n_shots: int, *, spacing_m: float, centre_xy_m=None):
         if n_shots != self.x_m.size:

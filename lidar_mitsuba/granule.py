@@ -51,10 +51,10 @@ import numpy as np
 
 from . import __version__, atl03, atl06, geotrack, h5chunks
 from .atl03 import _ds, atomic_h5file
-from .constants import FWHM_PER_SIGMA, ParameterError
+from .constants import FWHM_PER_SIGMA, ParameterError, check
 from .dem import DEMSurface
 from .geotrack import Beam, GeoTrack
-from .instrument import Instrument
+from .instrument import INSTRUMENT_PRESETS, Instrument
 
 SEGMENT_M = 20.0            #: ATL03 geolocation segment length [m]
 PULSES_PER_MAJOR_FRAME = 200
@@ -105,9 +105,10 @@ class Granule:
 
 def simulate_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                      beams: str | list[Beam] = "all", sc_orient: int = 0,
-                     instrument_options: dict | None = None, seed: int = 0,
-                     paths_per_shot: int | str = "auto", max_depth: int | str = "auto",
-                     progress: bool = True, **simulate_options) -> Granule:
+                     instrument_options: dict | None = None, instrument: str = "paper",
+                     seed: int = 0, paths_per_shot: int | str = "auto",
+                     max_depth: int | str = "auto", progress: bool = True,
+                     **simulate_options) -> Granule:
     """Simulate ``shots`` shots of each of ``beams`` along ``track`` over a DEM.
 
     Args:
@@ -118,13 +119,16 @@ def simulate_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
         sc_orient: 0 backward (left beams strong), 1 forward.
         instrument_options: :class:`~lidar_mitsuba.instrument.Instrument` fields shared by the
             beams (``beam`` is set per beam: strong beams carry four times the weak ones' energy).
+        instrument: ``"paper"`` (Zhang & Kerekes' instrument, ``Instrument(**options)``) or
+            ``"atlas"`` (ATLAS as flown, ``Instrument.atlas(beam, **options)``: signal and
+            background from its link budget).
         seed: the granule's seed; each beam runs with its own stream.
         paths_per_shot, max_depth, progress, simulate_options: as
             :func:`~lidar_mitsuba.simulate.simulate`.
     """
     if isinstance(beams, str):
         beams = geotrack.select_beams(beams, sc_orient)
-    ctx = _Context(surface, track, instrument_options)
+    ctx = _Context(surface, track, instrument_options, instrument)
     runs = [ctx.beam_run(beam, 0, shots, seed=_beam_seed(seed, beam), progress=progress,
                          paths_per_shot=paths_per_shot, max_depth=max_depth, **simulate_options)
             for beam in _beam_bar(beams, progress)]
@@ -142,12 +146,16 @@ class _Context:
     """What every beam and section of a granule shares: the surface in a frame near the
     track's start, the CRS transform, the instrument options."""
 
-    def __init__(self, surface: DEMSurface, track: GeoTrack, instrument_options: dict | None):
+    def __init__(self, surface: DEMSurface, track: GeoTrack, instrument_options: dict | None,
+                 preset: str = "paper"):
         from pyproj import Transformer
         self.opts = dict(instrument_options or {})
         if "beam" in self.opts:
             raise ParameterError("beam", "is set per beam in a granule (use beams=)")
-        self.base = Instrument(**self.opts)
+        check("instrument", preset, preset in INSTRUMENT_PRESETS,
+              f"must be one of {', '.join(INSTRUMENT_PRESETS)}")
+        self.preset = preset
+        self.base = self.instrument(None)
         self.track = track
         self.to_crs = Transformer.from_crs("EPSG:4326", surface.dem.crs, always_xy=True)
         lat0, lon0, _, _ = track.shots(1, spacing_m=self.base.shot_spacing_m)
@@ -155,8 +163,12 @@ class _Context:
         self.origin = (float(np.round(x0[0], -3)), float(np.round(y0[0], -3)))
         self.surface = replace(surface, origin_m=self.origin)
 
-    def instrument(self, beam: Beam) -> Instrument:
-        return Instrument(**self.opts, beam=beam.strength)
+    def instrument(self, beam: Beam | None) -> Instrument:
+        """The instrument of ``beam`` (``None``: a strong beam, for what all beams share)."""
+        strength = "strong" if beam is None else beam.strength
+        if self.preset == "atlas":
+            return Instrument.atlas(strength, **self.opts)
+        return Instrument(**self.opts, beam=strength)
 
     def beam_run(self, beam: Beam, first: int, n: int, *, seed: int, **simulate_kw) -> BeamRun:
         """Simulate shots ``first`` .. ``first + n - 1`` of ``beam``."""
@@ -168,24 +180,28 @@ class _Context:
         if not (np.isfinite(x).all() and np.isfinite(y).all()):
             raise ParameterError("track", f"{beam.name}: the track leaves the DEM's projection "
                                  f"({self.surface.dem.crs.to_string()})")
+        times = geotrack.delta_time_s(self.track.epoch_utc, n, prf_hz=self.base.prf_hz,
+                                      first=first)
+        geo = geotrack.Geolocation(lat_deg=np.asarray(lat), lon_deg=np.asarray(lon),
+                                   azimuth_deg=np.asarray(az0), delta_time_s=times)
         ptrack = geotrack.ProjectedTrack(
             x_m=np.asarray(x) - self.origin[0], y_m=np.asarray(y) - self.origin[1],
             along_m=along, info={"reference_track": self.track.to_dict(), "beam": beam.name,
-                                 "across_m": beam.across_m, "first_shot": int(first)})
+                                 "across_m": beam.across_m, "first_shot": int(first)},
+            geolocation=geo)
         try:
             res = simulate(instrument=self.instrument(beam), surface=self.surface, track=ptrack,
                            shots=n, seed=seed, **{"keep_returns": False, **simulate_kw})
         except ParameterError as e:
             raise ParameterError(e.name, f"{beam.name}: {e.message}") from None
-        times = geotrack.delta_time_s(self.track.epoch_utc, n, prf_hz=self.base.prf_hz,
-                                      first=first)
-        return BeamRun(beam=beam, result=res, lat_deg=np.asarray(lat), lon_deg=np.asarray(lon),
-                       azimuth_deg=az0, delta_time_s=times, first_shot=int(first))
+        return BeamRun(beam=beam, result=res, lat_deg=geo.lat_deg, lon_deg=geo.lon_deg,
+                       azimuth_deg=geo.azimuth_deg, delta_time_s=times, first_shot=int(first))
 
     def config(self, *, shots, seed, sc_orient, beams, **extra) -> dict:
         return {"shots": int(shots), "seed": int(seed), "sc_orient": int(sc_orient),
                 "beams": [b.name for b in beams], "track": self.track.to_dict(),
-                "surface": self.surface.config(), "instrument_options": self.opts, **extra}
+                "surface": self.surface.config(), "instrument": self.preset,
+                "instrument_options": self.opts, **extra}
 
 
 def _beam_bar(beams, progress):
@@ -642,8 +658,9 @@ class _SegmentStream:
 def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                    atl03_path: str | os.PathLike, atl06_path: str | os.PathLike | None = None,
                    beams: str | list[Beam] = "all", sc_orient: int = 0,
-                   instrument_options: dict | None = None, seed: int = 0,
-                   paths_per_shot: int | str = "auto", max_depth: int | str = "auto",
+                   instrument_options: dict | None = None, instrument: str = "paper",
+                   seed: int = 0, paths_per_shot: int | str = "auto",
+                   max_depth: int | str = "auto",
                    progress: bool = True, section_shots: int = SECTION_SHOTS,
                    segment_options: dict | None = None, **simulate_options
                    ) -> list[BeamSummary]:
@@ -661,7 +678,7 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
         beams = geotrack.select_beams(beams, sc_orient)
     if not (isinstance(section_shots, (int, np.integer)) and section_shots >= 1):
         raise ParameterError("section_shots", f"must be an integer >= 1 (got {section_shots!r})")
-    ctx = _Context(surface, track, instrument_options)
+    ctx = _Context(surface, track, instrument_options, instrument)
     spacing = ctx.base.shot_spacing_m
     bounds = section_bounds(shots, spacing_m=spacing, section_shots=int(section_shots))
     times = geotrack.delta_time_s(track.epoch_utc, 1, prf_hz=ctx.base.prf_hz)

@@ -7,6 +7,10 @@ a 16-anode PMT read as 16 channels (strong beam, 8.17 signal photons per shot) o
 
 Field names match the CLI options (``dead_time_ns`` is ``--dead-time-ns``), and every
 out-of-range value raises :class:`~lidar_mitsuba.constants.ParameterError` naming the field.
+
+:meth:`Instrument.atlas` is ATLAS as flown (``--instrument atlas``): every parameter from the
+mission's documents or its data (:data:`ATLAS`, with sources), the signal level from the lidar
+equation and the background per shot from the sun and the air (:mod:`.radiometry`).
 """
 from __future__ import annotations
 
@@ -19,7 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import constants as K
-from .constants import C_M_PER_NS, FWHM_PER_SIGMA, check as _check
+from .constants import C_M_PER_NS, FWHM_PER_SIGMA, ParameterError, check as _check
+from .radiometry import LinkBudget
 
 
 @dataclass(frozen=True)
@@ -68,6 +73,12 @@ class Instrument:
             detector counts, so only dead time acts on them.
         range_gate_m: height window recorded around each shot's reference surface [m]
             (``z_ref +- range_gate_m / 2``); photons outside it, signal or noise, are not seen.
+        link_budget: the transmitter, receiver optics and sky
+            (:class:`~lidar_mitsuba.radiometry.LinkBudget`) from which ``signal_photons``
+            follows (the lidar equation at nadir, sea level, ``altitude_m`` range) and, in a
+            run, each shot's signal (its range and air) and background (the sun where it is,
+            the air's backscatter); ``None`` (the paper's instrument): the signal is
+            ``signal_photons`` and the background ``background_mhz``, as given.
     """
     beam: str = field(default="strong", metadata={"choices": ("strong", "weak")})
     signal_photons: float | None = field(default=None,
@@ -89,11 +100,17 @@ class Instrument:
     background_mhz: float = 0.0
     dark_count_hz: float = 0.0
     range_gate_m: float = 30.0
+    link_budget: LinkBudget | None = None
 
     def __post_init__(self):
+        if isinstance(self.link_budget, dict):             # from a run's config (JSON)
+            object.__setattr__(self, "link_budget", LinkBudget(**self.link_budget))
         _check_types(self)
         _check("beam", self.beam, self.beam in BEAMS, f"must be one of {', '.join(BEAMS)}")
         preset = BEAMS[self.beam]
+        if self.link_budget is not None and self.signal_photons is None:
+            object.__setattr__(self, "signal_photons", float(self.link_budget.signal_photons(
+                wavelength_nm=self.wavelength_nm, range_m=self.altitude_m)))
         if self.signal_photons is None:
             object.__setattr__(self, "signal_photons", preset.signal_photons)
         if self.channels is None:
@@ -170,8 +187,33 @@ class Instrument:
         return 0.0 if self.ideal_detector else self.dead_time_ns
 
     def replace(self, **changes) -> "Instrument":
-        """A copy with some fields changed (validated again)."""
+        """A copy with some fields changed (validated again; with a link budget,
+        ``signal_photons`` follows it again unless given)."""
+        if self.link_budget is not None and "signal_photons" not in changes:
+            changes["signal_photons"] = None
         return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def atlas(cls, beam: str = "strong", **changes) -> "Instrument":
+        """ATLAS as flown (:data:`ATLAS`, each value with its source): the beam's pulse energy,
+        pulse, footprint, field of view, detector and dark counts, a link budget for its
+        signal and background. ``changes``: fields of the instrument, of its
+        :class:`~lidar_mitsuba.radiometry.LinkBudget` (``pulse_energy_uj``, ...) or of the
+        :class:`~lidar_mitsuba.radiometry.Atmosphere` (``aerosol_optical_depth``, ...) to
+        set otherwise."""
+        from .radiometry import Atmosphere
+        _check("beam", beam, beam in BEAMS, f"must be one of {', '.join(BEAMS)}")
+        budget_fields = {f.name for f in dataclasses.fields(LinkBudget)} - {"atmosphere"}
+        air_fields = {f.name for f in dataclasses.fields(Atmosphere)}
+        budget = {k: changes.pop(k) for k in list(changes) if k in budget_fields}
+        air = {k: changes.pop(k) for k in list(changes) if k in air_fields}
+        if "signal_photons" in changes or "background_mhz" in changes:
+            name = "signal_photons" if "signal_photons" in changes else "background_mhz"
+            raise ParameterError(name, "follows from the link budget with the ATLAS instrument: "
+                                 "set its pulse energy, receiver transmission, ... instead")
+        link = LinkBudget(pulse_energy_uj=ATLAS_PULSE_ENERGY_UJ[beam],
+                          atmosphere=Atmosphere(**air), **budget)
+        return cls(beam=beam, link_budget=link, **{**ATLAS, **changes})
 
     def integrator_dict(self, *, max_depth: int = 1, max_lanes: int = 2 ** 23) -> dict:
         """Mitsuba dict of the ``pathlength`` integrator for this instrument."""
@@ -184,6 +226,47 @@ class Instrument:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+INSTRUMENT_PRESETS = ("paper", "atlas")
+"""``--instrument``: Zhang & Kerekes' instrument (signal and background given) or ATLAS as
+flown (:meth:`Instrument.atlas`)."""
+
+ATLAS_PULSE_ENERGY_UJ: dict[str, float] = {"weak": 27.65, "strong": 4 * 27.65}
+"""Transmitted energy per pulse of one beam [uJ]. Weak: the laser energy monitor's per-beam
+reading in a real ATL03 granule (``geolocation/tx_pulse_energy``, gt1l, 14 Oct 2018: 27.30 to
+27.65 uJ; ``tests/data/``). Strong: four times the weak beam, ATLAS's design ratio (the
+strong beam "approximately four times brighter": read-ICESat-2's documentation; ATL07's
+weak-beam thresholds are the strong ones / 4); ESTIMATE for the flown strong energy."""
+
+ATLAS: dict = {
+    # pulse: Brunt, Neumann & Larsen 2019 (The Cryosphere 13, 579): "<2 ns" pulses; ATL03's
+    # start-pulse detector measures 1.50 ns between its lower threshold crossings (0.40 ns at
+    # the upper): a 1.5 ns FWHM Gaussian (ESTIMATE: the thresholds' levels are not given)
+    "pulse_fwhm_ns": 1.5,
+    # footprint: 10.9 +- 1.2 m measured with corner-cube retroreflectors (Magruder et al.
+    # 2021, Earth and Space Science, doi:10.1029/2020EA001414), taken as the 1/e^2 diameter
+    "footprint_diameter_m": 10.9,
+    # receiver field of view on the ground: 45 m (NASA ICESat-2 science specifications page;
+    # the pre-launch 83.3 urad of Zhang & Kerekes is 41.3 m at 496 km)
+    "fov_diameter_m": 45.0,
+    # 16 anodes; strong beam 16 channels, weak beam 4 (groups of 4 anodes; Zhang & Kerekes;
+    # ATL03's ph_id_channel: 20 channels per PCE, the real weak beam uses 4)
+    "anodes": 16,
+    # photon detection efficiency of the PMT at 532 nm: ESTIMATE 0.2 (no flown value found);
+    # fill factor 0.8 as in Zhang & Kerekes. With receiver_transmission 0.5 the receiver keeps
+    # 8 % of the light the telescope collects
+    "pde": 0.2,
+    "fill_factor": 0.8,
+    # dead time: ATLAS's ~3.2 ns (the "atlas" preset; Zhang & Kerekes: "typically 3 ns")
+    "dead_time_ns": DEAD_TIME_PRESETS_NS["atlas"],
+    # dark counts per channel: ESTIMATE 100 Hz; the quietest night background of the real
+    # weak beam (599 Hz over its 4 channels, tests/data) bounds them at ~150 Hz
+    "dark_count_hz": 100.0,
+}
+"""ATLAS as flown, the fields :meth:`Instrument.atlas` sets (besides the beam and its link
+budget), with their sources; 532 nm, 10 kHz, 0.7 m and 496 km are the paper's and ATLAS's
+alike."""
 
 
 def _check_types(obj) -> None:

@@ -25,7 +25,7 @@ from .photons import Detections, Returns
 
 def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths_per_shot: int,
                     signal_photons: float, rng: np.random.Generator, exchangeable: bool = False,
-                    keep_probability: float = 1.0
+                    keep_probability: float = 1.0, signal_scale: np.ndarray | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Poisson photon arrivals per shot, each a distinct traced return drawn by weight.
 
@@ -49,6 +49,7 @@ def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths
             traces: one return per iid path), so no shuffle is needed. Multi-bounce traces put
             a path's returns side by side and must leave this False.
         keep_probability: probability that an arriving photon is kept (fill factor x PDE).
+        signal_scale: (n_shots,) factor on ``signal_photons`` per shot, or ``None``.
 
     Returns:
         ``(return_index, mu, counts, run_out)``: (n_kept,) index of the chosen return per kept
@@ -62,6 +63,8 @@ def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths
     if not ordered:
         raise ValueError("returns must be sorted by shot")
     mu = signal_photons * w_sum / paths_per_shot
+    if signal_scale is not None:
+        mu = mu * np.asarray(signal_scale, np.float64)
     counts = rng.poisson(mu)
     kept = rng.binomial(counts, keep_probability) if keep_probability < 1 else counts
     if kept.sum() == 0:
@@ -107,16 +110,19 @@ def _mask(group, time_ns, dead_time_ns, *, paralyzable):
     return keep
 
 
-def noise_rate_per_ns(instrument: Instrument) -> float:
+def noise_rate_per_ns(instrument: Instrument, background_mhz=None):
     """Rate of noise events inside the range gate [1/ns]: background photons reaching the
-    detector (``background_mhz``) thinned by fill factor and PDE, plus the dark counts of every
-    channel (``dark_count_hz``, not thinned). Both are Poisson processes, and so is their sum."""
-    return (instrument.background_mhz * 1e-3 * instrument.fill_factor * instrument.pde
+    detector (``background_mhz``: the instrument's, or (n_shots,) per shot [MHz]) thinned by
+    fill factor and PDE, plus the dark counts of every channel (``dark_count_hz``, not
+    thinned). Both are Poisson processes, and so is their sum."""
+    bg = instrument.background_mhz if background_mhz is None else background_mhz
+    return (np.asarray(bg) * 1e-3 * instrument.fill_factor * instrument.pde
             + instrument.dark_count_hz * 1e-9 * instrument.channels)
 
 
 def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *,
-           gate_center_ns: np.ndarray | None = None) -> Detections:
+           gate_center_ns: np.ndarray | None = None, signal_scale: np.ndarray | None = None,
+           background_mhz: np.ndarray | None = None) -> Detections:
     """Turn traced returns into detected photon events, with noise and the range gate.
 
     Args:
@@ -127,17 +133,21 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
         gate_center_ns: (n_shots,) round-trip time of each shot's reference surface [ns]; the
             gate is ``gate_center_ns +- range_gate_ns / 2``. ``None``: no gate (then the
             instrument must have no noise).
+        signal_scale: (n_shots,) factor on ``signal_photons`` per shot (a link budget's range
+            and air at each shot: :mod:`lidar_mitsuba.radiometry`); ``None``: 1.
+        background_mhz: (n_shots,) background reaching the detector per shot [MHz] instead of
+            the instrument's ``background_mhz``.
     """
     n_shots = int(returns.n_shots)
-    bg_mean, dc_mean = instrument.noise_per_shot
-    if gate_center_ns is None and (bg_mean > 0 or dc_mean > 0):
+    noise_rate = noise_rate_per_ns(instrument, background_mhz)
+    if gate_center_ns is None and np.any(noise_rate > 0):
         raise ValueError("noise needs a range gate: pass gate_center_ns")
     # fill factor then PDE: two independent thinnings, i.e. one with probability ff * pde
     idx, mu, counts, run_out = sample_arrivals(
         returns.shot, returns.weight, n_shots=n_shots,
         paths_per_shot=int(returns.paths_per_shot),
         signal_photons=float(instrument.signal_photons), rng=rng,
-        exchangeable=returns.single_bounce,
+        exchangeable=returns.single_bounce, signal_scale=signal_scale,
         keep_probability=instrument.fill_factor * instrument.pde)
     anode = rng.integers(0, instrument.anodes, idx.size)
     shot_sig = np.asarray(returns.shot, np.int64)[idx]
@@ -145,7 +155,8 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
     if gate_center_ns is not None:
         gate_start = np.asarray(gate_center_ns, np.float64) - instrument.range_gate_ns / 2.0
         gate_ns = instrument.range_gate_ns
-        noise_rate = np.full(n_shots, noise_rate_per_ns(instrument))
+        noise_rate = np.ascontiguousarray(np.broadcast_to(np.asarray(noise_rate, np.float64),
+                                                          (n_shots,)))
     else:
         gate_start, gate_ns, noise_rate = np.zeros(n_shots), np.inf, np.zeros(n_shots)
     # narrow types: less memory to touch (the stage is memory-bound)

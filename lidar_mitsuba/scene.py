@@ -133,6 +133,43 @@ def cast_down(scene: mi.Scene, x_m, y_m) -> tuple[np.ndarray, np.ndarray]:
             nz.numpy().astype(np.float64).reshape(shape))
 
 
+def sunlit_albedo(scene: mi.Scene, x_m, y_m, *, solar_elevation_deg: float,
+                  solar_azimuth_deg: float = 180.0, samples: int = 4096) -> float:
+    """The directional-hemispherical albedo of the surfaces under (x_m, y_m) [m] for light
+    from the sun (elevation and azimuth [deg], azimuth clockwise from north, y north, x east):
+    the mean of the BSDF's sampled weight for that incident direction (Monte Carlo over
+    ``samples`` directions at each point, fixed seed; a Lambertian BSDF gives its albedo
+    exactly), averaged over the points a vertical ray hits. The solar background treats the
+    surface as Lambertian with this albedo. NaN when no ray hits a reflecting surface (e.g. a
+    snow volume's index-matched boundary)."""
+    z, _ = cast_down(scene, x_m, y_m)
+    x = np.asarray(x_m, np.float32).ravel()[np.isfinite(z.ravel())]
+    y = np.asarray(y_m, np.float32).ravel()[np.isfinite(z.ravel())]
+    if x.size == 0:
+        return float("nan")
+    el = math.radians(max(float(solar_elevation_deg), 1.0))   # at night: the sun's low angle
+    az = math.radians(float(solar_azimuth_deg))
+    sun = mi.Vector3f(math.cos(el) * math.sin(az), math.cos(el) * math.cos(az), math.sin(el))
+    n = x.size * int(samples)
+    top = float(scene_bounds(scene)[1][2]) + 1.0
+    ray = mi.Ray3f(mi.Point3f(mi.Float(np.repeat(x, samples)), mi.Float(np.repeat(y, samples)),
+                              top), mi.Vector3f(0, 0, -1))
+    si = scene.ray_intersect(ray)
+    si.wi = si.to_local(sun)
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(12345, n)
+    bsdf = si.bsdf()
+    reflecting = si.is_valid() & ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null)
+    _, weight = bsdf.sample(mi.BSDFContext(), si, sampler.next_1d(), sampler.next_2d(),
+                            reflecting)
+    w = dr.select(reflecting & (si.wi.z > 0), weight[0], 0.0)
+    hits = dr.count(reflecting)
+    dr.eval(w, hits)
+    if int(hits[0]) == 0:
+        return float("nan")
+    return float(dr.sum(w)[0]) / int(hits[0])
+
+
 def cast_heights_m(scene: mi.Scene, x_m, y_m) -> np.ndarray:
     """Height [m] of the first surface below each (x, y) (NaN where a vertical ray misses).
 

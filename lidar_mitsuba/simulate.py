@@ -24,14 +24,15 @@ from dataclasses import dataclass, field
 import mitsuba as mi
 import numpy as np
 
-from . import (bounce_pilot, chunks, classify, path_budget, retrieval, scene as scn,
-               surface as surfaces)
+from . import (bounce_pilot, chunks, classify, path_budget, radiometry, retrieval,
+               scene as scn, surface as surfaces)
 from .constants import FWHM_PER_SIGMA, ParameterError, SimulationWarning
 from .instrument import Instrument
 from .photons import Detections, Returns
 from .snow import SnowVolume, medium_events_cap
 from .resources import check_memory
 from .surface import SceneSurface, SurfaceSpec
+from .geotrack import Geolocation, Site
 from .track import Track, spread_shots
 from .variant import set_variant
 
@@ -56,6 +57,12 @@ class SimulationResult:
         returns: the traced returns (:class:`~lidar_mitsuba.photons.Returns`, global shot
             indices), or ``None`` when not kept (``keep_returns``).
         timings_s: wall time of each stage [s].
+        geolocation: each shot on the Earth (:class:`~lidar_mitsuba.geotrack.Geolocation`:
+            latitude, longitude, direction of travel, time): the track's own (a DEM
+            granule's) or the scene placed at the run's ``site``.
+        radiometry: each shot's signal scale, background and sun
+            (:class:`~lidar_mitsuba.radiometry.ShotRadiometry`) when the instrument has a link
+            budget (``Instrument.atlas()``), else ``None``.
     """
     instrument: Instrument
     config: dict
@@ -69,6 +76,8 @@ class SimulationResult:
     signal_conf: np.ndarray
     returns: Returns | None
     timings_s: dict = field(default_factory=dict)
+    geolocation: Geolocation | None = None
+    radiometry: radiometry.ShotRadiometry | None = None
 
     @property
     def n_shots(self) -> int:
@@ -208,7 +217,8 @@ def simulate(*, instrument: Instrument | None = None,
              paths_per_shot: int | str = "auto", max_depth: int | str = "auto",
              track: Track | None = None, variant: str | None = None, progress: bool = True,
              chunk_shots: int = chunks.CHUNK_SHOTS, keep_returns: bool | None = None,
-             crop_to_track: bool = True, snow: SnowVolume | None = None) -> SimulationResult:
+             crop_to_track: bool = True, snow: SnowVolume | None = None,
+             site: Site | None = None) -> SimulationResult:
     """Simulate ``shots`` laser shots along a ground track and detect their photons.
 
     Args:
@@ -252,6 +262,11 @@ def simulate(*, instrument: Instrument | None = None,
             (:func:`lidar_mitsuba.snow.snow_from_grains`), traced by the ``volpathlength``
             integrator instead of the surface BSDF (off by default). An XML scene gets its
             snow from a ``<medium>`` inside its terrain shape instead.
+        site: where on the Earth and when the scene lies
+            (:class:`~lidar_mitsuba.geotrack.Site`; default: the paper's site in northern
+            Greenland at local noon on the June solstice): photon latitudes, longitudes and
+            times, and the sun of an instrument with a link budget. A track with its own
+            geolocation (a DEM granule's) ignores it.
 
     Raises:
         ParameterError: a bad value, named (``.name``), before anything is traced.
@@ -369,6 +384,16 @@ def simulate(*, instrument: Instrument | None = None,
     if keep_returns is None:
         keep_returns = shots * paths_per_shot * (1 if volume else max_depth) <= 2 ** 24
     gate_z = chunks.gate_heights_m(z_ref)
+    geoloc = getattr(track, "geolocation", None)
+    if geoloc is None:
+        site = site or Site()
+        geoloc = site.geolocation(x, y, prf_hz=instrument.prf_hz)
+    rad = None
+    if instrument.link_budget is not None:
+        t1 = time.perf_counter()
+        rad = _shot_radiometry(instrument, geoloc, gate_z, scene=scene_, x_m=x_loc, y_m=y_loc,
+                               snow=snow)
+        timings["radiometry_s"] = time.perf_counter() - t1
     if surf.streamed:
         source = chunks.CorridorSource(integrator, surf, x_m=x, y_m=y,
                                        paths_per_shot=int(paths_per_shot), reach_m=reach,
@@ -391,7 +416,8 @@ def simulate(*, instrument: Instrument | None = None,
     run = chunks.run(
         source=source,
         detectors={"run": instrument}, z_ref_m=z_ref, seed=seed, chunk_shots=chunk_shots,
-        keep_returns=keep_returns, progress=progress)
+        keep_returns=keep_returns, progress=progress,
+        detector_inputs=None if rad is None else rad.detector_inputs)
     timings.update(run.timings_s)
     det = run.detections["run"]
     t3 = time.perf_counter()
@@ -419,11 +445,34 @@ def simulate(*, instrument: Instrument | None = None,
               "max_depth": int(max_depth), "bounce_pilot": pilot, "variant": mi.variant(),
               "scene_integrator": honoured, "choices": choices, "warnings": warns,
               "snow": snow.config() if snow is not None else None,
-              "integrator": integrator_dict["type"]}
+              "integrator": integrator_dict["type"],
+              "site": None if getattr(track, "geolocation", None) is not None
+              else (site or Site()).to_dict(),
+              "radiometry": None if rad is None else rad.summary()}
     return SimulationResult(instrument=instrument, config=config, along_track_m=along,
                             shot_x_m=x, shot_y_m=y, surface_z_m=surface_z, z_ref_m=z_ref,
                             detections=det, h_m=h, signal_conf=conf, returns=run.returns,
-                            timings_s=timings)
+                            timings_s=timings, geolocation=geoloc, radiometry=rad)
+
+
+def _shot_radiometry(instrument: Instrument, geoloc: Geolocation, z_m: np.ndarray, *, scene,
+                     x_m, y_m, snow) -> radiometry.ShotRadiometry:
+    """Each shot's signal scale and background (:func:`radiometry.shot_radiometry`): the sun
+    where and when the shot is, the surface's albedo for sunlight from its own BSDF (a snow
+    volume: diffusion theory's albedo), the air above the surface height ``z_m``."""
+    elev, azim = radiometry.solar_angles(geoloc.lat_deg, geoloc.lon_deg, geoloc.delta_time_s)
+    if snow is not None:
+        albedo = float(snow.diffusion().total_reflectance())
+    else:
+        pick = spread_shots(np.size(x_m), 5)
+        albedo = scn.sunlit_albedo(scene, np.asarray(x_m)[pick], np.asarray(y_m)[pick],
+                                   solar_elevation_deg=float(np.median(elev)),
+                                   solar_azimuth_deg=float(np.median(azim)))
+        if not np.isfinite(albedo):       # an XML scene's medium, or no surface in reach
+            albedo = radiometry.DEFAULT_ALBEDO
+    return radiometry.shot_radiometry(instrument, delta_time_s=geoloc.delta_time_s, z_m=z_m,
+                                      albedo=albedo, solar_elevation_deg=elev,
+                                      solar_azimuth_deg=azim)
 
 
 def _scout(integrator, scene, x_m, y_m, instrument: Instrument, *,
