@@ -174,10 +174,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(_surface_opts=surface_opts)
     g._group_actions[0].choices = SURFACES
     i = s.add_argument_group("instrument")
-    i.add_argument("--instrument", choices=INSTRUMENT_PRESETS, default="paper",
-                   help="paper: Zhang & Kerekes' instrument, signal and background as given; "
-                   "atlas: ATLAS as flown, signal from its link budget, background from the "
-                   "sun and the air at each shot (README: where each number comes from)")
+    i.add_argument("--instrument", choices=INSTRUMENT_PRESETS, default=None,
+                   help="paper (default; atlas with --like): Zhang & Kerekes' instrument, "
+                   "signal and background as given; atlas: ATLAS as flown, signal from its "
+                   "link budget, background from the sun and the air at each shot (README: "
+                   "where each number comes from)")
     s.set_defaults(_instrument_opts=opts.add_options(
         i, Instrument, types_={"dead_time_ns": _dead_time}, skip=("link_budget",)))
     lb = s.add_argument_group("link budget (--instrument atlas)")
@@ -191,6 +192,10 @@ def build_parser() -> argparse.ArgumentParser:
     d = s.add_argument_group("real terrain and orbit (--dem: a granule of up to six beams)")
     d.add_argument("--dem", metavar="FILE.tif", help="GeoTIFF DEM in a projected CRS (metres); "
                    "the track streams over it in corridor tiles")
+    d.add_argument("--like", metavar="ATL03.h5",
+                   help="simulate a real ATL03 granule's twin: its beams, orientation, ground "
+                   "tracks, times and sun, over --dem or a built-in surface (flat by default, "
+                   "the spacecraft at the real range); --shots caps each beam's pulses")
     d.add_argument("--track", metavar="LAT,LON,AZIMUTH|FILE",
                    help="reference ground track: first shot and azimuth [deg, clockwise from "
                    "north], or a file of lat, lon rows (a polyline)")
@@ -292,6 +297,18 @@ def build_parser() -> argparse.ArgumentParser:
                     help="along-track profile to fit p on (Fig. 3): .npy of shape (n, 2) or a "
                     "two-column text file, distance [m] and height [m]")
 
+    va = sub.add_parser("validate", help="compare the simulator with real ATLAS data and "
+                        "published validation", description="Simulate the twin of a real "
+                        "ATL03 subset (weak beam, night, sea ice; shipped in lidar_mitsuba/data) "
+                        "with ATLAS as flown and compare photon rates, background and spread; "
+                        "run ATLAS over interior snow and compare ATL06 bias and precision with "
+                        "the published ground validation. Writes report.md, report.json and "
+                        "figures.")
+    va.add_argument("--out", required=True, metavar="DIR",
+                    help="folder for report.md, report.json and the PNGs (created if missing)")
+    va.add_argument("--quick", action="store_true",
+                    help="fewer interior shots (what the tests run)")
+
     _add_sweep_parser(sub)
 
     t = sub.add_parser("terrain", help="fractal terrain by Fourier synthesis (.npy or .ply)",
@@ -321,6 +338,8 @@ def _cmd_simulate(a) -> int:
     plot = _out_path(a.plot, (".png",), "--plot") if a.plot else None
     dem_only = {"--track": a.track, "--atl06": a.atl06,
                 "--roughness-relief-m": a.roughness_relief_m}
+    if a.like is not None:
+        return _simulate_like(a, out, plot)
     if a.dem is not None:
         return _simulate_dem(a, out, plot)
     for flag, value in dem_only.items():
@@ -388,7 +407,7 @@ def _instrument(a) -> Instrument:
     or ``atlas`` (:meth:`Instrument.atlas`, with the given fields and link-budget options)."""
     given = opts.given(a, a._instrument_opts)
     link = opts.given(a, a._link_opts)
-    if a.instrument == "atlas":
+    if (a.instrument or "paper") == "atlas":
         return Instrument.atlas(given.pop("beam", "strong"), **given, **link)
     if link:
         raise UsageError(opts.option_name(next(iter(link))),
@@ -466,7 +485,7 @@ def _finite(obj):
 
 def _simulate_dem(a, out, plot) -> int:
     """``simulate --dem``: a granule of up to six beams along a ground track."""
-    from . import dem as dems, geotrack, granule
+    from . import geotrack, granule
     atl06_out = _out_path(a.atl06, (".h5", ".hdf5"), "--atl06") if a.atl06 else None
     if a.scene is not None:
         raise UsageError("--scene", "give --dem or --scene, not both")
@@ -478,6 +497,7 @@ def _simulate_dem(a, out, plot) -> int:
     if a.track is None:
         raise UsageError("--track", "is required with --dem (LAT,LON,AZIMUTH or a file)")
     inst_opts = opts.given(a, a._instrument_opts)
+    run = opts.given(a, RUN_OPTIONS)
     if "beam" in inst_opts:
         raise UsageError("--beam", "does not apply to --dem: use --beams")
     site_opts = opts.given(a, a._site_opts)
@@ -489,14 +509,7 @@ def _simulate_dem(a, out, plot) -> int:
         raise UsageError(opts.option_name(next(iter(link))),
                          "only applies with --instrument atlas (a link budget)")
     inst_opts.update(link)
-    run = opts.given(a, RUN_OPTIONS)
-    dem = dems.DEM.open(a.dem)
-    rough = None
-    if a.roughness_relief_m is not None:
-        rough = dems.roughness(p=a.roughness_p, relief_m=a.roughness_relief_m,
-                               posting_m=dem.posting_m, grid_m=a.mesh_grid_m or 1.0,
-                               seed=run.get("seed", 0))
-    surface = dems.DEMSurface(dem, roughness=rough, mesh_grid_m=a.mesh_grid_m)
+    surface = _dem_surface(a, run.get("seed", 0))
     track = geotrack.GeoTrack.parse(a.track, **({} if a.epoch is None else
                                                {"epoch_utc": a.epoch}))
     beams = geotrack.select_beams(a.beams, a.sc_orient)
@@ -505,14 +518,30 @@ def _simulate_dem(a, out, plot) -> int:
         warnings.simplefilter("ignore", SimulationWarning)
         summaries = granule.stream_granule(
             surface=surface, track=track, beams=beams, sc_orient=a.sc_orient,
-            instrument_options=inst_opts, instrument=a.instrument,
+            instrument_options=inst_opts, instrument=a.instrument or "paper",
             progress=not a.no_progress, shots=shots,
             atl03_path=out, atl06_path=atl06_out, snow=_snow(a), **run)
+    where = f"{surface.dem.path.name} ({surface.dem.crs.to_string()})"
+    print(f"{len(summaries)} beam(s), {shots} shots each ({shots * 0.7e-3:.1f} km), over {where}")
+    return _granule_report(a, summaries, out, atl06_out, plot)
+
+
+def _dem_surface(a, seed: int):
+    """``--dem``'s surface, with ``--roughness-*`` and ``--mesh-grid-m``."""
+    from . import dem as dems
+    dem = dems.DEM.open(a.dem)
+    rough = None
+    if a.roughness_relief_m is not None:
+        rough = dems.roughness(p=a.roughness_p, relief_m=a.roughness_relief_m,
+                               posting_m=dem.posting_m, grid_m=a.mesh_grid_m or 1.0, seed=seed)
+    return dems.DEMSurface(dem, roughness=rough, mesh_grid_m=a.mesh_grid_m)
+
+
+def _granule_report(a, summaries, out, atl06_out, plot) -> int:
+    """Print a granule's per-beam bias and precision (and ``--explain``); draw ``--plot``."""
     for sm in summaries:
         for w in sm.config["warnings"]:
             sys.stderr.write(f"{PROG} simulate: warning: {sm.beam.name}: {w}\n")
-    print(f"{len(summaries)} beam(s), {shots} shots each ({shots * 0.7e-3:.1f} km), over "
-          f"{dem.path.name} ({dem.crs.to_string()})")
     print(f"  {'beam':5} {'spot':>4} {'type':6} {'signal':>9} {'bias [cm]':>14} "
           f"{'precision [cm]':>14}")
     for sm in summaries:
@@ -530,6 +559,70 @@ def _simulate_dem(a, out, plot) -> int:
         granule_clouds(out, plot)
         print(f"wrote {plot}")
     return 0
+
+
+def _simulate_like(a, out, plot) -> int:
+    """``simulate --like REAL.h5``: the twin of a real granule over ``--dem`` or a built-in
+    surface (:mod:`lidar_mitsuba.twin`)."""
+    from . import granule, twin
+    from .surface import SurfaceSpec
+    atl06_out = _out_path(a.atl06, (".h5", ".hdf5"), "--atl06") if a.atl06 else None
+    for flag, value in (("--track", a.track), ("--scene", a.scene), ("--epoch", a.epoch),
+                        ("-D", a.define)):
+        if value:
+            raise UsageError(flag, "does not apply to --like (the real granule sets the "
+                             "shots, their times and places)")
+    for name in list(opts.given(a, a._track_opts)) + list(opts.given(a, a._site_opts)):
+        raise UsageError(opts.option_name(name), "does not apply to --like")
+    if a.sc_orient != 0:
+        raise UsageError("--sc-orient", "does not apply to --like (the file's orientation)")
+    inst_opts = opts.given(a, a._instrument_opts)
+    if "beam" in inst_opts:
+        raise UsageError("--beam", "does not apply to --like: use --beams")
+    preset = a.instrument or "atlas"
+    link = opts.given(a, a._link_opts)
+    if link and preset != "atlas":
+        raise UsageError(opts.option_name(next(iter(link))),
+                         "only applies with --instrument atlas (a link budget)")
+    inst_opts.update(link)
+    run = opts.given(a, RUN_OPTIONS)
+    shots = run.pop("shots", None)
+    real = twin.read(a.like)
+    beams = real.select_beams(a.beams)
+    # the spacecraft at the real range to the surface (a DEM: at the real altitude above it)
+    inst_opts.setdefault("altitude_m", real.median_range_m() if a.dem is None
+                         else real.median_altitude_m())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SimulationWarning)
+        if a.dem is not None:
+            summaries = granule.stream_granule(
+                surface=_dem_surface(a, run.get("seed", 0)), track=real, beams=beams,
+                sc_orient=real.sc_orient, instrument_options=inst_opts, instrument=preset,
+                progress=not a.no_progress, shots=shots, atl03_path=out,
+                atl06_path=atl06_out, snow=_snow(a), **run)
+        else:
+            surface_given = opts.given(a, a._surface_opts)
+            if "kind" not in surface_given and "slope_deg" in surface_given:
+                surface_given["kind"] = "slope"
+            surface_given.setdefault("kind", "flat")
+            g = twin.simulate_over_surface(
+                real, surface=SurfaceSpec(**surface_given), beams=",".join(b.name for b in beams),
+                shots=shots, instrument=preset, instrument_options=inst_opts,
+                progress=not a.no_progress, snow=_snow(a), **run)
+            granule.write_atl03(g, out)
+            if atl06_out is not None:
+                granule.write_atl06(g, atl06_out)
+            summaries = []
+            for r in g.beams:
+                sm = granule.BeamSummary(beam=r.beam)
+                sm.add(r.result)
+                summaries.append(sm)
+    n = {b.beam.name: b.n_shots for b in real.beams}
+    print(f"the twin of {real.path.name}: {len(summaries)} beam(s) "
+          f"({', '.join(f'{sm.beam.name} {sm.shots} shots' for sm in summaries)} of "
+          f"{', '.join(f'{k} {v}' for k, v in n.items())}), {preset} instrument, over "
+          + (a.dem if a.dem else f"a {surface_given['kind']} surface"))
+    return _granule_report(a, summaries, out, atl06_out, plot)
 
 
 def _cmd_segments(a) -> int:
@@ -615,6 +708,15 @@ def _cmd_terrain(a) -> int:
             tmp.unlink()
     print(f"wrote {out} ({hf.z_m.shape[0]}x{hf.z_m.shape[1]} grid, {hf.grid_m} m, "
           f"relief {hf.relief_m:.3f} m, p {kw.arguments['p']:g}, seed {kw.arguments['seed']})")
+    return 0
+
+
+def _cmd_validate(a) -> int:
+    out = _out_dir(a.out)
+    from .studies import validate
+    doc = validate.run(out, quick=a.quick)
+    print(validate.format_summary(doc))
+    print(f"wrote {out / 'report.md'}, {out / 'report.json'} and {len(validate.PNG)} figures")
     return 0
 
 
@@ -735,7 +837,8 @@ def main(argv: list[str] | None = None) -> int:
         try:
             return {"simulate": _cmd_simulate, "stats": _cmd_stats, "segments": _cmd_segments,
                     "bench": _cmd_bench, "terrain": _cmd_terrain, "make-dem": _cmd_make_dem,
-                    "reproduce": _cmd_reproduce, "sweep": _cmd_sweep}[args.command](args)
+                    "reproduce": _cmd_reproduce, "sweep": _cmd_sweep,
+                    "validate": _cmd_validate}[args.command](args)
         except ParameterError as e:
             raise UsageError(opts.option_name(e.name), e.message) from None
     except UsageError as e:

@@ -218,6 +218,31 @@ class GeoTrack:
         az = np.mod(np.asarray(back) + 180.0, 360.0)        # forward azimuth at each shot
         return np.asarray(lat), np.asarray(lon), az, along
 
+    def beam_geolocation(self, beam: "Beam", first: int, n_shots: int, *, spacing_m: float,
+                         prf_hz: float) -> tuple["Geolocation", np.ndarray]:
+        """Shots ``first`` .. ``first + n_shots - 1`` of ``beam``: their
+        :class:`Geolocation` (the reference track's shots moved across track to the beam,
+        fired at ``prf_hz`` from ``epoch_utc``) and their along-track distance [m]."""
+        lat0, lon0, az0, along = self.shots(n_shots, spacing_m=spacing_m, first=first)
+        lat, lon = beam_shots(lat0, lon0, az0, beam)
+        times = delta_time_s(self.epoch_utc, n_shots, prf_hz=prf_hz, first=first)
+        return Geolocation(lat_deg=np.asarray(lat), lon_deg=np.asarray(lon),
+                           azimuth_deg=np.asarray(az0), delta_time_s=times), along
+
+    def beam_shot_count(self, beam: "Beam", shots: int) -> int:
+        """Shots of ``beam`` in a granule of ``shots`` shots per beam: ``shots``."""
+        return int(shots)
+
+    def start_lat_lon(self, *, spacing_m: float) -> tuple[float, float]:
+        """The first shot of the reference track [deg]."""
+        lat0, lon0, _, _ = self.shots(1, spacing_m=spacing_m)
+        return float(lat0[0]), float(lon0[0])
+
+    def time_span_s(self, shots: int, *, prf_hz: float) -> tuple[float, float]:
+        """First and last shot times [s since the SDP epoch] of ``shots`` shots."""
+        t0 = float(delta_time_s(self.epoch_utc, 1, prf_hz=prf_hz)[0])
+        return t0, t0 + (shots - 1) / prf_hz
+
     def to_dict(self) -> dict:
         return {"start_lat_deg": self.start_lat_deg, "start_lon_deg": self.start_lon_deg,
                 "azimuth_deg": self.azimuth_deg,
@@ -245,16 +270,22 @@ class Geolocation:
         lat_deg, lon_deg: footprint centre [deg].
         azimuth_deg: direction of travel [deg clockwise from north].
         delta_time_s: transmit time [s since 2018-01-01T00:00:00Z, the ATLAS SDP epoch].
+        solar_elevation_deg, solar_azimuth_deg: the sun at the footprint [deg] where known
+            (a real granule's, :mod:`lidar_mitsuba.twin`), else ``None`` (computed when needed:
+            :func:`lidar_mitsuba.radiometry.solar_angles`).
     """
     lat_deg: np.ndarray
     lon_deg: np.ndarray
     azimuth_deg: np.ndarray
     delta_time_s: np.ndarray
+    solar_elevation_deg: np.ndarray | None = None
+    solar_azimuth_deg: np.ndarray | None = None
 
     def select(self, index) -> "Geolocation":
         """The shots at ``index`` (a slice, mask or indices)."""
-        return Geolocation(*(np.asarray(a)[index] for a in (
-            self.lat_deg, self.lon_deg, self.azimuth_deg, self.delta_time_s)))
+        return Geolocation(*(None if a is None else np.asarray(a)[index] for a in (
+            self.lat_deg, self.lon_deg, self.azimuth_deg, self.delta_time_s,
+            self.solar_elevation_deg, self.solar_azimuth_deg)))
 
 
 #: where and when a built-in surface or XML scene lies by default: the paper's ATM profile in
@@ -276,10 +307,14 @@ class Site:
             Greenland, 76.78 N, 66.2 W).
         epoch_utc: time of the first shot, ISO 8601 UTC (default 2019-06-21T16:00:00Z: local
             noon there, the sun 37 deg high).
+        height_m: height of the scene's z = 0 above sea level [m] (default 0): the air above
+            the surface that attenuates and scatters (``--instrument atlas``); heights in the
+            output stay the scene's.
     """
     lat_deg: float = DEFAULT_SITE["lat_deg"]
     lon_deg: float = DEFAULT_SITE["lon_deg"]
     epoch_utc: str = DEFAULT_SITE["epoch_utc"]
+    height_m: float = 0.0
 
     def __post_init__(self):
         check("lat", self.lat_deg, isinstance(self.lat_deg, (int, float))
@@ -288,6 +323,8 @@ class Site:
         check("lon", self.lon_deg, isinstance(self.lon_deg, (int, float))
               and math.isfinite(self.lon_deg), "must be a finite longitude in degrees")
         parse_utc(self.epoch_utc)
+        check("height_m", self.height_m, isinstance(self.height_m, (int, float))
+              and -500 <= self.height_m <= 9000, "must be a height in [-500, 9000] m")
 
     def geolocation(self, x_m: np.ndarray, y_m: np.ndarray, *, prf_hz: float,
                     first: int = 0) -> Geolocation:
@@ -297,8 +334,8 @@ class Site:
         kilometres long keeps its shape to millimetres), and the direction of travel from
         shot to shot (the projection's north at a single shot)."""
         from pyproj import Transformer
-        aeqd = (f"+proj=aeqd +lat_0={self.lat_deg!r} +lon_0={self.lon_deg!r} +x_0=0 +y_0=0 "
-                "+ellps=WGS84 +units=m")
+        aeqd = (f"+proj=aeqd +lat_0={float(self.lat_deg)!r} +lon_0={float(self.lon_deg)!r} "
+                "+x_0=0 +y_0=0 +ellps=WGS84 +units=m")
         to_lonlat = Transformer.from_crs(aeqd, "EPSG:4326", always_xy=True)
         x = np.asarray(x_m, np.float64)
         y = np.asarray(y_m, np.float64)
@@ -314,7 +351,8 @@ class Site:
                                                      first=first))
 
     def to_dict(self) -> dict:
-        return {"lat_deg": self.lat_deg, "lon_deg": self.lon_deg, "epoch_utc": self.epoch_utc}
+        return {"lat_deg": self.lat_deg, "lon_deg": self.lon_deg, "epoch_utc": self.epoch_utc,
+                "height_m": self.height_m}
 
 
 @dataclass(frozen=True)

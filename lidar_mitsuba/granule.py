@@ -113,8 +113,9 @@ def simulate_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
 
     Args:
         surface: the DEM surface (its ``origin_m`` is set here, near the track's start).
-        track: the reference ground track.
-        shots: shots per beam.
+        track: the reference ground track (:class:`~lidar_mitsuba.geotrack.GeoTrack`), or a
+            real granule's shots (:class:`~lidar_mitsuba.twin.TwinGranule`: its twin).
+        shots: shots per beam (a twin: at most that many of each beam's, ``None``: all).
         beams: ``"all"``, ``"strong"``, ``"weak"``, names (``"gt1l,gt2l"``) or a list of beams.
         sc_orient: 0 backward (left beams strong), 1 forward.
         instrument_options: :class:`~lidar_mitsuba.instrument.Instrument` fields shared by the
@@ -129,7 +130,8 @@ def simulate_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     if isinstance(beams, str):
         beams = geotrack.select_beams(beams, sc_orient)
     ctx = _Context(surface, track, instrument_options, instrument)
-    runs = [ctx.beam_run(beam, 0, shots, seed=_beam_seed(seed, beam), progress=progress,
+    runs = [ctx.beam_run(beam, 0, track.beam_shot_count(beam, shots),
+                         seed=_beam_seed(seed, beam), progress=progress,
                          paths_per_shot=paths_per_shot, max_depth=max_depth, **simulate_options)
             for beam in _beam_bar(beams, progress)]
     return Granule(beams=runs, sc_orient=int(sc_orient), crs=ctx.surface.dem.crs.to_string(),
@@ -158,9 +160,9 @@ class _Context:
         self.base = self.instrument(None)
         self.track = track
         self.to_crs = Transformer.from_crs("EPSG:4326", surface.dem.crs, always_xy=True)
-        lat0, lon0, _, _ = track.shots(1, spacing_m=self.base.shot_spacing_m)
+        lat0, lon0 = track.start_lat_lon(spacing_m=self.base.shot_spacing_m)
         x0, y0 = self.to_crs.transform(lon0, lat0)
-        self.origin = (float(np.round(x0[0], -3)), float(np.round(y0[0], -3)))
+        self.origin = (float(np.round(x0, -3)), float(np.round(y0, -3)))
         self.surface = replace(surface, origin_m=self.origin)
 
     def instrument(self, beam: Beam | None) -> Instrument:
@@ -173,17 +175,13 @@ class _Context:
     def beam_run(self, beam: Beam, first: int, n: int, *, seed: int, **simulate_kw) -> BeamRun:
         """Simulate shots ``first`` .. ``first + n - 1`` of ``beam``."""
         from .simulate import simulate
-        spacing = self.base.shot_spacing_m
-        lat0, lon0, az0, along = self.track.shots(n, spacing_m=spacing, first=first)
-        lat, lon = geotrack.beam_shots(lat0, lon0, az0, beam)
-        x, y = self.to_crs.transform(lon, lat)
+        geo, along = self.track.beam_geolocation(beam, first, n,
+                                                 spacing_m=self.base.shot_spacing_m,
+                                                 prf_hz=self.base.prf_hz)
+        x, y = self.to_crs.transform(geo.lon_deg, geo.lat_deg)
         if not (np.isfinite(x).all() and np.isfinite(y).all()):
             raise ParameterError("track", f"{beam.name}: the track leaves the DEM's projection "
                                  f"({self.surface.dem.crs.to_string()})")
-        times = geotrack.delta_time_s(self.track.epoch_utc, n, prf_hz=self.base.prf_hz,
-                                      first=first)
-        geo = geotrack.Geolocation(lat_deg=np.asarray(lat), lon_deg=np.asarray(lon),
-                                   azimuth_deg=np.asarray(az0), delta_time_s=times)
         ptrack = geotrack.ProjectedTrack(
             x_m=np.asarray(x) - self.origin[0], y_m=np.asarray(y) - self.origin[1],
             along_m=along, info={"reference_track": self.track.to_dict(), "beam": beam.name,
@@ -195,7 +193,8 @@ class _Context:
         except ParameterError as e:
             raise ParameterError(e.name, f"{beam.name}: {e.message}") from None
         return BeamRun(beam=beam, result=res, lat_deg=geo.lat_deg, lon_deg=geo.lon_deg,
-                       azimuth_deg=geo.azimuth_deg, delta_time_s=times, first_shot=int(first))
+                       azimuth_deg=geo.azimuth_deg, delta_time_s=geo.delta_time_s,
+                       first_shot=int(first))
 
     def config(self, *, shots, seed, sc_orient, beams, **extra) -> dict:
         return {"shots": int(shots), "seed": int(seed), "sc_orient": int(sc_orient),
@@ -585,11 +584,15 @@ class BeamSummary:
         return self.std_m / np.sqrt(self.photons) if self.photons > 1 else float("nan")
 
 
-def section_bounds(n_shots: int, *, spacing_m: float, section_shots: int
-                   ) -> list[tuple[int, int]]:
+def section_bounds(n_shots: int, *, spacing_m: float, section_shots: int,
+                   along_m: np.ndarray | None = None) -> list[tuple[int, int]]:
     """``[(first, stop), ...]`` shot ranges of about ``section_shots`` shots, each starting
-    on the first shot of a 20 m geolocation segment (so sections hold whole segments)."""
-    seg = lambda i: int(np.floor(i * spacing_m / SEGMENT_M))    # noqa: E731 (as _segments)
+    on the first shot of a 20 m geolocation segment (so sections hold whole segments); shots
+    are ``spacing_m`` apart along the track, or at ``along_m`` [m] ((n_shots,)) when given."""
+    if along_m is None:
+        seg = lambda i: int(np.floor(i * spacing_m / SEGMENT_M))    # noqa: E731 (as _segments)
+    else:
+        seg = lambda i: int(np.floor(along_m[i] / SEGMENT_M))      # noqa: E731
     cuts = [0]
     i = section_shots
     while i < n_shots:
@@ -602,6 +605,14 @@ def section_bounds(n_shots: int, *, spacing_m: float, section_shots: int
         i += section_shots
     cuts.append(n_shots)
     return list(zip(cuts[:-1], cuts[1:]))
+
+
+def _along_of(track, beam: Beam, n_shots: int, spacing_m: float) -> np.ndarray | None:
+    """A reference track's along-track distances of ``beam``'s shots when they are not
+    ``spacing_m`` apart (a real granule's twin), else ``None``."""
+    if isinstance(track, GeoTrack):
+        return None
+    return track.beam_geolocation(beam, 0, n_shots)[1]
 
 
 class _SegmentStream:
@@ -680,26 +691,30 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
         raise ParameterError("section_shots", f"must be an integer >= 1 (got {section_shots!r})")
     ctx = _Context(surface, track, instrument_options, instrument)
     spacing = ctx.base.shot_spacing_m
-    bounds = section_bounds(shots, spacing_m=spacing, section_shots=int(section_shots))
-    times = geotrack.delta_time_s(track.epoch_utc, 1, prf_hz=ctx.base.prf_hz)
-    t_first, t_last = float(times[0]), float(times[0]) + (shots - 1) / ctx.base.prf_hz
+    n_of = {b.name: track.beam_shot_count(b, shots) for b in beams}
+    bounds = {b.name: section_bounds(n_of[b.name], spacing_m=spacing,
+                                     section_shots=int(section_shots),
+                                     along_m=_along_of(track, b, n_of[b.name], spacing))
+              for b in beams}
+    n_sections = max(len(v) for v in bounds.values())
+    t_first, t_last = track.time_span_s(shots, prf_hz=ctx.base.prf_hz)
     meta = Granule(beams=[], sc_orient=int(sc_orient), crs=ctx.surface.dem.crs.to_string(),
                    frame_origin_m=ctx.origin, track=track,
                    config=ctx.config(shots=shots, seed=seed, sc_orient=sc_orient, beams=beams,
-                                     sections=len(bounds)))
+                                     sections=n_sections))
     instruments = [(b, ctx.instrument(b)) for b in beams]
     summaries = {b.name: BeamSummary(beam=b) for b in beams}
     depth = {b.name: max_depth for b in beams}
     paths = {b.name: paths_per_shot for b in beams}
     seg_options = dict(segment_options or {})
-    if shots * spacing / SEGMENT_M >= atl06.COMPILE_MIN_SEGMENTS:
+    if max(n_of.values()) * spacing / SEGMENT_M >= atl06.COMPILE_MIN_SEGMENTS:
         # one engine for every section of a long track (its short last section too)
         seg_options.setdefault("engine", "compiled")
     segs = {b.name: _SegmentStream(dict(seg_options)) for b in beams}
     bar = None
     if progress:
         from tqdm.auto import tqdm
-        bar = tqdm(total=shots * len(beams), desc="granule", unit="shot", delay=2.0,
+        bar = tqdm(total=sum(n_of.values()), desc="granule", unit="shot", delay=2.0,
                    leave=False)
     try:
         with contextlib.ExitStack() as stack:
@@ -709,8 +724,12 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
             if atl06_path is not None:
                 f6 = stack.enter_context(atomic_h5file(atl06_path))
                 _atl06_header(f6, meta, instruments, t_first, t_last)
-            for k, (a, b) in enumerate(bounds):
+            for k in range(n_sections):
                 for beam in beams:
+                    if k >= len(bounds[beam.name]):
+                        continue
+                    a, b = bounds[beam.name][k]
+                    last = k == len(bounds[beam.name]) - 1
                     run = ctx.beam_run(beam, a, b - a, seed=_beam_seed(seed, beam, k),
                                        progress=False, paths_per_shot=paths[beam.name],
                                        max_depth=depth[beam.name], **simulate_options)
@@ -719,8 +738,7 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                     paths[beam.name] = run.result.config["paths_per_shot"]
                     _beam_atl03(f3, run, sc_orient)
                     if f6 is not None:
-                        table, along, lat, lon, t = segs[beam.name].fit(
-                            run, last=k == len(bounds) - 1)
+                        table, along, lat, lon, t = segs[beam.name].fit(run, last=last)
                         _beam_atl06(f6, beam, sc_orient, table, along_m=along, lat_deg=lat,
                                     lon_deg=lon, delta_time_s=t)
                     summaries[beam.name].add(run.result)

@@ -211,8 +211,8 @@ class Instrument:
             name = "signal_photons" if "signal_photons" in changes else "background_mhz"
             raise ParameterError(name, "follows from the link budget with the ATLAS instrument: "
                                  "set its pulse energy, receiver transmission, ... instead")
-        link = LinkBudget(pulse_energy_uj=ATLAS_PULSE_ENERGY_UJ[beam],
-                          atmosphere=Atmosphere(**air), **budget)
+        budget.setdefault("pulse_energy_uj", ATLAS_PULSE_ENERGY_UJ[beam])
+        link = LinkBudget(atmosphere=Atmosphere(**air), **budget)
         return cls(beam=beam, link_budget=link, **{**ATLAS, **changes})
 
     def integrator_dict(self, *, max_depth: int = 1, max_lanes: int = 2 ** 23) -> dict:
@@ -235,7 +235,7 @@ flown (:meth:`Instrument.atlas`)."""
 ATLAS_PULSE_ENERGY_UJ: dict[str, float] = {"weak": 27.65, "strong": 4 * 27.65}
 """Transmitted energy per pulse of one beam [uJ]. Weak: the laser energy monitor's per-beam
 reading in a real ATL03 granule (``geolocation/tx_pulse_energy``, gt1l, 14 Oct 2018: 27.30 to
-27.65 uJ; ``tests/data/``). Strong: four times the weak beam, ATLAS's design ratio (the
+27.65 uJ; ``lidar_mitsuba/data/``). Strong: four times the weak beam, ATLAS's design ratio (the
 strong beam "approximately four times brighter": read-ICESat-2's documentation; ATL07's
 weak-beam thresholds are the strong ones / 4); ESTIMATE for the flown strong energy."""
 
@@ -261,7 +261,7 @@ ATLAS: dict = {
     # dead time: ATLAS's ~3.2 ns (the "atlas" preset; Zhang & Kerekes: "typically 3 ns")
     "dead_time_ns": DEAD_TIME_PRESETS_NS["atlas"],
     # dark counts per channel: ESTIMATE 100 Hz; the quietest night background of the real
-    # weak beam (599 Hz over its 4 channels, tests/data) bounds them at ~150 Hz
+    # weak beam (599 Hz over its 4 channels, lidar_mitsuba/data) bounds them at ~150 Hz
     "dark_count_hz": 100.0,
 }
 """ATLAS as flown, the fields :meth:`Instrument.atlas` sets (besides the beam and its link

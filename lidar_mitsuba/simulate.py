@@ -264,9 +264,10 @@ def simulate(*, instrument: Instrument | None = None,
             snow from a ``<medium>`` inside its terrain shape instead.
         site: where on the Earth and when the scene lies
             (:class:`~lidar_mitsuba.geotrack.Site`; default: the paper's site in northern
-            Greenland at local noon on the June solstice): photon latitudes, longitudes and
-            times, and the sun of an instrument with a link budget. A track with its own
-            geolocation (a DEM granule's) ignores it.
+            Greenland at local noon on the June solstice, at sea level): photon latitudes,
+            longitudes and times, and the sun and air of an instrument with a link budget. A
+            track with its own geolocation (a DEM granule's) keeps its own places and times
+            (only the site's height applies).
 
     Raises:
         ParameterError: a bad value, named (``.name``), before anything is traced.
@@ -384,15 +385,15 @@ def simulate(*, instrument: Instrument | None = None,
     if keep_returns is None:
         keep_returns = shots * paths_per_shot * (1 if volume else max_depth) <= 2 ** 24
     gate_z = chunks.gate_heights_m(z_ref)
+    site = site or Site()
     geoloc = getattr(track, "geolocation", None)
     if geoloc is None:
-        site = site or Site()
         geoloc = site.geolocation(x, y, prf_hz=instrument.prf_hz)
     rad = None
     if instrument.link_budget is not None:
         t1 = time.perf_counter()
-        rad = _shot_radiometry(instrument, geoloc, gate_z, scene=scene_, x_m=x_loc, y_m=y_loc,
-                               snow=snow)
+        rad = _shot_radiometry(instrument, geoloc, gate_z + site.height_m, scene=scene_,
+                               x_m=x_loc, y_m=y_loc, snow=snow)
         timings["radiometry_s"] = time.perf_counter() - t1
     if surf.streamed:
         source = chunks.CorridorSource(integrator, surf, x_m=x, y_m=y,
@@ -446,8 +447,7 @@ def simulate(*, instrument: Instrument | None = None,
               "scene_integrator": honoured, "choices": choices, "warnings": warns,
               "snow": snow.config() if snow is not None else None,
               "integrator": integrator_dict["type"],
-              "site": None if getattr(track, "geolocation", None) is not None
-              else (site or Site()).to_dict(),
+              "site": site.to_dict(),
               "radiometry": None if rad is None else rad.summary()}
     return SimulationResult(instrument=instrument, config=config, along_track_m=along,
                             shot_x_m=x, shot_y_m=y, surface_z_m=surface_z, z_ref_m=z_ref,
@@ -460,7 +460,11 @@ def _shot_radiometry(instrument: Instrument, geoloc: Geolocation, z_m: np.ndarra
     """Each shot's signal scale and background (:func:`radiometry.shot_radiometry`): the sun
     where and when the shot is, the surface's albedo for sunlight from its own BSDF (a snow
     volume: diffusion theory's albedo), the air above the surface height ``z_m``."""
-    elev, azim = radiometry.solar_angles(geoloc.lat_deg, geoloc.lon_deg, geoloc.delta_time_s)
+    if geoloc.solar_elevation_deg is not None:            # a real granule's own
+        elev, azim = geoloc.solar_elevation_deg, geoloc.solar_azimuth_deg
+    else:
+        elev, azim = radiometry.solar_angles(geoloc.lat_deg, geoloc.lon_deg,
+                                             geoloc.delta_time_s)
     if snow is not None:
         albedo = float(snow.diffusion().total_reflectance())
     else:

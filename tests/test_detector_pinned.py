@@ -113,3 +113,36 @@ def test_a_block_that_overflows_its_room_runs_again_with_the_same_events():
     assert fitted[0].size > n_sig.sum()                      # noise was recorded
     for a, b in zip(fitted, retried):
         np.testing.assert_array_equal(a, b)
+
+
+# ------------------------------------------------------------------ the paper's mode, end to end
+#: digests of simulate() with the paper's instrument at 052b8fe (before the radiometry, the
+#: per-shot detector inputs and the geolocation of issue 26): the paper mode must not move
+SIMULATE_DIGESTS = {
+    "flat, strong, 10 MHz":
+        "64576e3eea1b67b7c6238cc3f0e88994dca49724d9509a61a1a9687549baf60d",
+    "fractal, weak":
+        "9843beff5d04d03e8ae22789cfff97c43ed661d0033691aea8e4a7fca6a9a166",
+}
+
+
+@pytest.mark.parametrize("case", list(SIMULATE_DIGESTS))
+def test_paper_mode_runs_are_pinned(case):
+    """Photons, heights, confidence and reference elevations of two paper-mode runs (a flat
+    plate with background; the fractal snow with the bounce pilot and the path scout)."""
+    from lidar_mitsuba.simulate import simulate
+    from lidar_mitsuba.surface import SurfaceSpec
+    inst, surf, shots, seed = {
+        "flat, strong, 10 MHz": (dict(beam="strong", background_mhz=10.0),
+                                 SurfaceSpec(kind="flat"), 2000, 3),
+        "fractal, weak": (dict(beam="weak"), SurfaceSpec(kind="fractal", p=1.8, size_m=256.0),
+                          600, 4)}[case]
+    res = simulate(instrument=Instrument(**inst), surface=surf, shots=shots, seed=seed,
+                   progress=False)
+    h = hashlib.sha256()
+    d = res.detections
+    for a in (d.shot, d.channel, d.time_ns, d.return_index, d.hit_xyz_m, res.h_m,
+              res.signal_conf, res.z_ref_m):
+        a = np.ascontiguousarray(a)
+        h.update(str(a.dtype).encode() + a.tobytes())
+    assert h.hexdigest() == SIMULATE_DIGESTS[case]

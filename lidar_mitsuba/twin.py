@@ -1,0 +1,329 @@
+"""A real granule's twin: the shots of a real ATL03 file (its beams, spacecraft orientation,
+ground tracks, times, sun and spacecraft altitude), to simulate them again over a DEM or a
+built-in surface (``lidar-mitsuba simulate --like REAL_ATL03.h5``) and set real and simulated
+photons side by side along the same track.
+
+Shots come from the file's 20 m geolocation segments: per beam, runs of segments with no gap
+in time longer than ``GAP_S`` are *pieces* (a subset may hold several, e.g. two passes over the
+same latitude); in a piece the pulses fire at the PRF from half a segment before the first
+segment's reference time to half a segment after the last, and each pulse's footprint centre,
+spacecraft altitude and sun are interpolated in time between the segments' reference
+photons (positions through an azimuthal equidistant projection centred on the piece, so the
+poles and the antimeridian are no trouble). The along-track distance runs on across pieces
+(each piece starts ``PIECE_GAP_M`` after the last), so a track folds into a tile as any other.
+"""
+from __future__ import annotations
+
+import os
+import pathlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from .constants import ParameterError
+from .geotrack import Beam, Geolocation, _geod, beam_layout
+
+REAL_SUBSET = pathlib.Path(__file__).parent / "data" / "ATL03_gt1l_20181014.h5"
+"""A real ATL03 subset shipped with the package: weak beam gt1l over snow-covered Arctic sea
+ice at night, 14 Oct 2018 (NASA, doi:10.5067/ATLAS/ATL03.006; ``data/README.md``)."""
+
+GAP_S = 0.1
+"""A time step between two geolocation segments longer than this starts a new piece [s]."""
+PIECE_GAP_M = 100.0
+"""Along-track distance put between two pieces [m] (their shots never share a footprint)."""
+
+
+@dataclass
+class TwinBeam:
+    """The shots of one beam of a real granule. Arrays have shape (n_shots,).
+
+    Attributes:
+        beam: the beam (name, spot, strength, across-track offset).
+        geolocation: each pulse's footprint centre, direction, time and sun.
+        along_m: along-track distance from the first pulse [m] (pieces ``PIECE_GAP_M`` apart).
+        altitude_m: the spacecraft's height above the ellipsoid [m].
+        surface_h_m: the surface height under the pulse [m above the ellipsoid]: the median
+            height of the segment's high-confidence photons (NaN where a segment has none).
+        pieces: ``[(first, stop), ...]`` pulse ranges with no gap in time.
+    """
+    beam: Beam
+    geolocation: Geolocation
+    along_m: np.ndarray
+    altitude_m: np.ndarray
+    surface_h_m: np.ndarray
+    pieces: list[tuple[int, int]]
+
+    @property
+    def n_shots(self) -> int:
+        return int(self.along_m.size)
+
+
+@dataclass
+class TwinGranule:
+    """The beams of a real ATL03 file, ready to simulate again (:func:`read`)."""
+    path: pathlib.Path
+    sc_orient: int
+    beams: list[TwinBeam]
+    prf_hz: float
+
+    # the reference-track interface of lidar_mitsuba.granule (as GeoTrack's)
+    def beam_geolocation(self, beam: Beam, first: int, n_shots: int, *, spacing_m: float = 0.7,
+                         prf_hz: float = 10e3) -> tuple[Geolocation, np.ndarray]:
+        """Shots ``first`` .. ``first + n_shots - 1`` of ``beam`` as the real file has them
+        (``spacing_m`` and ``prf_hz`` are the file's own)."""
+        b = self.beam(beam.name)
+        sl = slice(int(first), int(first) + int(n_shots))
+        return b.geolocation.select(sl), b.along_m[sl]
+
+    def beam_shot_count(self, beam: Beam, shots: int | None = None) -> int:
+        """The beam's pulses in the file (``shots``, if given, caps them)."""
+        n = self.beam(beam.name).n_shots
+        return n if shots is None else min(n, int(shots))
+
+    def start_lat_lon(self, *, spacing_m: float = 0.7) -> tuple[float, float]:
+        g = self.beams[0].geolocation
+        return float(g.lat_deg[0]), float(g.lon_deg[0])
+
+    def time_span_s(self, shots: int | None = None, *, prf_hz: float = 10e3
+                    ) -> tuple[float, float]:
+        t = np.concatenate([b.geolocation.delta_time_s for b in self.beams])
+        return float(t.min()), float(t.max())
+
+    def select_beams(self, spec: str) -> list[Beam]:
+        """The file's beams by a CLI spec (``all``, ``strong``, ``weak`` or names)."""
+        from .geotrack import select_beams
+        wanted = {b.name for b in select_beams(spec, self.sc_orient)}
+        out = [b.beam for b in self.beams if b.beam.name in wanted]
+        if not out:
+            raise ParameterError("beams", f"{spec!r}: {self.path.name} has "
+                                 f"{', '.join(b.beam.name for b in self.beams)}")
+        return out
+
+    @property
+    def epoch_utc(self) -> str:
+        from .granule import _utc
+        return _utc(self.time_span_s()[0]).decode()
+
+    def median_range_m(self) -> float:
+        """The spacecraft's median height above the surface under it [m] (above the
+        ellipsoid where no surface was found)."""
+        r = np.concatenate([b.altitude_m - np.nan_to_num(b.surface_h_m) for b in self.beams])
+        return float(np.nanmedian(r))
+
+    def median_surface_height_m(self) -> float:
+        """The median height of the surface under the shots [m above the ellipsoid] (0 when
+        the file has no confident photon)."""
+        h = np.concatenate([b.surface_h_m for b in self.beams])
+        return float(np.nanmedian(h)) if np.isfinite(h).any() else 0.0
+
+    def median_altitude_m(self) -> float:
+        """The spacecraft's median height above the ellipsoid [m]."""
+        return float(np.nanmedian(np.concatenate([b.altitude_m for b in self.beams])))
+
+    def to_dict(self) -> dict:
+        return {"like": str(self.path), "sc_orient": self.sc_orient,
+                "beams": {b.beam.name: b.n_shots for b in self.beams}}
+
+    def beam(self, name: str) -> TwinBeam:
+        for b in self.beams:
+            if b.beam.name == name:
+                return b
+        raise ParameterError("beams", f"{self.path.name} has no beam {name} (it has "
+                             f"{', '.join(b.beam.name for b in self.beams)})")
+
+
+def _text(value) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+def _sc_orient(f) -> int:
+    """0 backward, 1 forward: ``orbit_info/sc_orient`` or a beam's ``sc_orientation``."""
+    if "orbit_info/sc_orient" in f:
+        return int(np.asarray(f["orbit_info/sc_orient"][()]).ravel()[0])
+    for name in ("gt1l", "gt1r", "gt2l", "gt2r", "gt3l", "gt3r"):
+        if name in f and "sc_orientation" in f[name].attrs:
+            return 1 if _text(f[name].attrs["sc_orientation"]).lower() == "forward" else 0
+    raise ValueError("no spacecraft orientation (orbit_info/sc_orient or sc_orientation)")
+
+
+def read(path: str | os.PathLike, *, beams: str = "all", prf_hz: float = 10e3) -> TwinGranule:
+    """The shots of the beams of a real ATL03 file (``beams``: ``all``, ``strong``, ``weak``
+    or names) that have geolocation segments. Raises ``ParameterError`` (``like``) for a file
+    that is not an ATL03 granule."""
+    import h5py
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise ParameterError("like", f"{path}: no such file")
+    try:
+        with h5py.File(path, "r") as f:
+            sc_orient = _sc_orient(f)
+            layout = {b.name: b for b in beam_layout(sc_orient)}
+            out = []
+            for name, beam in layout.items():
+                if f"{name}/geolocation/segment_id" not in f:
+                    continue
+                if beams not in ("all", beam.strength) and name not in beams.split(","):
+                    continue
+                twin = _beam(f[name], beam, prf_hz)
+                if twin is not None:
+                    out.append(twin)
+    except (OSError, KeyError, ValueError) as e:
+        raise ParameterError("like", f"{path}: not an ATL03 granule we can read "
+                             f"({str(e).splitlines()[0]})") from None
+    if not out:
+        raise ParameterError("like", f"{path}: no beam with geolocation segments"
+                             + ("" if beams == "all" else f" among {beams!r}"))
+    return TwinGranule(path=path, sc_orient=sc_orient, beams=out, prf_hz=float(prf_hz))
+
+
+def _beam(g, beam: Beam, prf_hz: float) -> TwinBeam | None:
+    """One beam group's pulses (None when it has fewer than two segments)."""
+    geo = g["geolocation"]
+    t_seg = geo["delta_time"][()]
+    if t_seg.size < 2:
+        return None
+    lat_seg = geo["reference_photon_lat"][()]
+    lon_seg = geo["reference_photon_lon"][()]
+    alt_seg = geo["altitude_sc"][()] if "altitude_sc" in geo else np.full(t_seg.size, np.nan)
+    sun = [geo[k][()].astype(np.float64) if k in geo else None
+           for k in ("solar_elevation", "solar_azimuth")]
+    h_seg = _segment_heights(g, geo)
+    cuts = np.flatnonzero(np.diff(t_seg) > GAP_S) + 1
+    bounds = list(zip(np.r_[0, cuts], np.r_[cuts, t_seg.size]))
+    parts, pieces, along0 = [], [], 0.0
+    n = 0
+    for a, b in bounds:
+        if b - a < 2:                         # a lone segment: no direction to interpolate
+            continue
+        part = _piece(t_seg[a:b], lat_seg[a:b], lon_seg[a:b], alt_seg[a:b], h_seg[a:b],
+                      [None if s is None else s[a:b] for s in sun], prf_hz)
+        part["along_m"] = part["along_m"] + along0
+        along0 = float(part["along_m"][-1]) + PIECE_GAP_M
+        pieces.append((n, n + part["t"].size))
+        n += part["t"].size
+        parts.append(part)
+    if not parts:
+        return None
+    cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if parts[0][k] is not None}
+    geoloc = Geolocation(lat_deg=cat["lat"], lon_deg=cat["lon"], azimuth_deg=cat["az"],
+                         delta_time_s=cat["t"], solar_elevation_deg=cat.get("sun_el"),
+                         solar_azimuth_deg=cat.get("sun_az"))
+    return TwinBeam(beam=beam, geolocation=geoloc, along_m=cat["along_m"],
+                    altitude_m=cat["alt"], surface_h_m=cat["h"], pieces=pieces)
+
+
+def _segment_heights(g, geo) -> np.ndarray:
+    """Median height [m] of each segment's photons of high confidence (4) in any surface
+    class (NaN when none)."""
+    cnt = geo["segment_ph_cnt"][()]
+    beg = geo["ph_index_beg"][()].astype(np.int64) - 1
+    out = np.full(cnt.size, np.nan)
+    if "heights/h_ph" not in g:
+        return out
+    h = g["heights/h_ph"][()]
+    conf = g["heights/signal_conf_ph"][()].max(axis=1) if "heights/signal_conf_ph" in g \
+        else np.full(h.size, 4)
+    for k, (b, c) in enumerate(zip(beg, cnt)):
+        if c > 0 and b >= 0:
+            s = h[b:b + c][conf[b:b + c] >= 4]
+            if s.size:
+                out[k] = np.median(s)
+    return out
+
+
+def _piece(t, lat, lon, alt, h, sun, prf_hz: float) -> dict:
+    """The pulses of one gap-free run of segments, interpolated in time between the
+    segments' reference points (extrapolated half a segment beyond the ends)."""
+    from pyproj import Transformer
+    half = 0.5 * float(np.median(np.diff(t)))
+    times = np.arange(t[0] - half, t[-1] + half, 1.0 / prf_hz)
+    aeqd = (f"+proj=aeqd +lat_0={float(lat[0])!r} +lon_0={float(lon[0])!r} +ellps=WGS84 "
+            "+units=m")
+    fwd = Transformer.from_crs("EPSG:4326", aeqd, always_xy=True)
+    x_seg, y_seg = fwd.transform(lon, lat)
+
+    def interp(v):                    # linear in time, extrapolated along the end slopes
+        v = np.asarray(v, np.float64)
+        out = np.interp(times, t, v)
+        lo, hi = times < t[0], times > t[-1]
+        out[lo] = v[0] + (times[lo] - t[0]) * (v[1] - v[0]) / (t[1] - t[0])
+        out[hi] = v[-1] + (times[hi] - t[-1]) * (v[-1] - v[-2]) / (t[-1] - t[-2])
+        return out
+
+    x, y = interp(x_seg), interp(y_seg)
+    lon_p, lat_p = Transformer.from_crs(aeqd, "EPSG:4326", always_xy=True).transform(x, y)
+    lon_p, lat_p = np.asarray(lon_p), np.asarray(lat_p)
+    az, _, step = _geod().inv(lon_p[:-1], lat_p[:-1], lon_p[1:], lat_p[1:])
+    az = np.mod(np.append(az, az[-1]), 360.0)
+    along = np.concatenate([[0.0], np.cumsum(step)])
+    h_p = np.interp(times, t[np.isfinite(h)], h[np.isfinite(h)]) if np.isfinite(h).any() \
+        else np.full(times.size, np.nan)
+    out = {"t": times, "lat": lat_p, "lon": np.mod(lon_p + 180.0, 360.0) - 180.0, "az": az,
+           "along_m": along, "alt": interp(alt), "h": h_p,
+           "sun_el": None if sun[0] is None else interp(sun[0]), "sun_az": None}
+    if sun[1] is not None:
+        rad = np.deg2rad(sun[1])
+        out["sun_az"] = np.mod(np.rad2deg(np.arctan2(interp(np.sin(rad)),
+                                                     interp(np.cos(rad)))), 360.0)
+    return out
+
+
+def simulate_over_surface(twin: TwinGranule, *, surface=None, beams: str = "all",
+                          shots: int | None = None, instrument: str = "atlas",
+                          instrument_options: dict | None = None, seed: int = 0,
+                          progress: bool = True, strength: str | None = None,
+                          **simulate_options):
+    """The twin of ``twin`` over a built-in surface (a
+    :class:`~lidar_mitsuba.surface.SurfaceSpec`; default: the flat Ward snow), in memory: each
+    beam's pulses are placed in a frame centred on the granule's first pulse (an azimuthal
+    equidistant projection, x east, y north) at the real latitudes, longitudes, times and sun,
+    the surface's z = 0 under them and the spacecraft at the real range to the surface (the
+    granule's median ``altitude_sc - surface height``). Returns a
+    :class:`~lidar_mitsuba.granule.Granule` (``granule.write_atl03`` writes it).
+
+    Args:
+        beams: ``all``, ``strong``, ``weak`` or names among the file's beams.
+        shots: at most this many pulses of each beam (``None``: all).
+        instrument: ``atlas`` (default) or ``paper``; ``instrument_options``: fields.
+        strength: fire every beam's shots as a ``"strong"`` or ``"weak"`` beam instead of its
+            own (``None``): e.g. the strong:weak ratio on the same shots.
+        seed, progress, simulate_options: as :func:`~lidar_mitsuba.simulate.simulate`.
+    """
+    from pyproj import Transformer
+    from .geotrack import GeoTrack, ProjectedTrack, Site
+    from .granule import BeamRun, Granule, _beam_seed
+    from .instrument import Instrument
+    from .simulate import simulate
+    from .surface import SurfaceSpec
+    lat0, lon0 = twin.start_lat_lon()
+    aeqd = (f"+proj=aeqd +lat_0={lat0!r} +lon_0={lon0!r} +x_0=0 +y_0=0 +ellps=WGS84 "
+            "+units=m")
+    to_xy = Transformer.from_crs("EPSG:4326", aeqd, always_xy=True)
+    opts = {"altitude_m": twin.median_range_m(), **(instrument_options or {})}
+    site = Site(height_m=float(np.clip(twin.median_surface_height_m(), -500, 9000)))
+    runs = []
+    for beam in twin.select_beams(beams):
+        n = twin.beam_shot_count(beam, shots)
+        geo, along = twin.beam_geolocation(beam, 0, n)
+        x, y = (np.asarray(a) for a in to_xy.transform(geo.lon_deg, geo.lat_deg))
+        track = ProjectedTrack(x_m=x, y_m=y, along_m=along, geolocation=geo,
+                               info={"like": str(twin.path), "beam": beam.name})
+        kind = strength or beam.strength
+        inst = (Instrument.atlas(kind, **opts) if instrument == "atlas"
+                else Instrument(beam=kind, **opts))
+        try:
+            res = simulate(instrument=inst, surface=surface or SurfaceSpec(kind="flat"),
+                           track=track, shots=n, seed=_beam_seed(seed, beam), site=site,
+                           progress=progress, **simulate_options)
+        except ParameterError as e:
+            raise ParameterError(e.name, f"{beam.name}: {e.message}") from None
+        runs.append(BeamRun(beam=beam, result=res, lat_deg=geo.lat_deg, lon_deg=geo.lon_deg,
+                            azimuth_deg=geo.azimuth_deg, delta_time_s=geo.delta_time_s))
+    first = runs[0]
+    ref = GeoTrack(start_lat_deg=float(first.lat_deg[0]), start_lon_deg=float(first.lon_deg[0]),
+                   azimuth_deg=float(first.azimuth_deg[0]), epoch_utc=twin.epoch_utc)
+    return Granule(beams=runs, sc_orient=twin.sc_orient, crs=aeqd, frame_origin_m=(0.0, 0.0),
+                   track=ref, config={"like": twin.to_dict(), "instrument": instrument,
+                                      "instrument_options": opts, "seed": int(seed),
+                                      "sc_orient": twin.sc_orient,
+                                      "beams": [r.beam.name for r in runs]})

@@ -1,0 +1,110 @@
+"""A real granule's twin (``simulate --like``) and ``validate`` (issue 26)."""
+import json
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+from lidar_mitsuba import twin
+from lidar_mitsuba.dem import synthetic_ice_sheet
+from lidar_mitsuba.geotrack import _geod
+
+REAL = twin.REAL_SUBSET
+
+
+def test_the_twin_fires_the_real_pulses_where_they_fell():
+    """1128 pulses in two passes (the pulses between the first and last photon of each, from
+    the photons' own pulse counters); every real photon's pulse time is one of the twin's
+    (the 10 kHz grid from the segments' reference photons, within 5 us: ATLAS's clock drifts
+    1.7 us from an exact 10 kHz over the 1015 pulses of the second pass), and its position
+    within 10 m of that pulse's footprint centre (the photon lies in the ~11 m footprint)."""
+    g = twin.read(REAL)
+    (b,) = g.beams
+    assert (b.beam.name, b.beam.strength, b.beam.spot, g.sc_orient) == ("gt1l", "weak", 6, 1)
+    assert b.n_shots == 1128 and [hi - lo for lo, hi in b.pieces] == [113, 1015]
+    with h5py.File(REAL) as f:
+        t = f["gt1l/heights/delta_time"][()]
+        lat, lon = f["gt1l/heights/lat_ph"][()], f["gt1l/heights/lon_ph"][()]
+    geo = b.geolocation
+    k = np.clip(np.searchsorted(geo.delta_time_s, t), 1, b.n_shots - 1)
+    k = np.where(np.abs(geo.delta_time_s[k - 1] - t) < np.abs(geo.delta_time_s[k] - t), k - 1, k)
+    assert np.max(np.abs(geo.delta_time_s[k] - t)) < 5e-6
+    _, _, dist = _geod().inv(geo.lon_deg[k], geo.lat_deg[k], lon, lat)
+    assert np.max(dist) < 10.0
+    assert np.all(np.abs(np.diff(b.along_m[b.pieces[1][0]:]) - 0.71) < 0.01)  # 0.71 m apart
+    assert np.nanmedian(b.surface_h_m) == pytest.approx(12.4, abs=0.5)
+    assert np.all(geo.solar_elevation_deg < -5) and np.all(geo.solar_elevation_deg > -7.5)
+
+
+def test_like_refuses_what_the_file_sets(tmp_path):
+    out = tmp_path / "x.h5"
+    for extra, flag in ((["--track", "70,-45,0"], "--track"), (["--epoch", "2019-01-01T00:00:00Z"],
+                                                              "--epoch"),
+                        (["--beam", "weak"], "--beam"), (["--lat", "70"], "--lat")):
+        r = subprocess.run([sys.executable, "-m", "lidar_mitsuba_cli", "simulate", "--like",
+                            str(REAL), "--out", str(out)] + extra, capture_output=True, text=True)
+        assert r.returncode == 2 and flag in r.stderr and "Traceback" not in r.stderr, r.stderr
+        assert not out.exists()
+    r = subprocess.run([sys.executable, "-m", "lidar_mitsuba_cli", "simulate", "--like",
+                        str(tmp_path / "nope.h5"), "--out", str(out)], capture_output=True,
+                       text=True)
+    assert r.returncode == 2 and "--like" in r.stderr and not out.exists()
+
+
+def test_like_over_a_dem_and_over_flat_snow(tmp_path):
+    """The twin's first 100 pulses over a DEM made around them (in EPSG:3413, 87.3 N), and all
+    1128 over flat snow: ATL03 files whose photons sit at the real pulses' places and times."""
+    dem = synthetic_ice_sheet(tmp_path / "pole.tif", lat_deg=87.2981, lon_deg=178.999,
+                              width_m=2000, length_m=2000, posting_m=20, hole=False)
+    for extra, n in (([f"--dem={dem}", "--shots", "100"], 100), ([], 1128)):
+        out = tmp_path / f"twin{n}.h5"
+        r = subprocess.run([sys.executable, "-m", "lidar_mitsuba_cli", "simulate", "--like",
+                            str(REAL), "--out", str(out), "--no-progress"] + extra,
+                           capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        assert f"gt1l {n} shots of gt1l 1128" in r.stdout and "atlas instrument" in r.stdout
+        with h5py.File(out) as f:
+            t = f["gt1l/heights/delta_time"][()]
+            assert f["gt1l"].attrs["atlas_beam_type"] in (b"weak", "weak")
+        g = twin.read(REAL).beams[0].geolocation
+        assert np.isin(np.round(t, 6), np.round(g.delta_time_s[:n], 6)).all()
+
+
+@pytest.fixture(scope="module")
+def validated(tmp_path_factory):
+    from lidar_mitsuba.studies import validate
+    out = tmp_path_factory.mktemp("validate")
+    return validate.run(out, quick=True), out
+
+
+def test_validate_twin_signal_rate_is_within_the_real_spread(validated):
+    """Issue 26's check: ATLAS as flown over flat snow at night gives the weak beam's signal
+    rate within the spread of the real subset's 20 m segments, with nothing fitted to it; the
+    strong:weak ratio on the same shots is the design's 4 less the strong beam's dead time."""
+    doc, out = validated
+    t = doc["twin"]
+    seg = np.asarray(t["real"]["segment_signal_per_shot"])
+    assert seg.min() <= t["twin"]["signal_per_shot"] <= seg.max()
+    ratio = t["strong_signal_per_shot"] / t["twin"]["signal_per_shot"]
+    assert 3.0 < ratio < 4.4
+    rows = {r["quantity"]: r for r in doc["verdicts"]}
+    assert rows["twin: signal photons per shot (weak, night)"]["verdict"] == "agrees"
+    # the night background: the model's (laser backscatter and dark counts, no sun)
+    m = t["model_noise_hz"]
+    assert m["solar"] == 0 and m["laser_backscatter"] > 1e3 and m["dark"] > 0
+    report = (out / "report.md").read_text()
+    assert "disagrees" in report and "twin.png" in report
+    assert json.loads((out / "report.json").read_text())["verdicts"]
+    for png in ("twin.png", "interior.png"):
+        assert (out / png).stat().st_size > 10_000
+
+
+def test_validate_interior_runs_are_in_nasas_expected_range(validated):
+    doc, _ = validated
+    for r in doc["interior"]["rows"]:
+        lo, hi = doc["interior"]["expected"][r["beam"]]
+        assert lo <= r["signal_per_shot"] <= hi
+        assert r["solar_elevation_deg"]["median"] > 30           # austral summer noon
+        assert abs(r["h_li_bias_m"]) < 5 * r["h_li_bias_se_m"] + 0.005
