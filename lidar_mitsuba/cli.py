@@ -186,7 +186,8 @@ def build_parser() -> argparse.ArgumentParser:
         lb, LinkBudget, skip=("atmosphere", "solar_background", "laser_backscatter"))
         + opts.add_options(lb, Atmosphere, only=("aerosol_optical_depth",)))
     s.set_defaults(_site_opts=opts.add_options(
-        i, Site, only=("lat_deg", "lon_deg"), metavars={"lat_deg": "DEG", "lon_deg": "DEG"}))
+        i, Site, only=("lat_deg", "lon_deg", "height_m"),
+        metavars={"lat_deg": "DEG", "lon_deg": "DEG"}))
     t = s.add_argument_group("track (default: along +x through the middle of the surface)")
     s.set_defaults(_track_opts=opts.add_options(t, Track, metavars={"start_xy_m": ("X", "Y")}))
     d = s.add_argument_group("real terrain and orbit (--dem: a granule of up to six beams)")

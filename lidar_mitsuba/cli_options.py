@@ -23,7 +23,7 @@ def option_name(name: str) -> str:
 
 #: API names whose option is spelled differently
 RENAMED = {"kind": "--surface", "scene": "--scene", "scene_file": "--scene", "params": "-D",
-           "lat_deg": "--lat", "lon_deg": "--lon"}
+           "lat_deg": "--lat", "lon_deg": "--lon", "height_m": "--site-height-m"}
 
 
 def doc_entries(obj) -> dict[str, str]:

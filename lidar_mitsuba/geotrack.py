@@ -303,12 +303,12 @@ class Site:
     background).
 
     Attributes:
-        lat_deg, lon_deg: the scene origin [deg] (default: the paper's site in northern
-            Greenland, 76.78 N, 66.2 W).
+        lat_deg, lon_deg: the scene origin [deg] (by default the paper's site in northern
+            Greenland).
         epoch_utc: time of the first shot, ISO 8601 UTC (default 2019-06-21T16:00:00Z: local
             noon there, the sun 37 deg high).
-        height_m: height of the scene's z = 0 above sea level [m] (default 0): the air above
-            the surface that attenuates and scatters (``--instrument atlas``); heights in the
+        height_m: height of the scene's z = 0 above sea level [m], for the air above the
+            surface that attenuates and scatters (``--instrument atlas``); heights in the
             output stay the scene's.
     """
     lat_deg: float = DEFAULT_SITE["lat_deg"]
