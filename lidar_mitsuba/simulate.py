@@ -25,7 +25,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import (bounce_pilot, chunks, classify, path_budget, radiometry, retrieval,
-               scene as scn, surface as surfaces)
+               scene as scn, surface as surfaces, warmup)
 from .constants import FWHM_PER_SIGMA, ParameterError, SimulationWarning
 from .instrument import Instrument
 from .photons import Detections, Returns
@@ -414,6 +414,8 @@ def simulate(*, instrument: Instrument | None = None,
 
         def scene_of():
             return scene_
+    if progress:       # a first run on this machine compiles the detector: say so
+        warmup.compile_kernels()
     run = chunks.run(
         source=source,
         detectors={"run": instrument}, z_ref_m=z_ref, seed=seed, chunk_shots=chunk_shots,
