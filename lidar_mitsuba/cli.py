@@ -1,6 +1,6 @@
 """Command-line interface ``lidar-mitsuba`` (simulate, stats, segments, terrain, make-dem, bench,
-reproduce, sweep). ``simulate --dem`` streams a granule of up to six beams over a GeoTIFF
-(:func:`lidar_mitsuba.granule.stream_granule`).
+reproduce, validate, sweep). ``simulate`` and its options are :mod:`.cli_simulate`; the shared
+argparse pieces :mod:`.cli_args`.
 
 Bad input is reported as one line naming the option, with exit code 2 and no output file.
 The options of ``simulate`` and ``terrain`` are generated from the API (:mod:`.cli_options`):
@@ -16,243 +16,34 @@ import json
 import os
 import pathlib
 import sys
-import tempfile
 import time
-import warnings
 
-from . import cli_options as opts
-from .constants import ParameterError, SimulationWarning
-from .geotrack import Site
-from .instrument import DEAD_TIME_PRESETS_NS, INSTRUMENT_PRESETS, Instrument
-from .radiometry import Atmosphere, LinkBudget
-from .track import Track
-
-PROG = "lidar-mitsuba"
-#: simulate() keywords that are CLI options of their own (the rest are composed objects)
-RUN_OPTIONS = ("shots", "seed", "paths_per_shot", "max_depth", "variant", "chunk_shots")
-
-
-class UsageError(Exception):
-    """Bad command-line input: ``option`` is the flag to name in the one-line message."""
-
-    def __init__(self, option: str, message: str):
-        super().__init__(f"{option}: {message}")
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):   # one line, exit 2 (argparse would also print the usage)
-        if message.startswith("argument "):      # "argument --shots: ..." -> "--shots: ..."
-            message = message[len("argument "):]
-        sys.stderr.write(f"{self.prog}: error: {message}\n")
-        raise SystemExit(2)
-
-
-def _out_path(value: str, suffixes: tuple[str, ...], option: str = "--out") -> pathlib.Path:
-    """An output file: the right suffix, not a folder, in an existing folder where a file can
-    be created (tried, not guessed from permissions: root passes every permission check)."""
-    path = pathlib.Path(value)
-    if suffixes and path.suffix.lower() not in suffixes:
-        raise UsageError(option, f"must end with {' or '.join(suffixes)} (got {value!r})")
-    if path.is_dir():
-        raise UsageError(option, f"{value!r} is a folder")
-    parent = path.parent if str(path.parent) else pathlib.Path(".")
-    if not parent.is_dir():
-        raise UsageError(option, f"folder {str(parent)!r} does not exist")
-    _probe_writable(parent, option)
-    return path
-
-
-def _variant_list(value: str) -> list[str]:
-    """argparse type of ``bench --variant``: known, usable variants, comma-separated."""
-    from .variant import usable_variants
-    names = [v.strip() for v in value.split(",") if v.strip()]
-    usable = usable_variants()
-    bad = [v for v in names if v not in usable]
-    if not names or bad:
-        raise argparse.ArgumentTypeError(
-            f"{', '.join(bad) or repr(value)} not available here (choose from "
-            f"{', '.join(usable)})")
-    return names
-
-
-def _out_dir(value: str, option: str = "--out") -> pathlib.Path:
-    """An output folder (created by the command): not an existing file, inside a writable
-    existing folder."""
-    out = pathlib.Path(value)
-    if out.exists() and not out.is_dir():
-        raise UsageError(option, f"{value!r} exists and is not a folder")
-    parent = out.parent if str(out.parent) else pathlib.Path(".")
-    if not parent.is_dir():
-        raise UsageError(option, f"folder {str(parent)!r} does not exist")
-    _probe_writable(out if out.exists() else parent, option)
-    return out
-
-
-def _probe_writable(folder: pathlib.Path, option: str) -> None:
-    """Create and remove a file in ``folder``: tried, not guessed from permissions (root passes
-    every permission check, and a read-only file system fails only on writing)."""
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".lidar-mitsuba.", suffix=".probe", dir=folder)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as e:
-        raise UsageError(option, f"cannot write in {str(folder)!r} ({e.strerror})") from None
-
-
-def _dead_time(value: str) -> float:
-    if value in DEAD_TIME_PRESETS_NS:
-        return DEAD_TIME_PRESETS_NS[value]
-    try:
-        return float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"not a number or a preset ({', '.join(DEAD_TIME_PRESETS_NS)}): {value!r}") from None
-
-
-def _max_depth(value: str):
-    """An argparse type: an integer or ``auto`` (``--max-depth``, ``--paths-per-shot``)."""
-    if value == "auto":
-        return value
-    try:
-        return int(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer or 'auto': {value!r}") from None
-
-
-def _int_at_least(minimum: int):
-    """An argparse type: an integer >= ``minimum``."""
-    def parse(value: str) -> int:
-        try:
-            v = int(value)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not an integer: {value!r}") from None
-        if v < minimum:
-            raise argparse.ArgumentTypeError(f"must be >= {minimum} (got {v})")
-        return v
-    return parse
-
-
-_positive_int = _int_at_least(1)
-_nonnegative_int = _int_at_least(0)
-
-
-def _define(value: str) -> tuple[str, str]:
-    name, eq, v = value.partition("=")
-    if not eq or not name.strip():
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE (got {value!r})")
-    return name.strip(), v
-
-
-def _version() -> str:
-    from .resources import versions
-    v = versions()
-    return f"{PROG} {v['lidar_mitsuba']} (mitsuba {v['mitsuba']}, drjit {v['drjit']})"
+from . import cli_options as opts, cli_simulate
+from .cli_args import (PROG, Parser, UsageError, finite, nonnegative_int, out_dir, out_path,
+                       positive_int, rates_line, read_input, variant_list, version_text)
+from .constants import ParameterError
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import terrain
-    from .simulate import simulate
-    from .surface import SURFACES, SurfaceSpec
+    p = Parser(prog=PROG, description="Physically based simulation of a spaceborne "
+               "photon-counting lidar (ICESat-2/ATLAS-like) with Mitsuba 3.")
+    p.add_argument("--version", action="version", version=version_text())
+    sub = p.add_subparsers(dest="command", parser_class=Parser, metavar="COMMAND")
+    cli_simulate.add_parser(sub)
+    _add_file_parsers(sub)
+    _add_study_parsers(sub)
+    _add_sweep_parser(sub)
+    _add_terrain_parsers(sub)
+    return p
 
-    p = _Parser(prog=PROG, description="Physically based simulation of a spaceborne "
-                "photon-counting lidar (ICESat-2/ATLAS-like) with Mitsuba 3.")
-    p.add_argument("--version", action="version", version=_version())
-    sub = p.add_subparsers(dest="command", parser_class=_Parser, metavar="COMMAND")
 
-    s = sub.add_parser("simulate", help="simulate a ground track and write ATL03-like HDF5",
-                       description="Simulate laser shots over a surface, detect their photons "
-                       "and write an ATL03-like HDF5 file; prints bias and precision.")
-    src = s.add_argument_group("scene (a built-in surface or your own Mitsuba XML)")
-    src.add_argument("--scene", metavar="FILE.xml",
-                     help="Mitsuba XML scene (z up, metres, its own BSDFs); a <integrator "
-                     "type=\"pathlength\"> in it sets max_depth, altitude, footprint, pulse "
-                     "and field of view")
-    src.add_argument("-D", dest="define", action="append", type=_define, metavar="NAME=VALUE",
-                     help="set the XML's <default name=\"NAME\"> parameter (repeatable)")
-    g = s.add_argument_group("built-in surface (--surface; slope if --slope-deg is given)")
-    surface_opts = opts.add_options(g, SurfaceSpec, metavars={"kind": None})
-    s.set_defaults(_surface_opts=surface_opts)
-    g._group_actions[0].choices = SURFACES
-    i = s.add_argument_group("instrument")
-    i.add_argument("--instrument", choices=INSTRUMENT_PRESETS, default=None,
-                   help="paper (default; atlas with --like): Zhang & Kerekes' instrument, "
-                   "signal and background as given; atlas: ATLAS as flown, signal from its "
-                   "link budget, background from the sun and the air at each shot (README: "
-                   "where each number comes from)")
-    s.set_defaults(_instrument_opts=opts.add_options(
-        i, Instrument, types_={"dead_time_ns": _dead_time}, skip=("link_budget",)))
-    lb = s.add_argument_group("link budget (--instrument atlas)")
-    s.set_defaults(_link_opts=opts.add_options(
-        lb, LinkBudget, skip=("atmosphere", "solar_background", "laser_backscatter"))
-        + opts.add_options(lb, Atmosphere, only=("aerosol_optical_depth",)))
-    s.set_defaults(_site_opts=opts.add_options(
-        i, Site, only=("lat_deg", "lon_deg", "height_m"),
-        metavars={"lat_deg": "DEG", "lon_deg": "DEG"}))
-    t = s.add_argument_group("track (default: along +x through the middle of the surface)")
-    s.set_defaults(_track_opts=opts.add_options(t, Track, metavars={"start_xy_m": ("X", "Y")}))
-    d = s.add_argument_group("real terrain and orbit (--dem: a granule of up to six beams)")
-    d.add_argument("--dem", metavar="FILE.tif", help="GeoTIFF DEM in a projected CRS (metres); "
-                   "the track streams over it in corridor tiles")
-    d.add_argument("--like", metavar="ATL03.h5",
-                   help="simulate a real ATL03 granule's twin: its beams, orientation, ground "
-                   "tracks, times and sun, over --dem or a built-in surface (flat by default, "
-                   "the spacecraft at the real range); --shots caps each beam's pulses")
-    d.add_argument("--track", metavar="LAT,LON,AZIMUTH|FILE",
-                   help="reference ground track: first shot and azimuth [deg, clockwise from "
-                   "north], or a file of lat, lon rows (a polyline)")
-    d.add_argument("--beams", default="all", metavar="all|strong|weak|gt1l,...",
-                   help="beams to simulate (all)")
-    d.add_argument("--sc-orient", type=int, choices=(0, 1), default=0,
-                   help="spacecraft orientation: 0 backward (left beams strong), 1 forward")
-    d.add_argument("--epoch", default=None, metavar="UTC",
-                   help="time of the first shot (ISO 8601 UTC; default 2019-06-01T00:00:00Z "
-                   "with --dem, 2019-06-21T16:00:00Z at --lat/--lon otherwise)")
-    d.add_argument("--roughness-relief-m", type=float, metavar="M",
-                   help="add fractal roughness below the DEM's posting with this relief")
-    d.add_argument("--roughness-p", type=float, default=1.8, metavar="P",
-                   help="spectral exponent of the roughness (1.8)")
-    d.add_argument("--mesh-grid-m", type=float, default=None, metavar="M",
-                   help="spacing of a corridor mesh along the track (default: 1 m with "
-                        "--roughness-relief-m, else the DEM's own pixels, split to 1 mm of its "
-                        "bilinear surface)")
-    d.add_argument("--atl06", metavar="FILE.h5", help="also write ATL06 land-ice segments")
-    v = s.add_argument_group("snow volume (off by default: the surface's BSDF is the snow)")
-    v.add_argument("--snow-grain-um", type=float, metavar="UM",
-                   help="trace snow as a scattering volume of this optical grain radius [um] "
-                   "under the surface (built-in surfaces and --dem)")
-    v.add_argument("--snow-density", type=float, metavar="KG_M3",
-                   help="snow density [kg/m^3] (350)")
-    v.add_argument("--snow-depth-m", type=float, metavar="M",
-                   help="snow layer thickness [m] (inf: semi-infinite)")
-    v.add_argument("--snow-base-albedo", type=float, metavar="A",
-                   help="Lambertian albedo of the base under a finite layer (0)")
-    v.add_argument("--snow-max-events", type=int, metavar="N",
-                   help="scatterings traced per photon; later light is lost (default: enough "
-                   "for 10 m of path in the snow)")
-    v.add_argument("--snow-similarity-g", type=float, metavar="G",
-                   help="trace a similar snow with this asymmetry (0 <= G < 0.89) and the same "
-                   "sigma_s (1 - g): fewer scatterings, faster, approximate near the surface")
-    r = s.add_argument_group("rendering")
-    opts.add_options(r, simulate, only=RUN_OPTIONS,
-                     types_={"max_depth": _max_depth, "paths_per_shot": _max_depth},
-                     metavars={"max_depth": "N|auto", "paths_per_shot": "N|auto",
-                               "variant": "NAME"})
-    r.add_argument("--full-tile", action="store_true",
-                   help="mesh the whole tile instead of the track's corridor (same photons)")
-    o = s.add_argument_group("output")
-    o.add_argument("--out", required=True, metavar="FILE.h5", help="ATL03-like HDF5 output")
-    o.add_argument("--plot", metavar="FILE.png", help="also write the photon cloud (Fig. 10)")
-    o.add_argument("--window", type=_positive_int, default=1000, metavar="SHOTS",
-                   help="shots per statistics window (1000)")
-    o.add_argument("--no-progress", action="store_true", help="no progress bar")
-    o.add_argument("--explain", action="store_true",
-                   help="print the modelling choices the run made (bounces, mesh, sampling)")
-
+def _add_file_parsers(sub) -> None:
+    """``stats`` and ``segments``: what a simulated ATL03 file says."""
     st = sub.add_parser("stats", help="elevation bias and precision of a simulated file",
                         description="Bias and precision (mean and std of h - z_ref) of the "
                         "signal photons: overall, per window and per channel.")
     st.add_argument("file", metavar="FILE.h5")
-    st.add_argument("--window", type=_positive_int, default=1000, metavar="SHOTS",
+    st.add_argument("--window", type=positive_int, default=1000, metavar="SHOTS",
                     help="shots per window (1000)")
     st.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
@@ -265,6 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
     sg.add_argument("--out", metavar="SEGMENTS.h5",
                     help="write the table as land_ice_segments/h_li, ... (HDF5)")
 
+
+def _add_study_parsers(sub) -> None:
+    """``bench``, ``reproduce`` and ``validate``: the studies with their reports."""
     b = sub.add_parser("bench", help="throughput benchmarks (charts and bench.json)",
                        description="Benchmarks: detector events/s, integrator vs the ray-cast "
                        "ceiling, end-to-end shots/s, accuracy against time, stability sweeps, "
@@ -273,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "ratios within one run.")
     b.add_argument("--out", required=True, metavar="DIR", help="folder for bench.json and PNGs")
     b.add_argument("--quick", action="store_true", help="small sizes (what the tests run)")
-    b.add_argument("--variant", type=_variant_list, metavar="NAME[,NAME]",
+    b.add_argument("--variant", type=variant_list, metavar="NAME[,NAME]",
                    help="Mitsuba variant(s) to measure, e.g. llvm_ad_mono,cuda_ad_mono: each "
                    "in its own process, charted side by side (default: the active one)")
     b.add_argument("--throughput-only", action="store_true",
@@ -291,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "parent must exist)")
     rp.add_argument("--quick", action="store_true",
                     help="fewer shots and configurations, same code (what the tests run)")
-    rp.add_argument("--workers", type=_positive_int, metavar="N",
+    rp.add_argument("--workers", type=positive_int, metavar="N",
                     help="compute the figures as tasks on a Dask LocalCluster of N processes "
                     "(same numbers; default: one after another in this process)")
     rp.add_argument("--profile", metavar="FILE",
@@ -310,8 +104,10 @@ def build_parser() -> argparse.ArgumentParser:
     va.add_argument("--quick", action="store_true",
                     help="fewer interior shots (what the tests run)")
 
-    _add_sweep_parser(sub)
 
+def _add_terrain_parsers(sub) -> None:
+    """``terrain`` and ``make-dem``: synthetic surfaces to simulate over."""
+    from . import terrain
     t = sub.add_parser("terrain", help="fractal terrain by Fourier synthesis (.npy or .ply)",
                        description="Synthesise a periodic 1/f^p fractal heightfield (paper eqs. 2-4).")
     opts.add_options(t, terrain.fractal, metavars={"p": "P"})
@@ -328,127 +124,14 @@ def build_parser() -> argparse.ArgumentParser:
     md.add_argument("--width-m", type=float, default=12000.0, help="east-west extent (12000)")
     md.add_argument("--length-m", type=float, default=12000.0, help="north-south extent (12000)")
     md.add_argument("--posting-m", type=float, default=20.0, help="pixel size (20)")
-    md.add_argument("--seed", type=_nonnegative_int, default=0, help="undulations' seed (0)")
+    md.add_argument("--seed", type=nonnegative_int, default=0, help="undulations' seed (0)")
     md.add_argument("--no-hole", action="store_true", help="no nodata square")
-    return p
-
-
-# ------------------------------------------------------------------------------ commands
-def _cmd_simulate(a) -> int:
-    out = _out_path(a.out, (".h5", ".hdf5"))
-    plot = _out_path(a.plot, (".png",), "--plot") if a.plot else None
-    dem_only = {"--track": a.track, "--atl06": a.atl06,
-                "--roughness-relief-m": a.roughness_relief_m}
-    if a.like is not None:
-        return _simulate_like(a, out, plot)
-    if a.dem is not None:
-        return _simulate_dem(a, out, plot)
-    for flag, value in dem_only.items():
-        if value is not None:
-            raise UsageError(flag, "only applies to --dem")
-    from . import atl03
-    from .retrieval import format_report
-    from .simulate import simulate
-    from .surface import SurfaceSpec
-
-    surface_given = opts.given(a, a._surface_opts)
-    params = dict(a.define or [])
-    if a.scene is not None:
-        if surface_given:
-            raise UsageError(opts.option_name(next(iter(surface_given))),
-                             "does not apply to --scene (set it in the XML; -D NAME=VALUE "
-                             "sets its <default> parameters)")
-    else:
-        if params:
-            raise UsageError("-D", "only applies to --scene")
-        if "kind" not in surface_given and "slope_deg" in surface_given:
-            surface_given["kind"] = "slope"
-    inst = _instrument(a)
-    site_opts = opts.given(a, a._site_opts)
-    site = Site(**site_opts, **({} if a.epoch is None else {"epoch_utc": a.epoch}))
-    if a.scene is not None and a.snow_grain_um is not None:
-        raise UsageError("--snow-grain-um", "does not apply to --scene: put a <medium> inside "
-                         "its terrain shape")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SimulationWarning)     # printed below, our way
-        res = simulate(instrument=inst, surface=None if a.scene else SurfaceSpec(**surface_given),
-                       scene_file=a.scene, params=params or None,
-                       track=Track(**opts.given(a, a._track_opts)),
-                       progress=not a.no_progress, crop_to_track=not a.full_tile,
-                       snow=_snow(a), site=site, **opts.given(a, RUN_OPTIONS))
-    inst = res.instrument           # as run (an XML <integrator> may set its geometry)
-    for w in res.config["warnings"]:
-        sys.stderr.write(f"{PROG} simulate: warning: {w}\n")
-    atl03.write(res, out)
-    rep = res.report(window_shots=a.window)
-    what = a.scene or f"{res.config['surface']['kind']} surface"
-    print(format_report(rep, title=f"{inst.beam} beam, {res.n_shots} shots over {what} "
-                                   f"({res.timings_s['total_s']:.1f} s)"))
-    if not res.detections.is_signal.all():
-        print(_rates_line(res.classification()))
-    if a.explain:
-        print("model:")
-        for line in res.config["choices"]:
-            print(f"  - {line}")
-    print(f"wrote {out}")
-    if plot is not None:
-        from .plotting import photon_cloud
-        d = res.detections
-        photon_cloud(along_track_m=res.along_track_m, surface_z_m=res.surface_z_m,
-                     z_ref_m=res.z_ref_m, photon_along_m=res.along_track_m[d.shot],
-                     photon_h_m=res.h_m, is_signal=d.is_signal, path=plot,
-                     title=f"{inst.beam} beam over {what}: bias {100 * rep.overall.bias_m:.1f} cm, "
-                           f"precision {100 * rep.overall.std_m:.1f} cm")
-        print(f"wrote {plot}")
-    return 0
-
-
-def _instrument(a) -> Instrument:
-    """The instrument of ``simulate``'s options: ``--instrument paper`` (the fields as given)
-    or ``atlas`` (:meth:`Instrument.atlas`, with the given fields and link-budget options)."""
-    given = opts.given(a, a._instrument_opts)
-    link = opts.given(a, a._link_opts)
-    if (a.instrument or "paper") == "atlas":
-        return Instrument.atlas(given.pop("beam", "strong"), **given, **link)
-    if link:
-        raise UsageError(opts.option_name(next(iter(link))),
-                         "only applies with --instrument atlas (a link budget)")
-    return Instrument(**given)
-
-
-def _snow(a):
-    """The run's snow volume from the ``--snow-*`` options, or ``None`` (no --snow-grain-um)."""
-    from . import snow
-    options = (("--snow-density", "density_kg_m3", a.snow_density),
-               ("--snow-depth-m", "depth_m", a.snow_depth_m),
-               ("--snow-base-albedo", "base_albedo", a.snow_base_albedo),
-               ("--snow-max-events", "max_events", a.snow_max_events),
-               ("--snow-similarity-g", None, a.snow_similarity_g))
-    given = [(flag, key, value) for flag, key, value in options if value is not None]
-    if a.snow_grain_um is None:
-        if given:
-            raise UsageError(given[0][0], "only applies with --snow-grain-um")
-        return None
-    # options not given keep snow_from_grains' defaults
-    vol = snow.snow_from_grains(grain_radius_um=a.snow_grain_um,
-                                **{key: value for _, key, value in given if key})
-    return vol if a.snow_similarity_g is None else vol.similar(a.snow_similarity_g)
-
-
-def _read_input(path: str, reader):
-    """``reader(path)`` for the FILE argument; a missing or unreadable file is a usage error."""
-    if not pathlib.Path(path).is_file():
-        raise UsageError("FILE", f"{path!r} not found")
-    try:
-        return reader(path)
-    except (OSError, ValueError, KeyError) as e:
-        raise UsageError("FILE", f"cannot read {path!r} ({str(e).splitlines()[0]})") from None
 
 
 def _cmd_stats(a) -> int:
     from . import atl03
     from .retrieval import elevation_report, format_report
-    d = _read_input(a.file, atl03.read)
+    d = read_input(a.file, atl03.read)
     sig = d["is_signal"]
     dh = d["h_m"] - d["z_ref_m"][d["shot"]]
     rep = elevation_report(dh_m=dh[sig], shot=d["shot"][sig], channel=d["channel"][sig],
@@ -458,183 +141,23 @@ def _cmd_stats(a) -> int:
     if a.json:
         doc = rep.to_dict()
         doc.update(beam=d["beam"], file=str(a.file), classification=rates)
-        print(json.dumps(_finite(doc), indent=1))
+        print(json.dumps(finite(doc), indent=1))
     else:
         print(format_report(rep, title=f"{a.file} ({d['beam']})"))
         if rates["n_noise"]:
-            print(_rates_line(rates))
+            print(rates_line(rates))
     return 0
-
-
-def _rates_line(r: dict) -> str:
-    return (f"classifier (signal_conf_ph >= {r['min_conf']}): hit rate {r['hit_rate']:.3f} of "
-            f"{r['n_signal']} signal photons, false alarms {r['false_alarm_rate']:.3f} of "
-            f"{r['n_noise']} noise photons")
-
-
-def _finite(obj):
-    """JSON-safe copy: NaN and inf become null."""
-    import math
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
-def _simulate_dem(a, out, plot) -> int:
-    """``simulate --dem``: a granule of up to six beams along a ground track."""
-    from . import geotrack, granule
-    atl06_out = _out_path(a.atl06, (".h5", ".hdf5"), "--atl06") if a.atl06 else None
-    if a.scene is not None:
-        raise UsageError("--scene", "give --dem or --scene, not both")
-    for name in list(opts.given(a, a._surface_opts)) + list(opts.given(a, a._track_opts)):
-        raise UsageError(opts.option_name(name), "does not apply to --dem (the DEM is the "
-                         "surface; --track sets the ground track)")
-    if a.define:
-        raise UsageError("-D", "only applies to --scene")
-    if a.track is None:
-        raise UsageError("--track", "is required with --dem (LAT,LON,AZIMUTH or a file)")
-    inst_opts = opts.given(a, a._instrument_opts)
-    run = opts.given(a, RUN_OPTIONS)
-    if "beam" in inst_opts:
-        raise UsageError("--beam", "does not apply to --dem: use --beams")
-    site_opts = opts.given(a, a._site_opts)
-    if site_opts:
-        raise UsageError(opts.option_name(next(iter(site_opts))), "does not apply to --dem "
-                         "(--track places the shots on the Earth)")
-    link = opts.given(a, a._link_opts)
-    if link and a.instrument != "atlas":
-        raise UsageError(opts.option_name(next(iter(link))),
-                         "only applies with --instrument atlas (a link budget)")
-    inst_opts.update(link)
-    surface = _dem_surface(a, run.get("seed", 0))
-    track = geotrack.GeoTrack.parse(a.track, **({} if a.epoch is None else
-                                               {"epoch_utc": a.epoch}))
-    beams = geotrack.select_beams(a.beams, a.sc_orient)
-    shots = run.pop("shots", 1000)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SimulationWarning)
-        summaries = granule.stream_granule(
-            surface=surface, track=track, beams=beams, sc_orient=a.sc_orient,
-            instrument_options=inst_opts, instrument=a.instrument or "paper",
-            progress=not a.no_progress, shots=shots,
-            atl03_path=out, atl06_path=atl06_out, snow=_snow(a), **run)
-    where = f"{surface.dem.path.name} ({surface.dem.crs.to_string()})"
-    print(f"{len(summaries)} beam(s), {shots} shots each ({shots * 0.7e-3:.1f} km), over {where}")
-    return _granule_report(a, summaries, out, atl06_out, plot)
-
-
-def _dem_surface(a, seed: int):
-    """``--dem``'s surface, with ``--roughness-*`` and ``--mesh-grid-m``."""
-    from . import dem as dems
-    dem = dems.DEM.open(a.dem)
-    rough = None
-    if a.roughness_relief_m is not None:
-        rough = dems.roughness(p=a.roughness_p, relief_m=a.roughness_relief_m,
-                               posting_m=dem.posting_m, grid_m=a.mesh_grid_m or 1.0, seed=seed)
-    return dems.DEMSurface(dem, roughness=rough, mesh_grid_m=a.mesh_grid_m)
-
-
-def _granule_report(a, summaries, out, atl06_out, plot) -> int:
-    """Print a granule's per-beam bias and precision (and ``--explain``); draw ``--plot``."""
-    for sm in summaries:
-        for w in sm.config["warnings"]:
-            sys.stderr.write(f"{PROG} simulate: warning: {sm.beam.name}: {w}\n")
-    print(f"  {'beam':5} {'spot':>4} {'type':6} {'signal':>9} {'bias [cm]':>14} "
-          f"{'precision [cm]':>14}")
-    for sm in summaries:
-        print(f"  {sm.beam.name:5} {sm.beam.spot:>4} {sm.beam.strength:6} {sm.photons:>9} "
-              f"{100 * sm.bias_m:+7.2f} ± {100 * sm.bias_se_m:4.2f} {100 * sm.std_m:>14.2f}")
-    if a.explain:
-        print("model (first section of the first beam):")
-        for line in summaries[0].config["choices"]:
-            print(f"  - {line}")
-    print(f"wrote {out}")
-    if atl06_out is not None:
-        print(f"wrote {atl06_out}")
-    if plot is not None:
-        from .plotting import granule_clouds
-        granule_clouds(out, plot)
-        print(f"wrote {plot}")
-    return 0
-
-
-def _simulate_like(a, out, plot) -> int:
-    """``simulate --like REAL.h5``: the twin of a real granule over ``--dem`` or a built-in
-    surface (:mod:`lidar_mitsuba.twin`)."""
-    from . import granule, twin
-    from .surface import SurfaceSpec
-    atl06_out = _out_path(a.atl06, (".h5", ".hdf5"), "--atl06") if a.atl06 else None
-    for flag, value in (("--track", a.track), ("--scene", a.scene), ("--epoch", a.epoch),
-                        ("-D", a.define)):
-        if value:
-            raise UsageError(flag, "does not apply to --like (the real granule sets the "
-                             "shots, their times and places)")
-    for name in list(opts.given(a, a._track_opts)) + list(opts.given(a, a._site_opts)):
-        raise UsageError(opts.option_name(name), "does not apply to --like")
-    if a.sc_orient != 0:
-        raise UsageError("--sc-orient", "does not apply to --like (the file's orientation)")
-    inst_opts = opts.given(a, a._instrument_opts)
-    if "beam" in inst_opts:
-        raise UsageError("--beam", "does not apply to --like: use --beams")
-    preset = a.instrument or "atlas"
-    link = opts.given(a, a._link_opts)
-    if link and preset != "atlas":
-        raise UsageError(opts.option_name(next(iter(link))),
-                         "only applies with --instrument atlas (a link budget)")
-    inst_opts.update(link)
-    run = opts.given(a, RUN_OPTIONS)
-    shots = run.pop("shots", None)
-    real = twin.read(a.like)
-    beams = real.select_beams(a.beams)
-    # the spacecraft at the real range to the surface (a DEM: at the real altitude above it)
-    inst_opts.setdefault("altitude_m", real.median_range_m() if a.dem is None
-                         else real.median_altitude_m())
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SimulationWarning)
-        if a.dem is not None:
-            summaries = granule.stream_granule(
-                surface=_dem_surface(a, run.get("seed", 0)), track=real, beams=beams,
-                sc_orient=real.sc_orient, instrument_options=inst_opts, instrument=preset,
-                progress=not a.no_progress, shots=shots, atl03_path=out,
-                atl06_path=atl06_out, snow=_snow(a), **run)
-        else:
-            surface_given = opts.given(a, a._surface_opts)
-            if "kind" not in surface_given and "slope_deg" in surface_given:
-                surface_given["kind"] = "slope"
-            surface_given.setdefault("kind", "flat")
-            g = twin.simulate_over_surface(
-                real, surface=SurfaceSpec(**surface_given), beams=",".join(b.name for b in beams),
-                shots=shots, instrument=preset, instrument_options=inst_opts,
-                progress=not a.no_progress, snow=_snow(a), **run)
-            granule.write_atl03(g, out)
-            if atl06_out is not None:
-                granule.write_atl06(g, atl06_out)
-            summaries = []
-            for r in g.beams:
-                sm = granule.BeamSummary(beam=r.beam)
-                sm.add(r.result)
-                summaries.append(sm)
-    n = {b.beam.name: b.n_shots for b in real.beams}
-    print(f"the twin of {real.path.name}: {len(summaries)} beam(s) "
-          f"({', '.join(f'{sm.beam.name} {sm.shots} shots' for sm in summaries)} of "
-          f"{', '.join(f'{k} {v}' for k, v in n.items())}), {preset} instrument, over "
-          + (a.dem if a.dem else f"a {surface_given['kind']} surface"))
-    return _granule_report(a, summaries, out, atl06_out, plot)
 
 
 def _cmd_segments(a) -> int:
-    out = _out_path(a.out, (".h5", ".hdf5")) if a.out else None
+    out = out_path(a.out, (".h5", ".hdf5")) if a.out else None
     from . import atl06
-    table = _read_input(a.file, atl06.segments_from_atl03)
+    table = read_input(a.file, atl06.segments_from_atl03)
     summary = atl06.summarize(table)
     if out is not None:
         atl06.write(table, out)
     if a.json:
-        print(json.dumps(_finite(summary), indent=1))
+        print(json.dumps(finite(summary), indent=1))
     else:
         def cm(key, sign="+"):
             v = summary.get(key)
@@ -655,7 +178,7 @@ def _cmd_segments(a) -> int:
 
 
 def _cmd_bench(a) -> int:
-    out = _out_dir(a.out)
+    out = out_dir(a.out)
     from .studies import bench
     doc = bench.run(out_dir=out, quick=a.quick, variants=a.variant,
                     throughput_only=a.throughput_only)
@@ -665,7 +188,7 @@ def _cmd_bench(a) -> int:
 
 
 def _cmd_make_dem(a) -> int:
-    out = _out_path(a.out, (".tif", ".tiff"))
+    out = out_path(a.out, (".tif", ".tiff"))
     from .dem import synthetic_ice_sheet
     if not (abs(a.lat) < 85 and -180 <= a.lon <= 360):
         raise UsageError("--lat" if abs(a.lat) >= 85 else "--lon", "out of range")
@@ -687,7 +210,7 @@ def _cmd_make_dem(a) -> int:
 
 
 def _cmd_terrain(a) -> int:
-    out = _out_path(a.out, (".npy", ".ply"))
+    out = out_path(a.out, (".npy", ".ply"))
     import numpy as np
 
     from . import terrain
@@ -713,7 +236,7 @@ def _cmd_terrain(a) -> int:
 
 
 def _cmd_validate(a) -> int:
-    out = _out_dir(a.out)
+    out = out_dir(a.out)
     from .studies import validate
     doc = validate.run(out, quick=a.quick)
     print(validate.format_summary(doc))
@@ -723,7 +246,7 @@ def _cmd_validate(a) -> int:
 
 def _cmd_reproduce(a) -> int:
     started = time.perf_counter()
-    out = _out_dir(a.out)
+    out = out_dir(a.out)
     from .studies import reproduce
     profile = None
     if a.profile is not None:
@@ -754,10 +277,10 @@ def _add_sweep_parser(sub) -> None:
                     "skips the tasks already done)")
     sw.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. "
                     "tcp://host:8786 (default: a LocalCluster on this machine)")
-    sw.add_argument("--workers", type=_nonnegative_int, metavar="N", help="worker processes "
+    sw.add_argument("--workers", type=nonnegative_int, metavar="N", help="worker processes "
                     "of the LocalCluster (default: the cores; 0: no Dask, tasks run here one "
                     "after another)")
-    sw.add_argument("--threads", type=_positive_int, metavar="N", help="Dr.Jit and numba "
+    sw.add_argument("--threads", type=positive_int, metavar="N", help="Dr.Jit and numba "
                     "threads per task (default: cores / workers on the LocalCluster, the "
                     "workers' own setting with --scheduler)")
     sw.add_argument("--plot", action="append", metavar="PARAM", help="draw bias and precision "
@@ -781,7 +304,7 @@ def _cmd_sweep(a) -> int:
         spec = sweep.load_spec(a.spec)
     except sweep.SpecError as e:
         raise named(e) from None
-    out = _out_dir(a.out)
+    out = out_dir(a.out)
     if a.scheduler is not None and a.workers is not None:
         raise UsageError("--workers", "does not apply to --scheduler (its workers are started "
                          "there)")
@@ -836,7 +359,7 @@ def main(argv: list[str] | None = None) -> int:
     prog = f"{PROG} {args.command}"
     try:
         try:
-            return {"simulate": _cmd_simulate, "stats": _cmd_stats, "segments": _cmd_segments,
+            return {"simulate": cli_simulate.run, "stats": _cmd_stats, "segments": _cmd_segments,
                     "bench": _cmd_bench, "terrain": _cmd_terrain, "make-dem": _cmd_make_dem,
                     "reproduce": _cmd_reproduce, "sweep": _cmd_sweep,
                     "validate": _cmd_validate}[args.command](args)
