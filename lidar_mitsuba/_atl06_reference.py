@@ -54,7 +54,8 @@ class Config:
 
 
 def line_fit(x: np.ndarray, h: np.ndarray):
-    """Least-squares ``h = a + b x``; returns (a, b, (G^T G)^-1) or None when singular."""
+    """Least-squares ``h = a + b x``; returns (a, b, cov00) or None when singular, ``cov00``
+    the intercept's element of ``(G^T G)^-1`` (the rest is never used)."""
     n = x.size
     sx, sxx = x.sum(), (x * x).sum()
     det = n * sxx - sx * sx
@@ -63,8 +64,7 @@ def line_fit(x: np.ndarray, h: np.ndarray):
     sh, sxh = h.sum(), (x * h).sum()
     a = (sxx * sh - sx * sxh) / det
     b = (n * sxh - sx * sh) / det
-    cov = np.array([[sxx, -sx], [-sx, n]]) / det
-    return a, b, cov
+    return a, b, sxx / det
 
 
 def _exclusion(win, sig_r, dead_m, cfg: Config) -> float:
@@ -277,13 +277,13 @@ def fit_segment(x, h, x_shot, gate_c, cfg: Config) -> dict:
     if fit is None:
         out["flags"] = flags | too_few
         return out
-    a, b, cov = fit
+    a, b, cov00 = fit
     r_all = h - (a + b * x)
     r0 = r_all[sel]
     n_fit = r0.size
     sig_r, n_bg_out, exposure_ns, bg = _final_spread_and_background(x_shot, gate_c, a, b, r_all,
                                                                     r0, win, bg, cfg)
-    n_noise_obs, h_rms, sigma_h_mean = _formal_errors(r0, b, cov[0, 0], win, n_bg_out,
+    n_noise_obs, h_rms, sigma_h_mean = _formal_errors(r0, b, cov00, win, n_bg_out,
                                                       exposure_ns, n_pulses, cfg)
     fpb, fpb_flags = _first_photon_bias(r_all, win, bg, n_pulses, cfg)
     flags |= fpb_flags
