@@ -1,9 +1,12 @@
-"""Compiled ATL06 segment fit (numba): :func:`lidar_mitsuba.atl06._fit_segment` and the
-:mod:`lidar_mitsuba.fpb` helpers it calls, step for step, over all segments of a track.
+"""Compiled ATL06 segment fit (numba): :func:`lidar_mitsuba._atl06_reference.fit_segment` and
+the :mod:`lidar_mitsuba.fpb` helpers it calls, step for step, over all segments of a track.
 
 The numpy functions stay the reference (the module docstring of :mod:`lidar_mitsuba.atl06`
 describes the algorithm, and the tests compare the two on the same segments): this file only
 removes the per-segment Python overhead (~0.9 ms a segment, 44 % of a DEM granule's time).
+Each step of the reference has its twin here under the same name (``_densest_window``,
+``_first_window``, ``_refine_window``, ``_final_spread_and_background``, ``_formal_errors``,
+``_first_photon_bias``), and :func:`fit_segment` strings them together as the reference does.
 :func:`fit_all` runs its segments one after the other (``parallel=True`` made the compile twice
 as long) without the GIL: :func:`lidar_mitsuba.atl06._fit_compiled` gives contiguous blocks of
 segments to the host's threads (a sweep task's thread count included).
@@ -29,11 +32,14 @@ OUT_FIELDS = ("n_seg_pulses", "flags", "n_fit_photons", "h_li", "h_li_sigma", "h
  _WIN, _EXIT, _BG, _BG_N, _BG_EXP, _FPB, _FPB_SIGMA, _FPB_MED, _GAIN, _MIN_ALIVE, _N_CORR,
  _SNR) = range(len(OUT_FIELDS))
 
-#: the settings ``cfg`` holds, in order (``atl06._Config``'s fields), then half c and the
-#: Gaussian IQR per sigma
+#: the settings ``cfg`` holds, in order (``_atl06_reference.Config``'s fields), then half c
+#: and the Gaussian IQR per sigma; the names below index them
 CFG_FIELDS = ("n_channels", "dead_time_ns", "paralyzable", "sigma_pulse_m", "footprint_sigma_m",
               "gate_m", "initial_window_m", "min_window_m", "max_iterations", "min_photons",
               "min_span_m", "min_alive_pulses", "max_gain")
+(_N_CHANNELS, _DEAD_TIME_NS, _PARALYZABLE, _SIGMA_PULSE_M, _FOOTPRINT_SIGMA_M, _GATE_M, _W0,
+ _MIN_WINDOW_M, _MAX_ITERATIONS, _MIN_PHOTONS, _MIN_SPAN_M, _MIN_ALIVE_PULSES, _MAX_GAIN, _HALF_C,
+ _IQR_SCALE) = range(len(CFG_FIELDS) + 2)
 
 _TOO_FEW, _LOW_SNR, _LARGE_SPREAD, _FPB_DEAD, _FPB_GAIN, _FPB_DIVERGED, _NOT_CONVERGED = \
     1, 2, 4, 8, 16, 32, 64
@@ -217,9 +223,9 @@ def _corrected_background_mhz(observed, n_channels, dead_time_ns, paralyzable):
 
 
 @numba.njit(cache=True, nogil=True)
-def _background(x_shot, gate_c, has_gate, a, b, r_all, excl, gate_m, half_c, n_channels,
-                dead_time_ns, paralyzable):
-    """:func:`lidar_mitsuba.atl06._background`: (n_out, exposure [ns], rate [MHz])."""
+def _background(x_shot, gate_c, has_gate, a, b, r_all, excl, cfg):
+    """:func:`lidar_mitsuba._atl06_reference._background`: (n_out, exposure [ns], rate [MHz])."""
+    gate_m, half_c = cfg[_GATE_M], cfg[_HALF_C]
     n_out = 0
     for i in range(r_all.size):
         if abs(r_all[i]) >= excl:
@@ -238,8 +244,8 @@ def _background(x_shot, gate_c, has_gate, a, b, r_all, excl, gate_m, half_c, n_c
     if exposure_ns <= 0:
         return n_out, 0.0, np.nan
     observed = n_out / exposure_ns * 1e3
-    return n_out, exposure_ns, _corrected_background_mhz(observed, n_channels, dead_time_ns,
-                                                         paralyzable)
+    return n_out, exposure_ns, _corrected_background_mhz(
+        observed, int(cfg[_N_CHANNELS]), cfg[_DEAD_TIME_NS], cfg[_PARALYZABLE] != 0.0)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -329,25 +335,21 @@ def _span_ok(x, sel, min_photons, min_span_m):
 
 
 @numba.njit(cache=True, nogil=True)
-def fit_segment(x, h, x_shot, gate_c, has_gate, cfg, out):
-    """:func:`lidar_mitsuba.atl06._fit_segment` into ``out`` (its :data:`OUT_FIELDS` row,
-    pre-filled with the table's defaults). ``cfg``: float64 array of :data:`CFG_FIELDS`,
-    then half c [m/ns] and the IQR per sigma."""
-    n_channels, dead_time_ns, paralyzable = int(cfg[0]), cfg[1], cfg[2] != 0.0
-    sigma_pulse_m, footprint_sigma_m, gate_m = cfg[3], cfg[4], cfg[5]
-    w0, min_window_m, max_iterations, min_photons = cfg[6], cfg[7], int(cfg[8]), int(cfg[9])
-    min_span_m, min_alive_pulses, max_gain, half_c, iqr_scale = (cfg[10], cfg[11], cfg[12],
-                                                                 cfg[13], cfg[14])
-    n_pulses = x_shot.size
-    out[_N_PULSES] = n_pulses
-    out[_FLAGS] = 0
-    flags = 0
-    dead_m = dead_time_ns * half_c
-    if x.size < min_photons or n_pulses == 0:
-        out[_FLAGS] = _TOO_FEW
-        out[_N_FIT] = x.size
-        return
-    # initial window: the densest w0 of heights, then a line through it
+def _background_per_m(bg, n_pulses, half_c):
+    """:func:`lidar_mitsuba._atl06_reference._background_per_m`."""
+    return bg * 1e-3 / half_c * n_pulses
+
+
+@numba.njit(cache=True, nogil=True)
+def _exclusion(win, sig_r, dead_m, w0):
+    """:func:`lidar_mitsuba._atl06_reference._exclusion`."""
+    s = _pmin(sig_r, 5.0) if math.isfinite(sig_r) else 0.0
+    return _pmax(_pmax(win / 2.0, w0 / 2.0), 5.0 * s) + dead_m
+
+
+@numba.njit(cache=True, nogil=True)
+def _densest_window(h, w0):
+    """:func:`lidar_mitsuba._atl06_reference._densest_window`."""
     hs = h[_argsort(h)]
     i_best = 0
     best = -1
@@ -356,50 +358,60 @@ def fit_segment(x, h, x_shot, gate_c, has_gate, cfg, out):
         if count > best:
             best = count
             i_best = i
-    sel = (h >= hs[i_best]) & (h <= hs[i_best] + w0)
-    good, n_sel = _span_ok(x, sel, min_photons, min_span_m)
-    if not good:
-        out[_FLAGS] = _TOO_FEW
-        out[_N_FIT] = n_sel
-        return
-    ok, a, b, cov00 = _line_fit(x, h, sel)
+    return (h >= hs[i_best]) & (h <= hs[i_best] + w0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _first_window(x, h, x_shot, gate_c, has_gate, sel, cfg):
+    """:func:`lidar_mitsuba._atl06_reference._first_window`, the selection ``sel`` updated in
+    place (an array returned in a tuple costs reference counting on every call): (ok, W,
+    sigma_r, bckgrd)."""
+    ok, a, b, _ = _line_fit(x, h, sel)
     if not ok:
-        out[_FLAGS] = _TOO_FEW
-        return
+        return False, 0.0, 0.0, 0.0
+    w0, half_c = cfg[_W0], cfg[_HALF_C]
     r_all = h - (a + b * x)
-    _, _, bg = _background(x_shot, gate_c, has_gate, a, b, r_all, w0 / 2.0 + dead_m, gate_m,
-                           half_c, n_channels, dead_time_ns, paralyzable)
+    dead_m = cfg[_DEAD_TIME_NS] * half_c
+    _, _, bg = _background(x_shot, gate_c, has_gate, a, b, r_all, w0 / 2.0 + dead_m, cfg)
     if not math.isfinite(bg):
         bg = 0.0
-    bg_per_m = bg * 1e-3 / half_c * n_pulses
-    sigma_exp = math.hypot(sigma_pulse_m, footprint_sigma_m * b)
+    sigma_exp = math.hypot(cfg[_SIGMA_PULSE_M], cfg[_FOOTPRINT_SIGMA_M] * b)
     r0 = r_all[sel]
-    sig_r = _robust_spread(r0, bg_per_m * w0, r0.min(), r0.min() + w0, iqr_scale)
+    sig_r = _robust_spread(r0, _background_per_m(bg, x_shot.size, half_c) * w0, r0.min(),
+                           r0.min() + w0, cfg[_IQR_SCALE])
     win = _pmax(w0, 6.0 * _pmax(_pmin(sig_r, 5.0), sigma_exp))
     new = np.abs(r_all) < win / 2.0
-    if _span_ok(x, new, min_photons, min_span_m)[0]:
-        sel = new
+    if _span_ok(x, new, int(cfg[_MIN_PHOTONS]), cfg[_MIN_SPAN_M])[0]:
+        sel[:] = new
+    return True, win, sig_r, bg
 
-    # iterative refinement
+
+@numba.njit(cache=True, nogil=True)
+def _refine_window(x, h, x_shot, gate_c, has_gate, sel, win, sig_r, bg, cfg):
+    """:func:`lidar_mitsuba._atl06_reference._refine_window`, the selection ``sel`` updated
+    in place: (W, bckgrd, iterations, converged)."""
+    n_pulses, half_c, iqr_scale = x_shot.size, cfg[_HALF_C], cfg[_IQR_SCALE]
+    dead_m = cfg[_DEAD_TIME_NS] * half_c
+    min_photons, min_span_m = int(cfg[_MIN_PHOTONS]), cfg[_MIN_SPAN_M]
+    bg_per_m = _background_per_m(bg, n_pulses, half_c)
     it = 0
     converged = False
-    for it in range(1, max_iterations + 1):
-        ok, a, b, cov00 = _line_fit(x, h, sel)
+    for it in range(1, int(cfg[_MAX_ITERATIONS]) + 1):
+        ok, a, b, _ = _line_fit(x, h, sel)
         if not ok:
             break
         r_all = h - (a + b * x)
         r0 = r_all[sel]
-        s = _pmin(sig_r, 5.0) if math.isfinite(sig_r) else 0.0
-        excl = _pmax(_pmax(win / 2.0, w0 / 2.0), 5.0 * s) + dead_m
-        _, _, bg_i = _background(x_shot, gate_c, has_gate, a, b, r_all, excl, gate_m, half_c,
-                                 n_channels, dead_time_ns, paralyzable)
+        excl = _exclusion(win, sig_r, dead_m, cfg[_W0])
+        _, _, bg_i = _background(x_shot, gate_c, has_gate, a, b, r_all, excl, cfg)
         if math.isfinite(bg_i):
             bg = bg_i
-            bg_per_m = bg * 1e-3 / half_c * n_pulses
+            bg_per_m = _background_per_m(bg, n_pulses, half_c)
         sig_r = _pmin(5.0, _robust_spread(r0, bg_per_m * win, -win / 2.0, win / 2.0,
                                           iqr_scale))
-        sigma_exp = math.hypot(sigma_pulse_m, footprint_sigma_m * b)
-        win_new = _pmax(_pmax(_pmax(6.0 * sigma_exp, 6.0 * sig_r), 0.75 * win), min_window_m)
+        sigma_exp = math.hypot(cfg[_SIGMA_PULSE_M], cfg[_FOOTPRINT_SIGMA_M] * b)
+        win_new = _pmax(_pmax(_pmax(6.0 * sigma_exp, 6.0 * sig_r), 0.75 * win),
+                        cfg[_MIN_WINDOW_M])
         new = np.abs(r_all) < win_new / 2.0
         if not _span_ok(x, new, min_photons, min_span_m)[0]:
             break                                   # keep the previous selection and window
@@ -407,46 +419,55 @@ def fit_segment(x, h, x_shot, gate_c, has_gate, cfg, out):
         if np.array_equal(new, sel):
             converged = True
             break
-        sel = new
-    if not converged and it >= max_iterations:
-        flags |= _NOT_CONVERGED
+        sel[:] = new
+    return win, bg, it, converged
 
-    ok, a, b, cov00 = _line_fit(x, h, sel)
-    if not ok:
-        out[_FLAGS] = flags | _TOO_FEW
-        return
-    r_all = h - (a + b * x)
-    r0 = r_all[sel]
-    n_fit = r0.size
-    sig_r = _robust_spread(r0, bg_per_m * win, -win / 2.0, win / 2.0, iqr_scale)
-    s = _pmin(sig_r, 5.0) if math.isfinite(sig_r) else 0.0
-    excl = _pmax(_pmax(win / 2.0, w0 / 2.0), 5.0 * s) + dead_m
+
+@numba.njit(cache=True, nogil=True)
+def _final_spread_and_background(x_shot, gate_c, has_gate, a, b, r_all, r0, win, bg, cfg):
+    """:func:`lidar_mitsuba._atl06_reference._final_spread_and_background`: (sigma_r,
+    n_bg_out, exposure [ns], bckgrd)."""
+    half_c = cfg[_HALF_C]
+    sig_r = _robust_spread(r0, _background_per_m(bg, x_shot.size, half_c) * win, -win / 2.0,
+                           win / 2.0, cfg[_IQR_SCALE])
+    excl = _exclusion(win, sig_r, cfg[_DEAD_TIME_NS] * half_c, cfg[_W0])
     n_bg_out, exposure_ns, bg_final = _background(x_shot, gate_c, has_gate, a, b, r_all, excl,
-                                                  gate_m, half_c, n_channels, dead_time_ns,
-                                                  paralyzable)
+                                                  cfg)
     if math.isfinite(bg_final):
         bg = bg_final
-    bg_obs_mhz = n_bg_out / exposure_ns * 1e3 if exposure_ns > 0 else 0.0
+    return sig_r, n_bg_out, exposure_ns, bg
 
-    # formal errors
-    win_ns = win / half_c
-    n_noise_obs = bg_obs_mhz * 1e-3 * win_ns * n_pulses
+
+@numba.njit(cache=True, nogil=True)
+def _formal_errors(r0, b, cov00, win, n_bg_out, exposure_ns, n_pulses, cfg):
+    """:func:`lidar_mitsuba._atl06_reference._formal_errors`: (expected noise photons,
+    h_rms_misfit, sigma_h_mean)."""
+    half_c = cfg[_HALF_C]
+    bg_obs_mhz = n_bg_out / exposure_ns * 1e3 if exposure_ns > 0 else 0.0
+    n_fit = r0.size
+    n_noise_obs = bg_obs_mhz * 1e-3 * (win / half_c) * n_pulses
     n_sig = _pmax(0.0, n_fit - n_noise_obs)
-    sigma_exp = math.hypot(sigma_pulse_m, footprint_sigma_m * b)
+    sigma_exp = math.hypot(cfg[_SIGMA_PULSE_M], cfg[_FOOTPRINT_SIGMA_M] * b)
     h_rms = math.sqrt(np.mean(r0 ** 2))
     sigma_photon_est = math.sqrt((n_noise_obs * (win / math.sqrt(12.0)) ** 2
                                   + n_sig * sigma_exp ** 2) / n_fit)
-    sigma_h_mean = math.sqrt(cov00) * _pmax(sigma_photon_est, h_rms)
+    return n_noise_obs, h_rms, math.sqrt(cov00) * _pmax(sigma_photon_est, h_rms)
 
-    # first-photon bias
+
+@numba.njit(cache=True, nogil=True)
+def _first_photon_bias(r_all, win, bg, n_pulses, cfg):
+    """:func:`lidar_mitsuba._atl06_reference._first_photon_bias`: (fpb_corr_m,
+    fpb_corr_sigma_m, fpb_med_corr_m, fpb_gain, fpb_min_alive, fpb_n_corr, flags)."""
+    n_channels, dead_time_ns, half_c = int(cfg[_N_CHANNELS]), cfg[_DEAD_TIME_NS], cfg[_HALF_C]
+    dead_m = dead_time_ns * half_c
     ext = (r_all > -win / 2.0) & (r_all < win / 2.0 + 2.0 * dead_m)
     r_ext = r_all[ext]
     w_ext, ok_w = _dead_time_weights(-r_ext / half_c, n_pulses, n_channels, dead_time_ns,
-                                     paralyzable)
+                                     cfg[_PARALYZABLE] != 0.0)
     in_win = np.abs(r_ext) < win / 2.0
     rw = r_ext[in_win]
     ww = w_ext[in_win]
-    n_bg_true = (bg if math.isfinite(bg) else 0.0) * 1e-3 * win_ns * n_pulses
+    n_bg_true = (bg if math.isfinite(bg) else 0.0) * 1e-3 * (win / half_c) * n_pulses
     w_sum = ww.sum()
     n_corr = w_sum - n_bg_true
     min_alive = np.inf
@@ -472,12 +493,57 @@ def fit_segment(x, h, x_shot, gate_c, has_gate, cfg, out):
                  else np.nan)
     fpb_med = (_weighted_median_minus_uniform(rw, ww, n_bg_true, win / 2.0) if all_finite
                else np.nan)
+    flags = 0
     if not (ok_w and all_finite and n_corr > 0 and math.isfinite(fpb_corr)):
         flags |= _FPB_DIVERGED
-    if not (min_alive * n_pulses * n_channels >= min_alive_pulses):
+    if not (min_alive * n_pulses * n_channels >= cfg[_MIN_ALIVE_PULSES]):
         flags |= _FPB_DEAD
-    if not (gain <= max_gain):
+    if not (gain <= cfg[_MAX_GAIN]):
         flags |= _FPB_GAIN
+    return fpb_corr, fpb_sigma, fpb_med, gain, min_alive, n_corr, flags
+
+
+@numba.njit(cache=True, nogil=True)
+def fit_segment(x, h, x_shot, gate_c, has_gate, cfg, out):
+    """:func:`lidar_mitsuba._atl06_reference.fit_segment` into ``out`` (its
+    :data:`OUT_FIELDS` row, pre-filled with the table's defaults). ``cfg``: float64 array of
+    :data:`CFG_FIELDS`, then half c [m/ns] and the IQR per sigma."""
+    n_pulses = x_shot.size
+    out[_N_PULSES] = n_pulses
+    out[_FLAGS] = 0
+    if x.size < int(cfg[_MIN_PHOTONS]) or n_pulses == 0:
+        out[_FLAGS] = _TOO_FEW
+        out[_N_FIT] = x.size
+        return
+    sel = _densest_window(h, cfg[_W0])
+    good, n_sel = _span_ok(x, sel, int(cfg[_MIN_PHOTONS]), cfg[_MIN_SPAN_M])
+    if not good:
+        out[_FLAGS] = _TOO_FEW
+        out[_N_FIT] = n_sel
+        return
+    ok, win, sig_r, bg = _first_window(x, h, x_shot, gate_c, has_gate, sel, cfg)
+    if not ok:
+        out[_FLAGS] = _TOO_FEW
+        return
+    win, bg, it, converged = _refine_window(x, h, x_shot, gate_c, has_gate, sel, win, sig_r,
+                                            bg, cfg)
+    flags = 0
+    if not converged and it >= int(cfg[_MAX_ITERATIONS]):
+        flags |= _NOT_CONVERGED
+    ok, a, b, cov00 = _line_fit(x, h, sel)                     # the final line
+    if not ok:
+        out[_FLAGS] = flags | _TOO_FEW
+        return
+    r_all = h - (a + b * x)
+    r0 = r_all[sel]
+    n_fit = r0.size
+    sig_r, n_bg_out, exposure_ns, bg = _final_spread_and_background(
+        x_shot, gate_c, has_gate, a, b, r_all, r0, win, bg, cfg)
+    n_noise_obs, h_rms, sigma_h_mean = _formal_errors(r0, b, cov00, win, n_bg_out, exposure_ns,
+                                                      n_pulses, cfg)
+    fpb_corr, fpb_sigma, fpb_med, gain, min_alive, n_corr, fpb_flags = _first_photon_bias(
+        r_all, win, bg, n_pulses, cfg)
+    flags |= fpb_flags
     snr = (n_fit - n_noise_obs) / n_noise_obs if n_noise_obs > 0 else np.inf
     if n_fit - n_noise_obs < 5.0 * math.sqrt(_pmax(n_noise_obs, 1.0)):
         flags |= _LOW_SNR

@@ -16,6 +16,13 @@ a track whose footprints or corridor touch one is refused (``ParameterError`` na
 Roughness (:func:`roughness`): the paper's fractal (1/f^p, eqs. 2-4) synthesised on a
 periodic tile, with every wavelength longer than the DEM's posting removed (the DEM already
 holds those), scaled to ``relief_m`` (max - min of what is left).
+
+Where the code is: :class:`DEM` reads the file window by window (:meth:`DEM.windows`: one
+window per block of points); :mod:`lidar_mitsuba._dem_heights` turns windows into heights at
+points (bilinear look-ups, the closed-form footprint mean of the reference elevation);
+:mod:`lidar_mitsuba._dem_tiles` meshes a chunk's corridor (the DEM's own pixels, or a grid
+along the chord); :class:`DEMSurface` puts them behind the :class:`~lidar_mitsuba.surface.
+Surface` interface.
 """
 from __future__ import annotations
 
@@ -27,10 +34,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import scene as scn, terrain
+from . import _dem_tiles as tiles, scene as scn, terrain
+from ._dem_heights import footprint_mean, heights_at
 from .constants import ParameterError, check
-from .resources import check_memory, host_pool
-from .surface import MESH_BYTES_PER_VERTEX, Surface, grid_faces
+from .resources import check_memory
+from .surface import Surface
 from .terrain import Heightfield
 
 #: most shots per corridor tile (about 2.9 km at 0.7 m): bounds a tile's mesh
@@ -38,10 +46,6 @@ TILE_SHOTS = 4096
 MESH_TOLERANCE_M = 1e-3
 """Largest height error [m] of the pixel mesh (:meth:`DEMSurface.pixel_tile`) against the
 DEM's bilinear surface."""
-
-
-#: the largest footprint weight of missing DEM pixels a reference elevation spreads over the rest
-_MISSING_WEIGHT_MAX = 1e-4
 
 
 def _rasterio():
@@ -157,34 +161,21 @@ class DEM:
         origin = (tr.c + (col0 + 0.5) * g, tr.f - (row1 + 0.5) * g)
         return np.ascontiguousarray(z[::-1]), origin     # the file's rows run north to south
 
-
-def _chord_frame(x: np.ndarray, y: np.ndarray):
-    """``((ox, oy), (ux, uy), along, across)``: the first point, the unit vector of the chord
-    to the last, and every point's coordinates [m] along it and to its left."""
-    ox, oy = float(x[0]), float(y[0])
-    dx, dy = x[-1] - ox, y[-1] - oy
-    length = math.hypot(dx, dy)
-    ux, uy = (dx / length, dy / length) if length > 0 else (1.0, 0.0)
-    return (ox, oy), (ux, uy), (x - ox) * ux + (y - oy) * uy, (x - ox) * -uy + (y - oy) * ux
-
-
-def _bilinear_nan(z: np.ndarray, g: float, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear look-up of the grid ``z`` (node (i, j) at (j g, i g)) [m] at (x, y) [m]; NaN
-    off the grid and wherever a node with a non-zero weight is NaN (so a point on the last
-    row or column of valid pixels is defined)."""
-    ny, nx = z.shape
-    fx, fy = x / g, y / g
-    outside = ~((fx >= 0) & (fy >= 0) & (fx <= nx - 1) & (fy <= ny - 1))
-    fx = np.where(outside, 0.0, fx)
-    fy = np.where(outside, 0.0, fy)
-    ix = np.minimum(fx.astype(np.intp), nx - 2)
-    iy = np.minimum(fy.astype(np.intp), ny - 2)
-    tx, ty = fx - ix, fy - iy
-    out = np.zeros(np.shape(fx))
-    for w, zz in (((1 - tx) * (1 - ty), z[iy, ix]), (tx * (1 - ty), z[iy, ix + 1]),
-                  ((1 - tx) * ty, z[iy + 1, ix]), (tx * ty, z[iy + 1, ix + 1])):
-        out += np.where(w > 0, w * zz, 0.0)     # a node of weight 0 may be nodata (an edge)
-    return np.where(outside, np.nan, out)
+    def windows(self, x: np.ndarray, y: np.ndarray, *, pad_m: float, block: int):
+        """Yield ``(slice, z, origin)`` over consecutive blocks of ``block`` points (``x``,
+        ``y``: (n,) CRS [m]), each block's window (:meth:`read_window`, ``pad_m`` [m] beyond
+        its finite points) read once (points along a track are local in blocks); ``z`` is
+        None for a block without a finite point."""
+        for a in range(0, x.size, block):
+            s = slice(a, min(x.size, a + block))
+            xs, ys = x[s], y[s]
+            ok = np.isfinite(xs) & np.isfinite(ys)
+            if not ok.any():
+                yield s, None, None
+                continue
+            z, origin = self.read_window(xs[ok].min() - pad_m, xs[ok].max() + pad_m,
+                                         ys[ok].min() - pad_m, ys[ok].max() + pad_m)
+            yield s, z, origin
 
 
 def roughness(*, p: float, relief_m: float, posting_m: float, grid_m: float = 1.0,
@@ -241,97 +232,16 @@ class DEMSurface(Surface):
             object.__setattr__(self, "mesh_grid_m", float(self.roughness.grid_m))
 
     # ---------------------------------------------------------------- heights
-    def _blocks(self, x_m, y_m, pad_m: float, block: int | None = None):
-        """Yield ``(slice, z, origin)`` over consecutive blocks of points, each block's DEM
-        window (:meth:`DEM.read_window`) read once (points along a track are local in
-        blocks); ``z`` is None for a block without a finite point."""
-        x = np.asarray(x_m, np.float64).ravel()
-        y = np.asarray(y_m, np.float64).ravel()
-        block = block or self.tile_shots
-        for a in range(0, x.size, block):
-            s = slice(a, min(x.size, a + block))
-            xs, ys = x[s], y[s]
-            ok = np.isfinite(xs) & np.isfinite(ys)
-            if not ok.any():
-                yield s, None, None
-                continue
-            z, origin = self.dem.read_window(xs[ok].min() - pad_m, xs[ok].max() + pad_m,
-                                             ys[ok].min() - pad_m, ys[ok].max() + pad_m)
-            yield s, z, origin
+    def _crs(self, x_m, y_m) -> tuple[np.ndarray, np.ndarray]:
+        """The DEM CRS coordinates [m] of frame positions, broadcast to one shape (float64)."""
+        return np.broadcast_arrays(np.asarray(x_m, np.float64) + self.origin_m[0],
+                                   np.asarray(y_m, np.float64) + self.origin_m[1])
 
     def _dem_at(self, x_m, y_m, offsets_m, block: int | None = None) -> np.ndarray:
-        """DEM heights [m] at every point shifted by each ``(dx, dy)`` of ``offsets_m``:
-        shape ``(len(offsets_m),) + broadcast shape``; NaN over nodata or off the DEM. One
-        window read per block of points covers all the shifts."""
-        x, y = np.broadcast_arrays(np.asarray(x_m, np.float64) + self.origin_m[0],
-                                   np.asarray(y_m, np.float64) + self.origin_m[1])
-        offs = np.asarray(offsets_m, np.float64).reshape(-1, 2)
-        pad = float(np.abs(offs).max(initial=0.0))
-        xf, yf = x.ravel(), y.ravel()
-        out = np.full((len(offs), xf.size), np.nan)
-        g = self.dem.posting_m
-        for s, z, (ox, oy) in self._blocks(xf, yf, pad, block):
-            if z is None:
-                continue
-            px, py = xf[s] - ox, yf[s] - oy
-            for k, (dx, dy) in enumerate(offs):
-                out[k, s] = _bilinear_nan(z, g, px + dx, py + dy)
-        return out.reshape((len(offs),) + x.shape)
-
-    def _gaussian_mean(self, x_m, y_m, sigma_m: float) -> np.ndarray:
-        """The mean of the DEM's bilinear surface over a Gaussian footprint (sigma ``sigma_m``
-        [m]) at each point, exact. The bilinear interpolant is ``sum_ij z_ij h_i(x) h_j(y)``
-        with hat functions of the posting ``P``, and a hat is a sum of three ramps, whose
-        Gaussian mean is ``R(d) = d Phi(d / s) + s phi(d / s)``; so each pixel weighs
-        ``a_j(x) b_i(y)``, ``a_j(x) = (R(d + P) - 2 R(d) + R(d - P)) / P`` with ``d = x -
-        x_j``. Pixels farther than ``P + 5 sigma`` on either axis are left out (weight below
-        3e-7). Near nodata or the DEM's edge the missing pixels' weight, when at most
-        :data:`_MISSING_WEIGHT_MAX` (the footprint's tail beyond ~3.7 sigma), is spread over
-        the present ones (an error of that weight times the height change across the
-        footprint); beyond it the mean is NaN."""
-        from scipy.special import ndtr
-        x, y = np.broadcast_arrays(np.asarray(x_m, np.float64) + self.origin_m[0],
-                                   np.asarray(y_m, np.float64) + self.origin_m[1])
-        xf, yf = x.ravel(), y.ravel()
-        out = np.full(xf.size, np.nan)
-        P = self.dem.posting_m
-        reach = P + 5.0 * sigma_m
-        n = 2 * math.ceil(reach / P) + 2                  # stencil pixels per axis
-        step = np.arange(n)
-
-        def weights(p):                                   # (m,) -> first pixel, (m, n)
-            p = np.where(np.isfinite(p), p, 0.0)          # (NaN points: NaN at the end)
-            first = np.floor((p - reach) / P).astype(np.int64)
-            if sigma_m > 0:             # ramps at d + P, d, d - P: neighbours share them
-                u = (p[:, None] - (first[:, None] + np.arange(-1, n + 1)) * P) / sigma_m
-                r = sigma_m * (u * ndtr(u) + np.exp(-0.5 * u * u) / math.sqrt(2.0 * math.pi))
-                return first, (r[:, :-2] - 2.0 * r[:, 1:-1] + r[:, 2:]) / P
-            d = p[:, None] - (first[:, None] + step) * P
-            return first, np.maximum(0.0, 1.0 - np.abs(d) / P)
-
-        def block_mean(s, z, ox, oy):
-            ny, nx = z.shape
-            j0, a = weights(xf[s] - ox)
-            i0, b = weights(yf[s] - oy)
-            jj, ii = j0[:, None] + step, i0[:, None] + step
-            on = ((ii >= 0) & (ii < ny))[:, :, None] & ((jj >= 0) & (jj < nx))[:, None, :]
-            zz = z[np.clip(ii, 0, ny - 1)[:, :, None], np.clip(jj, 0, nx - 1)[:, None, :]]
-            w = b[:, :, None] * a[:, None, :]
-            good = on & np.isfinite(zz)
-            present = np.sum(np.where(good, w, 0.0), axis=(1, 2))
-            total = np.sum(np.where(good, w * np.where(good, zz, 0.0), 0.0), axis=(1, 2))
-            bad = (1.0 - present > _MISSING_WEIGHT_MAX) | ~(np.isfinite(xf[s])
-                                                           & np.isfinite(yf[s]))
-            out[s] = np.where(bad, np.nan, total / np.where(bad, 1.0, present))
-
-        # windows are read here, one after another; their sums (numpy, which lets go of the
-        # GIL) run on the host's threads, each block into its own points
-        pool = host_pool()
-        jobs = [pool.submit(block_mean, s, z, ox, oy)
-                for s, z, (ox, oy) in self._blocks(xf, yf, reach) if z is not None]
-        for job in jobs:
-            job.result()
-        return out.reshape(x.shape)
+        """DEM heights [m] at every point shifted by each ``(dx, dy)`` of ``offsets_m``
+        (:func:`lidar_mitsuba._dem_heights.heights_at`): shape ``(len(offsets_m),) +
+        broadcast shape``; NaN over nodata or off the DEM."""
+        return heights_at(self.dem, *self._crs(x_m, y_m), offsets_m, block or self.tile_shots)
 
     def height_m(self, x_m, y_m, *, block: int | None = None) -> np.ndarray:
         """DEM (+ roughness) height at each point [m]; NaN over nodata or off the DEM.
@@ -344,9 +254,10 @@ class DEMSurface(Surface):
 
     def reference_elevation_m(self, x_m, y_m, *, sigma_m: float) -> np.ndarray:
         """Gaussian-footprint-weighted mean height [m], exactly: the DEM part in closed form
-        (:meth:`_gaussian_mean`), the roughness part by its exact Gaussian filter
-        (:meth:`Heightfield.reference_elevation_m`)."""
-        z = self._gaussian_mean(x_m, y_m, float(sigma_m))
+        (:func:`lidar_mitsuba._dem_heights.footprint_mean`), the roughness part by its exact
+        Gaussian filter (:meth:`Heightfield.reference_elevation_m`)."""
+        z = footprint_mean(self.dem, *self._crs(x_m, y_m), sigma_m=float(sigma_m),
+                           block=self.tile_shots)
         if self.roughness is not None:
             z = z + self.roughness.reference_elevation_m(x_m, y_m, sigma_m=sigma_m)
         return z
@@ -380,110 +291,30 @@ class DEMSurface(Surface):
         """Mesh the corridor of one chunk's shots and load it.
 
         With ``mesh_grid_m`` the grid is aligned with the chord from the first to the last
-        shot and covers every shot ``reach_m`` [m] about it; without it the mesh is the DEM's
-        own pixels (:meth:`pixel_tile`). Both are expressed relative to the first shot.
+        shot and covers every shot ``reach_m`` [m] about it
+        (:func:`lidar_mitsuba._dem_tiles.grid_tile`); without it the mesh is the DEM's own
+        pixels (:meth:`pixel_tile`). Both are expressed relative to the first shot.
         Returns ``(scene, origin_xy_m, triangles)``; the shots trace at ``(x - ox, y - oy)``.
         """
         if self.mesh_grid_m is None:
             vertices, faces, origin = self.pixel_tile(x_m, y_m, reach_m=reach_m)
-            return scn.scene_from_mesh(vertices, faces, bsdf=bsdf), origin, int(len(faces))
-        x = np.asarray(x_m, np.float64)
-        y = np.asarray(y_m, np.float64)
-        (ox, oy), (ux, uy), along, across = _chord_frame(x, y)
-        vx, vy = -uy, ux
-        g = self.mesh_grid_m
-        a = np.arange(math.floor((along.min() - reach_m) / g),
-                      math.ceil((along.max() + reach_m) / g) + 1) * g
-        c = np.arange(math.floor((across.min() - reach_m) / g),
-                      math.ceil((across.max() + reach_m) / g) + 1) * g
-        check_memory("mesh_grid_m", MESH_BYTES_PER_VERTEX * a.size * c.size,
-                     f"a corridor tile of {a.size} x {c.size} nodes", "use a coarser grid")
-        A, Cc = np.meshgrid(a, c)                     # (nc, na), rows across
-        lx = A * ux + Cc * vx
-        ly = A * uy + Cc * vy
-        z = self.height_m(ox + lx, oy + ly, block=lx.size)       # one window per tile
-        if not np.isfinite(z).all():
-            bad = np.flatnonzero(~np.isfinite(z.ravel()))[0]
-            raise self._nodata_in_corridor(reach_m, ox + lx.flat[bad] + self.origin_m[0],
-                                           oy + ly.flat[bad] + self.origin_m[1])
-        vertices = np.column_stack([lx.ravel(), ly.ravel(), z.ravel()])
-        faces = grid_faces(*A.shape)     # (u, v) is right-handed like (x, y): normals up
-        return scn.scene_from_mesh(vertices, faces, bsdf=bsdf), (ox, oy), int(len(faces))
-
-    def _nodata_in_corridor(self, reach_m: float, x_crs: float, y_crs: float
-                            ) -> ParameterError:
-        """The error for a corridor tile that reaches nodata or the DEM's edge at the CRS
-        point (``x_crs``, ``y_crs``) [m]."""
-        return ParameterError(
-            "track", f"the track's corridor ({reach_m:g} m about its shots) crosses the DEM's "
-            f"nodata or edge at x {x_crs:.1f} m, y {y_crs:.1f} m ({self.dem.crs.to_string()}); "
-            f"move the track")
+        else:
+            vertices, faces, origin = tiles.grid_tile(
+                np.asarray(x_m, np.float64), np.asarray(y_m, np.float64), reach_m=reach_m,
+                grid_m=self.mesh_grid_m, height_m=self.height_m, dem=self.dem,
+                origin_m=self.origin_m)
+        return scn.scene_from_mesh(vertices, faces, bsdf=bsdf), origin, int(len(faces))
 
     def pixel_tile(self, x_m: np.ndarray, y_m: np.ndarray, *, reach_m: float
                    ) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
-        """The corridor mesh on the DEM's own pixels (no roughness): every DEM cell (the
-        square between four pixel centres) that comes within ``reach_m`` [m] of the shots'
-        band, its nodes at the pixel centres with the file's heights, split into ``k x k``
-        sub-cells whose nodes lie on the bilinear surface. A bilinear cell of twist ``t =
-        z00 + z11 - z10 - z01`` deviates from two triangles by at most ``|t| / 4`` (at its
-        centre), a sub-cell by ``|t| / (4 k^2)``: the tile's ``k`` is the smallest with
-        every cell within :data:`MESH_TOLERANCE_M`. On a smooth 100 m DEM this is ~2 000
-        triangles per 2.9 km tile where a 1 m grid has ~160 000.
-
-        Returns:
-            ``(vertices, faces, (ox, oy))``: (n, 3) [m] relative to the first shot
-            ``(ox, oy)`` (heights absolute), (m, 3) triangles with normals up.
-        """
-        x = np.asarray(x_m, np.float64)
-        y = np.asarray(y_m, np.float64)
-        (ox, oy), (ux, uy), along, across = _chord_frame(x, y)
-        vx, vy = -uy, ux
-        P = self.dem.posting_m
-        half = P / math.sqrt(2.0)                   # a cell's centre to its corners
-        a0, a1 = along.min() - reach_m, along.max() + reach_m
-        c0, c1 = across.min() - reach_m, across.max() + reach_m
-        corners = [(ox + a * ux + c * vx, oy + a * uy + c * vy)
-                   for a in (a0, a1) for c in (c0, c1)]
-        cx, cy = np.array(corners).T + np.array(self.origin_m)[:, None]
-        z, (wx, wy) = self.dem.read_window(cx.min(), cx.max(), cy.min(), cy.max())
-        ny, nx = z.shape
-        # cells (i, j) between pixel centres (i, j) .. (i + 1, j + 1), centres in the local frame
-        jc = (np.arange(nx - 1) + 0.5) * P + wx - self.origin_m[0] - ox
-        ic = (np.arange(ny - 1) + 0.5) * P + wy - self.origin_m[1] - oy
-        A = jc[None, :] * ux + ic[:, None] * uy
-        C = jc[None, :] * vx + ic[:, None] * vy
-        keep = (A >= a0 - half) & (A <= a1 + half) & (C >= c0 - half) & (C <= c1 + half)
-        i, j = np.nonzero(keep)
-        z00, z10, z01, z11 = z[i, j], z[i, j + 1], z[i + 1, j], z[i + 1, j + 1]
-        bad = ~np.isfinite(z00 + z10 + z01 + z11)
-        if bad.any():
-            k = np.flatnonzero(bad)[0]
-            raise self._nodata_in_corridor(reach_m, wx + (j[k] + 0.5) * P,
-                                           wy + (i[k] + 0.5) * P)
-        twist = float(np.max(np.abs(z00 + z11 - z10 - z01), initial=0.0))
-        k = max(1, math.ceil(math.sqrt(twist / (4.0 * MESH_TOLERANCE_M))))
-        check_memory("mesh_grid_m", MESH_BYTES_PER_VERTEX * i.size * (k + 1) ** 2,
-                     f"a DEM-pixel tile of {i.size} cells split {k} x {k}",
-                     "give mesh_grid_m (a grid along the track)")
-        # the sub-grid nodes of every kept cell, by their index on the window's sub-grid
-        s = np.arange(k + 1)
-        row = (i[:, None, None] * k + s[None, :, None]) * ((nx - 1) * k + 1)
-        key = (row + j[:, None, None] * k + s[None, None, :]).reshape(i.size, -1)
-        nodes, inverse = np.unique(key, return_inverse=True)
-        inverse = inverse.reshape(i.size, k + 1, k + 1)
-        gy, gx = np.divmod(nodes, (nx - 1) * k + 1)
-        # from the window's first pixel centre (the last node must not round off the grid)
-        px = np.minimum(gx * (P / k), (nx - 1) * P)
-        py = np.minimum(gy * (P / k), (ny - 1) * P)
-        height = _bilinear_nan(z, P, px, py)
-        vertices = np.column_stack([px + wx - self.origin_m[0] - ox,
-                                    py + wy - self.origin_m[1] - oy, height])
-        a = inverse[:, :-1, :-1].ravel()             # (x, y), (x+, y), (x, y+), (x+, y+)
-        b = inverse[:, :-1, 1:].ravel()
-        c = inverse[:, 1:, :-1].ravel()
-        d = inverse[:, 1:, 1:].ravel()
-        faces = np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
-        return vertices, faces, (ox, oy)
+        """The corridor mesh on the DEM's own pixels (no roughness), each cell split until
+        within :data:`MESH_TOLERANCE_M` of the bilinear surface
+        (:func:`lidar_mitsuba._dem_tiles.pixel_tile`): ``(vertices, faces, (ox, oy))``,
+        (n, 3) [m] relative to the first shot ``(ox, oy)`` (heights absolute), (m, 3)
+        triangles with normals up."""
+        return tiles.pixel_tile(self.dem, np.asarray(x_m, np.float64),
+                                np.asarray(y_m, np.float64), reach_m=reach_m,
+                                origin_m=self.origin_m, tolerance_m=MESH_TOLERANCE_M)
 
     def mitsuba_scene(self, *, bsdf, margin_m, bounds_m):
         raise ParameterError("surface", "a DEM is traced in corridor tiles along a track "

@@ -270,40 +270,65 @@ def fit_p(
         n = z.shape[ax]
     else:
         n = min(z.shape)
+    lo, hi = _fit_range(n, g, f_min_per_m, f_max_per_m)
+    if one_d:
+        return _fit_profiles(z, g, ax, lo, hi)
+    return _fit_radial(z, g, lo, hi)
+
+
+def _fit_range(n: int, g: float, f_min_per_m: float | None, f_max_per_m: float | None
+               ) -> tuple[float, float]:
+    """:func:`fit_p`'s frequency range [1/m] for ``n`` samples per side/profile at ``g`` [m]:
+    the given limits, checked, or the defaults ``3 / (n g)`` and ``0.25 / g``."""
     lo = 3.0 / (n * g) if f_min_per_m is None else float(f_min_per_m)
     hi = 0.25 / g if f_max_per_m is None else float(f_max_per_m)
     if not (math.isfinite(lo) and lo > 0.0):
         raise ParameterError("f_min_per_m", f"must be > 0 (got {f_min_per_m})")
     if not (math.isfinite(hi) and hi > lo):
         raise ParameterError("f_max_per_m", f"must be > f_min_per_m (got {f_max_per_m})")
-    tol = 1e-9  # relative slack so that limits given as k/(n grid) include k
-    lo_t, hi_t = lo * (1 - tol), hi * (1 + tol)
+    return lo, hi
 
-    if one_d:
-        f, psd = _periodogram_1d(z, g, ax)
-        psd2 = np.atleast_2d(psd)
-        sel = (f >= lo_t) & (f <= hi_t)
-        f = f[sel]
-        psd2 = psd2[:, sel]
-        if np.any(psd2 <= 0.0):
-            raise ValueError("z_m has zero power at some fitted frequency (flat or degenerate profile)")
-        x = np.log10(f)
-        y = np.log10(psd2).mean(axis=0)
-        w = np.ones_like(x)
-        fmin, fmax = float(f.min()) if f.size else lo, float(f.max()) if f.size else hi
-        # Several profiles: their average log-periodogram is far noisier at low f
-        # (profiles of one surface are strongly correlated there) than at high f,
-        # so use the heteroscedasticity-consistent standard error.
-        slope, se = _wls_line(x, y, w, robust=psd2.shape[0] > 1)
-        return SpectralFit(
-            p=(1.0 - slope) / 2.0,
-            p_se=se / 2.0,
-            slope=slope,
-            slope_se=se,
-            f_min_per_m=fmin,
-            f_max_per_m=fmax,
-        )
 
+def _inclusive(lo: float, hi: float) -> tuple[float, float]:
+    """``(lo, hi)`` widened by a relative 1e-9, so that limits given as k/(n grid) include k."""
+    tol = 1e-9
+    return lo * (1 - tol), hi * (1 + tol)
+
+
+def _fit_profiles(z: np.ndarray, g: float, ax: int, lo: float, hi: float) -> SpectralFit:
+    """:func:`fit_p` of the profiles of ``z`` along ``ax`` (one for 1-D ``z``): the mean
+    log-periodogram per frequency in ``[lo, hi]`` [1/m], equal weights, ``p = (1 - slope) /
+    2``."""
+    lo_t, hi_t = _inclusive(lo, hi)
+    f, psd = _periodogram_1d(z, g, ax)
+    psd2 = np.atleast_2d(psd)
+    sel = (f >= lo_t) & (f <= hi_t)
+    f = f[sel]
+    psd2 = psd2[:, sel]
+    if np.any(psd2 <= 0.0):
+        raise ValueError("z_m has zero power at some fitted frequency (flat or degenerate profile)")
+    x = np.log10(f)
+    y = np.log10(psd2).mean(axis=0)
+    w = np.ones_like(x)
+    fmin, fmax = float(f.min()) if f.size else lo, float(f.max()) if f.size else hi
+    # Several profiles: their average log-periodogram is far noisier at low f
+    # (profiles of one surface are strongly correlated there) than at high f,
+    # so use the heteroscedasticity-consistent standard error.
+    slope, se = _wls_line(x, y, w, robust=psd2.shape[0] > 1)
+    return SpectralFit(
+        p=(1.0 - slope) / 2.0,
+        p_se=se / 2.0,
+        slope=slope,
+        slope_se=se,
+        f_min_per_m=fmin,
+        f_max_per_m=fmax,
+    )
+
+
+def _fit_radial(z: np.ndarray, g: float, lo: float, hi: float) -> SpectralFit:
+    """:func:`fit_p` of a surface ``z``: the mean log-periodogram per integer-radius annulus
+    whose centre lies in ``[lo, hi]`` [1/m], weighted by its cell count, ``p = -slope / 2``."""
+    lo_t, hi_t = _inclusive(lo, hi)
     fr, psd = _periodogram_2d(z, g)
     idx, nb = _radial_bins(fr, g, z.shape, None)
     # Ring k (bin k-1) holds the cells with round(|f|/df) == k; the range test

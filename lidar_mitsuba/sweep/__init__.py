@@ -193,27 +193,10 @@ def run(spec, client=None, *, out=None, workers: int | None = None, threads: int
     spec = load_spec(spec)
     log = log or (lambda msg: None)
     tasks = expand(spec)
-    invalid: dict[str, Exception] = {}
-    for t in tasks:
-        try:
-            build(t)
-        except Exception as e:                   # recorded as the task's error
-            invalid[t.task_id] = e
-    if len(invalid) == len(tasks):               # nothing would run: refuse, naming the key
-        e = next(iter(invalid.values()))
-        if not isinstance(e, ParameterError):
-            raise SpecError("spec", f"{_one_line(e)} (in every task)")
-        given = [k for k in spec.where if k == e.name or k.startswith(e.name + ".")]
-        key = f"{spec.where[given[0]]} {given[0]}" if given else e.name
-        raise SpecError(key, f"{e.message} (in every task)")
+    invalid = _invalid_tasks(spec, tasks)
     store = _Store(out, spec.format) if out is not None else None
     ids = {t.task_id for t in tasks}
-    rows: dict[str, dict] = {}
-    if store is not None:
-        store.out.mkdir(exist_ok=True)
-        (store.out / "spec.json").write_text(json.dumps(spec.to_dict(), indent=1) + "\n")
-        rows = {k: r for k, r in store.read().items() if k in ids
-                and not (retry_failed and r.get("status") == "failed")}
+    rows = _resumed_rows(store, spec, ids, retry_failed=retry_failed)
     todo = [t for t in tasks if t.task_id not in rows]
     ran: list[dict] = []
     if rows:
@@ -254,6 +237,39 @@ def run(spec, client=None, *, out=None, workers: int | None = None, threads: int
                     failed=int((df["status"] == "failed").sum()),
                     results=None if path is None else str(path))
     return df
+
+
+def _invalid_tasks(spec: Spec, tasks: list[Task]) -> dict[str, Exception]:
+    """The tasks whose parameters :func:`build` refuses, by task id, with the error each is
+    recorded with. When every task is refused nothing would run: raises :class:`SpecError`
+    naming the spec's key."""
+    invalid: dict[str, Exception] = {}
+    for t in tasks:
+        try:
+            build(t)
+        except Exception as e:                   # recorded as the task's error
+            invalid[t.task_id] = e
+    if len(invalid) == len(tasks):               # nothing would run: refuse, naming the key
+        e = next(iter(invalid.values()))
+        if not isinstance(e, ParameterError):
+            raise SpecError("spec", f"{_one_line(e)} (in every task)")
+        given = [k for k in spec.where if k == e.name or k.startswith(e.name + ".")]
+        key = f"{spec.where[given[0]]} {given[0]}" if given else e.name
+        raise SpecError(key, f"{e.message} (in every task)")
+    return invalid
+
+
+def _resumed_rows(store: _Store | None, spec: Spec, ids: set[str], *, retry_failed: bool
+                  ) -> dict[str, dict]:
+    """The rows of ``spec``'s tasks (ids ``ids``) already in the store, by task id (the failed
+    ones left out with ``retry_failed``), after writing the store's folder and ``spec.json``;
+    none without a store."""
+    if store is None:
+        return {}
+    store.out.mkdir(exist_ok=True)
+    (store.out / "spec.json").write_text(json.dumps(spec.to_dict(), indent=1) + "\n")
+    return {k: r for k, r in store.read().items() if k in ids
+            and not (retry_failed and r.get("status") == "failed")}
 
 
 @contextlib.contextmanager

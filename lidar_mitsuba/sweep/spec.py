@@ -122,7 +122,23 @@ def load_spec(source) -> Spec:
     Raises :class:`SpecError` naming the key."""
     if isinstance(source, Spec):
         return source
-    base, name = pathlib.Path("."), "sweep"
+    doc, base, name = _read_source(source)
+    for k in doc:
+        if k not in SECTIONS:
+            raise SpecError(f"[{k}]", f"unknown section (known: {', '.join(SECTIONS)})")
+    sw = _sweep_table(doc, name)
+    fixed, grid, entries, where = _parameter_tables(doc)
+    if not where and not entries:
+        raise SpecError("spec", "no parameters: give [fixed], [grid] or [[list]]")
+    if sw["replicates"] > 1 and "seed" in where and "terrain_seed" in where:
+        raise SpecError("[sweep] replicates", "every replicate would be the same run: seed "
+                        "and terrain_seed are both given (leave one out to vary it)")
+    return Spec(**sw, fixed=fixed, grid=grid, list=entries, base_dir=str(base), where=where)
+
+
+def _read_source(source) -> tuple[dict, pathlib.Path, str]:
+    """:func:`load_spec`'s ``source`` as ``(tables, folder scenes are relative to, default
+    name)``: a TOML file read and parsed, or a dict as is."""
     if isinstance(source, (str, os.PathLike)):
         path = pathlib.Path(source)
         try:
@@ -135,15 +151,16 @@ def load_spec(source) -> Spec:
             raise SpecError(str(path), f"cannot read ({e.strerror})") from None
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
             raise SpecError(str(path), f"not valid TOML ({e})") from None
-        base, name = path.resolve().parent, path.stem
-    elif isinstance(source, dict):
-        doc = source
-    else:
-        raise SpecError("spec", f"must be a TOML file, a dict or a Spec (got "
-                        f"{type(source).__name__})")
-    for k in doc:
-        if k not in SECTIONS:
-            raise SpecError(f"[{k}]", f"unknown section (known: {', '.join(SECTIONS)})")
+        return doc, path.resolve().parent, path.stem
+    if isinstance(source, dict):
+        return source, pathlib.Path("."), "sweep"
+    raise SpecError("spec", f"must be a TOML file, a dict or a Spec (got "
+                    f"{type(source).__name__})")
+
+
+def _sweep_table(doc: dict, name: str) -> dict:
+    """The checked ``[sweep]`` table as :class:`Spec` fields: ``name`` (default ``name``),
+    ``replicates``, ``seed`` and ``format``."""
     sw = doc.get("sweep", {})
     if not isinstance(sw, dict):
         raise SpecError("[sweep]", "must be a table")
@@ -160,7 +177,15 @@ def load_spec(source) -> Spec:
     fmt = sw.get("format", "parquet")
     if fmt not in FORMATS:
         raise SpecError("[sweep] format", f"must be one of {', '.join(FORMATS)} (got {fmt!r})")
+    return dict(name=name, replicates=sw.get("replicates", 1), seed=sw.get("seed", 0),
+                format=fmt)
 
+
+def _parameter_tables(doc: dict) -> tuple[dict, dict, list[dict], dict[str, str]]:
+    """The checked ``[fixed]``, ``[grid]`` and ``[[list]]`` tables, flattened (``params.NAME``
+    keys), and the section each parameter is given in: ``(fixed, grid, entries, where)``.
+    Refuses unknown names, a parameter in two sections, an empty or repeating grid and
+    repeated entries."""
     known = parameter_names()
     fixed = doc.get("fixed", {})
     grid = doc.get("grid", {})
@@ -189,14 +214,7 @@ def load_spec(source) -> Spec:
     if len(set(keys)) < len(keys):
         i = next(i for i, k in enumerate(keys) if keys.index(k) < i)
         raise SpecError("[[list]]", f"entry {i + 1} repeats entry {keys.index(keys[i]) + 1}")
-    if not where and not entries:
-        raise SpecError("spec", "no parameters: give [fixed], [grid] or [[list]]")
-    if sw.get("replicates", 1) > 1 and "seed" in where and "terrain_seed" in where:
-        raise SpecError("[sweep] replicates", "every replicate would be the same run: seed "
-                        "and terrain_seed are both given (leave one out to vary it)")
-    return Spec(name=name, replicates=sw.get("replicates", 1), seed=sw.get("seed", 0),
-                format=fmt, fixed=fixed, grid=grid, list=entries, base_dir=str(base),
-                where=where)
+    return fixed, grid, entries, where
 
 
 @dataclass(frozen=True)

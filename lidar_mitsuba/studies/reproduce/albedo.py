@@ -181,6 +181,10 @@ def _specular_share(rho_d: float, rho_s: float = 0.05, alpha: float = 0.3) -> fl
 
 
 def rows_fig13(d: dict) -> list[dict]:
+    """Fig. 13's comparison rows: bias, standard deviation and photons per shot against the
+    albedo (ward1992, every terrain), the resolving run's rows when it ran
+    (:func:`_rows_resolving_run`) and the lobe normalisations' row
+    (:func:`_row_normalisations`)."""
     sm, S = d["summary"], d["terrain_seeds"]
     rows = []
     w = sm["ward1992"]
@@ -206,63 +210,81 @@ def rows_fig13(d: dict) -> list[dict]:
                      ", ".join(f"{v:.2f}" for v in w["photons_per_shot"]),
                      "returning photoelectrons increase with Lambertian reflectance",
                      "agrees" if np.all(np.diff(w["photons_per_shot"]) > 0) else "disagrees"))
-    rv = d.get("resolve")
-    if rv:
-        rr = rv["rows"]
-        t_real, t_cm = rv["real_bias_trend"], rv["count_matched_bias_trend"]
-        v_real = _verdict(t_real, +1)
-        rows.append(_row(f"resolving run (ours): {rv['shots']:,} shots per albedo on terrain seed 0, "
-                         f"bias at ρd = {rd}",
-                         ", ".join(_cm(r["bias_m"], r["bias_se_m"], 3) for r in rr) +
-                         f"; slope {100 * t_real['slope']:.2f} ± {100 * t_real['slope_se']:.2f} cm per unit ρd",
-                         "smaller albedo → smaller bias", v_real,
-                         "the same traced photon paths at every albedo; errors are Monte Carlo "
-                         "(conservative for the slope)", slope_m=t_real["slope"], slope_se_m=t_real["slope_se"]))
-        d_real = rr[-1]["bias_m"] - rr[0]["bias_m"]
-        d_off = rr[-1]["return_offset_m"] - rr[0]["return_offset_m"]
-        frac = d_off / d_real if d_real else math.nan
-        rows.append(_row("the paper's mechanism: BRDF weighting alone (bias without dead time from "
-                         "every traced path, return-weighted; no detector noise)",
-                         ", ".join(_cm(r["return_offset_m"], None, 4) for r in rr) +
-                         f"; change {lo:g} → {hi:g}: {100 * d_off:+.4f} cm" +
-                         (f", {100 * frac:.0f} % of the measured change" if math.isfinite(frac) else ""),
-                         "a decrease in diffuse reflection increases the quasi-specular reflection, "
-                         "lowering the bias",
-                         "mechanism not seen" if not (abs(frac) >= 0.2) else "mechanism contributes",
-                         f"lowering ρd from {hi:g} to {lo:g} raises the lobe's share of the nadir "
-                         f"return from {100 * _specular_share(hi):.0f} % to {100 * _specular_share(lo):.0f} %, "
-                         "but ρs stays 0.05, so the lobe itself does not grow; it could move the mean "
-                         "only by weighting flatter facets more, and on p = 2.0 terrain that moves the "
-                         "return-weighted mean height by less than a tenth of a millimetre",
-                         offset_change_m=d_off, fraction_of_trend=frac))
-        rows.append(_row("… the same photons with the photon count held at the highest albedo's",
-                         ", ".join(_cm(r["count_matched"]["bias_m"], r["count_matched"]["bias_se_m"], 3) for r in rr) +
-                         f"; slope {100 * t_cm['slope']:.2f} ± {100 * t_cm['slope_se']:.2f} cm per unit ρd",
-                         "—",
-                         "mechanism: photon count" if v_real == "agrees" and _verdict(t_cm, +1) == "no significant trend"
-                         else "inconclusive",
-                         "with the count restored the albedo trend goes away: the bias falls with ρd "
-                         "because fewer photons arrive (" + ", ".join(f"{r['mean_photons_per_shot']:.2f}" for r in rr)
-                         + " per shot on 16 channels), so a channel less often holds two photons within "
-                         "the 3 ns dead time. The paper's trend is reproduced, for this reason rather "
-                         "than the specular one", slope_m=t_cm["slope"], slope_se_m=t_cm["slope_se"]))
+    if d.get("resolve"):
+        rows += _rows_resolving_run(d)
+    rows.append(_row_normalisations(d))
+    return rows
+
+
+def _rows_resolving_run(d: dict) -> list[dict]:
+    """Fig. 13's rows of the resolving run (one long track per albedo on terrain seed 0): its
+    bias trend, the paper's mechanism (the BRDF weighting alone, no detector) and the same
+    photons with the count held at the highest albedo's."""
+    rd = _seq(d["rho_d"])
+    lo, hi = d["rho_d"][0], d["rho_d"][-1]
+    rv = d["resolve"]
+    rr = rv["rows"]
+    t_real, t_cm = rv["real_bias_trend"], rv["count_matched_bias_trend"]
+    v_real = _verdict(t_real, +1)
+    rows = []
+    rows.append(_row(f"resolving run (ours): {rv['shots']:,} shots per albedo on terrain seed 0, "
+                     f"bias at ρd = {rd}",
+                     ", ".join(_cm(r["bias_m"], r["bias_se_m"], 3) for r in rr) +
+                     f"; slope {100 * t_real['slope']:.2f} ± {100 * t_real['slope_se']:.2f} cm per unit ρd",
+                     "smaller albedo → smaller bias", v_real,
+                     "the same traced photon paths at every albedo; errors are Monte Carlo "
+                     "(conservative for the slope)", slope_m=t_real["slope"], slope_se_m=t_real["slope_se"]))
+    d_real = rr[-1]["bias_m"] - rr[0]["bias_m"]
+    d_off = rr[-1]["return_offset_m"] - rr[0]["return_offset_m"]
+    frac = d_off / d_real if d_real else math.nan
+    rows.append(_row("the paper's mechanism: BRDF weighting alone (bias without dead time from "
+                     "every traced path, return-weighted; no detector noise)",
+                     ", ".join(_cm(r["return_offset_m"], None, 4) for r in rr) +
+                     f"; change {lo:g} → {hi:g}: {100 * d_off:+.4f} cm" +
+                     (f", {100 * frac:.0f} % of the measured change" if math.isfinite(frac) else ""),
+                     "a decrease in diffuse reflection increases the quasi-specular reflection, "
+                     "lowering the bias",
+                     "mechanism not seen" if not (abs(frac) >= 0.2) else "mechanism contributes",
+                     f"lowering ρd from {hi:g} to {lo:g} raises the lobe's share of the nadir "
+                     f"return from {100 * _specular_share(hi):.0f} % to {100 * _specular_share(lo):.0f} %, "
+                     "but ρs stays 0.05, so the lobe itself does not grow; it could move the mean "
+                     "only by weighting flatter facets more, and on p = 2.0 terrain that moves the "
+                     "return-weighted mean height by less than a tenth of a millimetre",
+                     offset_change_m=d_off, fraction_of_trend=frac))
+    rows.append(_row("… the same photons with the photon count held at the highest albedo's",
+                     ", ".join(_cm(r["count_matched"]["bias_m"], r["count_matched"]["bias_se_m"], 3) for r in rr) +
+                     f"; slope {100 * t_cm['slope']:.2f} ± {100 * t_cm['slope_se']:.2f} cm per unit ρd",
+                     "—",
+                     "mechanism: photon count" if v_real == "agrees" and _verdict(t_cm, +1) == "no significant trend"
+                     else "inconclusive",
+                     "with the count restored the albedo trend goes away: the bias falls with ρd "
+                     "because fewer photons arrive (" + ", ".join(f"{r['mean_photons_per_shot']:.2f}" for r in rr)
+                     + " per shot on 16 channels), so a channel less often holds two photons within "
+                     "the 3 ns dead time. The paper's trend is reproduced, for this reason rather "
+                     "than the specular one", slope_m=t_cm["slope"], slope_se_m=t_cm["slope_se"]))
+    return rows
+
+
+def _row_normalisations(d: dict) -> dict:
+    """Fig. 13's row on the Ward lobe's three normalisations (terrain seed 0, same photon
+    paths): how much their returns differ and their bias slopes."""
+    sm = d["summary"]
     offs = {n: np.array(sm[n]["return_offset_m"]) for n in NORMALIZATIONS}
     arr = {n: np.array(sm[n]["arriving_per_shot"]) for n in NORMALIZATIONS}
     d_off = max(float(np.max(np.abs(offs[n] - offs["ward1992"]))) for n in NORMALIZATIONS[1:])
     d_arr = max(float(np.max(np.abs(arr[n] / arr["ward1992"] - 1))) for n in NORMALIZATIONS[1:])
     trs = {n: _trend(d["rho_d"], [sm[n]["bias"]["primary"]], [sm[n]["bias"]["primary_se"]])
            for n in NORMALIZATIONS}
-    rows.append(_row("the lobe's normalisation (ward1992 / Dür / balanced) on terrain seed 0, same "
-                     "photon paths",
-                     f"returns differ by ≤ {100 * d_arr:.2f} % in photons arriving and ≤ "
-                     f"{100 * d_off:.4f} cm in the return-weighted mean of h − h_ref (no dead "
-                     "time); detector bias slopes " +
-                     ", ".join(f"{n} {100 * t['slope']:.2f} ± {100 * t['slope_se']:.2f}" for n, t in trs.items())
-                     + " cm per unit ρd",
-                     "(does the albedo trend depend on how the Ward lobe is normalised?)",
-                     "no dependence" if d_arr < 0.01 and d_off < 1e-4 else "depends",
-                     "the three normalisations agree exactly at normal incidence and differ by "
-                     "powers of cos θ off normal; the facets of p = 2.0 terrain are within a few "
-                     "degrees of nadir, so the returns hardly change. The bias slopes differ only "
-                     "by detector noise (the Poisson draws are not shared between runs)"))
-    return rows
+    return _row("the lobe's normalisation (ward1992 / Dür / balanced) on terrain seed 0, same "
+                "photon paths",
+                f"returns differ by ≤ {100 * d_arr:.2f} % in photons arriving and ≤ "
+                f"{100 * d_off:.4f} cm in the return-weighted mean of h − h_ref (no dead "
+                "time); detector bias slopes " +
+                ", ".join(f"{n} {100 * t['slope']:.2f} ± {100 * t['slope_se']:.2f}" for n, t in trs.items())
+                + " cm per unit ρd",
+                "(does the albedo trend depend on how the Ward lobe is normalised?)",
+                "no dependence" if d_arr < 0.01 and d_off < 1e-4 else "depends",
+                "the three normalisations agree exactly at normal incidence and differ by "
+                "powers of cos θ off normal; the facets of p = 2.0 terrain are within a few "
+                "degrees of nadir, so the returns hardly change. The bias slopes differ only "
+                "by detector noise (the Poisson draws are not shared between runs)")

@@ -181,13 +181,7 @@ def run(out_dir, *, quick: bool = False, profile=None, profile_name: str | None 
     """
     t_all = time.perf_counter() if started is None else started
     counts = counts_for(quick)
-    prof, prof_name = None, None
-    if profile is not None:
-        if isinstance(profile, (str, os.PathLike)):
-            prof, prof_name = load_profile(profile), profile_name or pathlib.Path(profile).name
-        else:
-            prof = (np.asarray(profile[0], float), np.asarray(profile[1], float))
-            prof_name = profile_name or "user profile"
+    prof, prof_name = _profile(profile, profile_name)
     out = pathlib.Path(out_dir)
     out.mkdir(exist_ok=True)
     log = log or (lambda msg: None)
@@ -195,10 +189,41 @@ def run(out_dir, *, quick: bool = False, profile=None, profile_name: str | None 
     setup = time.perf_counter() - t_all
     if started is not None:
         timings["set-up"] = setup
-    results: dict = {}
-    fig_time: dict[str, float] = {}
+    results, fig_time = _compute_and_draw(_computations(counts, prof, prof_name), out,
+                                          timings=timings, workers=workers, log=log)
+    t0 = time.perf_counter()
+    doc = _document(results, counts=counts, quick=quick, fig_time=fig_time, timings=timings)
+    timings["report"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_all
+    doc = _json_safe(doc)
+    _write_text(out / "report.json", json.dumps(doc, indent=1) + "\n")
+    _write_text(out / "report.md", format_markdown(doc))
+    timings["total"] = time.perf_counter() - t_all
+    return doc
 
-    computes = {
+
+#: the figures each computation draws: group key -> [(figure, draw(data, png path))]
+_PLOTS = {"fig3": [("fig3", plot_fig3)], "fig4": [("fig4", plot_fig4)],
+          "fig5": [("fig5", plot_fig5)], "fig6": [("fig6", lambda d, p: plot_fig6(p))],
+          "fig7": [("fig7", plot_fig7)],
+          "fig8_9": [("fig8", plot_fig8), ("fig9", plot_fig9)],
+          "fig10_12": [("fig10", plot_fig10), ("fig11", plot_fig11), ("fig12", plot_fig12)],
+          "fig13": [("fig13", plot_fig13)]}
+
+
+def _profile(profile, profile_name: str | None):
+    """:func:`run`'s ``profile`` as ``((distance_m, height_m) arrays, name)``, or (None, None)."""
+    if profile is None:
+        return None, None
+    if isinstance(profile, (str, os.PathLike)):
+        return load_profile(profile), profile_name or pathlib.Path(profile).name
+    return ((np.asarray(profile[0], float), np.asarray(profile[1], float)),
+            profile_name or "user profile")
+
+
+def _computations(counts, prof, prof_name) -> dict:
+    """Every figure group's computation (key -> callable returning its data), at ``counts``."""
+    return {
         "fig3": lambda: fig3_spectra(profile=prof, profile_name=prof_name),
         "fig4": fig4_surfaces,
         "fig5": lambda: fig5_rms(terrain_seeds=max(counts.terrain_seeds, 3)),
@@ -215,12 +240,15 @@ def run(out_dir, *, quick: bool = False, profile=None, profile_name: str | None 
                                       resolve_shots=counts.resolve_shots, albedos=counts.albedos,
                                       paths_per_shot=counts.paths_per_shot),
     }
-    plots = {"fig3": [("fig3", plot_fig3)], "fig4": [("fig4", plot_fig4)],
-             "fig5": [("fig5", plot_fig5)], "fig6": [("fig6", lambda d, p: plot_fig6(p))],
-             "fig7": [("fig7", plot_fig7)],
-             "fig8_9": [("fig8", plot_fig8), ("fig9", plot_fig9)],
-             "fig10_12": [("fig10", plot_fig10), ("fig11", plot_fig11), ("fig12", plot_fig12)],
-             "fig13": [("fig13", plot_fig13)]}
+
+
+def _compute_and_draw(computes: dict, out: pathlib.Path, *, timings: dict,
+                      workers: int | None, log) -> tuple[dict, dict[str, float]]:
+    """Run every computation (here, or as tasks on ``workers`` Dask workers) and draw its
+    figures into ``out``. Returns ``(results by group, seconds by figure)`` (a group's
+    compute time counted under its first figure); each group's seconds go into ``timings``."""
+    results: dict = {}
+    fig_time: dict[str, float] = {}
     if workers:      # every figure's computation seeds itself: the same numbers anywhere
         from ...sweep import compute_all
         log(f"computing the {len(computes)} figure groups on {workers} Dask workers")
@@ -233,16 +261,21 @@ def run(out_dir, *, quick: bool = False, profile=None, profile_name: str | None 
             results[key] = compute()
             compute_s = time.perf_counter() - t0
         t1 = time.perf_counter()
-        for fig, draw in plots[key]:
+        for fig, draw in _PLOTS[key]:
             t2 = time.perf_counter()
             draw(results[key], out / PNG[fig])
             fig_time[fig] = time.perf_counter() - t2
-        fig_time[plots[key][0][0]] += compute_s
+        fig_time[_PLOTS[key][0][0]] += compute_s
         spent = compute_s + time.perf_counter() - t1
         timings[key.replace("_", "–").replace("fig", "Fig. ")] = spent
         log(f"{key}: {spent:.1f} s")
+    return results, fig_time
 
-    t0 = time.perf_counter()
+
+def _document(results: dict, *, counts, quick: bool, fig_time: dict, timings: dict) -> dict:
+    """The report document (``report.json``'s content before :func:`_json_safe`): mode,
+    counts, seeds, headline, every figure's rows and command line, the data, the
+    environment and ``timings`` (the dict itself, still filled by the caller)."""
     cloud = results["fig10_12"].get("_cloud")
     if cloud is not None:
         results["fig10_12"]["cloud_stats"] = cloud["stats"]
@@ -251,7 +284,7 @@ def run(out_dir, *, quick: bool = False, profile=None, profile_name: str | None 
     clis = {"fig7": results["fig7"]["cli"], "fig9": results["fig8_9"]["runs"][-1]["cli"],
             "fig10": cloud["cli"] if cloud else None, "fig12": results["fig10_12"]["cli_primary"],
             "fig13": results["fig13"]["cli_primary"]}
-    doc = {
+    return {
         "mode": "quick" if quick else "full (paper counts)", "counts": asdict(counts),
         "seeds": dict(SEEDS), "headline": headline(results),
         "figures": {fig: {"title": TITLES[fig], "png": PNG[fig], "paper": PAPER[fig],
@@ -263,13 +296,6 @@ def run(out_dir, *, quick: bool = False, profile=None, profile_name: str | None 
                         "python": platform.python_version(), "machine": platform.machine()},
         "timings_s": timings,
     }
-    timings["report"] = time.perf_counter() - t0
-    timings["total"] = time.perf_counter() - t_all
-    doc = _json_safe(doc)
-    _write_text(out / "report.json", json.dumps(doc, indent=1) + "\n")
-    _write_text(out / "report.md", format_markdown(doc))
-    timings["total"] = time.perf_counter() - t_all
-    return doc
 
 
 def format_summary(doc: dict) -> str:
