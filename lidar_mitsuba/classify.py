@@ -22,6 +22,8 @@ conf  ATL03 meaning    rule
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy import special
 from scipy.ndimage import uniform_filter1d
@@ -41,9 +43,39 @@ def signal_confidence(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.
         bin_m: histogram bin height [m].
         pool_blocks: the noise level of a block is pooled over this many neighbouring blocks.
     """
+    return histogram_test(shot=shot, h_m=h_m, gate_center_h_m=gate_center_h_m,
+                          range_gate_m=range_gate_m, block_shots=block_shots, bin_m=bin_m,
+                          pool_blocks=pool_blocks).conf
+
+
+@dataclass
+class HistogramTest:
+    """What the histogram test found (:func:`histogram_test`).
+
+    Attributes:
+        conf: (n,) int8 confidence of each photon (:func:`signal_confidence`).
+        tail_p: (n,) the tail probability ``P(K >= k)`` of each photon's neighbourhood count
+            under noise alone (1 for an empty track; 0 where no noise was estimated).
+        noise_per_bin: (n_blocks,) the pooled noise level ``lam`` of each block: expected noise
+            photons in one ``bin_m`` bin over ``block_shots`` shots.
+        block_shots, bin_m: the histogram's block length [shots] and bin height [m].
+    """
+    conf: np.ndarray
+    tail_p: np.ndarray
+    noise_per_bin: np.ndarray
+    block_shots: int
+    bin_m: float
+
+
+def histogram_test(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.ndarray,
+                   range_gate_m: float, block_shots: int = 20, bin_m: float = 0.5,
+                   pool_blocks: int = 11) -> HistogramTest:
+    """The histogram test of :func:`signal_confidence` (same arguments), with its per-photon
+    tail probabilities and per-block noise levels (blocks up to the last photon's)."""
     shot = np.asarray(shot, np.int64)
     if shot.size == 0:
-        return np.zeros(0, np.int8)
+        return HistogramTest(np.zeros(0, np.int8), np.ones(0), np.zeros(0), int(block_shots),
+                             float(bin_m))
     rel = np.asarray(h_m, float) - np.asarray(gate_center_h_m, float)[shot] + range_gate_m / 2.0
     n_bins = max(3, int(np.ceil(range_gate_m / bin_m)))
     b = np.clip((rel / bin_m).astype(np.int64), 0, n_bins - 1)
@@ -68,7 +100,7 @@ def signal_confidence(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.
     cell[p < 1e-2] = 2
     cell[p < 1e-4] = 3
     cell[p < 1e-6] = 4
-    return cell[block, b]
+    return HistogramTest(cell[block, b], p[block, b], lam, int(block_shots), float(bin_m))
 
 
 def _poisson_sf(k, mu):

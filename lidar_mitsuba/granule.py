@@ -8,31 +8,17 @@ readers use.
 ...                                                      azimuth_deg=0), shots=2000)  # doctest: +SKIP
 >>> granule.write_atl03(g, "ATL03_sim.h5"); granule.write_atl06(g, "ATL06_sim.h5")  # doctest: +SKIP
 
-**ATL03** (``write_atl03``), per beam group ``gtXx``:
-
-* ``heights/``: one row per detected photon, in shot order: ``lat_ph``, ``lon_ph`` [deg]
-  (the footprint centre of the photon's shot: the beam points at nadir), ``h_ph`` [m, float32]
-  above the DEM's vertical datum, ``delta_time`` [s since 2018-01-01], ``dist_ph_along``
-  [m from the start of its 20 m geolocation segment], ``dist_ph_across`` [m, 0: the beam's own
-  track], ``signal_conf_ph`` (n, 5) int8, ``quality_ph`` int8 (0 nominal), ``ph_id_count``
-  (1-based index of the event in its channel and pulse), ``ph_id_channel`` (strong 1-16, weak
-  17-20), ``ph_id_pulse`` (1-200 within the 50 Hz major frame), ``pce_mframe_cnt``;
-* ``geolocation/``: one row per 20 m along-track segment from the track's start:
-  ``segment_id`` (1, 2, ...), ``segment_ph_cnt``, ``ph_index_beg`` (1-based, 0 when empty),
-  ``segment_dist_x`` [m from the first shot, not the equator], ``segment_length``,
-  ``reference_photon_lat/lon`` [deg] and ``delta_time`` of the shot nearest the segment's
-  centre, ``reference_photon_index``, ``ref_azimuth``, ``ref_elev`` [rad], ``sigma_h``,
-  ``surf_type``;
-* ``bckgrd_atlas/``: ``bckgrd_rate`` [Hz] (the modelled solar background reaching the
-  detector, every 50 shots) and ``delta_time``; ``geophys_corr/``: zeros for tides and
-  atmosphere (a simulation has none) and ``dem_h``, the DEM under each segment;
-* ``ancillary_data/`` (``atlas_sdp_gps_epoch``, start/end times, ``calibrations/dead_time``
-  per channel, ``tep``), ``atlas_impulse_response/`` (the modelled transmit pulse shape),
-  ``orbit_info/sc_orient``; beam attributes ``atlas_beam_type``, ``atlas_spot_number``,
-  ``atlas_pce``, ``groundtrack_id``, ``sc_orientation``.
-* ``/truth/gtXx/{photons,shots}``: the simulation truth as :mod:`lidar_mitsuba.atl03` writes
-  it for one beam, plus ``/truth`` attributes ``crs`` and ``frame_origin_m``: truth
-  positions are in the DEM's CRS less that origin.
+**ATL03** (``write_atl03``; the writer is :mod:`lidar_mitsuba.atl03_beam` and
+:mod:`lidar_mitsuba.atl03_file`, shared with the single-beam files of
+:func:`lidar_mitsuba.atl03.write`): per beam group ``gtXx`` every dataset of a real granule's
+``heights/``, ``geolocation/`` (20 m segments from the track's first shot), ``bckgrd_atlas/``
+(every 50 shots), ``geophys_corr/`` and ``signal_find_output/<surface type>/``, with ATL03's
+names, dtypes, shapes, units and fill values (:mod:`lidar_mitsuba.atl03_fields` lists them and
+what the simulation writes in each); ``ancillary_data/``, ``atlas_impulse_response/``,
+``orbit_info/``, ``METADATA/``; the beam attributes ``atlas_beam_type``,
+``atlas_spot_number``, ``atlas_pce``, ``groundtrack_id``, ``sc_orientation``; and
+``/truth/gtXx/{photons,shots}``, the simulation truth, with ``/truth`` attributes ``crs`` and
+``frame_origin_m``: truth positions are in the DEM's CRS less that origin.
 
 **ATL06** (``write_atl06``): ``gtXx/land_ice_segments/{h_li, h_li_sigma, latitude,
 longitude, delta_time, segment_id, atl06_quality_summary, sigma_geo_h}`` and the subgroups
@@ -41,7 +27,6 @@ longitude, delta_time, segment_id, atl06_quality_summary, sigma_geo_h}`` and the
 """
 from __future__ import annotations
 
-import datetime as _dt
 import json
 import os
 import pathlib
@@ -49,16 +34,16 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import __version__, atl03, atl06, geotrack, h5chunks
+from . import __version__, atl06, geotrack, h5chunks
 from .atl03 import _ds, atomic_h5file
-from .constants import FWHM_PER_SIGMA, ParameterError, check
+from .atl03_beam import (BCKGRD_SHOTS, PULSES_PER_MAJOR_FRAME, SEGMENT_M,  # noqa: F401
+                         write_beam as _beam_atl03)
+from .atl03_file import (ancillary as _ancillary, header as _atl03_header,
+                         orbit_info as _orbit_info)
+from .constants import ParameterError, check
 from .dem import DEMSurface
 from .geotrack import Beam, GeoTrack
 from .instrument import INSTRUMENT_PRESETS, Instrument
-
-SEGMENT_M = 20.0            #: ATL03 geolocation segment length [m]
-PULSES_PER_MAJOR_FRAME = 200
-BCKGRD_SHOTS = 50           #: shots per ATL03 bckgrd_atlas row (200 Hz at 10 kHz)
 
 
 @dataclass
@@ -211,59 +196,11 @@ def _beam_bar(beams, progress):
 
 
 # --------------------------------------------------------------------------- ATL03
-def _utc(delta_time_s: float) -> bytes:
-    t = geotrack.SDP_EPOCH_UTC + _dt.timedelta(seconds=float(delta_time_s))
-    return t.strftime("%Y-%m-%dT%H:%M:%S.%fZ").encode()
-
-
-def _gps_week_sow(delta_time_s: float) -> tuple[int, float]:
-    gps = geotrack.ATLAS_SDP_GPS_EPOCH + float(delta_time_s)
-    return int(gps // 604800), gps % 604800
-
-
 def _put(group, name, data, units, description):
     """Create a resizable, compressed dataset, or append ``data`` to it along axis 0 (a
     streamed granule writes each section's rows after the last); whole chunks are compressed
     on every core (:mod:`lidar_mitsuba.h5chunks`)."""
     return h5chunks.put(group, name, data, units, description, append=True)
-
-
-def _photon_order(res) -> np.ndarray:
-    """Photon order by shot (stable), so every segment's photons are contiguous."""
-    return np.argsort(res.detections.shot, kind="stable")
-
-
-def _ph_id_count(shot: np.ndarray, channel: np.ndarray) -> np.ndarray:
-    """1-based index of each event among the events of its shot and channel, in order."""
-    n = shot.size
-    if n == 0:
-        return np.zeros(0, np.int8)
-    key = shot.astype(np.int64) * 64 + channel.astype(np.int64)
-    order = np.argsort(key, kind="stable")
-    k = key[order]
-    start = np.r_[True, k[1:] != k[:-1]]
-    run_start = np.maximum.accumulate(np.where(start, np.arange(n), 0))
-    out = np.empty(n, np.int64)
-    out[order] = np.arange(n) - run_start + 1
-    return np.minimum(out, 127).astype(np.int8)
-
-
-def _segments(along_m: np.ndarray, photon_shot: np.ndarray):
-    """The 20 m segments ``k0 .. k0 + n - 1`` the shots fall in (``along_m`` (n_shots,) from
-    the track's first shot): each shot's segment, the index of each segment's first photon
-    and its photon count (photons sorted by shot, ``photon_shot`` local), the shot nearest
-    each segment's centre, and ``k0``."""
-    seg_of_shot = np.floor(along_m / SEGMENT_M).astype(np.int64)
-    k0 = int(seg_of_shot[0]) if along_m.size else 0
-    n_seg = int(seg_of_shot[-1]) - k0 + 1 if along_m.size else 0
-    count = np.bincount(seg_of_shot[photon_shot] - k0, minlength=n_seg)
-    first = np.concatenate([[0], np.cumsum(count)[:-1]])
-    centre = (k0 + np.arange(n_seg) + 0.5) * SEGMENT_M
-    ref_shot = np.clip(np.searchsorted(along_m, centre), 0, along_m.size - 1)
-    prev = np.maximum(ref_shot - 1, 0)
-    closer = np.abs(along_m[prev] - centre) < np.abs(along_m[ref_shot] - centre)
-    ref_shot = np.where(closer, prev, ref_shot)
-    return seg_of_shot, first, count, ref_shot, k0
 
 
 def _span(granule: Granule):
@@ -282,176 +219,6 @@ def write_atl03(granule: Granule, path: str | os.PathLike) -> pathlib.Path:
         for r in granule.beams:
             _beam_atl03(f, r, granule.sc_orient)
     return path
-
-
-def _atl03_header(f, granule, instruments, t_first, t_last):
-    f.attrs["short_name"] = "ATL03"
-    f.attrs["title"] = "simulated ATLAS/ICESat-2 L2A Global Geolocated Photon Data"
-    f.attrs["description"] = ("Simulated by lidar_mitsuba (first-principles Monte Carlo): "
-                              "photon heights over a DEM; /truth holds the simulation truth")
-    f.attrs["lidar_mitsuba_version"] = __version__
-    f.attrs["config"] = json.dumps(granule.config)
-    f.attrs["time_coverage_start"] = _utc(t_first)
-    f.attrs["time_coverage_end"] = _utc(t_last)
-    _ancillary(f, instruments, t_first, t_last)
-    _orbit_info(f, granule, t_first)
-    t = f.create_group("truth")
-    t.attrs["crs"] = granule.crs
-    t.attrs["frame_origin_m"] = np.asarray(granule.frame_origin_m, np.float64)
-    t.attrs["description"] = (
-        "simulation truth per beam; positions x, y in the DEM CRS (attribute crs) less "
-        "frame_origin_m [m], z and heights above the DEM's vertical datum [m]")
-
-
-def _ancillary(f, instruments, t_first, t_last):
-    a = f.create_group("ancillary_data")
-    _ds(a, "atlas_sdp_gps_epoch", np.array([geotrack.ATLAS_SDP_GPS_EPOCH]), "seconds since "
-        "1980-01-06T00:00:00.000000Z", "GPS seconds of the ATLAS SDP epoch 2018-01-01")
-    for key, t in (("data_start_utc", t_first), ("granule_start_utc", t_first),
-                   ("data_end_utc", t_last), ("granule_end_utc", t_last)):
-        _ds(a, key, np.array([_utc(t)]), "1", f"{key[:-4].replace('_', ' ')} (UTC)")
-    for when, t in (("start", t_first), ("end", t_last)):
-        week, sow = _gps_week_sow(t)
-        _ds(a, f"{when}_gpsweek", np.array([week], np.int32), "weeks", "GPS week")
-        _ds(a, f"{when}_gpssow", np.array([sow]), "seconds", "GPS seconds of week")
-        for key in ("cycle", "geoseg", "orbit", "region", "rgt"):
-            _ds(a, f"{when}_{key}", np.array([0], np.int32), "1",
-                f"{key}: not applicable to a simulated track (0)")
-    _ds(a, "release", np.array([b"SIM"]), "1", "simulated: lidar_mitsuba")
-    _ds(a, "version", np.array([__version__.encode()]), "1", "lidar_mitsuba version")
-    tep = a.create_group("tep")
-    _ds(tep, "tep_valid_spot", np.array([1, 1, 3, 3, 5, 5], np.int8), "1",
-        "spot whose transmit pulse shape applies (every spot has the modelled shape)")
-    cal = a.create_group("calibrations")
-    dt = cal.create_group("dead_time")
-    fpb = cal.create_group("first_photon_bias")
-    fpb.attrs["description"] = ("no first-photon-bias tables: lidar_mitsuba's ATL06 corrects "
-                                "event by event (lidar_mitsuba.fpb)")
-    for beam, inst in instruments:
-        g = dt.create_group(beam.name)
-        _ds(g, "dead_time", np.full(inst.channels, inst.effective_dead_time_ns * 1e-9),
-            "seconds", "modelled dead time of each channel")
-        _ds(g, "sigma", np.zeros(inst.channels), "seconds", "dead time uncertainty (exact)")
-        fpb.create_group(beam.name)
-    imp = f.create_group("atlas_impulse_response")
-    sigma_ns = instruments[0][1].pulse_sigma_ns
-    t_ns = np.arange(-5 * sigma_ns, 5 * sigma_ns, 0.025)
-    hist = np.exp(-0.5 * (t_ns / sigma_ns) ** 2)
-    for pce in ("pce1_spot1", "pce2_spot3"):
-        h = imp.create_group(f"{pce}/tep_histogram")
-        _ds(h, "tep_hist", hist / hist.sum(), "1", "modelled transmit pulse shape "
-            f"(Gaussian, FWHM {sigma_ns * FWHM_PER_SIGMA:g} ns), normalised")
-        _ds(h, "tep_hist_time", t_ns * 1e-9, "seconds", "bin centre time from the pulse centre")
-        _ds(h, "tep_tod", np.array([t_first]), "seconds since 2018-01-01", "histogram time")
-
-
-def _orbit_info(f, granule, t_first):
-    o = f.create_group("orbit_info")
-    _ds(o, "sc_orient", np.array([granule.sc_orient], np.int8), "1",
-        "spacecraft orientation: 0 backward (left beams strong), 1 forward, 2 transition")
-    _ds(o, "sc_orient_time", np.array([t_first]), "seconds since 2018-01-01",
-        "time of the orientation")
-    for key, dtype in (("rgt", np.int16), ("cycle_number", np.int8), ("orbit_number", np.uint16)):
-        _ds(o, key, np.array([0], dtype), "1", f"{key}: not applicable to a simulated track")
-
-
-def _beam_atl03(f, run: BeamRun, sc_orient: int):
-    res, beam = run.result, run.beam
-    inst, det = res.instrument, res.detections
-    order = _photon_order(res)
-    shot = det.shot[order].astype(np.int64)              # local to this section
-    gshot = shot + run.first_shot                        # in the whole track
-    channel = det.channel[order]
-    seg_of_shot, first, count, ref_shot, k0 = _segments(res.along_track_m, shot)
-    gt = f.require_group(beam.name)
-    done = gt["heights/h_ph"].shape[0] if "heights/h_ph" in gt else 0   # earlier sections
-    gt.attrs.update({"atlas_beam_type": beam.strength, "atlas_spot_number": str(beam.spot),
-                     "atlas_pce": f"pce{beam.pce}", "groundtrack_id": beam.name,
-                     "sc_orientation": "Backward" if sc_orient == 0 else "Forward",
-                     "description": "one ATLAS beam: photons, geolocation, background"})
-    h = gt.require_group("heights")
-    _put(h, "lat_ph", run.lat_deg[shot], "degrees_north",
-        "latitude of the photon: its shot's footprint centre (nadir pointing)")
-    _put(h, "lon_ph", run.lon_deg[shot], "degrees_east", "longitude of the photon")
-    _put(h, "h_ph", res.h_m[order].astype(np.float32), "meters",
-        "photon height above the DEM's vertical datum: altitude - c t / 2")
-    _put(h, "delta_time", run.delta_time_s[shot], "seconds since 2018-01-01",
-        "transmit time of the photon's shot")
-    _put(h, "dist_ph_along", (res.along_track_m[shot] - SEGMENT_M * seg_of_shot[shot])
-        .astype(np.float32), "meters", "along-track distance from the start of the segment")
-    _put(h, "dist_ph_across", np.zeros(shot.size, np.float32), "meters",
-        "across-track distance from the beam's ground track (0: nadir pointing)")
-    conf = res.signal_conf[order].astype(np.int8)
-    _put(h, "signal_conf_ph", np.repeat(conf[:, None], 5, axis=1), "counts",
-        "confidence (land, ocean, sea ice, land ice, inland water; one histogram test for all): "
-        "0 noise, 2 low, 3 medium, 4 high")
-    _put(h, "quality_ph", np.zeros(shot.size, np.int8), "1", "0: nominal")
-    _put(h, "ph_id_count", _ph_id_count(shot, channel), "counts",
-        "1-based index of the event in its channel and pulse")
-    base = 1 if beam.strength == "strong" else 17
-    _put(h, "ph_id_channel", (channel.astype(np.int64) + base).astype(np.uint8), "1",
-        "channel: strong beam 1-16, weak beam 17-20")
-    _put(h, "ph_id_pulse", (gshot % PULSES_PER_MAJOR_FRAME + 1).astype(np.uint8), "counts",
-        "pulse number within the major frame (1-200)")
-    _put(h, "pce_mframe_cnt", (gshot // PULSES_PER_MAJOR_FRAME).astype(np.uint32), "counts",
-        "major frame counter (from 0 at the first shot)")
-
-    g = gt.require_group("geolocation")
-    n_seg = count.size
-    _put(g, "segment_id", k0 + np.arange(1, n_seg + 1, dtype=np.int32), "1",
-        "20 m segment number, from 1 at the track's first shot")
-    _put(g, "segment_ph_cnt", count.astype(np.int32), "counts", "photons in the segment")
-    _put(g, "ph_index_beg", np.where(count > 0, done + first + 1, 0).astype(np.int64), "1",
-        "1-based index in heights/ of the segment's first photon (0: none)")
-    _put(g, "segment_dist_x", SEGMENT_M * (k0 + np.arange(n_seg, dtype=np.float64)), "meters",
-        "along-track distance of the segment start from the track's first shot")
-    _put(g, "segment_length", np.full(n_seg, SEGMENT_M), "meters", "segment length")
-    _put(g, "reference_photon_lat", run.lat_deg[ref_shot], "degrees_north",
-        "footprint centre of the shot nearest the segment centre")
-    _put(g, "reference_photon_lon", run.lon_deg[ref_shot], "degrees_east",
-        "footprint centre of the shot nearest the segment centre")
-    ref_ph = np.searchsorted(shot, ref_shot)
-    has = (ref_ph < shot.size) & (shot[np.minimum(ref_ph, max(shot.size - 1, 0))] == ref_shot) \
-        if shot.size else np.zeros(n_seg, bool)
-    _put(g, "reference_photon_index", np.where(has, ref_ph - first + 1, 0).astype(np.int32),
-        "1", "1-based index in the segment of the reference shot's first photon (0: none)")
-    _put(g, "delta_time", run.delta_time_s[ref_shot], "seconds since 2018-01-01",
-        "transmit time of the reference shot")
-    _put(g, "ref_azimuth", np.deg2rad(run.azimuth_deg[ref_shot]).astype(np.float32), "radians",
-        "direction of travel, clockwise from north")
-    _put(g, "ref_elev", np.full(n_seg, np.pi / 2, np.float32), "radians",
-        "elevation of the unit pointing vector (nadir pointing)")
-    _put(g, "sigma_h", np.zeros(n_seg, np.float32), "meters", "height uncertainty from "
-        "geolocation (none in a simulation)")
-    _put(g, "surf_type", np.tile(np.array([0, 0, 0, 1, 0], np.int8), (n_seg, 1)), "1",
-        "surface types (land, ocean, sea ice, land ice, inland water): land ice")
-
-    b = gt.require_group("bckgrd_atlas")
-    rows = np.flatnonzero((run.first_shot + np.arange(res.n_shots)) % BCKGRD_SHOTS == 0)
-    _put(b, "bckgrd_rate", np.full(rows.size, inst.background_mhz * 1e6, np.float32), "counts / "
-        "second", "modelled solar background rate reaching the detector")
-    _put(b, "delta_time", run.delta_time_s[rows], "seconds since 2018-01-01",
-        "time of the 50-shot background period")
-
-    c = gt.require_group("geophys_corr")
-    _put(c, "delta_time", run.delta_time_s[ref_shot], "seconds since 2018-01-01",
-        "segment time")
-    for key in ("dac", "tide_earth", "tide_load", "tide_ocean", "tide_pole",
-                "tide_equilibrium", "geoid", "dem_h"):
-        v = res.surface_z_m[ref_shot] if key == "dem_h" else np.zeros(n_seg)
-        _put(c, key, v.astype(np.float32), "meters",
-            "DEM height at the reference shot" if key == "dem_h"
-            else f"{key}: not modelled in a simulation (0)")
-
-    _truth(f.require_group("truth").require_group(beam.name), res, order, run.first_shot)
-
-
-def _truth(g, res, order, first_shot: int = 0):
-    for group, name, data, units, desc in atl03.truth_fields(res, order=order,
-                                                             first_shot=first_shot):
-        _put(g.require_group(group), name, data, units, desc)
-    if "config" not in g.attrs:                       # (the first section's)
-        g.attrs["config"] = json.dumps(res.config)
 
 
 # --------------------------------------------------------------------------- ATL06

@@ -48,9 +48,11 @@ _queued = [0]                                        # bytes of rows in _pending
 _tails: dict = {}           # (file key, dataset name) -> (dataset, first row, rows, level)
 
 
-def put(group, name: str, data, units: str, description: str, *, append: bool = False):
+def put(group, name: str, data, units: str, description: str, *, append: bool = False,
+        fillvalue=None):
     """Write ``data`` as dataset ``group[name]`` (attributes ``units`` and ``description``),
-    or with ``append=True`` add its rows after those of an existing one.
+    or with ``append=True`` add its rows after those of an existing one. ``fillvalue``: the
+    new dataset's HDF5 fill value (what pads its last chunk).
 
     A new dataset of ``ndim >= 1`` is chunked along axis 0 (:data:`CHUNK_ROWS` rows, fewer
     for a short array that will not grow), byte-shuffled and gzip-compressed at
@@ -72,7 +74,8 @@ def put(group, name: str, data, units: str, description: str, *, append: bool = 
         d = group.create_dataset(name, shape=(0,) + data.shape[1:], dtype=data.dtype,
                                  maxshape=(None,) + data.shape[1:],
                                  chunks=(rows,) + data.shape[1:], compression="gzip",
-                                 compression_opts=GZIP_LEVEL, shuffle=True)
+                                 compression_opts=GZIP_LEVEL, shuffle=True,
+                                 fillvalue=fillvalue)
         d.resize(data.shape[0], axis=0)
         write_rows(d, 0, data)
     d.attrs["units"] = units

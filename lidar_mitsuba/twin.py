@@ -101,8 +101,8 @@ class TwinGranule:
 
     @property
     def epoch_utc(self) -> str:
-        from .granule import _utc
-        return _utc(self.time_span_s()[0]).decode()
+        from .atl03_file import utc
+        return utc(self.time_span_s()[0]).decode()
 
     def median_range_m(self) -> float:
         """The spacecraft's median height above the surface under it [m] (above the

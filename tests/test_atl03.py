@@ -29,31 +29,35 @@ def written(result, tmp_path_factory):
 
 
 def expected_datasets(res):
-    """Every dataset the layout promises, with the array it must hold."""
+    """The datasets of the run's photons and truth, with the array each must hold (the run's
+    photons are in shot order already: heights/ keeps their order)."""
     d, inst = res.detections, res.instrument
     beam = atl03.BEAM_GROUPS[inst.beam]
+    along = res.along_track_m[d.shot]
     return {
-        f"{beam}/heights/h_ph": res.h_m,
-        f"{beam}/heights/delta_time": d.shot / inst.prf_hz,
-        f"{beam}/heights/dist_ph_along": res.along_track_m[d.shot],
+        f"{beam}/heights/h_ph": res.h_m.astype(np.float32),             # ATL03's dtypes
+        f"{beam}/heights/delta_time": res.geolocation.delta_time_s[d.shot],
+        f"{beam}/heights/lat_ph": res.geolocation.lat_deg[d.shot],
+        f"{beam}/heights/lon_ph": res.geolocation.lon_deg[d.shot],
+        f"{beam}/heights/dist_ph_along": (along - 20.0 * np.floor(along / 20.0)).astype(np.float32),
         f"{beam}/heights/signal_conf_ph": np.repeat(res.signal_conf[:, None], 5, axis=1),
-        "truth/photons/shot": d.shot,
-        "truth/photons/channel": d.channel,
-        "truth/photons/anode": d.anode,
-        "truth/photons/is_signal": d.is_signal.astype(np.int8),
-        "truth/photons/time_ns": d.time_ns,
-        "truth/photons/return_index": d.return_index,
-        "truth/photons/h_m": res.h_m,
-        "truth/photons/hit_x_m": d.hit_xyz_m[:, 0],
-        "truth/photons/hit_y_m": d.hit_xyz_m[:, 1],
-        "truth/photons/hit_z_m": d.hit_xyz_m[:, 2],
-        "truth/shots/along_track_m": res.along_track_m,
-        "truth/shots/x_m": res.shot_x_m,
-        "truth/shots/y_m": res.shot_y_m,
-        "truth/shots/z_ref_m": res.z_ref_m,
-        "truth/shots/surface_z_m": res.surface_z_m,
-        "truth/shots/arrivals": d.arrivals_per_shot,
-        "truth/shots/mean_photons": d.mean_photons_per_shot,
+        f"truth/{beam}/photons/shot": d.shot,
+        f"truth/{beam}/photons/channel": d.channel,
+        f"truth/{beam}/photons/anode": d.anode,
+        f"truth/{beam}/photons/is_signal": d.is_signal.astype(np.int8),
+        f"truth/{beam}/photons/time_ns": d.time_ns,
+        f"truth/{beam}/photons/return_index": d.return_index,
+        f"truth/{beam}/photons/h_m": res.h_m,
+        f"truth/{beam}/photons/hit_x_m": d.hit_xyz_m[:, 0],
+        f"truth/{beam}/photons/hit_y_m": d.hit_xyz_m[:, 1],
+        f"truth/{beam}/photons/hit_z_m": d.hit_xyz_m[:, 2],
+        f"truth/{beam}/shots/along_track_m": res.along_track_m,
+        f"truth/{beam}/shots/x_m": res.shot_x_m,
+        f"truth/{beam}/shots/y_m": res.shot_y_m,
+        f"truth/{beam}/shots/z_ref_m": res.z_ref_m,
+        f"truth/{beam}/shots/surface_z_m": res.surface_z_m,
+        f"truth/{beam}/shots/arrivals": d.arrivals_per_shot,
+        f"truth/{beam}/shots/mean_photons": d.mean_photons_per_shot,
     }
 
 
@@ -66,11 +70,16 @@ def test_the_run_has_what_the_round_trip_needs(result):
 
 
 def test_every_array_round_trips_exactly(result, written):
+    from lidar_mitsuba.atl03_fields import GROUPS
     expect = expected_datasets(result)
     with h5py.File(written) as f:
         names = set()
         f.visititems(lambda name, obj: names.add(name) if isinstance(obj, h5py.Dataset) else None)
-        assert names == set(expect) | {"orbit_info/sc_orient"}
+        # the beam: ATL03's fields and nothing else; the truth: the documented datasets
+        assert {n for n in names if n.startswith(("gt", "truth"))} == (
+            {n for n in expect if n.startswith("truth")}
+            | {f"gt1r/{g}/{k}" for g, spec in GROUPS.items() for k in spec})
+        assert "orbit_info/sc_orient" in names
         for name, data in expect.items():
             got = f[name][()]
             assert got.shape == np.shape(data), name
@@ -99,19 +108,21 @@ def test_dtypes_and_attributes(written):
         assert n > 0
         assert h["signal_conf_ph"].dtype == np.int8 and h["signal_conf_ph"].shape == (n, 5)
         assert set(np.unique(h["signal_conf_ph"][()])) <= {0, 2, 3, 4}
-        for name in ("h_ph", "delta_time", "dist_ph_along"):
-            assert h[name].dtype == np.float64 and h[name].shape == (n,)
-        assert f["truth/photons/time_ns"].dtype == np.float64
-        assert f["truth/photons/is_signal"].dtype == np.int8
+        for name, dtype in (("h_ph", np.float32), ("delta_time", np.float64),
+                            ("dist_ph_along", np.float32)):                # ATL03's dtypes
+            assert h[name].dtype == dtype and h[name].shape == (n,)
+        assert f["truth/gt1r/photons/time_ns"].dtype == np.float64
+        assert f["truth/gt1r/photons/is_signal"].dtype == np.int8
 
         def check(name, obj):
-            if isinstance(obj, h5py.Dataset) and name != "orbit_info/sc_orient":
+            if isinstance(obj, h5py.Dataset) and name not in ("orbit_info/sc_orient",
+                                                              "ds_surf_type", "ds_xyz"):
                 assert obj.attrs["units"], name
                 assert len(obj.attrs["description"]) > 5, name
         f.visititems(check)
         assert h["h_ph"].attrs["units"] == "meters"
-        assert h["delta_time"].attrs["units"] == "seconds"
-        assert f["truth/photons/time_ns"].attrs["units"] == "ns"
+        assert h["delta_time"].attrs["units"] == "seconds since 2018-01-01"
+        assert f["truth/gt1r/photons/time_ns"].attrs["units"] == "ns"
 
 
 def test_a_failed_write_leaves_nothing(tmp_path):

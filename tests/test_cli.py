@@ -177,10 +177,12 @@ def test_simulate_then_stats(tmp_path, capsys, monkeypatch):
     (fig,) = figs
     (ax,) = fig.axes
     lines = {ln.get_label().split(" (")[0]: ln for ln in ax.get_lines()}
-    with h5py.File(out) as f:
-        sig = f["truth/photons/is_signal"][()].astype(bool)
-        along, h = f["gt1r/heights/dist_ph_along"][()], f["gt1r/heights/h_ph"][()]
-        shots = {k: f[f"truth/shots/{k}"][()] for k in ("along_track_m", "surface_z_m", "z_ref_m")}
+    with h5py.File(out) as f:                  # (the truth: float64 heights, whole-track x)
+        sig = f["truth/gt1r/photons/is_signal"][()].astype(bool)
+        shots = {k: f[f"truth/gt1r/shots/{k}"][()]
+                 for k in ("along_track_m", "surface_z_m", "z_ref_m")}
+        along = shots["along_track_m"][f["truth/gt1r/photons/shot"][()]]
+        h = f["truth/gt1r/photons/h_m"][()]
     assert sig.all() and "noise photons" not in lines           # no background: all signal
     assert lines["signal photons"].get_label() == f"signal photons ({sig.size})"
     np.testing.assert_array_equal(lines["signal photons"].get_xdata(), along)
@@ -196,8 +198,8 @@ def test_simulate_then_stats(tmp_path, capsys, monkeypatch):
             assert "units" in f[f"gt1r/heights/{name}"].attrs
         n = f["gt1r/heights/h_ph"].shape[0]
         assert f["gt1r/heights/signal_conf_ph"].shape == (n, 5)
-        assert f["truth/photons/shot"].shape == (n,)
-        assert f["truth/shots/z_ref_m"].shape == (300,)
+        assert f["truth/gt1r/photons/shot"].shape == (n,)
+        assert f["truth/gt1r/shots/z_ref_m"].shape == (300,)
         cfg = json.loads(f.attrs["config"])
         assert cfg["instrument"]["channels"] == 4 and cfg["surface"]["p"] == 1.8
     assert main(["stats", str(out), "--json", "--window", "100"]) == 0
@@ -207,9 +209,9 @@ def test_simulate_then_stats(tmp_path, capsys, monkeypatch):
     assert doc["shots"] == 300 and len(doc["windows"]) == 3 and len(doc["channels"]) == 4
     # stats reads back what simulate wrote: the signal photons' h - z_ref, recomputed here
     with h5py.File(out) as f:
-        sig = f["truth/photons/is_signal"][()].astype(bool)
-        dh = (f["gt1r/heights/h_ph"][()]
-              - f["truth/shots/z_ref_m"][()][f["truth/photons/shot"][()]])[sig]
+        sig = f["truth/gt1r/photons/is_signal"][()].astype(bool)
+        dh = (f["truth/gt1r/photons/h_m"][()]
+              - f["truth/gt1r/shots/z_ref_m"][()][f["truth/gt1r/photons/shot"][()]])[sig]
     assert doc["bias_m"] == pytest.approx(dh.mean(), rel=1e-9)
     assert doc["std_m"] == pytest.approx(dh.std(ddof=1), rel=1e-9)
     assert abs(doc["bias_m"]) < 0.1
@@ -241,18 +243,18 @@ def test_terrain_command(tmp_path, capsys):
 
 
 def test_atomic_write_leaves_nothing(tmp_path, monkeypatch):
-    from lidar_mitsuba import atl03
+    from lidar_mitsuba import atl03, atl03_beam
     from lidar_mitsuba.simulate import simulate
     from lidar_mitsuba.surface import SurfaceSpec
     res = simulate(surface=SurfaceSpec(kind="flat"), shots=20, progress=False)
-    real = atl03._ds
+    real = atl03_beam._put                      # (the beam writer's datasets)
 
     def failing(group, name, *a, **k):
         if name == "dist_ph_along":
             raise OSError("disk full")
         return real(group, name, *a, **k)
 
-    monkeypatch.setattr(atl03, "_ds", failing)
+    monkeypatch.setattr(atl03_beam, "_put", failing)
     with pytest.raises(OSError):
         atl03.write(res, tmp_path / "x.h5")
     assert list(tmp_path.iterdir()) == []
@@ -268,7 +270,7 @@ def test_noise_options_and_segments(tmp_path, capsys):
     with h5py.File(out) as f:
         cfg = json.loads(f.attrs["config"])["instrument"]
         assert cfg["dead_time_ns"] == 3.2 and cfg["paralyzable"] and cfg["background_mhz"] == 5.0
-        sig = f["truth/photons/is_signal"][()]
+        sig = f["truth/gt1l/photons/is_signal"][()]
         assert 0 < sig.mean() < 1
         assert set(np.unique(f["gt1l/heights/signal_conf_ph"][()])) <= {0, 2, 3, 4}
     seg = tmp_path / "seg.h5"
@@ -386,7 +388,7 @@ def test_xml_scene_with_parameters_and_track_from_the_cli(tmp_path, capsys):
                  "--out", str(out), "--no-progress"]) == 0
     capsys.readouterr()
     with h5py.File(out) as f:
-        x = f["truth/shots/x_m"][()]
+        x = f["truth/gt1l/shots/x_m"][()]
         h = f["gt1l/heights/h_ph"][()]
         cfg = json.loads(f.attrs["config"])
     np.testing.assert_allclose(x, -80.0, atol=1e-9)                # across the roof, along y
