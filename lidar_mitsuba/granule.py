@@ -34,7 +34,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import __version__, atl06, geotrack, h5chunks
+from . import __version__, atl06, geotrack, h5chunks, warmup
 from .atl03 import _ds, atomic_h5file
 from .atl03_beam import (BCKGRD_SHOTS, PULSES_PER_MAJOR_FRAME, SEGMENT_M,  # noqa: F401
                          write_beam as _beam_atl03)
@@ -458,31 +458,27 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
         raise ParameterError("section_shots", f"must be an integer >= 1 (got {section_shots!r})")
     ctx = _Context(surface, track, instrument_options, instrument)
     spacing = ctx.base.shot_spacing_m
-    n_of = {b.name: track.beam_shot_count(b, shots) for b in beams}
-    bounds = {b.name: section_bounds(n_of[b.name], spacing_m=spacing,
-                                     section_shots=int(section_shots),
-                                     along_m=_along_of(track, b, n_of[b.name], spacing))
-              for b in beams}
-    n_sections = max(len(v) for v in bounds.values())
+    streams = [_BeamStream(b, track, shots, spacing=spacing, section_shots=int(section_shots),
+                           depth=max_depth, paths=paths_per_shot) for b in beams]
+    n_sections = max(len(st.bounds) for st in streams)
     t_first, t_last = track.time_span_s(shots, prf_hz=ctx.base.prf_hz)
     meta = Granule(beams=[], sc_orient=int(sc_orient), crs=ctx.surface.dem.crs.to_string(),
                    frame_origin_m=ctx.origin, track=track,
                    config=ctx.config(shots=shots, seed=seed, sc_orient=sc_orient, beams=beams,
                                      sections=n_sections))
     instruments = [(b, ctx.instrument(b)) for b in beams]
-    summaries = {b.name: BeamSummary(beam=b) for b in beams}
-    depth = {b.name: max_depth for b in beams}
-    paths = {b.name: paths_per_shot for b in beams}
     seg_options = dict(segment_options or {})
-    if max(n_of.values()) * spacing / SEGMENT_M >= atl06.COMPILE_MIN_SEGMENTS:
+    if max(st.n_shots for st in streams) * spacing / SEGMENT_M >= atl06.COMPILE_MIN_SEGMENTS:
         # one engine for every section of a long track (its short last section too)
         seg_options.setdefault("engine", "compiled")
-    segs = {b.name: _SegmentStream(dict(seg_options)) for b in beams}
+    for st in streams:
+        st.segments = _SegmentStream(dict(seg_options))
     bar = None
-    if progress:
+    if progress:      # a first run on this machine compiles the kernels: say so
         from tqdm.auto import tqdm
-        bar = tqdm(total=sum(n_of.values()), desc="granule", unit="shot", delay=2.0,
-                   leave=False)
+        warmup.compile_kernels(atl06=seg_options.get("engine") == "compiled")
+        bar = tqdm(total=sum(st.n_shots for st in streams), desc="granule", unit="shot",
+                   delay=2.0, leave=False)
     try:
         with contextlib.ExitStack() as stack:
             f3 = stack.enter_context(atomic_h5file(atl03_path))
@@ -492,27 +488,48 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                 f6 = stack.enter_context(atomic_h5file(atl06_path))
                 _atl06_header(f6, meta, instruments, t_first, t_last)
             for k in range(n_sections):
-                for beam in beams:
-                    if k >= len(bounds[beam.name]):
-                        continue
-                    a, b = bounds[beam.name][k]
-                    last = k == len(bounds[beam.name]) - 1
-                    run = ctx.beam_run(beam, a, b - a, seed=_beam_seed(seed, beam, k),
-                                       progress=False, paths_per_shot=paths[beam.name],
-                                       max_depth=depth[beam.name], **simulate_options)
-                    if run.result.config.get("snow") is None:   # a volume sets its own
-                        depth[beam.name] = run.result.config["max_depth"]
-                    paths[beam.name] = run.result.config["paths_per_shot"]
-                    _beam_atl03(f3, run, sc_orient)
-                    if f6 is not None:
-                        table, along, lat, lon, t = segs[beam.name].fit(run, last=last)
-                        _beam_atl06(f6, beam, sc_orient, table, along_m=along, lat_deg=lat,
-                                    lon_deg=lon, delta_time_s=t)
-                    summaries[beam.name].add(run.result)
+                for st in streams:
+                    done = st.section(k, ctx, f3, f6, seed=seed, sc_orient=sc_orient,
+                                      **simulate_options)
                     if bar is not None:
-                        bar.update(b - a)
-                    del run
+                        bar.update(done)
     finally:
         if bar is not None:
             bar.close()
-    return list(summaries.values())
+    return [st.summary for st in streams]
+
+
+class _BeamStream:
+    """One beam of a streamed granule: its sections, the modelling choices its first section
+    made (kept for the rest), its ATL06 segments across sections and its running statistics."""
+
+    def __init__(self, beam: Beam, track, shots: int, *, spacing: float, section_shots: int,
+                 depth, paths):
+        self.beam, self.depth, self.paths = beam, depth, paths
+        self.n_shots = track.beam_shot_count(beam, shots)
+        self.bounds = section_bounds(self.n_shots, spacing_m=spacing,
+                                     section_shots=section_shots,
+                                     along_m=_along_of(track, beam, self.n_shots, spacing))
+        self.segments: _SegmentStream | None = None
+        self.summary = BeamSummary(beam=beam)
+
+    def section(self, k: int, ctx: _Context, f3, f6, *, seed: int, sc_orient: int,
+                **simulate_options) -> int:
+        """Simulate section ``k`` (if the beam has it) into the files; returns its shots."""
+        if k >= len(self.bounds):
+            return 0
+        a, b = self.bounds[k]
+        run = ctx.beam_run(self.beam, a, b - a, seed=_beam_seed(seed, self.beam, k),
+                           progress=False, paths_per_shot=self.paths, max_depth=self.depth,
+                           **simulate_options)
+        cfg = run.result.config
+        if cfg.get("snow") is None:                     # a volume sets its own
+            self.depth = cfg["max_depth"]
+        self.paths = cfg["paths_per_shot"]
+        _beam_atl03(f3, run, sc_orient)
+        if f6 is not None:
+            table, along, lat, lon, t = self.segments.fit(run, last=k == len(self.bounds) - 1)
+            _beam_atl06(f6, self.beam, sc_orient, table, along_m=along, lat_deg=lat,
+                        lon_deg=lon, delta_time_s=t)
+        self.summary.add(run.result)
+        return b - a
