@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 import mitsuba as mi
 import numpy as np
 
-from . import (bounce_pilot, chunks, classify, path_budget, radiometry, retrieval,
-               scene as scn, surface as surfaces, warmup)
+from . import (bounce_pilot, chunks, classify, explain, path_budget, radiometry,
+               retrieval, scene as scn, surface as surfaces, warmup)
 from .constants import FWHM_PER_SIGMA, ParameterError, SimulationWarning
 from .instrument import Instrument
 from .photons import Detections, Returns
@@ -277,6 +277,69 @@ def simulate(*, instrument: Instrument | None = None,
         with no surface under them, too few paths per shot, a mesh coarser than the footprint
         resolves); also listed in ``result.config["warnings"]``.
     """
+    run = _resolve(instrument=instrument, surface=surface, scene=scene, scene_file=scene_file,
+                   params=params, bsdf=bsdf, shots=shots, seed=seed,
+                   paths_per_shot=paths_per_shot, max_depth=max_depth, variant=variant,
+                   chunk_shots=chunk_shots, snow=snow)
+    _lay_out(run, track or Track(), crop_to_track=crop_to_track)
+    _choose_model(run)
+    _place_on_earth(run, site or Site())
+    chunked = _trace_and_detect(run, keep_returns=keep_returns, progress=progress)
+    return _result(run, chunked)
+
+
+@dataclass
+class _Run:
+    """A run's state as ``simulate``'s steps build it: what was asked (after checks), then the
+    laid-out track and scene, the chosen model, the sky, and the timings of each step."""
+    instrument: Instrument
+    surf: surfaces.Surface
+    surf_cfg: dict
+    default_bsdf: dict | None
+    bsdf: dict | None
+    snow: SnowVolume | None
+    shots: int
+    seed: int
+    paths_per_shot: int | str
+    max_depth: int | str
+    chunk_shots: int
+    volume: bool
+    max_lanes: int | None = None
+    honoured: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+    t0: float = field(default_factory=time.perf_counter)
+    # _lay_out
+    track: object = None
+    along: np.ndarray | None = None
+    x: np.ndarray | None = None
+    y: np.ndarray | None = None
+    x_loc: np.ndarray | None = None
+    y_loc: np.ndarray | None = None
+    dz: np.ndarray | None = None
+    reach: float = 0.0
+    bsdf_used: object = None
+    scene: object = None
+    first_tile: tuple | None = None
+    triangles: int = 0
+    crop: bool = True
+    surface_z: np.ndarray | None = None
+    z_ref: np.ndarray | None = None
+    gate_z: np.ndarray | None = None
+    # _choose_model
+    pilot: dict | None = None
+    budget: dict | None = None
+    integrator_dict: dict | None = None
+    integrator: object = None
+    # _place_on_earth
+    site: Site | None = None
+    geoloc: Geolocation | None = None
+    rad: radiometry.ShotRadiometry | None = None
+
+
+def _resolve(*, instrument, surface, scene, scene_file, params, bsdf, shots, seed,
+             paths_per_shot, max_depth, variant, chunk_shots, snow) -> _Run:
+    """Check the run's arguments, activate the variant, resolve the surface; a snow volume or
+    a scene's medium and ``<integrator>`` settle the model's inputs."""
     instrument = instrument or Instrument()
     if snow is not None and not isinstance(snow, SnowVolume):
         raise ParameterError("snow", f"must be a SnowVolume (got {type(snow).__name__})")
@@ -288,14 +351,14 @@ def simulate(*, instrument: Instrument | None = None,
             set_variant(variant)
         except ValueError as e:
             raise ParameterError("variant", str(e)) from None
-    timings: dict[str, float] = {}
     t0 = time.perf_counter()
     surf, default_bsdf, surf_cfg = _resolve_surface(surface=surface, scene=scene,
                                                     scene_file=scene_file, params=params,
                                                     bsdf=bsdf)
-    max_lanes, honoured = None, {}
-    volume = snow is not None
-    if volume:
+    run = _Run(instrument=instrument, surf=surf, surf_cfg=surf_cfg, default_bsdf=default_bsdf,
+               bsdf=bsdf, snow=snow, shots=shots, seed=seed, paths_per_shot=paths_per_shot,
+               max_depth=max_depth, chunk_shots=chunk_shots, volume=snow is not None, t0=t0)
+    if snow is not None:
         if isinstance(surf, SceneSurface):
             raise ParameterError("snow", "does not apply to a Mitsuba scene: put a <medium> "
                                  "inside its terrain shape (docs: README, snow)")
@@ -304,157 +367,182 @@ def simulate(*, instrument: Instrument | None = None,
         if max_depth not in ("auto", snow.events_cap):
             raise ParameterError("max_depth", "with a snow volume the interactions per photon "
                                  "are the snow's max_events (--snow-max-events)")
-        max_depth = snow.events_cap
+        run.max_depth = snow.events_cap
     if isinstance(surf, SceneSurface):
         try:
             medium = scn.scene_medium(surf.scene)
         except ValueError as e:
             raise ParameterError("scene", str(e)) from None
-        volume = medium is not None
-        instrument, max_depth, max_lanes, honoured = _scene_settings(surf.scene, instrument,
-                                                                     max_depth)
-        if volume and max_depth == "auto":
-            max_depth = medium_events_cap(medium)
-    check_memory("shots", estimate_memory_bytes(instrument, shots), f"a run of {shots} shots",
-                 "split the track into several runs")
-    sigma = instrument.footprint_sigma_m
-    margin = 5.0 * sigma + 1.0
-    track = track or Track()
-    along, x, y = track.positions(shots, spacing_m=instrument.shot_spacing_m,
-                                  centre_xy_m=surf.centre_xy_m())
-    x_loc, y_loc, dz = surf.fold(x, y, margin_m=margin)
-    if max_depth == "auto" and surf.exact_single_bounce:
-        max_depth = 1
+        run.volume = medium is not None
+        run.instrument, run.max_depth, run.max_lanes, run.honoured = _scene_settings(
+            surf.scene, run.instrument, run.max_depth)
+        if run.volume and run.max_depth == "auto":
+            run.max_depth = medium_events_cap(medium)
+    check_memory("shots", estimate_memory_bytes(run.instrument, shots),
+                 f"a run of {shots} shots", "split the track into several runs")
+    return run
+
+
+def _lay_out(run: _Run, track, *, crop_to_track: bool) -> None:
+    """The shots along the track, folded into the surface; the scene over the corridor the
+    photons can reach (a streamed DEM: its first tile); heights and reference elevations."""
+    inst, surf = run.instrument, run.surf
+    margin = 5.0 * inst.footprint_sigma_m + 1.0
+    run.track, run.crop = track, bool(crop_to_track)
+    run.along, run.x, run.y = track.positions(run.shots, spacing_m=inst.shot_spacing_m,
+                                              centre_xy_m=surf.centre_xy_m())
+    run.x_loc, run.y_loc, run.dz = surf.fold(run.x, run.y, margin_m=margin)
+    if run.max_depth == "auto" and surf.exact_single_bounce:
+        run.max_depth = 1
     # mesh only the corridor the photons can reach: footprints (5 sigma) for single bounce;
     # the receiver's field of view when paths may bounce on
-    reach = (margin if max_depth == 1 or volume
-             else max(margin, instrument.fov_diameter_m / 2 + 5.0))
-    bsdf_used = snow if snow is not None else bsdf if bsdf is not None else default_bsdf
-    first_tile = None
+    run.reach = (margin if run.max_depth == 1 or run.volume
+                 else max(margin, inst.fov_diameter_m / 2 + 5.0))
+    run.bsdf_used = (run.snow if run.snow is not None else run.bsdf if run.bsdf is not None
+                     else run.default_bsdf)
     if surf.streamed:       # a DEM: every chunk traces its own corridor tile
-        chunk_shots = min(chunk_shots, surf.tile_shots)
-        first_tile = surf.corridor_tile(x[:chunk_shots], y[:chunk_shots], reach_m=reach,
-                                        bsdf=bsdf_used)
-        scene_, (ox, oy), triangles = first_tile
-        x_loc, y_loc = x[:chunk_shots] - ox, y[:chunk_shots] - oy     # the pilot's tile
+        run.chunk_shots = n = min(run.chunk_shots, surf.tile_shots)
+        run.first_tile = surf.corridor_tile(run.x[:n], run.y[:n], reach_m=run.reach,
+                                            bsdf=run.bsdf_used)
+        run.scene, (ox, oy), run.triangles = run.first_tile
+        run.x_loc, run.y_loc = run.x[:n] - ox, run.y[:n] - oy     # the pilot's tile
     else:
         bounds = None
         if crop_to_track:
-            bounds = (float(x_loc.min()) - reach, float(x_loc.max()) + reach,
-                      float(y_loc.min()) - reach, float(y_loc.max()) + reach)
-        scene_, triangles = surf.mitsuba_scene(bsdf=bsdf_used, margin_m=reach, bounds_m=bounds)
-    top = float(scn.scene_bounds(scene_)[1][2] + np.max(np.abs(dz), initial=0.0))
-    if top + 1.0 >= instrument.altitude_m:
-        raise ParameterError("altitude_m", f"the spacecraft ({instrument.altitude_m:g} m) must "
+            bounds = (float(run.x_loc.min()) - run.reach, float(run.x_loc.max()) + run.reach,
+                      float(run.y_loc.min()) - run.reach, float(run.y_loc.max()) + run.reach)
+        run.scene, run.triangles = surf.mitsuba_scene(bsdf=run.bsdf_used, margin_m=run.reach,
+                                                      bounds_m=bounds)
+    top = float(scn.scene_bounds(run.scene)[1][2] + np.max(np.abs(run.dz), initial=0.0))
+    if top + 1.0 >= inst.altitude_m:
+        raise ParameterError("altitude_m", f"the spacecraft ({inst.altitude_m:g} m) must "
                              f"be above the scene, which reaches z = {top:g} m")
-    surface_z = surf.height_m(x, y)
-    z_ref = surf.reference_elevation_m(x, y, sigma_m=sigma)
+    run.surface_z = surf.height_m(run.x, run.y)
+    run.z_ref = surf.reference_elevation_m(run.x, run.y, sigma_m=inst.footprint_sigma_m)
+    run.gate_z = chunks.gate_heights_m(run.z_ref)
     if surf.takes_bsdf:
-        surf_cfg.update(mesh_triangles=triangles, crop_to_track=bool(crop_to_track))
-    if bsdf is not None:
-        surf_cfg["bsdf"] = repr(bsdf)
-    timings["scene_s"] = time.perf_counter() - t0
+        run.surf_cfg.update(mesh_triangles=run.triangles, crop_to_track=run.crop)
+    if run.bsdf is not None:
+        run.surf_cfg["bsdf"] = repr(run.bsdf)
+    run.timings["scene_s"] = time.perf_counter() - run.t0
 
-    pilot = None
-    lanes = {} if max_lanes is None else {"max_lanes": int(max_lanes)}
-    if max_depth == "auto":
+
+def _choose_model(run: _Run) -> None:
+    """The bounces (``max_depth="auto"``: the pilot), the integrator, and the paths per shot
+    (``"auto"``: the scout)."""
+    inst, ppp = run.instrument, run.paths_per_shot
+    if run.max_depth == "auto":
         t1 = time.perf_counter()
-        n_pilot = x_loc.size           # a streamed surface's pilot runs on its first tile
-        pilot = bounce_pilot.run_pilot(scene=scene_, instrument=instrument, x_m=x_loc, y_m=y_loc,
-                                       dz_m=dz[:n_pilot], z_ref_m=z_ref[:n_pilot],
-                                       paths_per_shot=(path_budget.SCOUT_PATHS
-                                                       if paths_per_shot == "auto"
-                                                       else int(paths_per_shot)))
-        max_depth = 1 if pilot["single_bounce_enough"] else 2
-        timings["pilot_s"] = time.perf_counter() - t1
-    integrator_dict = instrument.integrator_dict(max_depth=max_depth, **lanes)
-    if volume:             # one record per photon, whatever its interactions
-        integrator_dict.update(snow.integrator_params() if snow is not None else
-                               {"type": "volpathlength", **{
-                                   k: v for k, v in honoured.items()
-                                   if k in ("group_index", "snow_depth_m", "base_albedo")}})
-        integrator_dict["max_depth"] = int(max_depth)
-    integrator = mi.load_dict(integrator_dict)
-    budget = None
-    if paths_per_shot == "auto":
+        n_pilot = run.x_loc.size           # a streamed surface's pilot runs on its first tile
+        run.pilot = bounce_pilot.run_pilot(
+            scene=run.scene, instrument=inst, x_m=run.x_loc, y_m=run.y_loc,
+            dz_m=run.dz[:n_pilot], z_ref_m=run.z_ref[:n_pilot],
+            paths_per_shot=path_budget.SCOUT_PATHS if ppp == "auto" else int(ppp))
+        run.max_depth = 1 if run.pilot["single_bounce_enough"] else 2
+        run.timings["pilot_s"] = time.perf_counter() - t1
+    lanes = {} if run.max_lanes is None else {"max_lanes": int(run.max_lanes)}
+    d = inst.integrator_dict(max_depth=run.max_depth, **lanes)
+    if run.volume:             # one record per photon, whatever its interactions
+        d.update(run.snow.integrator_params() if run.snow is not None else
+                 {"type": "volpathlength", **{k: v for k, v in run.honoured.items()
+                                              if k in ("group_index", "snow_depth_m",
+                                                       "base_albedo")}})
+        d["max_depth"] = int(run.max_depth)
+    run.integrator_dict, run.integrator = d, mi.load_dict(d)
+    if ppp == "auto":
         t1 = time.perf_counter()
-        budget = _scout(integrator, scene_, x_loc, y_loc, instrument,
-                        returns_per_path=1 if volume else int(max_depth))
-        paths_per_shot = budget["paths_per_shot"]
-        timings["scout_s"] = time.perf_counter() - t1
+        run.budget = _scout(run.integrator, run.scene, run.x_loc, run.y_loc, inst,
+                            returns_per_path=1 if run.volume else int(run.max_depth))
+        run.paths_per_shot = run.budget["paths_per_shot"]
+        run.timings["scout_s"] = time.perf_counter() - t1
+
+
+def _place_on_earth(run: _Run, site: Site) -> None:
+    """Each shot's place and time (the track's own, or the scene at ``site``) and, for an
+    instrument with a link budget, its signal scale and background."""
+    run.site = site
+    run.geoloc = getattr(run.track, "geolocation", None)
+    if run.geoloc is None:
+        run.geoloc = site.geolocation(run.x, run.y, prf_hz=run.instrument.prf_hz)
+    if run.instrument.link_budget is not None:
+        t1 = time.perf_counter()
+        run.rad = _shot_radiometry(run.instrument, run.geoloc, run.gate_z + site.height_m,
+                                   scene=run.scene, x_m=run.x_loc, y_m=run.y_loc,
+                                   snow=run.snow)
+        run.timings["radiometry_s"] = time.perf_counter() - t1
+
+
+def _trace_and_detect(run: _Run, *, keep_returns: bool | None,
+                      progress: bool) -> chunks.ChunkedRun:
+    """The chunk loop over the run's source: the scene, or a DEM's corridor tiles (the first
+    tile goes with its chunk: a live stale scene would join every later tile's kernel calls;
+    the rare diagnosis that needs it builds it again)."""
+    ppp = int(run.paths_per_shot)
     if keep_returns is None:
-        keep_returns = shots * paths_per_shot * (1 if volume else max_depth) <= 2 ** 24
-    gate_z = chunks.gate_heights_m(z_ref)
-    site = site or Site()
-    geoloc = getattr(track, "geolocation", None)
-    if geoloc is None:
-        geoloc = site.geolocation(x, y, prf_hz=instrument.prf_hz)
-    rad = None
-    if instrument.link_budget is not None:
-        t1 = time.perf_counter()
-        rad = _shot_radiometry(instrument, geoloc, gate_z + site.height_m, scene=scene_,
-                               x_m=x_loc, y_m=y_loc, snow=snow)
-        timings["radiometry_s"] = time.perf_counter() - t1
-    if surf.streamed:
-        source = chunks.CorridorSource(integrator, surf, x_m=x, y_m=y,
-                                       paths_per_shot=int(paths_per_shot), reach_m=reach,
-                                       bsdf=bsdf_used, first=first_tile)
-        # the first tile goes with its chunk: a live stale scene would join every later
-        # tile's kernel calls. The rare diagnosis that needs it builds it again.
-        first_tile = scene_ = None
-        n_first = x_loc.size
-
-        def scene_of():
-            return surf.corridor_tile(x[:n_first], y[:n_first], reach_m=reach,
-                                      bsdf=bsdf_used)[0]
+        keep_returns = run.shots * ppp * (1 if run.volume else run.max_depth) <= 2 ** 24
+    if run.surf.streamed:
+        source = chunks.CorridorSource(run.integrator, run.surf, x_m=run.x, y_m=run.y,
+                                       paths_per_shot=ppp, reach_m=run.reach,
+                                       bsdf=run.bsdf_used, first=run.first_tile)
+        run.first_tile = run.scene = None
     else:
-        source = chunks.traced(integrator, scene_, x_m=x_loc, y_m=y_loc,
-                               paths_per_shot=int(paths_per_shot), dx_m=x - x_loc,
-                               dy_m=y - y_loc, dz_m=dz)
-
-        def scene_of():
-            return scene_
+        source = chunks.traced(run.integrator, run.scene, x_m=run.x_loc, y_m=run.y_loc,
+                               paths_per_shot=ppp, dx_m=run.x - run.x_loc,
+                               dy_m=run.y - run.y_loc, dz_m=run.dz)
     if progress:       # a first run on this machine compiles the detector: say so
         warmup.compile_kernels()
-    run = chunks.run(
-        source=source,
-        detectors={"run": instrument}, z_ref_m=z_ref, seed=seed, chunk_shots=chunk_shots,
-        keep_returns=keep_returns, progress=progress,
-        detector_inputs=None if rad is None else rad.detector_inputs)
-    timings.update(run.timings_s)
-    det = run.detections["run"]
-    t3 = time.perf_counter()
-    h = retrieval.photon_heights_m(det.time_ns, altitude_m=instrument.altitude_m)
-    conf = classify.signal_confidence(shot=det.shot, h_m=h, gate_center_h_m=gate_z,
-                                      range_gate_m=instrument.range_gate_m)
-    timings["detect_s"] += time.perf_counter() - t3
-    timings["total_s"] = time.perf_counter() - t0
+    chunked = chunks.run(
+        source=source, detectors={"run": run.instrument}, z_ref_m=run.z_ref, seed=run.seed,
+        chunk_shots=run.chunk_shots, keep_returns=keep_returns, progress=progress,
+        detector_inputs=None if run.rad is None else run.rad.detector_inputs)
+    run.timings.update(chunked.timings_s)
+    if run.surf.streamed:
+        run.surf_cfg.update(tiles=source.tiles, max_tile_triangles=source.triangles)
+    return chunked
 
-    choices, warns = _explain(instrument=instrument, surf=surf, max_depth=max_depth,
-                              pilot=pilot, paths_per_shot=paths_per_shot, budget=budget,
-                              crop=crop_to_track,
-                              triangles=triangles, det=det, volume=volume, snow=snow,
-                              shots=shots, timings=timings)
-    if surf.streamed:
-        surf_cfg.update(tiles=source.tiles, max_tile_triangles=source.triangles)
-    warns += _diagnose(surf=surf, scene_of=scene_of, x_m=x_loc, y_m=y_loc,
-                       surface_z=surface_z[:x_loc.size],
-                       n_returns=run.n_returns, det=det, instrument=instrument)
+
+def _scene_of(run: _Run):
+    """The scene of the run's first shots (a streamed DEM's first tile, built again)."""
+    if run.scene is not None:
+        return run.scene
+    n = run.x_loc.size
+    return run.surf.corridor_tile(run.x[:n], run.y[:n], reach_m=run.reach,
+                                  bsdf=run.bsdf_used)[0]
+
+
+def _result(run: _Run, chunked: chunks.ChunkedRun) -> SimulationResult:
+    """Place and classify the photons, explain the run's choices and warn where it deserves
+    a look, and gather the result."""
+    inst, det = run.instrument, chunked.detections["run"]
+    t3 = time.perf_counter()
+    h = retrieval.photon_heights_m(det.time_ns, altitude_m=inst.altitude_m)
+    conf = classify.signal_confidence(shot=det.shot, h_m=h, gate_center_h_m=run.gate_z,
+                                      range_gate_m=inst.range_gate_m)
+    run.timings["detect_s"] += time.perf_counter() - t3
+    run.timings["total_s"] = time.perf_counter() - run.t0
+    choices, warns = explain.choices_and_warnings(instrument=inst, surf=run.surf, max_depth=run.max_depth,
+                              pilot=run.pilot, paths_per_shot=run.paths_per_shot,
+                              budget=run.budget, crop=run.crop, triangles=run.triangles,
+                              det=det, volume=run.volume, snow=run.snow, shots=run.shots,
+                              timings=run.timings)
+    warns += explain.diagnose(surf=run.surf, scene_of=lambda: _scene_of(run), x_m=run.x_loc,
+                       y_m=run.y_loc, surface_z=run.surface_z[:run.x_loc.size],
+                       n_returns=chunked.n_returns, det=det, instrument=inst)
     for w in warns:
-        warnings.warn(w, SimulationWarning, stacklevel=2)
-    config = {"instrument": instrument.to_dict(), "surface": surf_cfg, "track": track.to_dict(),
-              "shots": int(shots), "seed": int(seed), "paths_per_shot": int(paths_per_shot),
-              "path_budget": budget,
-              "max_depth": int(max_depth), "bounce_pilot": pilot, "variant": mi.variant(),
-              "scene_integrator": honoured, "choices": choices, "warnings": warns,
-              "snow": snow.config() if snow is not None else None,
-              "integrator": integrator_dict["type"],
-              "site": site.to_dict(),
-              "radiometry": None if rad is None else rad.summary()}
-    return SimulationResult(instrument=instrument, config=config, along_track_m=along,
-                            shot_x_m=x, shot_y_m=y, surface_z_m=surface_z, z_ref_m=z_ref,
-                            detections=det, h_m=h, signal_conf=conf, returns=run.returns,
-                            timings_s=timings, geolocation=geoloc, radiometry=rad)
+        warnings.warn(w, SimulationWarning, stacklevel=3)
+    config = {"instrument": inst.to_dict(), "surface": run.surf_cfg,
+              "track": run.track.to_dict(), "shots": int(run.shots), "seed": int(run.seed),
+              "paths_per_shot": int(run.paths_per_shot), "path_budget": run.budget,
+              "max_depth": int(run.max_depth), "bounce_pilot": run.pilot,
+              "variant": mi.variant(), "scene_integrator": run.honoured, "choices": choices,
+              "warnings": warns, "snow": run.snow.config() if run.snow is not None else None,
+              "integrator": run.integrator_dict["type"], "site": run.site.to_dict(),
+              "radiometry": None if run.rad is None else run.rad.summary()}
+    return SimulationResult(instrument=inst, config=config, along_track_m=run.along,
+                            shot_x_m=run.x, shot_y_m=run.y, surface_z_m=run.surface_z,
+                            z_ref_m=run.z_ref, detections=det, h_m=h, signal_conf=conf,
+                            returns=chunked.returns, timings_s=run.timings,
+                            geolocation=run.geoloc, radiometry=run.rad)
 
 
 def _shot_radiometry(instrument: Instrument, geoloc: Geolocation, z_m: np.ndarray, *, scene,
@@ -494,89 +582,3 @@ def _scout(integrator, scene, x_m, y_m, instrument: Instrument, *,
                                        max_depth=returns_per_path)
     return path_budget.choose(moments=moments, kept_per_weight=(
         instrument.signal_photons * instrument.fill_factor * instrument.pde))
-
-
-def _explain(*, instrument, surf, max_depth, pilot, paths_per_shot, crop, triangles,
-             det, volume=False, snow=None, shots=0, timings=None, budget=None
-             ) -> tuple[list[str], list[str]]:
-    """The modelling choices of a run in words (``lidar-mitsuba simulate --explain``), and
-    the ones that deserve a warning."""
-    out = []
-    if volume:
-        out.append(snow.describe() if snow is not None else
-                   f"snow volume on (the scene's <medium>), up to {max_depth} interactions "
-                   f"per photon")
-        if timings and "total_s" in timings:
-            rate = shots / max(timings["total_s"], 1e-9)
-            out.append(f"its cost: {rate:.3g} shots/s end to end ({timings['total_s']:.3g} s "
-                       f"for {shots} shots), some hundred times slower than the surface "
-                       f"alone (`lidar-mitsuba bench` measures the ratio); "
-                       + ("--snow-similarity-g 0 traces ~9x fewer scatterings, with h_li "
-                          "within ~1 cm in bench's check"
-                          if snow is None or snow.similar_to_g is None else
-                          "similarity-rescaled: h_li within ~1 cm of the exact phase "
-                          "function in bench's check"))
-    elif surf.exact_single_bounce and max_depth == 1:
-        out.append("single bounce (max_depth 1): exact for a plane, where nothing bounces twice")
-    elif pilot is not None:
-        out.append(bounce_pilot.explain(pilot, max_depth))
-    elif max_depth == 1:
-        out.append("single bounce (max_depth 1, the paper's model, as asked): each photon's "
-                   "first-surface return, which at nadir comes back along its own incident ray; "
-                   "it leaves out multiple scattering between terrain facets (--max-depth auto "
-                   "checks whether that matters)")
-    else:
-        out.append(f"{max_depth} bounces per path with shadow-tested returns toward the receiver")
-    out += surf.notes(instrument=instrument, max_depth=1 if volume else max_depth, crop=crop,
-                      triangles=triangles)
-    warns = surf.warnings(instrument=instrument)
-    peak = float(np.max(det.mean_photons_per_shot)) if det.mean_photons_per_shot.size else 0.0
-    kept = peak * instrument.fill_factor * instrument.pde
-    if budget is not None:
-        out.append(path_budget.explain(budget))
-    msg = (("" if budget is not None else f"{paths_per_shot} paths per shot for ")
-           + f"up to {peak:.1f} photons per shot ({kept:.1f} after fill factor and PDE); "
-           f"{det.run_out_shots.size} of {shots} shots ran out of distinct paths")
-    out.append(msg)
-    ran_out = path_budget.run_out_warning(int(det.run_out_shots.size), int(shots))
-    if ran_out is not None:
-        warns.append(ran_out)
-    return out, warns
-
-
-def _diagnose(*, surf, scene_of, x_m, y_m, surface_z, n_returns, det,
-              instrument) -> list[str]:
-    """Warnings for shots with no surface under them and for a run that detected no signal
-    photon, with the likely cause. ``scene_of()``: the scene of the shots ``x_m``, ``y_m``
-    (called only when a warning needs it)."""
-    out = []
-    missing = ~np.isfinite(surface_z)
-    n = surface_z.size
-    if missing.all():
-        lo, hi = scn.scene_bounds(scene_of())
-        return [f"no surface under any of the {n} footprint centres: the track (x "
-                f"{np.min(x_m):g} .. {np.max(x_m):g} m, y {np.min(y_m):g} .. {np.max(y_m):g} m) "
-                f"misses the geometry (x {lo[0]:g} .. {hi[0]:g} m, y {lo[1]:g} .. {hi[1]:g} m); "
-                "its shots record background noise only"]
-    if missing.any():
-        out.append(f"{int(missing.sum())} of the {n} shots have no surface under their footprint "
-                   "centre: they record background noise only")
-    if det.is_signal.any():
-        return out
-    if n_returns == 0:
-        _, nz = scn.cast_down(scene_of(), x_m[~missing], y_m[~missing])
-        if np.nanmean(nz < 0) > 0.5:
-            out.append("no photon came back: the surfaces under the track face down, away from "
-                       "the lidar (a face-down rectangle, or a mesh whose triangles wind the "
-                       "other way); Mitsuba's BSDFs are one-sided and return nothing from the "
-                       "back: flip the shape (rotate it, or reverse its faces)")
-        else:
-            out.append("no photon came back: the surfaces' BSDF sends no light back toward the "
-                       "receiver (e.g. a smooth conductor or dielectric reflects only in the "
-                       "mirror direction); use a rough or diffuse BSDF")
-    else:
-        mu = float(np.mean(det.mean_photons_per_shot))
-        out.append(f"returns were traced but no signal photon was detected: {mu:.3g} photons "
-                   f"per shot reach the detector on average ({instrument.signal_photons:g} "
-                   f"from the reference plate); raise --signal-photons or the shot count")
-    return out
