@@ -117,6 +117,10 @@ def _add_snow_options(s) -> None:
     v.add_argument("--snow-similarity-g", type=float, metavar="G",
                    help="trace a similar snow with this asymmetry (0 <= G < 0.89) and the same "
                    "sigma_s (1 - g): fewer scatterings, faster, approximate near the surface")
+    v.add_argument("--snow-model", choices=("auto", "walk", "kernel"), default=None,
+                   help="kernel: the walk tabulated once per snowpack against incidence angle "
+                   "(cached on disk), at the cost of a surface hit; walk: the full random walk "
+                   "under every photon (the reference); auto (default): the kernel")
 
 
 def _add_run_and_output_options(s) -> None:
@@ -181,7 +185,8 @@ def run(a) -> int:
                        scene_file=a.scene, params=params or None,
                        track=Track(**opts.given(a, a._track_opts)),
                        progress=not a.no_progress, crop_to_track=not a.full_tile,
-                       snow=_snow(a), site=site, **opts.given(a, RUN_OPTIONS))
+                       snow=_snow(a), snow_model=_snow_model(a), site=site,
+                       **opts.given(a, RUN_OPTIONS))
     inst = res.instrument           # as run (an XML <integrator> may set its geometry)
     for w in res.config["warnings"]:
         sys.stderr.write(f"{PROG} simulate: warning: {w}\n")
@@ -220,6 +225,13 @@ def _instrument(a) -> Instrument:
         raise UsageError(opts.option_name(next(iter(link))),
                          "only applies with --instrument atlas (a link budget)")
     return Instrument(**given)
+
+
+def _snow_model(a) -> str:
+    """``--snow-model`` (``auto`` when not given); only with ``--snow-grain-um``."""
+    if a.snow_model is not None and a.snow_grain_um is None:
+        raise UsageError("--snow-model", "only applies with --snow-grain-um")
+    return a.snow_model or "auto"
 
 
 def _snow(a):
@@ -278,7 +290,7 @@ def _simulate_dem(a, out, plot) -> int:
             surface=surface, track=track, beams=beams, sc_orient=a.sc_orient,
             instrument_options=inst_opts, instrument=a.instrument or "paper",
             progress=not a.no_progress, shots=shots,
-            atl03_path=out, atl06_path=atl06_out, snow=_snow(a), **run)
+            atl03_path=out, atl06_path=atl06_out, snow=_snow(a), snow_model=_snow_model(a), **run)
     where = f"{surface.dem.path.name} ({surface.dem.crs.to_string()})"
     print(f"{len(summaries)} beam(s), {shots} shots each ({shots * 0.7e-3:.1f} km), over {where}")
     return _granule_report(a, summaries, out, atl06_out, plot)
@@ -357,7 +369,7 @@ def _simulate_like(a, out, plot) -> int:
                 surface=_dem_surface(a, run.get("seed", 0)), track=real, beams=beams,
                 sc_orient=real.sc_orient, instrument_options=inst_opts, instrument=preset,
                 progress=not a.no_progress, shots=shots, atl03_path=out,
-                atl06_path=atl06_out, snow=_snow(a), **run)
+                atl06_path=atl06_out, snow=_snow(a), snow_model=_snow_model(a), **run)
         else:
             surface_given = opts.given(a, a._surface_opts)
             if "kind" not in surface_given and "slope_deg" in surface_given:
@@ -366,7 +378,7 @@ def _simulate_like(a, out, plot) -> int:
             g = twin.simulate_over_surface(
                 real, surface=SurfaceSpec(**surface_given), beams=",".join(b.name for b in beams),
                 shots=shots, instrument=preset, instrument_options=inst_opts,
-                progress=not a.no_progress, snow=_snow(a), **run)
+                progress=not a.no_progress, snow=_snow(a), snow_model=_snow_model(a), **run)
             granule.write_atl03(g, out)
             if atl06_out is not None:
                 granule.write_atl06(g, atl06_out)

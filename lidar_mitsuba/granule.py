@@ -34,7 +34,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import __version__, atl06, geotrack, h5chunks, warmup
+from . import __version__, atl06, geotrack, h5chunks, snow_kernel, warmup
 from .atl03 import _ds, atomic_h5file
 from .atl03_beam import (BCKGRD_SHOTS, PULSES_PER_MAJOR_FRAME, SEGMENT_M,  # noqa: F401
                          write_beam as _beam_atl03)
@@ -42,6 +42,7 @@ from .atl03_file import (ancillary as _ancillary, header as _atl03_header,
                          orbit_info as _orbit_info)
 from .constants import ParameterError, check
 from .dem import DEMSurface
+from .snow import SnowVolume
 from .geotrack import Beam, GeoTrack
 from .instrument import INSTRUMENT_PRESETS, Instrument
 
@@ -473,6 +474,9 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
         seg_options.setdefault("engine", "compiled")
     for st in streams:
         st.segments = _SegmentStream(dict(seg_options))
+    snow = simulate_options.get("snow")
+    if isinstance(snow, SnowVolume) and simulate_options.get("snow_model", "auto") != "walk":
+        snow_kernel.table(snow, progress=progress)    # the snow's kernel, before the bar
     bar = None
     if progress:      # a first run on this machine compiles the kernels: say so
         from tqdm.auto import tqdm

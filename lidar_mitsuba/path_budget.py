@@ -26,6 +26,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
+from .track import spread_shots
+
 LADDER = (8, 16, 32, 64, 128, 256, 512, 1024)
 """Paths per shot ``auto`` chooses from (powers of two)."""
 SCOUT_SHOTS = 256
@@ -169,3 +171,17 @@ def run_out_warning(run_out: int, shots: int) -> str | None:
         return (f"{run_out} of {shots} shots had too few paths, photons share paths (a "
                 f"first-photon-bias error): raise --paths-per-shot")
     return None
+
+
+def scout(integrator, scene, x_m, y_m, instrument, *, returns_per_path: int) -> dict:
+    """``paths_per_shot="auto"``: trace the run's own model (``integrator`` on ``scene``, an
+    :class:`~lidar_mitsuba.instrument.Instrument`) on up to :data:`SCOUT_SHOTS` of the shots
+    at ``x_m``, ``y_m`` [m] spread along the track (fixed random numbers) and choose the paths
+    per shot from its weights (:func:`choose`)."""
+    idx = spread_shots(x_m.size, SCOUT_SHOTS)
+    ret = integrator.trace(scene, shot_x_m=x_m[idx], shot_y_m=y_m[idx],
+                           paths_per_shot=SCOUT_PATHS, seed=SCOUT_SEED)
+    moments = shot_moments(ret.shot, ret.weight, ret.depth, n_shots=idx.size,
+                           paths_per_shot=SCOUT_PATHS, max_depth=returns_per_path)
+    return choose(moments=moments, kept_per_weight=(
+        instrument.signal_photons * instrument.fill_factor * instrument.pde))

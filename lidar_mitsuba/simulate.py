@@ -25,7 +25,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import (bounce_pilot, chunks, classify, explain, path_budget, radiometry,
-               retrieval, scene as scn, surface as surfaces, warmup)
+               retrieval, scene as scn, snow_kernel, surface as surfaces, warmup)
 from .constants import FWHM_PER_SIGMA, ParameterError, SimulationWarning
 from .instrument import Instrument
 from .photons import Detections, Returns
@@ -35,6 +35,9 @@ from .surface import SceneSurface, SurfaceSpec
 from .geotrack import Geolocation, Site
 from .track import Track, spread_shots
 from .variant import set_variant
+
+SNOW_MODELS = ("auto", "walk", "kernel")
+"""How a snow volume is traced (``simulate(snow_model=...)``)."""
 
 
 @dataclass
@@ -218,7 +221,7 @@ def simulate(*, instrument: Instrument | None = None,
              track: Track | None = None, variant: str | None = None, progress: bool = True,
              chunk_shots: int = chunks.CHUNK_SHOTS, keep_returns: bool | None = None,
              crop_to_track: bool = True, snow: SnowVolume | None = None,
-             site: Site | None = None) -> SimulationResult:
+             snow_model: str = "auto", site: Site | None = None) -> SimulationResult:
     """Simulate ``shots`` laser shots along a ground track and detect their photons.
 
     Args:
@@ -262,6 +265,10 @@ def simulate(*, instrument: Instrument | None = None,
             (:func:`lidar_mitsuba.snow.snow_from_grains`), traced by the ``volpathlength``
             integrator instead of the surface BSDF (off by default). An XML scene gets its
             snow from a ``<medium>`` inside its terrain shape instead.
+        snow_model: ``"walk"`` (the full random walk under each facet, the reference),
+            ``"kernel"`` (the walk tabulated once per snowpack and cached,
+            :mod:`lidar_mitsuba.snow_kernel`: the cost of a surface hit) or ``"auto"`` (the
+            kernel). An XML scene's ``<medium>`` is always walked.
         site: where on the Earth and when the scene lies
             (:class:`~lidar_mitsuba.geotrack.Site`; default: the paper's site in northern
             Greenland at local noon on the June solstice, at sea level): photon latitudes,
@@ -280,9 +287,9 @@ def simulate(*, instrument: Instrument | None = None,
     run = _resolve(instrument=instrument, surface=surface, scene=scene, scene_file=scene_file,
                    params=params, bsdf=bsdf, shots=shots, seed=seed,
                    paths_per_shot=paths_per_shot, max_depth=max_depth, variant=variant,
-                   chunk_shots=chunk_shots, snow=snow)
+                   chunk_shots=chunk_shots, snow=snow, snow_model=snow_model)
     _lay_out(run, track or Track(), crop_to_track=crop_to_track)
-    _choose_model(run)
+    _choose_model(run, progress=progress)
     _place_on_earth(run, site or Site())
     chunked = _trace_and_detect(run, keep_returns=keep_returns, progress=progress)
     return _result(run, chunked)
@@ -304,6 +311,7 @@ class _Run:
     max_depth: int | str
     chunk_shots: int
     volume: bool
+    snow_model: str = "walk"
     max_lanes: int | None = None
     honoured: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
@@ -330,6 +338,7 @@ class _Run:
     budget: dict | None = None
     integrator_dict: dict | None = None
     integrator: object = None
+    kernel: dict | None = None
     # _place_on_earth
     site: Site | None = None
     geoloc: Geolocation | None = None
@@ -337,12 +346,18 @@ class _Run:
 
 
 def _resolve(*, instrument, surface, scene, scene_file, params, bsdf, shots, seed,
-             paths_per_shot, max_depth, variant, chunk_shots, snow) -> _Run:
+             paths_per_shot, max_depth, variant, chunk_shots, snow, snow_model) -> _Run:
     """Check the run's arguments, activate the variant, resolve the surface; a snow volume or
     a scene's medium and ``<integrator>`` settle the model's inputs."""
     instrument = instrument or Instrument()
     if snow is not None and not isinstance(snow, SnowVolume):
         raise ParameterError("snow", f"must be a SnowVolume (got {type(snow).__name__})")
+    if snow_model not in SNOW_MODELS:
+        raise ParameterError("snow_model", f"must be one of {', '.join(SNOW_MODELS)} "
+                             f"(got {snow_model!r})")
+    if snow_model != "auto" and snow is None:
+        raise ParameterError("snow_model", "only applies with a snow volume (snow=, "
+                             "--snow-grain-um)")
     _check_run(shots, seed, paths_per_shot,
                "auto" if snow is not None and max_depth == snow.events_cap else max_depth,
                chunk_shots)
@@ -368,6 +383,7 @@ def _resolve(*, instrument, surface, scene, scene_file, params, bsdf, shots, see
             raise ParameterError("max_depth", "with a snow volume the interactions per photon "
                                  "are the snow's max_events (--snow-max-events)")
         run.max_depth = snow.events_cap
+        run.snow_model = "walk" if snow_model == "walk" else "kernel"
     if isinstance(surf, SceneSurface):
         try:
             medium = scn.scene_medium(surf.scene)
@@ -427,7 +443,7 @@ def _lay_out(run: _Run, track, *, crop_to_track: bool) -> None:
     run.timings["scene_s"] = time.perf_counter() - run.t0
 
 
-def _choose_model(run: _Run) -> None:
+def _choose_model(run: _Run, *, progress: bool = False) -> None:
     """The bounces (``max_depth="auto"``: the pilot), the integrator, and the paths per shot
     (``"auto"``: the scout)."""
     inst, ppp = run.instrument, run.paths_per_shot
@@ -442,7 +458,13 @@ def _choose_model(run: _Run) -> None:
         run.timings["pilot_s"] = time.perf_counter() - t1
     lanes = {} if run.max_lanes is None else {"max_lanes": int(run.max_lanes)}
     d = inst.integrator_dict(max_depth=run.max_depth, **lanes)
-    if run.volume:             # one record per photon, whatever its interactions
+    if run.volume and run.snow_model == "kernel":      # the walk, tabulated
+        t1 = time.perf_counter()
+        path, run.kernel = snow_kernel.table(run.snow, progress=progress)
+        d = inst.integrator_dict(max_depth=1, **lanes)
+        d.update(type="snowkernel", filename=str(path))
+        run.timings["kernel_table_s"] = time.perf_counter() - t1
+    elif run.volume:             # one record per photon, whatever its interactions
         d.update(run.snow.integrator_params() if run.snow is not None else
                  {"type": "volpathlength", **{k: v for k, v in run.honoured.items()
                                               if k in ("group_index", "snow_depth_m",
@@ -451,7 +473,7 @@ def _choose_model(run: _Run) -> None:
     run.integrator_dict, run.integrator = d, mi.load_dict(d)
     if ppp == "auto":
         t1 = time.perf_counter()
-        run.budget = _scout(run.integrator, run.scene, run.x_loc, run.y_loc, inst,
+        run.budget = path_budget.scout(run.integrator, run.scene, run.x_loc, run.y_loc, inst,
                             returns_per_path=1 if run.volume else int(run.max_depth))
         run.paths_per_shot = run.budget["paths_per_shot"]
         run.timings["scout_s"] = time.perf_counter() - t1
@@ -520,11 +542,12 @@ def _result(run: _Run, chunked: chunks.ChunkedRun) -> SimulationResult:
                                       range_gate_m=inst.range_gate_m)
     run.timings["detect_s"] += time.perf_counter() - t3
     run.timings["total_s"] = time.perf_counter() - run.t0
-    choices, warns = explain.choices_and_warnings(instrument=inst, surf=run.surf, max_depth=run.max_depth,
-                              pilot=run.pilot, paths_per_shot=run.paths_per_shot,
-                              budget=run.budget, crop=run.crop, triangles=run.triangles,
-                              det=det, volume=run.volume, snow=run.snow, shots=run.shots,
-                              timings=run.timings)
+    facet_m = run.surf_cfg.get("grid_m") or run.surf_cfg.get("mesh_grid_m")
+    choices, warns = explain.choices_and_warnings(
+        instrument=inst, surf=run.surf, max_depth=run.max_depth, pilot=run.pilot,
+        paths_per_shot=run.paths_per_shot, budget=run.budget, crop=run.crop,
+        triangles=run.triangles, det=det, volume=run.volume, snow=run.snow, shots=run.shots,
+        timings=run.timings, kernel=run.kernel, facet_m=facet_m)
     warns += explain.diagnose(surf=run.surf, scene_of=lambda: _scene_of(run), x_m=run.x_loc,
                        y_m=run.y_loc, surface_z=run.surface_z[:run.x_loc.size],
                        n_returns=chunked.n_returns, det=det, instrument=inst)
@@ -536,6 +559,8 @@ def _result(run: _Run, chunked: chunks.ChunkedRun) -> SimulationResult:
               "max_depth": int(run.max_depth), "bounce_pilot": run.pilot,
               "variant": mi.variant(), "scene_integrator": run.honoured, "choices": choices,
               "warnings": warns, "snow": run.snow.config() if run.snow is not None else None,
+              "snow_model": run.snow_model if run.volume else None,
+              "snow_kernel": snow_kernel.summary(run.kernel) if run.kernel is not None else None,
               "integrator": run.integrator_dict["type"], "site": run.site.to_dict(),
               "radiometry": None if run.rad is None else run.rad.summary()}
     return SimulationResult(instrument=inst, config=config, along_track_m=run.along,
@@ -567,18 +592,3 @@ def _shot_radiometry(instrument: Instrument, geoloc: Geolocation, z_m: np.ndarra
     return radiometry.shot_radiometry(instrument, delta_time_s=geoloc.delta_time_s, z_m=z_m,
                                       albedo=albedo, solar_elevation_deg=elev,
                                       solar_azimuth_deg=azim)
-
-
-def _scout(integrator, scene, x_m, y_m, instrument: Instrument, *,
-           returns_per_path: int) -> dict:
-    """``paths_per_shot="auto"``: trace the run's own model on up to
-    :data:`~lidar_mitsuba.path_budget.SCOUT_SHOTS` shots spread along the track (fixed random
-    numbers) and choose the paths per shot from its weights (:func:`path_budget.choose`)."""
-    idx = spread_shots(x_m.size, path_budget.SCOUT_SHOTS)
-    ret = integrator.trace(scene, shot_x_m=x_m[idx], shot_y_m=y_m[idx],
-                           paths_per_shot=path_budget.SCOUT_PATHS, seed=path_budget.SCOUT_SEED)
-    moments = path_budget.shot_moments(ret.shot, ret.weight, ret.depth, n_shots=idx.size,
-                                       paths_per_shot=path_budget.SCOUT_PATHS,
-                                       max_depth=returns_per_path)
-    return path_budget.choose(moments=moments, kept_per_weight=(
-        instrument.signal_photons * instrument.fill_factor * instrument.pde))

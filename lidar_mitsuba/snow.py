@@ -91,6 +91,12 @@ class SnowVolume:
     density_kg_m3: float | None = None
     #: the asymmetry this volume was rescaled from by :meth:`similar` (None: not rescaled)
     similar_to_g: float | None = None
+    #: a backscattering lobe: the phase function is the two-term Henyey-Greenstein
+    #: ``(1 - b) HG(g) + b HG(backscatter_g)`` with ``b = backscatter_fraction`` (0: one term)
+    backscatter_fraction: float = 0.0
+    backscatter_g: float = -0.5
+    #: the absorption enhancement B it came from (:func:`snow_from_grains`), for the record
+    absorption_enhancement: float | None = None
 
     def __post_init__(self):
         check("sigma_s_per_m", self.sigma_s_per_m,
@@ -103,6 +109,10 @@ class SnowVolume:
               "must be in [1, 2]")
         check("snow_depth_m", self.depth_m, self.depth_m > 0, "must be > 0 (inf: semi-infinite)")
         check("base_albedo", self.base_albedo, 0 <= self.base_albedo <= 1, "must be in [0, 1]")
+        check("snow_backscatter_fraction", self.backscatter_fraction,
+              0 <= self.backscatter_fraction < 1, "must be in [0, 1)")
+        check("snow_backscatter_g", self.backscatter_g, -1 < self.backscatter_g <= 0,
+              "must be in (-1, 0]")
         check("snow_max_events", self.max_events, self.max_events is None or (
               isinstance(self.max_events, (int, np.integer)) and 1 <= self.max_events <= 10 ** 7),
               "must be an integer in [1, 1e7]")
@@ -125,9 +135,16 @@ class SnowVolume:
         return self.sigma_s_per_m / self.sigma_t_per_m
 
     @property
+    def asymmetry(self) -> float:
+        """The phase function's mean cosine: ``g``, or ``(1 - b) g + b g_back`` with a
+        backscattering lobe."""
+        b = self.backscatter_fraction
+        return (1.0 - b) * self.g + b * self.backscatter_g
+
+    @property
     def reduced_scattering_per_m(self) -> float:
-        """sigma_s (1 - g) [1/m]: the inverse of the transport mean free path."""
-        return self.sigma_s_per_m * (1.0 - self.g)
+        """sigma_s (1 - <cos>) [1/m]: the inverse of the transport mean free path."""
+        return self.sigma_s_per_m * (1.0 - self.asymmetry)
 
     def similar(self, g: float) -> "SnowVolume":
         """The same snow for diffusion (same reduced scattering sigma_s (1 - g) and
@@ -137,6 +154,8 @@ class SnowVolume:
         where the earliest returns come from: ``bench`` measures what it costs in accuracy."""
         check("snow_similarity_g", g, isinstance(g, (int, float)) and 0 <= g <= self.g,
               f"must be in [0, {self.g:g}] (the snow's own g)")
+        check("snow_similarity_g", g, self.backscatter_fraction == 0,
+              "does not apply to a two-term phase function (--snow-backscatter)")
         scale = (1.0 - self.g) / (1.0 - g)
         return dataclasses.replace(
             self, sigma_s_per_m=self.sigma_s_per_m * scale, g=float(g),
@@ -150,10 +169,18 @@ class SnowVolume:
                                   mu_a_per_m=self.sigma_a_per_m)
 
     # ------------------------------------------------------------ Mitsuba
+    def phase_dict(self) -> dict:
+        """Mitsuba dict of the phase function: ``hg``, or a ``blendphase`` of two."""
+        hg = {"type": "hg", "g": float(self.g)}
+        if self.backscatter_fraction == 0:
+            return hg
+        return {"type": "blendphase", "weight": float(self.backscatter_fraction),
+                "phase1": hg, "phase2": {"type": "hg", "g": float(self.backscatter_g)}}
+
     def medium_dict(self) -> dict:
-        """Mitsuba dict of the homogeneous medium (HG phase function)."""
+        """Mitsuba dict of the homogeneous medium."""
         return {"type": "homogeneous", "sigma_t": float(self.sigma_t_per_m),
-                "albedo": float(self.albedo), "phase": {"type": "hg", "g": float(self.g)}}
+                "albedo": float(self.albedo), "phase": self.phase_dict()}
 
     def shapes(self, vertices: np.ndarray, faces: np.ndarray) -> dict:
         """Mitsuba shapes of the snowpack under a terrain mesh: the terrain, index-matched
@@ -174,12 +201,26 @@ class SnowVolume:
 
     def xml(self) -> str:
         """The ``<medium>`` and ``<bsdf>`` elements to put inside a terrain ``<shape>``."""
+        phase = f'<phase type="hg"><float name="g" value="{self.g:g}"/></phase>'
+        if self.backscatter_fraction > 0:
+            phase = (f'<phase type="blendphase">\n'
+                     f'        <float name="weight" value="{self.backscatter_fraction:g}"/>\n'
+                     f'        {phase}\n'
+                     f'        <phase type="hg"><float name="g" value="{self.backscatter_g:g}"/>'
+                     f'</phase>\n    </phase>')
         return (f'<bsdf type="null"/>\n'
                 f'<medium name="interior" type="homogeneous">\n'
                 f'    <float name="sigma_t" value="{self.sigma_t_per_m:.6g}"/>\n'
                 f'    <float name="albedo" value="{self.albedo:.9f}"/>\n'
-                f'    <phase type="hg"><float name="g" value="{self.g:g}"/></phase>\n'
+                f'    {phase}\n'
                 f'</medium>')
+
+    def walk_inputs(self) -> dict:
+        """Everything the random walk's result depends on (a kernel table's cache key)."""
+        return {"sigma_s_per_m": float(self.sigma_s_per_m),
+                "sigma_a_per_m": float(self.sigma_a_per_m), "phase": self.medium_dict()["phase"],
+                "group_index": float(self.group_index), "depth_m": float(self.depth_m),
+                "base_albedo": float(self.base_albedo), "max_events": int(self.events_cap)}
 
     def config(self) -> dict:
         return {"grain_radius_um": self.grain_radius_um, "density_kg_m3": self.density_kg_m3,
@@ -187,7 +228,10 @@ class SnowVolume:
                 "g": self.g, "group_index": self.group_index,
                 "depth_m": None if math.isinf(self.depth_m) else self.depth_m,
                 "base_albedo": self.base_albedo, "max_events": self.events_cap,
-                "similar_to_g": self.similar_to_g}
+                "similar_to_g": self.similar_to_g,
+                "backscatter_fraction": self.backscatter_fraction,
+                "backscatter_g": self.backscatter_g,
+                "absorption_enhancement": self.absorption_enhancement}
 
     def describe(self) -> str:
         """One line for ``--explain``."""
@@ -199,8 +243,13 @@ class SnowVolume:
         if self.similar_to_g is not None:
             src += (f"rescaled by similarity from g {self.similar_to_g:g} (same sigma_s (1 - g)"
                     f"; approximate near the surface), ")
+        lobe = (f" with a {self.backscatter_fraction:g} backscattering lobe (g "
+                f"{self.backscatter_g:g})" if self.backscatter_fraction > 0 else "")
+        b = ("" if self.absorption_enhancement is None else
+             f", B {self.absorption_enhancement:g}")
         return (f"snow volume on ({src}sigma_s {self.sigma_s_per_m:.4g} /m, sigma_a "
-                f"{self.sigma_a_per_m:.3g} /m, g {self.g:g}, {depth}, index-matched surface, "
+                f"{self.sigma_a_per_m:.3g} /m{b}, g {self.g:g}{lobe}, {depth}, index-matched "
+                f"surface, "
                 f"group index {self.group_index:.3f}); diffusion theory: mean extra path "
                 f"{d.mean_path_m():.3g} m, {d.mean_path_m() * self.sigma_s_per_m:.0f} "
                 f"scatterings per returned photon on average; traced up to {self.events_cap} "
@@ -222,10 +271,14 @@ def snow_from_grains(*, grain_radius_um: float, density_kg_m3: float = 350.0,
                      depth_m: float = math.inf, base_albedo: float = 0.0,
                      g: float = G_ICE_SPHERES,
                      ice_absorption_per_m: float = ICE_ABSORPTION_532_PER_M,
+                     absorption_enhancement_b: float | None = None,
+                     backscatter_fraction: float = 0.0, backscatter_g: float = -0.5,
                      group_index: float | None = None,
                      max_events: int | None = None) -> SnowVolume:
     """A :class:`SnowVolume` from optical grain radius [um] and density [kg m^-3] (the
-    relations in the module docstring). ``group_index`` ``None``: ``1 + (n_ice - 1) f``."""
+    relations in the module docstring). ``absorption_enhancement_b`` ``None``: large
+    spheres' B (:func:`absorption_enhancement`, 1.25); ``backscatter_fraction`` > 0 adds a
+    backscattering lobe (two-term HG); ``group_index`` ``None``: ``1 + (n_ice - 1) f``."""
     check("snow_grain_um", grain_radius_um,
           isinstance(grain_radius_um, (int, float)) and math.isfinite(grain_radius_um)
           and 5 <= grain_radius_um <= 5000, "must be in [5, 5000] um (geometric optics)")
@@ -236,13 +289,21 @@ def snow_from_grains(*, grain_radius_um: float, density_kg_m3: float = 350.0,
     f = density_kg_m3 / RHO_ICE_KG_M3
     r_m = grain_radius_um * 1e-6
     sigma_t = 1.5 * f / r_m
-    sigma_a = absorption_enhancement() * f * ice_absorption_per_m
+    check("snow_absorption_b", absorption_enhancement_b, absorption_enhancement_b is None or (
+          isinstance(absorption_enhancement_b, (int, float))
+          and 0.5 <= absorption_enhancement_b <= 3), "must be in [0.5, 3]")
+    check("snow_ice_absorption", ice_absorption_per_m, isinstance(ice_absorption_per_m, (
+          int, float)) and 0 <= ice_absorption_per_m <= 10, "must be in [0, 10] 1/m")
+    b = absorption_enhancement() if absorption_enhancement_b is None else absorption_enhancement_b
+    sigma_a = b * f * ice_absorption_per_m
     if group_index is None:
         group_index = 1.0 + (N_ICE_532 - 1.0) * f
     return SnowVolume(sigma_s_per_m=sigma_t - sigma_a, sigma_a_per_m=sigma_a, g=g,
                       group_index=group_index, depth_m=depth_m, base_albedo=base_albedo,
                       max_events=max_events, grain_radius_um=float(grain_radius_um),
-                      density_kg_m3=float(density_kg_m3))
+                      density_kg_m3=float(density_kg_m3), absorption_enhancement=float(b),
+                      backscatter_fraction=float(backscatter_fraction),
+                      backscatter_g=float(backscatter_g))
 
 
 # --------------------------------------------------------------------------- diffusion theory

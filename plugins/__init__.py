@@ -8,7 +8,10 @@ them, never the other way round.
 - ``pathlength.py``: ``<integrator type="pathlength">``, the lidar path-length integrator:
   per photon return, its shot, exact round-trip time and radiometric weight.
 - ``volpathlength.py``: ``<integrator type="volpathlength">``, the same with a participating
-  medium (snow as a volume); it subclasses ``pathlength`` and is loaded after it.
+  medium (snow as a volume): a random walk under each facet; it subclasses ``pathlength``.
+- ``snowkernel.py``: ``<integrator type="snowkernel">``, the same snow as a tabulated kernel
+  (the walk's return weight and delay against incidence angle, ``kernel_table.py``): the
+  cost of a surface hit; it subclasses ``pathlength``.
 
 Use from plain Mitsuba::
 
@@ -28,7 +31,7 @@ variants are skipped: the plugins are vectorised.
 
 Shared, variant-independent modules: ``constants`` (c, the FWHM factor, the reference plate,
 the nominal geometry), ``returns`` (the integrators' output record), ``scene_utils`` (scene
-bounds and medium).
+bounds and medium), ``kernel_table`` (the layout of a snow kernel's table).
 """
 from __future__ import annotations
 
@@ -40,8 +43,9 @@ import types
 
 import mitsuba as mi
 
-PLUGIN_FILES = ("ward", "pathlength", "volpathlength")
-"""The plugin files, in load order (``volpathlength`` builds on ``pathlength``)."""
+PLUGIN_FILES = ("ward", "pathlength", "volpathlength", "snowkernel")
+"""The plugin files, in load order (``volpathlength`` and ``snowkernel`` build on
+``pathlength``)."""
 
 _registered: set[str] = set()
 

@@ -197,11 +197,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
         inner_m = mi.Float(0.0)                        # between vertices, local float32 [m]
         throughput = mi.Float(1.0)
 
-        out_w = dr.zeros(mi.Float, n * depth_max)
-        out_t = dr.zeros(mi.Float64, n * depth_max)
-        out_x = dr.zeros(mi.Float, n * depth_max)
-        out_y = dr.zeros(mi.Float, n * depth_max)
-        out_z = dr.zeros(mi.Float, n * depth_max)
+        out = [dr.zeros(mi.Float64 if k == 0 else mi.Float, n * depth_max) for k in range(5)]
         fov2 = self.fov_radius_m ** 2
         ctx = mi.BSDFContext()
         depth = mi.UInt32(0)
@@ -215,11 +211,8 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
             w = throughput * self._return_weight(si, wo, seen)
             t_ns = mi.Float64(t_emit_ns) + (down_m + mi.Float64(inner_m) + up_m) / C_M_PER_NS
             slot = lane * depth_max + depth
-            dr.scatter(out_w, w, slot, active)
-            dr.scatter(out_t, t_ns, slot, active)
-            dr.scatter(out_x, si.p.x, slot, active)
-            dr.scatter(out_y, si.p.y, slot, active)
-            dr.scatter(out_z, si.p.z, slot, active)
+            for target, value in zip(out, (t_ns, w, si.p.x, si.p.y, si.p.z)):
+                dr.scatter(target, value, slot, active)
 
             depth += 1
             if depth < depth_max:
@@ -237,7 +230,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
                 # vertex to vertex, not si.t: the ray starts off the surface
                 inner_m += dr.select(si.is_valid(), dr.norm(si.p - p_prev), 0.0)
                 active &= si.is_valid() & (throughput > 0)
-        return out_t, out_w, out_x, out_y, out_z
+        return tuple(out)
 
     # ---------------------------------------------------------------- public
     def launch(self, scene: mi.Scene, *, shot_x_m: np.ndarray, shot_y_m: np.ndarray,
@@ -249,17 +242,9 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
         :meth:`PendingReturns.result` waits and gives what :meth:`trace` gives. Arguments as
         :meth:`trace`. Later integrator chunks (more than ``max_lanes`` lanes) are traced one
         at a time inside ``result()``, so the device holds one chunk at a time."""
-        shot_x_m = np.ascontiguousarray(shot_x_m, dtype=np.float32).ravel()
-        shot_y_m = np.ascontiguousarray(shot_y_m, dtype=np.float32).ravel()
-        if shot_x_m.shape != shot_y_m.shape:
-            raise ValueError("shot_x_m and shot_y_m must have the same shape")
-        if paths_per_shot < 1:
-            raise ValueError(f"paths_per_shot must be >= 1 (got {paths_per_shot})")
+        shot_x_m, shot_y_m, offset_m = _checked_shots(shot_x_m, shot_y_m, paths_per_shot,
+                                                      offset_m)
         n_shots = shot_x_m.size
-        if offset_m is not None:
-            offset_m = tuple(np.ascontiguousarray(d, np.float64).ravel() for d in offset_m)
-            if len(offset_m) != 3 or any(d.shape != shot_x_m.shape for d in offset_m):
-                raise ValueError("offset_m must be three (n_shots,) arrays (dx, dy, dz) [m]")
         lo, hi = scene_bounds(scene)
         z_start = float(hi[2]) + 1e-3 * max(float(hi[2] - lo[2]), 1.0) + 1e-2
         if not (z_start < self.altitude_m):
@@ -404,6 +389,22 @@ class PendingReturns:
         return Returns(shot=host[0], time_ns=host[1], weight=host[2], x_m=host[3],
                        y_m=host[4], z_m=host[5], depth=depth, n_shots=n_shots,
                        paths_per_shot=self.paths_per_shot)
+
+
+def _checked_shots(shot_x_m, shot_y_m, paths_per_shot: int, offset_m):
+    """``trace``'s shot arguments checked: float32 footprint centres (n_shots,) and the
+    float64 offsets (three (n_shots,) arrays, or None)."""
+    shot_x_m = np.ascontiguousarray(shot_x_m, dtype=np.float32).ravel()
+    shot_y_m = np.ascontiguousarray(shot_y_m, dtype=np.float32).ravel()
+    if shot_x_m.shape != shot_y_m.shape:
+        raise ValueError("shot_x_m and shot_y_m must have the same shape")
+    if paths_per_shot < 1:
+        raise ValueError(f"paths_per_shot must be >= 1 (got {paths_per_shot})")
+    if offset_m is not None:
+        offset_m = tuple(np.ascontiguousarray(d, np.float64).ravel() for d in offset_m)
+        if len(offset_m) != 3 or any(d.shape != shot_x_m.shape for d in offset_m):
+            raise ValueError("offset_m must be three (n_shots,) arrays (dx, dy, dz) [m]")
+    return shot_x_m, shot_y_m, offset_m
 
 
 def _fov_exit(ray: mi.Ray3f, cx: mi.Float, cy: mi.Float, radius_m: float) -> mi.Float:

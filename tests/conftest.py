@@ -22,6 +22,21 @@ def variant():
     return VARIANT
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _kernel_cache(tmp_path_factory):
+    """Snow kernel tables (lidar_mitsuba.snow_kernel) go to a folder of this session's own:
+    every test that uses one builds it from the walk, never reads a table from an earlier
+    run (subprocesses inherit the setting)."""
+    import os
+    old = os.environ.get("LIDAR_MITSUBA_CACHE")
+    os.environ["LIDAR_MITSUBA_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    yield
+    if old is None:
+        os.environ.pop("LIDAR_MITSUBA_CACHE", None)
+    else:
+        os.environ["LIDAR_MITSUBA_CACHE"] = old
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _free_mitsuba_objects():
     """Collect each test module's garbage when it ends (a collection costs ~0.25 s with this

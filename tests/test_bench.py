@@ -96,12 +96,23 @@ def test_bench_quick(bench_run):
     # snow: the volume costs time and biases elevations low, more for larger grains
     sn = doc["snow"]
     assert sn["cost"][0]["grain_um"] is None
-    assert all(r["shots_per_s"] < sn["cost"][0]["shots_per_s"] for r in sn["cost"][1:])
+    assert [r["model"] for r in sn["cost"][1:]] == ["walk", "kernel"] * 3
+    assert all(r["shots_per_s"] < sn["cost"][0]["shots_per_s"] for r in sn["cost"][1:]
+               if r["model"] == "walk")
+    kv = sn["kernel_vs_surface"]
+    assert kv["reps"] == 3 and kv["kernel_over_surface"] > 0
+    assert "the time (median of 3 paired runs" in printed
     strong = [r for r in sn["bias"] if r["beam"] == "strong"]
+    assert all(r["model"] == "kernel" for r in strong)
     assert strong[-1]["h_li_bias_m"] < strong[0]["h_li_bias_m"] < 0
-    assert [r["max_events"] for r in sn["events"]] == [100, 1000, 10000]
+    assert [r["max_events"] for r in sn["events"]] == [100, 1000, 10000, 30000]
     assert [r["similarity_g"] for r in sn["similarity"]] == [0.0, 0.5]
     assert "snow volume, 200 um" in doc["accuracy_vs_time"]
+    # snow optics (quick: two rows, small tables; the README's table is the full run)
+    so = doc["snow_optics"]["rows"]
+    assert [r["name"] for r in so] == ["baseline", "g 0.75"]
+    assert all(r["strong_bias_m"] < 0 and r["strong_segments"] > 50 for r in so)
+    assert "| baseline |" in printed
     assert "of surface only" in printed
     assert (out / "snow.png").stat().st_size > 10_000
     assert "track_length.png, snow.png in" in printed       # the CLI names every chart
@@ -166,7 +177,9 @@ def test_accuracy_chart_shows_every_setting_and_the_front(bench_run):
         front = accuracy.pareto_front(rows)
         np.testing.assert_array_equal(x, [r["seconds"] for r in front])
         np.testing.assert_array_equal(y, [100 * max(r["error_m"], 1e-5) for r in front])
-        assert sorted(t.get_text() for t in ax.texts) == sorted(f"{r['value']:g}" for r in rows)
+        assert sorted(t.get_text() for t in ax.texts) == sorted(
+            f"{r['value']:g}" if isinstance(r["value"], (int, float)) else r["value"]
+            for r in rows)
 
 
 # the stability panels: sweep, y key, closed-form key, words the x and y labels must contain

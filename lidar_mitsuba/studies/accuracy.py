@@ -127,7 +127,8 @@ def chart(results: dict, path):
     to ``path``. Returns the (closed) matplotlib Figure."""
     from ..plotting import plt
     markers = {"shots": "o", "paths_per_shot": "s", "grid_m": "^", "max_depth": "D",
-               "chunk_shots": "x", "snow_max_events": "v", "snow_similarity_g": "P"}
+               "chunk_shots": "x", "snow_max_events": "v", "snow_similarity_g": "P",
+               "snow_model": "*"}
     fig, axes = plt.subplots(1, len(results), figsize=(5.2 * len(results), 4.4), dpi=110)
     for ax, (name, doc) in zip(np.atleast_1d(axes), results.items()):
         rows = doc["rows"]
@@ -137,7 +138,9 @@ def chart(results: dict, path):
                 ax.plot([r["seconds"] for r in sel], [100 * max(r["error_m"], 1e-5) for r in sel],
                         m, label=knob, alpha=0.8)
                 for r in sel:
-                    ax.annotate(f"{r['value']:g}", (r["seconds"], 100 * max(r["error_m"], 1e-5)),
+                    v = r["value"]
+                    ax.annotate(f"{v:g}" if isinstance(v, (int, float)) else str(v),
+                                (r["seconds"], 100 * max(r["error_m"], 1e-5)),
                                 fontsize=6, xytext=(3, 2), textcoords="offset points")
         front = pareto_front(rows)
         ax.plot([r["seconds"] for r in front], [100 * max(r["error_m"], 1e-5) for r in front],

@@ -398,6 +398,8 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False,
         doc["track_length"] = track_length.run(out=out, quick=quick)
         doc["snow"] = snow_bias.run(quick=quick)
         doc["accuracy_vs_time"]["snow volume, 200 um"] = snow_bias.pareto_rows(doc["snow"])
+        from . import snow_optics
+        doc["snow_optics"] = snow_optics.run(quick=quick)
     charts = {"throughput.png": lambda p: _chart(doc, p)}
     if not throughput_only:
         charts.update({
@@ -442,6 +444,10 @@ def _format_rates(d: dict) -> list[str]:
     return lines
 
 
+def _value(v) -> str:
+    return f"{v:g}" if isinstance(v, (int, float)) else str(v)
+
+
 def format_summary(doc: dict) -> str:
     lines = [f"{'detector case':<30}{'M events/s':>11}{'(best)':>8}{'events':>10}"
              f"{'M returns/s':>12}{'median s':>10}"]
@@ -455,7 +461,7 @@ def format_summary(doc: dict) -> str:
         lines.append(f"-- {variant} on {d['device']}")
         lines += _format_rates(d)
     for name, d in doc.get("accuracy_vs_time", {}).items():
-        front = ", ".join(f"{r['knob']}={r['value']:g}: {100 * r['error_m']:.2f} cm in "
+        front = ", ".join(f"{r['knob']}={_value(r['value'])}: {100 * r['error_m']:.2f} cm in "
                           f"{r['seconds']:.2f} s" for r in accuracy.pareto_front(d["rows"]))
         lines.append(f"accuracy vs time, {name} (Pareto front): {front}")
     if "simplifications" in doc:
@@ -472,6 +478,10 @@ def format_summary(doc: dict) -> str:
     if "snow" in doc:
         from . import snow_bias
         lines += snow_bias.format_summary(doc["snow"])
+    if "snow_optics" in doc:
+        from . import snow_optics
+        lines.append("snow optics: ATLAS h_li bias over interior snow (polar night)")
+        lines += snow_optics.format_table(doc["snow_optics"])
     for name, rows in doc.get("stability", {}).items():
         bad = [f"{r['value']:g}: {r['status']}" for r in rows
                if not str(r.get("status", "ok")).startswith("ok")]

@@ -4,11 +4,13 @@
 Three measurements on a flat snowpack (semi-infinite, density as given), each run through
 the whole chain (detector with dead time, ATL06 segments with first-photon-bias correction):
 
-* ``bias``: per grain radius, density and beam, the mean elevation error of the raw signal
-  photons, of ATL06's uncorrected ``h_mean`` and of ``h_li`` (fpb-corrected), against the
-  surface, with Monte Carlo standard errors;
-* ``cost``: traced shots per second with the snow volume against the surface alone (Ward
-  snow BRDF), same shots and paths;
+* ``bias``: per grain radius, density and beam, with the kernel, the mean elevation error of
+  the raw signal photons, of ATL06's uncorrected ``h_mean`` and of ``h_li`` (fpb-corrected),
+  against the surface, with Monte Carlo standard errors;
+* ``walk`` and ``cost``: the full walk at each grain size (the reference) and the shots per
+  second of the walk, the kernel (:mod:`lidar_mitsuba.snow_kernel`) and the surface alone
+  (Ward snow BRDF), each with its own automatic paths per shot; ``kernel_vs_surface``: the
+  kernel's time against the bare surface, paired runs, median ratio;
 * ``events``: the accuracy-versus-time trade-off of the interactions traced per photon
   (``max_events``): bias and time per setting at one grain size;
 * ``similarity``: the same snow traced with a smaller asymmetry g and the same reduced
@@ -27,8 +29,8 @@ from ..surface import SurfaceSpec
 
 
 def _one(*, beam: str, grain_um: float | None, density: float, shots: int, seed: int,
-         max_events: int | None = None, paths_per_shot: int = 64,
-         similarity_g: float | None = None) -> dict:
+         max_events: int | None = None, paths_per_shot: int | str = 64,
+         similarity_g: float | None = None, model: str = "walk") -> dict:
     vol = (None if grain_um is None else
            snow.snow_from_grains(grain_radius_um=grain_um, density_kg_m3=density,
                                  max_events=max_events))
@@ -37,43 +39,84 @@ def _one(*, beam: str, grain_um: float | None, density: float, shots: int, seed:
     t0 = time.perf_counter()
     res = simulate(instrument=Instrument(beam=beam), surface=SurfaceSpec(kind="flat"),
                    snow=vol, shots=shots, seed=seed, paths_per_shot=paths_per_shot,
-                   progress=False)
+                   progress=False, **({} if vol is None else {"snow_model": model}))
     seconds = time.perf_counter() - t0
     rep = res.report().overall
     seg = atl06.segments_from_result(res)
     good = seg.atl06_quality_summary == 0
     def stat(x):
+        # segments are 40 m long every 20 m: neighbours share half their photons, so the
+        # mean's standard error counts the independent (every other) segments
         x = x[good & np.isfinite(x)]
-        return (float(np.mean(x)), float(np.std(x) / np.sqrt(max(x.size, 1)))) if x.size else (
+        return (float(np.mean(x)), float(np.std(x) / np.sqrt(max(x.size / 2, 1)))) if x.size else (
             float("nan"), float("nan"))
     h_li, h_li_se = stat(seg.h_li - seg.h_ref_m)
     h_mean, h_mean_se = stat(seg.h_mean - seg.h_ref_m)
     return {"beam": beam, "grain_um": grain_um, "density": density, "shots": shots,
+            "model": None if vol is None else model,
             "max_events": None if vol is None else vol.events_cap,
             "similarity_g": similarity_g, "seconds": seconds,
+            "paths_per_shot": int(res.config["paths_per_shot"]),
+            "table_s": float(res.timings_s.get("kernel_table_s", 0.0)),
+            "signal_per_shot": float(np.mean(res.detections.mean_photons_per_shot)),
             "raw_bias_m": rep.bias_m, "raw_bias_se_m": rep.bias_se_m,
             "precision_m": rep.std_m, "h_mean_bias_m": h_mean, "h_mean_bias_se_m": h_mean_se,
             "h_li_bias_m": h_li, "h_li_bias_se_m": h_li_se, "segments": int(good.sum())}
 
 
+def _kernel_vs_surface(*, grain_um: float, density: float, shots: int, reps: int) -> dict:
+    """The kernel's end-to-end time against the same plane without snow, same shots, in
+    turn ``reps`` times (the table already built): the median of the paired ratios."""
+    pairs = []
+    for k in range(reps):
+        s = _one(beam="strong", grain_um=None, density=0, shots=shots, seed=100 + k,
+                 paths_per_shot="auto")
+        kr = _one(beam="strong", grain_um=grain_um, density=density, shots=shots,
+                  seed=100 + k, paths_per_shot="auto", model="kernel")
+        pairs.append((s["seconds"], kr["seconds"]))
+    t = np.array(pairs)
+    return {"grain_um": grain_um, "shots": shots, "reps": reps,
+            "surface_s_median": float(np.median(t[:, 0])),
+            "kernel_s_median": float(np.median(t[:, 1])),
+            "kernel_over_surface": float(np.median(t[:, 1] / t[:, 0]))}
+
+
 def run(*, quick: bool = False) -> dict:
+    """The snow study: the kernel's biases over grain size, density and beam; the walk at
+    each grain size (the reference, strong beam, first density) and what each model costs;
+    the kernel's time against the bare surface; the walk's accuracy knobs."""
     grains = (50, 200, 1000) if quick else (50, 100, 200, 500, 1000)
     densities = (350,) if quick else (250, 400)
     shots = 400 if quick else 2000
-    bias = [_one(beam=b, grain_um=g, density=rho, shots=shots, seed=7)
+    kshots = 4000 if quick else 20000
+    # the walk first: its rows give the reference and the cost; the kernel's first run at
+    # each snowpack builds (or reads) its table, timed apart in "table_s"
+    walk = [_one(beam="strong", grain_um=g, density=densities[0], shots=shots, seed=7,
+                 paths_per_shot="auto") for g in grains]
+    bias = [_one(beam=b, grain_um=g, density=rho, shots=kshots, seed=7,
+                 paths_per_shot="auto", model="kernel")
             for rho in densities for b in ("strong", "weak") for g in grains]
-    surface = _one(beam="strong", grain_um=None, density=0, shots=shots, seed=7)
-    # end to end (simulate's wall time): a volume walk runs partly while its trace is
-    # launched (the stages compact on the way), so the trace-wait time alone undercounts it
-    cost = [{"grain_um": None, "shots_per_s": shots / surface["seconds"], **surface}]
-    cost += [{"shots_per_s": r["shots"] / r["seconds"], **r} for r in bias
-             if r["beam"] == "strong" and r["density"] == densities[0]]
-    counts = (100, 1000, 10000) if quick else (300, 1000, 3000, 10000, 30000, 100000)
+    surface = _one(beam="strong", grain_um=None, density=0, shots=kshots, seed=7,
+                   paths_per_shot="auto")
+    cost = [{"grain_um": None, "model": None, "shots_per_s": kshots / surface["seconds"],
+             **surface}]
+    for w in walk:
+        k = next(r for r in bias if r["beam"] == "strong" and r["grain_um"] == w["grain_um"]
+                 and r["density"] == densities[0])
+        cost.append({**w, "shots_per_s": w["shots"] / w["seconds"]})
+        cost.append({**k, "shots_per_s": k["shots"] / (k["seconds"] - k["table_s"])})
+    ratio = _kernel_vs_surface(grain_um=200, density=densities[0], shots=kshots,
+                               reps=3 if quick else 5)
+    # the last, the reference, above the default cap at 200 um (sigma_s x 10 m = 28,600)
+    counts = (100, 1000, 10000, 30000) if quick else (300, 1000, 3000, 10000, 30000, 100000)
     events = [_one(beam="strong", grain_um=200, density=350, shots=shots, seed=11,
                    max_events=n) for n in counts]
     similarity = [_one(beam="strong", grain_um=200, density=350, shots=shots, seed=11,
                        similarity_g=gs) for gs in (0.0, 0.5)]
-    return {"bias": bias, "cost": cost, "events": events, "similarity": similarity,
+    kernel200 = _one(beam="strong", grain_um=200, density=350, shots=shots, seed=11,
+                     model="kernel")
+    return {"bias": bias, "walk": walk, "cost": cost, "kernel_vs_surface": ratio,
+            "events": events, "similarity": similarity, "kernel_200um": kernel200,
             "surface_only": surface}
 
 
@@ -86,39 +129,45 @@ def chart(doc: dict, path) -> None:
                                    "osd^v<"):
         rows = [r for r in doc["bias"] if r["beam"] == beam and r["density"] == rho]
         g = np.array([r["grain_um"] for r in rows])
-        for key, color in (("raw", "C0"), ("h_mean", "C1"), ("h_li", "C2")):
+        for key, color in (("raw", "C0"), ("h_li", "C2")):
             y = 100 * np.array([r[f"{key}_bias_m"] for r in rows])
             e = 100 * np.array([r[f"{key}_bias_se_m"] for r in rows])
             ax[0].errorbar(g, y, e, marker=marker, color=color, capsize=2,
                            ls="-" if beam == "strong" else "--",
-                           label=f"{key}, {beam}, {rho:g} kg/m³")
+                           label=f"kernel {key}, {beam}, {rho:g} kg/m³")
+    w = doc.get("walk", [])
+    if w:
+        ax[0].errorbar([r["grain_um"] for r in w], [100 * r["h_li_bias_m"] for r in w],
+                       [100 * r["h_li_bias_se_m"] for r in w], fmt="k*", ms=9, capsize=2,
+                       label=f"walk h_li, strong, {w[0]['density']:g} kg/m³")
     ax[0].set(xscale="log", xlabel="optical grain radius [µm]", ylabel="elevation bias [cm]",
-              title="snow volume: elevation bias (±1 SE)")
+              title="snow: elevation bias (±1 SE)")
     ax[0].axhline(0, color="k", lw=0.5)
     ax[0].legend(fontsize=6, ncol=2)
     c = doc["cost"]
-    ax[1].bar([("Ward surface" if r["grain_um"] is None else f"{r['grain_um']:g} µm")
-               for r in c],
-              [r["shots_per_s"] for r in c], color=["C7"] + ["C0"] * (len(c) - 1))
+    names = ["surface" if r["grain_um"] is None else f"{r['model']} {r['grain_um']:g} µm"
+             for r in c]
+    colors = ["C7" if r["grain_um"] is None else "C0" if r["model"] == "walk" else "C2"
+              for r in c]
+    ax[1].bar(names, [r["shots_per_s"] for r in c], color=colors)
+    kv = doc["kernel_vs_surface"]
     ax[1].set(yscale="log", ylabel="shots/s, end to end",
-              title="cost: snow volume (default cap) vs surface only")
-    ax[1].tick_params(axis="x", rotation=30)
-    ev = doc["events"]
-    ref = ev[-1]
-    for r in doc.get("similarity", []):
-        e = 100 * abs(r["h_li_bias_m"] - ref["h_li_bias_m"])
-        ax[2].plot(r["seconds"], max(e, 1e-3), "v", color="C3")
-        ax[2].annotate(f"similar g={r['similarity_g']:g}", (r["seconds"], max(e, 1e-3)),
-                       fontsize=7)
-    err = [100 * abs(r["h_li_bias_m"] - ref["h_li_bias_m"]) for r in ev[:-1]]
-    raw = [100 * abs(r["raw_bias_m"] - ref["raw_bias_m"]) for r in ev[:-1]]
-    t = [r["seconds"] for r in ev[:-1]]
-    ax[2].plot(t, err, "o-", label="|h_li - h_li(max)|")
-    ax[2].plot(t, raw, "s--", label="|raw - raw(max)|")
-    for r, x, y in zip(ev[:-1], t, err):
-        ax[2].annotate(f"{r['max_events']}", (x, y), fontsize=7)
-    ax[2].set(xscale="log", yscale="log", xlabel="run time [s]", ylabel="error [cm]",
-              title=f"accuracy vs time: interactions per photon (ref {ref['max_events']})")
+              title=f"cost: walk (blue), kernel (green), surface (grey);\nkernel / surface "
+                    f"time {kv['kernel_over_surface']:.2f} (median of {kv['reps']})")
+    ax[1].title.set_fontsize(9)
+    ax[1].tick_params(axis="x", rotation=60, labelsize=7)
+    pr = pareto_rows(doc)
+    for knob, m in (("snow_max_events", "o-"), ("snow_similarity_g", "v"),
+                    ("snow_model", "*")):
+        rows = [r for r in pr["rows"] if r["knob"] == knob]
+        ax[2].plot([r["seconds"] for r in rows], [100 * max(r["error_m"], 1e-3) for r in rows],
+                   m, ms=9 if knob == "snow_model" else 6, label=knob)
+        for r in rows:
+            ax[2].annotate(str(r["value"]), (r["seconds"], 100 * max(r["error_m"], 1e-3)),
+                           fontsize=7)
+    ax[2].set(xscale="log", yscale="log", xlabel="run time [s]", ylabel="|h_li - reference| [cm]",
+              title=f"accuracy vs time; reference:\n{pr['reference']['source']}")
+    ax[2].title.set_fontsize(9)
     ax[2].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -126,8 +175,10 @@ def chart(doc: dict, path) -> None:
 
 
 def pareto_rows(doc: dict) -> dict:
-    """The ``events`` rows as a panel of the accuracy-versus-time (Pareto) chart: error of
-    ATL06 ``h_li`` against the run with the most interactions per photon, and run time."""
+    """The walk's knobs, the kernel and the bare surface as a panel of the accuracy-versus-time
+    (Pareto) chart: the error of ATL06 ``h_li`` against the walk with the most interactions
+    per photon (200 um snow, the same shots and seed), and each run's time (the kernel's
+    without building its table, which a later run reads from the cache)."""
     ev = doc["events"]
     ref = ev[-1]
     rows = [{"knob": "snow_max_events", "value": r["max_events"], "seconds": r["seconds"],
@@ -135,20 +186,36 @@ def pareto_rows(doc: dict) -> dict:
     rows += [{"knob": "snow_similarity_g", "value": r["similarity_g"], "seconds": r["seconds"],
               "error_m": abs(r["h_li_bias_m"] - ref["h_li_bias_m"])}
              for r in doc.get("similarity", [])]
-    return {"reference": {"source": f"h_li with max_events {ref['max_events']} "
-                                    f"({ref['grain_um']:g} um snow)"}, "rows": rows}
+    k = doc.get("kernel_200um")
+    if k is not None:
+        rows.append({"knob": "snow_model", "value": "kernel",
+                     "seconds": k["seconds"] - k["table_s"],
+                     "error_m": abs(k["h_li_bias_m"] - ref["h_li_bias_m"])})
+        s = doc["surface_only"]
+        rows.append({"knob": "snow_model", "value": "surface (no snow)",
+                     "seconds": s["seconds"] * ref["shots"] / s["shots"],
+                     "error_m": abs(s["h_li_bias_m"] - ref["h_li_bias_m"])})
+    return {"reference": {"source": f"h_li, walk with max_events {ref['max_events']} "
+                                    f"({ref['grain_um']:g} um snow, "
+                                    f"SE {100 * ref['h_li_bias_se_m']:.1f} cm)"}, "rows": rows}
 
 
 def format_summary(doc: dict) -> list[str]:
     s = doc["surface_only"]
-    lines = [f"snow: surface only {s['shots'] / s['seconds']:.0f} shots/s end to end"]
+    rate = s["shots"] / s["seconds"]
+    lines = [f"snow: surface only {rate:.0f} shots/s end to end ({s['shots']} shots)"]
     for r in doc["cost"][1:]:
-        lines.append(f"snow {r['grain_um']:g} um: {r['shots_per_s']:.0f} shots/s "
-                     f"({r['shots_per_s'] / (s['shots'] / s['seconds']):.3f} of surface only); "
-                     f"raw bias {100 * r['raw_bias_m']:+.1f} cm, h_li {100 * r['h_li_bias_m']:+.1f}"
-                     f" ± {100 * r['h_li_bias_se_m']:.1f} cm")
+        extra = (f", its table {r['table_s']:.1f} s once" if r["model"] == "kernel" else "")
+        lines.append(f"snow {r['grain_um']:g} um, {r['model']}: {r['shots_per_s']:.0f} shots/s "
+                     f"({r['shots_per_s'] / rate:.3f} of surface only, {r['paths_per_shot']} "
+                     f"paths/shot{extra}); h_li {100 * r['h_li_bias_m']:+.1f} "
+                     f"± {100 * r['h_li_bias_se_m']:.1f} cm, raw {100 * r['raw_bias_m']:+.1f} cm")
+    kv = doc["kernel_vs_surface"]
+    lines.append(f"snow kernel (200 um) against the surface alone, {kv['shots']} shots: "
+                 f"{kv['kernel_over_surface']:.2f}x the time (median of {kv['reps']} paired "
+                 f"runs: {kv['kernel_s_median']:.3f} s vs {kv['surface_s_median']:.3f} s)")
     for r in doc["events"]:
-        lines.append(f"snow 200 um, max_events {r['max_events']}: h_li "
+        lines.append(f"snow 200 um walk, max_events {r['max_events']}: h_li "
                      f"{100 * r['h_li_bias_m']:+.2f} cm, raw {100 * r['raw_bias_m']:+.2f} cm, "
                      f"run {r['seconds']:.2f} s")
     for r in doc.get("similarity", []):
@@ -156,4 +223,9 @@ def format_summary(doc: dict) -> list[str]:
                      f"{r['max_events']} interactions, 10 m of path): h_li "
                      f"{100 * r['h_li_bias_m']:+.2f} ± {100 * r['h_li_bias_se_m']:.2f} cm, "
                      f"run {r['seconds']:.2f} s")
+    k = doc.get("kernel_200um")
+    if k is not None:
+        lines.append(f"snow 200 um, kernel (same shots): h_li {100 * k['h_li_bias_m']:+.2f} ± "
+                     f"{100 * k['h_li_bias_se_m']:.2f} cm, run {k['seconds'] - k['table_s']:.2f}"
+                     f" s")
     return lines
