@@ -115,8 +115,25 @@ def _add_snow_options(s) -> None:
                    help="scatterings traced per photon; later light is lost (default: enough "
                    "for 10 m of path in the snow)")
     v.add_argument("--snow-similarity-g", type=float, metavar="G",
-                   help="trace a similar snow with this asymmetry (0 <= G < 0.89) and the same "
+                   help="trace a similar snow with this asymmetry (0 <= G < the snow's g) and the same "
                    "sigma_s (1 - g): fewer scatterings, faster, approximate near the surface")
+    v.add_argument("--snow-g", type=float, metavar="G",
+                   help="Henyey-Greenstein asymmetry of the grains (0.80, natural snow; 0.89: "
+                   "spheres)")
+    v.add_argument("--snow-absorption-b", type=float, metavar="B",
+                   help="absorption enhancement B (1.6, natural snow, Libois et al. 2014; "
+                   "1.25: spheres)")
+    v.add_argument("--snow-ice-absorption", type=float, metavar="PER_M",
+                   help="ice's absorption coefficient at 532 nm [1/m] (0.04)")
+    v.add_argument("--snow-backscatter", type=float, metavar="FRACTION",
+                   help="a backscattering lobe: this fraction of the phase function is "
+                   "HG with g = -0.5 (two-term HG; 0)")
+    v.add_argument("--snow-crust-m", type=float, metavar="M",
+                   help="a denser surface layer (wind crust) this thick [m] (0: none)")
+    v.add_argument("--snow-crust-grain-um", type=float, metavar="UM",
+                   help="the crust's optical grain radius [um] (default: the pack's)")
+    v.add_argument("--snow-crust-density", type=float, metavar="KG_M3",
+                   help="the crust's density [kg/m^3] (default: the pack's)")
     v.add_argument("--snow-model", choices=("auto", "walk", "kernel"), default=None,
                    help="kernel: the walk tabulated once per snowpack against incidence angle "
                    "(cached on disk), at the cost of a surface hit; walk: the full random walk "
@@ -241,6 +258,13 @@ def _snow(a):
                ("--snow-depth-m", "depth_m", a.snow_depth_m),
                ("--snow-base-albedo", "base_albedo", a.snow_base_albedo),
                ("--snow-max-events", "max_events", a.snow_max_events),
+               ("--snow-g", "g", a.snow_g),
+               ("--snow-absorption-b", "absorption_enhancement_b", a.snow_absorption_b),
+               ("--snow-ice-absorption", "ice_absorption_per_m", a.snow_ice_absorption),
+               ("--snow-backscatter", "backscatter_fraction", a.snow_backscatter),
+               ("--snow-crust-m", "crust_m", a.snow_crust_m),
+               ("--snow-crust-grain-um", "crust_grain_um", a.snow_crust_grain_um),
+               ("--snow-crust-density", "crust_density_kg_m3", a.snow_crust_density),
                ("--snow-similarity-g", None, a.snow_similarity_g))
     given = [(flag, key, value) for flag, key, value in options if value is not None]
     if a.snow_grain_um is None:

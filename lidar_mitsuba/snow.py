@@ -4,23 +4,35 @@ Pure numpy except :meth:`SnowVolume.shapes` (Mitsuba shape dicts).
 
 At 532 nm snow is a weakly absorbing, strongly scattering volume. Its optics follow from two
 quantities a glaciologist measures, the optical (effective) grain radius ``r`` and the density
-``rho``, for ice spheres in the geometric-optics limit (grains much larger than the
-wavelength; Bohren & Barkstrom 1974, J. Geophys. Res. 79, 4527; Kokhanovsky & Zege 2004,
-Appl. Opt. 43, 1589):
+``rho``, in the geometric-optics limit (grains much larger than the wavelength; Bohren &
+Barkstrom 1974, J. Geophys. Res. 79, 4527; Kokhanovsky & Zege 2004, Appl. Opt. 43, 1589):
 
 * ice volume fraction ``f = rho / 917 kg m^-3``;
 * extinction ``sigma_t = 3 f / (2 r)`` [1/m] (extinction efficiency 2, diffraction included);
 * absorption ``sigma_a = B f alpha_ice`` [1/m], with ``alpha_ice = 4 pi k / lambda`` the bulk
-  absorption of ice and ``B = n^2 (1 - (1 - 1/n^2)^(3/2))`` (about 1.25 for n = 1.31) the
-  weak-absorption enhancement of a large sphere: absorption does not depend on grain size;
-* Henyey-Greenstein phase function with asymmetry ``g = 0.89`` (spheres at n = 1.31);
+  absorption of ice and ``B`` the absorption enhancement: ``n^2 (1 - (1 - 1/n^2)^(3/2))``, about
+  1.25, for a large sphere; measured on 36 natural snow samples, 0.7-2.4 with a wide peak at
+  1.4-1.8, and B = 1.6 recommended for snow (Libois et al. 2014, J. Glaciol. 60, 714): the
+  default (:data:`B_NATURAL_SNOW`). Absorption does not depend on grain size;
+* Henyey-Greenstein phase function of asymmetry ``g``: 0.89 for spheres at n = 1.31
+  (:data:`G_ICE_SPHERES`); non-spherical grains scatter less forward. The default
+  :data:`G_NATURAL_SNOW` = 0.80 is our estimate for natural snow within the 0.75-0.85 that
+  non-spherical shapes give (Libois et al. 2013, The Cryosphere 7, 1803, pair g = 0.80 with
+  their B = 1.6 shapes; we recall that pairing and could not re-read it here). Optionally a
+  backscattering lobe (a two-term HG, ``backscatter_fraction``);
 * group index of the snowpack for the photons' delay, ``1 + (n_ice - 1) f`` (a random line
-  through snow spends the fraction ``f`` of its length in ice).
+  through snow spends the fraction ``f`` of its length in ice);
+* optionally a denser surface layer (a wind crust, ``crust_m``) of its own grains and density
+  over the pack.
 
-``alpha_ice`` at 532 nm is 0.04 m^-1 by default (k about 1.7e-9, read from the Warren & Brandt
-2008 compilation with Picard et al. 2016's revision; uncertain by some tens of percent, hence
-a parameter). For r = 100 um and rho = 350 kg m^-3 the mean free path is 0.17 mm and the
-single-scattering albedo 1 - 4e-6: photons wander 10^3 to 10^4 scatterings before coming back.
+``alpha_ice`` at 532 nm is 0.04 m^-1 by default (k about 1.7e-9). It is uncertain: Picard et
+al. 2016 (The Cryosphere 10, 2655) measured ice absorption in the 400-600 nm range about an
+order of magnitude above the Warren & Brandt 2008 compilation near its 400-450 nm minimum, and
+recommend taking the uncertainty into account. At 532 nm ice absorbs more and the sources
+differ less; the parameter is ours to vary (``bench``'s snow-optics table: x0.5 and x2.5 move
+ATL06 ``h_li`` by < 0.7 cm). For r = 100 um and rho = 350 kg m^-3 the mean free path is 0.17
+mm and the single-scattering albedo 1 - 4e-6: photons wander 10^3 to 10^4 scatterings before
+coming back.
 
 The snow surface is index-matched (a ``null`` BSDF): the air-snow boundary is rough and porous
 at the grain scale, and its refraction and reflection are already in the grains' scattering.
@@ -49,6 +61,12 @@ N_ICE_532 = 1.3117
 ICE_ABSORPTION_532_PER_M = 0.04
 #: asymmetry parameter of large ice spheres at 532 nm
 G_ICE_SPHERES = 0.89
+#: asymmetry parameter of natural (non-spherical) snow grains, the default of
+#: :func:`snow_from_grains` (our estimate; see the module docstring)
+G_NATURAL_SNOW = 0.80
+#: absorption enhancement of natural snow (Libois et al. 2014), :func:`snow_from_grains`'
+#: default
+B_NATURAL_SNOW = 1.6
 #: path length inside the snow [m] that the default interaction cap covers (sigma_s x this):
 #: ATL06 h_li changes by less than its Monte Carlo error (~0.5 cm) beyond it (bench's
 #: snow study), while the raw photon mean never settles (the path tail falls as L^-3/2)
@@ -97,19 +115,27 @@ class SnowVolume:
     backscatter_g: float = -0.5
     #: the absorption enhancement B it came from (:func:`snow_from_grains`), for the record
     absorption_enhancement: float | None = None
+    #: a denser surface layer (wind crust) this thick [m], measured vertically (0: none),
+    #: with the optics of ``crust`` (a SnowVolume: its coefficients, g and group index)
+    crust_m: float = 0.0
+    crust: "SnowVolume | None" = None
 
     def __post_init__(self):
         check("sigma_s_per_m", self.sigma_s_per_m,
               math.isfinite(self.sigma_s_per_m) and self.sigma_s_per_m > 0, "must be > 0")
         check("sigma_a_per_m", self.sigma_a_per_m,
               math.isfinite(self.sigma_a_per_m) and self.sigma_a_per_m >= 0, "must be >= 0")
-        check("g", self.g, math.isfinite(self.g) and -1 < self.g < 1, "must be in (-1, 1)")
+        check("snow_g", self.g, math.isfinite(self.g) and -1 < self.g < 1, "must be in (-1, 1)")
         check("group_index", self.group_index,
               math.isfinite(self.group_index) and 1 <= self.group_index <= 2,
               "must be in [1, 2]")
         check("snow_depth_m", self.depth_m, self.depth_m > 0, "must be > 0 (inf: semi-infinite)")
         check("base_albedo", self.base_albedo, 0 <= self.base_albedo <= 1, "must be in [0, 1]")
-        check("snow_backscatter_fraction", self.backscatter_fraction,
+        check("snow_crust_m", self.crust_m, 0 <= self.crust_m < self.depth_m and (
+              self.crust_m == 0 or (self.crust is not None and self.crust.crust_m == 0
+                                    and self.crust.backscatter_fraction == 0)),
+              "must be in [0, depth) with a crust's optics (one layer, one-term HG)")
+        check("snow_backscatter", self.backscatter_fraction,
               0 <= self.backscatter_fraction < 1, "must be in [0, 1)")
         check("snow_backscatter_g", self.backscatter_g, -1 < self.backscatter_g <= 0,
               "must be in (-1, 0]")
@@ -195,9 +221,15 @@ class SnowVolume:
 
     def integrator_params(self) -> dict:
         """The ``volpathlength`` integrator's parameters for this snowpack."""
-        return {"type": "volpathlength", "max_depth": self.events_cap,
-                "group_index": float(self.group_index), "snow_depth_m": float(self.depth_m),
-                "base_albedo": float(self.base_albedo)}
+        out = {"type": "volpathlength", "max_depth": self.events_cap,
+               "group_index": float(self.group_index), "snow_depth_m": float(self.depth_m),
+               "base_albedo": float(self.base_albedo)}
+        if self.crust_m > 0:
+            c = self.crust
+            out.update(crust_m=float(self.crust_m), crust_sigma_t=float(c.sigma_t_per_m),
+                       crust_albedo=float(c.albedo), crust_g=float(c.g),
+                       crust_group_index=float(c.group_index))
+        return out
 
     def xml(self) -> str:
         """The ``<medium>`` and ``<bsdf>`` elements to put inside a terrain ``<shape>``."""
@@ -220,7 +252,9 @@ class SnowVolume:
         return {"sigma_s_per_m": float(self.sigma_s_per_m),
                 "sigma_a_per_m": float(self.sigma_a_per_m), "phase": self.medium_dict()["phase"],
                 "group_index": float(self.group_index), "depth_m": float(self.depth_m),
-                "base_albedo": float(self.base_albedo), "max_events": int(self.events_cap)}
+                "base_albedo": float(self.base_albedo), "max_events": int(self.events_cap),
+                **({"crust_m": float(self.crust_m), "crust": self.crust.walk_inputs()}
+                   if self.crust_m > 0 else {})}
 
     def config(self) -> dict:
         return {"grain_radius_um": self.grain_radius_um, "density_kg_m3": self.density_kg_m3,
@@ -231,7 +265,9 @@ class SnowVolume:
                 "similar_to_g": self.similar_to_g,
                 "backscatter_fraction": self.backscatter_fraction,
                 "backscatter_g": self.backscatter_g,
-                "absorption_enhancement": self.absorption_enhancement}
+                "absorption_enhancement": self.absorption_enhancement,
+                "crust_m": self.crust_m,
+                "crust": self.crust.config() if self.crust_m > 0 else None}
 
     def describe(self) -> str:
         """One line for ``--explain``."""
@@ -247,6 +283,12 @@ class SnowVolume:
                 f"{self.backscatter_g:g})" if self.backscatter_fraction > 0 else "")
         b = ("" if self.absorption_enhancement is None else
              f", B {self.absorption_enhancement:g}")
+        if self.crust_m > 0:
+            c = self.crust
+            depth = (f"under a {100 * self.crust_m:g} cm crust (sigma_s "
+                     f"{c.sigma_s_per_m:.4g} /m, g {c.g:g}"
+                     + (f", grains {c.grain_radius_um:g} um, {c.density_kg_m3:g} kg/m^3"
+                        if c.grain_radius_um is not None else "") + "), " + depth)
         return (f"snow volume on ({src}sigma_s {self.sigma_s_per_m:.4g} /m, sigma_a "
                 f"{self.sigma_a_per_m:.3g} /m{b}, g {self.g:g}{lobe}, {depth}, index-matched "
                 f"surface, "
@@ -269,16 +311,21 @@ def medium_events_cap(medium) -> int:
 
 def snow_from_grains(*, grain_radius_um: float, density_kg_m3: float = 350.0,
                      depth_m: float = math.inf, base_albedo: float = 0.0,
-                     g: float = G_ICE_SPHERES,
+                     g: float = G_NATURAL_SNOW,
                      ice_absorption_per_m: float = ICE_ABSORPTION_532_PER_M,
-                     absorption_enhancement_b: float | None = None,
+                     absorption_enhancement_b: float | None = B_NATURAL_SNOW,
                      backscatter_fraction: float = 0.0, backscatter_g: float = -0.5,
+                     crust_m: float = 0.0, crust_grain_um: float | None = None,
+                     crust_density_kg_m3: float | None = None,
                      group_index: float | None = None,
                      max_events: int | None = None) -> SnowVolume:
     """A :class:`SnowVolume` from optical grain radius [um] and density [kg m^-3] (the
-    relations in the module docstring). ``absorption_enhancement_b`` ``None``: large
-    spheres' B (:func:`absorption_enhancement`, 1.25); ``backscatter_fraction`` > 0 adds a
-    backscattering lobe (two-term HG); ``group_index`` ``None``: ``1 + (n_ice - 1) f``."""
+    relations in the module docstring): natural snow's ``g`` 0.80 and ``B`` 1.6 by default
+    (``g=G_ICE_SPHERES, absorption_enhancement_b=None`` for spheres: ``None`` is a large
+    sphere's B, :func:`absorption_enhancement`); ``backscatter_fraction`` > 0 adds a
+    backscattering lobe (two-term HG); ``crust_m`` > 0 a denser surface layer (wind crust)
+    of ``crust_grain_um`` and ``crust_density_kg_m3`` (default: the pack's) with the same
+    ice optics; ``group_index`` ``None``: ``1 + (n_ice - 1) f``."""
     check("snow_grain_um", grain_radius_um,
           isinstance(grain_radius_um, (int, float)) and math.isfinite(grain_radius_um)
           and 5 <= grain_radius_um <= 5000, "must be in [5, 5000] um (geometric optics)")
@@ -295,6 +342,21 @@ def snow_from_grains(*, grain_radius_um: float, density_kg_m3: float = 350.0,
     check("snow_ice_absorption", ice_absorption_per_m, isinstance(ice_absorption_per_m, (
           int, float)) and 0 <= ice_absorption_per_m <= 10, "must be in [0, 10] 1/m")
     b = absorption_enhancement() if absorption_enhancement_b is None else absorption_enhancement_b
+    crust = None
+    if crust_m:
+        try:
+            crust = snow_from_grains(
+                grain_radius_um=grain_radius_um if crust_grain_um is None else crust_grain_um,
+                density_kg_m3=(density_kg_m3 if crust_density_kg_m3 is None
+                               else crust_density_kg_m3),
+                g=g, ice_absorption_per_m=ice_absorption_per_m, absorption_enhancement_b=b)
+        except ParameterError as e:       # name the crust's own option
+            raise ParameterError({"snow_grain_um": "snow_crust_grain_um",
+                                  "snow_density": "snow_crust_density"}.get(e.name, e.name),
+                                 e.message) from None
+    elif crust_grain_um is not None or crust_density_kg_m3 is not None:
+        raise ParameterError("snow_crust_m", "give the crust's thickness (> 0) with its "
+                             "grains or density")
     sigma_a = b * f * ice_absorption_per_m
     if group_index is None:
         group_index = 1.0 + (N_ICE_532 - 1.0) * f
@@ -303,7 +365,8 @@ def snow_from_grains(*, grain_radius_um: float, density_kg_m3: float = 350.0,
                       max_events=max_events, grain_radius_um=float(grain_radius_um),
                       density_kg_m3=float(density_kg_m3), absorption_enhancement=float(b),
                       backscatter_fraction=float(backscatter_fraction),
-                      backscatter_g=float(backscatter_g))
+                      backscatter_g=float(backscatter_g), crust_m=float(crust_m),
+                      crust=crust)
 
 
 # --------------------------------------------------------------------------- diffusion theory

@@ -42,6 +42,12 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
      * - base_albedo
        - |float|
        - Lambertian albedo of the opaque base under a finite layer (default 0).
+     * - crust_m, crust_sigma_t, crust_albedo, crust_g, crust_group_index
+       - |float|
+       - A denser surface layer (wind crust), ``crust_m`` thick measured vertically
+         (default 0: none), with its own extinction [1/m], single-scattering albedo, HG
+         asymmetry and group index, over the scene's medium. Free paths end at the interface
+         and go on in the other layer (exact for exponential free paths).
      * - tally
        - |string|
        - ``receiver`` (default): next-event returns toward the receiver, as above.
@@ -102,7 +108,8 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
     """
 
     #: parameters beyond ``pathlength``'s
-    VOLUME_PARAMETERS = ("group_index", "snow_depth_m", "base_albedo", "tally")
+    VOLUME_PARAMETERS = ("group_index", "snow_depth_m", "base_albedo", "tally", "crust_m",
+                         "crust_sigma_t", "crust_albedo", "crust_g", "crust_group_index")
 
     def __init__(self, props: mi.Properties):
         if "max_depth" not in props:
@@ -119,15 +126,27 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
         self.snow_depth_m = float(props.get("snow_depth_m", float("inf")))
         self.base_albedo = float(props.get("base_albedo", 0.0))
         self.tally = str(props.get("tally", "receiver"))
+        self.crust_m = float(props.get("crust_m", 0.0))
+        self.crust_sigma_t = float(props.get("crust_sigma_t", 1.0))
+        self.crust_albedo = float(props.get("crust_albedo", 1.0))
+        self.crust_g = float(props.get("crust_g", 0.0))
+        self.crust_group_index = float(props.get("crust_group_index", 1.0))
         for name, ok in (("group_index", 1.0 <= self.group_index <= 2.0),
                          ("snow_depth_m", self.snow_depth_m > 0),
                          ("base_albedo", 0.0 <= self.base_albedo <= 1.0),
-                         ("tally", self.tally in ("receiver", "hemisphere"))):
+                         ("tally", self.tally in ("receiver", "hemisphere")),
+                         ("crust_m", 0.0 <= self.crust_m < self.snow_depth_m),
+                         ("crust_sigma_t", self.crust_sigma_t > 0.0),
+                         ("crust_albedo", 0.0 <= self.crust_albedo <= 1.0),
+                         ("crust_g", -1.0 < self.crust_g < 1.0),
+                         ("crust_group_index", 1.0 <= self.crust_group_index <= 2.0)):
             if not ok:
                 raise ValueError(f"volpathlength: {name} out of range "
                                  f"(got {getattr(self, name)!r})")
         self.explicit.update({k: getattr(self, k) for k in self.VOLUME_PARAMETERS if k in props})
         self._medium = None
+        self._crust_phase = (mi.load_dict({"type": "hg", "g": self.crust_g})
+                             if self.crust_m > 0 else None)
 
     def _core(self, scene: mi.Scene):
         self._medium = scene_medium(scene)
@@ -162,6 +181,7 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
             "q": mi.Vector3f(0.0), "d": mi.Vector3f(ray.d), "path_m": mi.Float64(0.0),
             "throughput": mi.Float(1.0), "events": mi.UInt32(0),
             "active": null & (dr.dot(ray.d, si.n) < 0.0),
+            "in_crust": null & (self.crust_m > 0),        # the layer it is in
             # the record (one-slot weighted reservoir)
             "rec_t": rec_t, "w_sum": w_sum, "rec_x": rec_x, "rec_y": rec_y, "rec_z": rec_z,
             "rec_d": rec_d}
@@ -214,6 +234,7 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
         x0, y0, down_m, t_emit_ns = state["x0"], state["y0"], state["down_m"], state["t_emit"]
         q, d, path_m = state["q"], state["d"], state["path_m"]
         throughput, events, active = state["throughput"], state["events"], state["active"]
+        in_crust = state["in_crust"]
         rec_t, w_sum, rec_x, rec_y, rec_z, rec_d = (state[k] for k in self._RECORD)
         sx64, sy64 = mi.Float64(x0), mi.Float64(y0)
         fov2 = self.fov_radius_m ** 2
@@ -228,38 +249,37 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
         wo_n = dr.dot(wo, n)
         hemisphere = self.tally == "hemisphere"
         base_albedo = dr.opaque(mi.Float, self.base_albedo)
+        layers = _Layers(self, medium, n, wo_n, base_n, n_g)
 
         while active & (events < limit):
-            # -- the flight: to the surface (up), to the base (down) or a scattering
-            qn, dn = dr.dot(q, n), dr.dot(d, n)
-            t_top = dr.select(dn > 0.0, -qn / dr.maximum(dn, 1e-30), dr.inf)
-            t_base = dr.select(dn < 0.0, (base_n - qn) / dr.minimum(dn, -1e-30), dr.inf)
-            t_wall = dr.minimum(t_top, t_base)
+            # -- the flight: to the surface (up), to the base (down), to the interface of a
+            # crust, or a scattering (the medium's free path, scaled in a crust)
+            t_top, t_base, t_if, scale, ng_here = layers.walls(q, d, in_crust)
+            t_wall = dr.minimum(dr.minimum(t_top, t_base), t_if)
             flight = mi.Ray3f(mi.Point3f(q), d)
-            flight.maxt = t_wall
+            flight.maxt = t_wall * scale
             mei = medium.sample_interaction(flight, sampler.next_1d(active), 0, active)
             scatter = active & mei.is_valid()
-            out = active & ~scatter & (t_top <= t_base)
-            on_base = active & ~scatter & (t_base < t_top)
-            step = dr.select(scatter, mei.t, t_wall)
-            path_m += mi.Float64(dr.select(active, step * n_g, 0.0))
+            out = active & ~scatter & (t_top <= t_base) & (t_top <= t_if)
+            on_base = active & ~scatter & (t_base < t_top) & (t_base <= t_if)
+            cross = active & ~scatter & (t_if < t_top) & (t_if < t_base)
+            step = dr.select(scatter, mei.t / scale, t_wall)
+            path_m += mi.Float64(dr.select(active, step * ng_here, 0.0))
             q = dr.select(active, q + d * step, q)
             vertex = scatter | on_base
             events += dr.select(vertex, 1, 0)
 
             # -- the return toward the receiver from this vertex: out through the top plane
-            ph_val, _ = medium.phase_function().eval_pdf(pctx, mei, wo, scatter)
-            sigma_s, _, sigma_t = medium.get_scattering_coefficients(mei, active)
-            value = dr.select(scatter, sigma_s[0] / sigma_t[0] * ph_val[0],
+            ph_val, ssa = layers.phase_eval(pctx, mei, wo, scatter, in_crust)
+            t_up, tau_up, delay_up = layers.up_leg(q, mei, active, in_crust)
+            value = dr.select(scatter, ssa * ph_val,
                               base_albedo * dr.maximum(wo_n, 0.0) * dr.inv_pi)
-            t_up = dr.select(wo_n > 0.0, -dr.dot(q, n) / dr.maximum(wo_n, 1e-30), 0.0)
-            q_exit = q + wo * t_up
-            p_exit = entry + q_exit
+            p_exit = entry + q + wo * t_up
             seen = (vertex & (wo_n > 0.0)
                     & (dr.square(p_exit.x - x0) + dr.square(p_exit.y - y0) <= fov2))
-            w = dr.select(seen, throughput * value * dr.exp(-sigma_t[0] * t_up)
+            w = dr.select(seen, throughput * value * dr.exp(-tau_up)
                           * (dr.pi / REFERENCE_ALBEDO), 0.0)
-            leg_up = self._leg_m(p_exit, sx64, sy64) + mi.Float64(t_up * n_g)
+            leg_up = self._leg_m(p_exit, sx64, sy64) + mi.Float64(delay_up)
             at = entry + q
             if hemisphere:                     # light crossing the surface outward
                 seen = out
@@ -276,21 +296,91 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
             rec_d = dr.select(keep, events, rec_d)
 
             # -- the next flight: phase function, or a Lambertian base (cosine-weighted)
-            wo_ph, ph_w, _ = medium.phase_function().sample(
-                pctx, mei, sampler.next_1d(active), sampler.next_2d(active), scatter)
+            u1, u2 = sampler.next_1d(active), sampler.next_2d(active)
+            wo_ph, ph_w = layers.phase_sample(pctx, mei, u1, u2, scatter, in_crust)
             up = mi.Frame3f(n).to_world(mi.warp.square_to_cosine_hemisphere(
                 sampler.next_2d(active)))
             d = dr.select(scatter, wo_ph, dr.select(on_base, up, d))
-            throughput *= dr.select(scatter, sigma_s[0] / sigma_t[0] * ph_w[0],
-                                    dr.select(on_base, base_albedo, 1.0))
-            active &= vertex & (throughput > 0.0)
+            throughput *= dr.select(scatter, ssa * ph_w, dr.select(on_base, base_albedo, 1.0))
+            in_crust = dr.select(cross, ~in_crust, in_crust)
+            active &= (vertex | cross) & (throughput > 0.0)
         return dict(state, q=q, d=d, path_m=path_m, throughput=throughput, events=events,
-                    active=active, rec_t=rec_t, w_sum=w_sum, rec_x=rec_x, rec_y=rec_y,
-                    rec_z=rec_z, rec_d=rec_d)
+                    active=active, in_crust=in_crust, rec_t=rec_t, w_sum=w_sum, rec_x=rec_x,
+                    rec_y=rec_y, rec_z=rec_z, rec_d=rec_d)
 
     def to_string(self):
         return (f"VolumePathLengthIntegrator[max_depth={self.max_depth}, "
                 f"group_index={self.group_index}, altitude_m={self.altitude_m}]")
+
+
+class _Layers:
+    """The snowpack's layers as the walk meets them, in the entry facet's frame (normal
+    ``n``, position ``q``): the pack over its base, and a crust on top (``crust_m`` > 0,
+    decided in Python: the walk without one compiles as before). The crust's free paths are
+    the medium's own, scaled by the ratio of extinctions (homogeneous layers: the same
+    exponential law in optical depth), so one ``sample_interaction`` serves both layers."""
+
+    def __init__(self, integ: VolumePathLengthIntegrator, medium, n, wo_n, base_n, n_g):
+        self.medium, self.n, self.wo_n, self.base_n, self.n_g = medium, n, wo_n, base_n, n_g
+        self.crust = integ.crust_m > 0
+        if self.crust:
+            self.phase_c = integ._crust_phase
+            self.iface_n = -dr.opaque(mi.Float, integ.crust_m) * dr.abs(n.z)  # its q.n
+            self.st_c = dr.opaque(mi.Float, integ.crust_sigma_t)
+            self.alb_c = dr.opaque(mi.Float, integ.crust_albedo)
+            self.ng_c = dr.opaque(mi.Float, integ.crust_group_index)
+            self.st_l = medium.get_scattering_coefficients(
+                dr.zeros(mi.MediumInteraction3f), True)[2][0]
+            self.s_iface = -self.iface_n / dr.maximum(wo_n, 1e-30)   # the crust along wo
+
+    def walls(self, q, d, in_crust):
+        """Distances [m] along ``d`` to the top, the base and a crust's interface (inf where
+        not a wall of the photon's layer), the free-path scale and the group index there."""
+        qn, dn = dr.dot(q, self.n), dr.dot(d, self.n)
+        t_top = dr.select(dn > 0.0, -qn / dr.maximum(dn, 1e-30), dr.inf)
+        t_base = dr.select(dn < 0.0, (self.base_n - qn) / dr.minimum(dn, -1e-30), dr.inf)
+        if not self.crust:
+            return t_top, t_base, mi.Float(dr.inf), mi.Float(1.0), self.n_g
+        # the interface is a wall only on the way out of the photon's layer (a photon just
+        # across it, by rounding, crosses at once: a zero step)
+        down = dr.maximum((self.iface_n - qn) / dr.minimum(dn, -1e-30), 0.0)
+        up = dr.maximum((self.iface_n - qn) / dr.maximum(dn, 1e-30), 0.0)
+        t_if = dr.select(in_crust, dr.select(dn < 0.0, down, dr.inf),
+                         dr.select(dn > 0.0, up, dr.inf))
+        return (dr.select(in_crust, t_top, dr.inf), dr.select(in_crust, dr.inf, t_base), t_if,
+                dr.select(in_crust, self.st_c / self.st_l, 1.0),
+                dr.select(in_crust, self.ng_c, self.n_g))
+
+    def phase_eval(self, pctx, mei, wo, scatter, in_crust):
+        """The phase function toward ``wo`` and the single-scattering albedo at a vertex."""
+        ph, _ = self.medium.phase_function().eval_pdf(pctx, mei, wo, scatter & ~in_crust)
+        sigma_s, _, sigma_t = self.medium.get_scattering_coefficients(mei, scatter)
+        ph, ssa = ph[0], sigma_s[0] / sigma_t[0]
+        if self.crust:
+            ph_c, _ = self.phase_c.eval_pdf(pctx, mei, wo, scatter & in_crust)
+            ph, ssa = dr.select(in_crust, ph_c[0], ph), dr.select(in_crust, self.alb_c, ssa)
+        return ph, ssa
+
+    def up_leg(self, q, mei, active, in_crust):
+        """From ``q`` out through the top along the receiver's direction: its length [m],
+        optical depth and delay (the group indices of the layers it crosses) [m]."""
+        _, _, sigma_t = self.medium.get_scattering_coefficients(mei, active)
+        t_up = dr.select(self.wo_n > 0.0, -dr.dot(q, self.n) / dr.maximum(self.wo_n, 1e-30),
+                         0.0)
+        if not self.crust:
+            return t_up, sigma_t[0] * t_up, t_up * self.n_g
+        s_c = dr.select(in_crust, t_up, dr.minimum(self.s_iface, t_up))
+        return (t_up, self.st_c * s_c + self.st_l * (t_up - s_c),
+                self.ng_c * s_c + self.n_g * (t_up - s_c))
+
+    def phase_sample(self, pctx, mei, u1, u2, scatter, in_crust):
+        """The next direction at a scattering and its phase weight."""
+        wo_ph, ph_w, _ = self.medium.phase_function().sample(pctx, mei, u1, u2,
+                                                             scatter & ~in_crust)
+        if self.crust:
+            wo_c, ph_wc, _ = self.phase_c.sample(pctx, mei, u1, u2, scatter & in_crust)
+            wo_ph, ph_w = dr.select(in_crust, wo_c, wo_ph), dr.select(in_crust, ph_wc, ph_w)
+        return wo_ph, ph_w[0]
 
 
 mi.register_integrator("volpathlength", lambda props: VolumePathLengthIntegrator(props))

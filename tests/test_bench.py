@@ -110,9 +110,9 @@ def test_bench_quick(bench_run):
     assert "snow volume, 200 um" in doc["accuracy_vs_time"]
     # snow optics (quick: two rows, small tables; the README's table is the full run)
     so = doc["snow_optics"]["rows"]
-    assert [r["name"] for r in so] == ["baseline", "g 0.75"]
+    assert [r["name"] for r in so] == ["default (natural snow)", "spheres (g 0.89, B 1.25)"]
     assert all(r["strong_bias_m"] < 0 and r["strong_segments"] > 50 for r in so)
-    assert "| baseline |" in printed
+    assert "| default (natural snow) |" in printed
     assert "of surface only" in printed
     assert (out / "snow.png").stat().st_size > 10_000
     assert "track_length.png, snow.png in" in printed       # the CLI names every chart

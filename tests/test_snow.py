@@ -82,7 +82,11 @@ def test_coefficients_from_grain_size_and_density():
     assert s.sigma_t_per_m == pytest.approx(1.5 * f / 100e-6, rel=1e-12)     # 5725 /m
     B = snow.absorption_enhancement()
     assert B == pytest.approx(1.2543, abs=2e-4)      # n = 1.3117, weak-absorption sphere
-    assert s.sigma_a_per_m == pytest.approx(B * f * 0.04, rel=1e-12)
+    assert s.sigma_a_per_m == pytest.approx(1.6 * f * 0.04, rel=1e-12)     # natural snow
+    assert s.g == 0.80 and s.absorption_enhancement == 1.6
+    spheres = snow.snow_from_grains(grain_radius_um=100, g=snow.G_ICE_SPHERES,
+                                    absorption_enhancement_b=None)
+    assert spheres.sigma_a_per_m == pytest.approx(B * f * 0.04, rel=1e-12)
     assert s.group_index == pytest.approx(1 + 0.3117 * f, rel=1e-12)
     # absorption does not depend on grain size, scattering goes as 1 / r
     big = snow.snow_from_grains(grain_radius_um=1000, density_kg_m3=350)
@@ -340,3 +344,33 @@ def test_snow_over_a_dem_granule_across_sections(tmp_path):
     diff = wet.mean() - bare.mean()
     se = math.hypot(wet.std() / math.sqrt(wet.size), bare.std() / math.sqrt(bare.size))
     assert diff < -0.05 and diff < -Z * se, (diff, se)
+
+
+# --------------------------------------------------------------------------- wind crust
+def test_crust_limits_and_energy():
+    """A two-layer pack (a denser crust over the pack) against its limits: a crust with the
+    pack's own optics is the single layer; a crust far thicker than the paths is the crust's
+    own half-space; with white layers and a white base every photon comes back (exactly)."""
+    import dataclasses
+    lower = snow.SnowVolume(sigma_s_per_m=1000.0, sigma_a_per_m=10.0, g=0.5, max_events=20000)
+    top = snow.SnowVolume(sigma_s_per_m=3000.0, sigma_a_per_m=10.0, g=0.7, group_index=1.2)
+    pairs = ((dataclasses.replace(lower, crust_m=0.01, crust=lower), lower),
+             (dataclasses.replace(lower, crust_m=1.0, crust=top), top))
+    for two, one in pairs:
+        for tally in ("hemisphere", "receiver"):
+            res = []
+            for v in (two, one):
+                w, L, shot = flat_trace(v, tally=tally, n_shots=40, pps=1000)
+                res.append((mean_se(w), batch_moments(w, L, shot)))
+            ((r2, se2), ((m2, _), (ms2, _))), ((r1, se1), ((m1, _), (ms1, _))) = res
+            assert abs(r2 - r1) < Z * math.hypot(se1, se2), (tally, r1, r2)
+            assert abs(m2 - m1) < Z * math.hypot(ms1, ms2), (tally, m1, m2)
+    white = dataclasses.replace(
+        snow.SnowVolume(sigma_s_per_m=500.0, sigma_a_per_m=0.0, g=0.3, max_events=200000),
+        crust_m=0.003, crust=snow.SnowVolume(sigma_s_per_m=3000.0, sigma_a_per_m=0.0, g=0.7),
+        depth_m=0.05, base_albedo=1.0)
+    w, _, _ = flat_trace(white, tally="hemisphere", n_shots=20, pps=1000)
+    assert abs(w.mean() - 1.0) < 1e-5
+    with pytest.raises(ParameterError) as e:
+        dataclasses.replace(lower, crust_m=0.01)              # a crust needs its optics
+    assert e.value.name == "snow_crust_m"

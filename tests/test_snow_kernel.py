@@ -143,6 +143,10 @@ CASES = {
                                       {"grain_radius_um": 200, "depth_m": 0.03,
                                        "base_albedo": 0.8}, 300),
     "1 mm grains": (SurfaceSpec(kind="flat"), {"grain_radius_um": 1000}, 300),
+    "2 cm wind crust over light snow": (SurfaceSpec(kind="flat"),
+                                        {"grain_radius_um": 200, "density_kg_m3": 300,
+                                         "crust_m": 0.02, "crust_grain_um": 100,
+                                         "crust_density_kg_m3": 450}, 300),
     "rough fractal terrain": (SurfaceSpec(kind="fractal", size_m=64.0, relief_m=3.0),
                               {"grain_radius_um": 200}, 300),
 }
@@ -213,7 +217,17 @@ def test_cli_snow_model(tmp_path):
         assert p.returncode == 0, p.stderr
         assert ("snow model: kernel" in p.stdout) == (model == "kernel") and out.is_file()
     bad = tmp_path / "bad.h5"
-    p = subprocess.run(exe + ["--snow-model", "kernel", "--out", str(bad)],
-                       capture_output=True, text=True, cwd=tmp_path)
-    assert p.returncode == 2 and "--snow-model" in p.stderr and "Traceback" not in p.stderr
-    assert len(p.stderr.strip().splitlines()) == 1 and not bad.exists()
+    for args, flag in ((["--snow-model", "kernel"], "--snow-model"),
+                       (["--snow-grain-um", "100", "--snow-g", "1.2"], "--snow-g"),
+                       (["--snow-grain-um", "100", "--snow-absorption-b", "9"],
+                        "--snow-absorption-b"),
+                       (["--snow-grain-um", "100", "--snow-backscatter", "1.5"],
+                        "--snow-backscatter"),
+                       (["--snow-grain-um", "100", "--snow-crust-grain-um", "50"],
+                        "--snow-crust-m"),
+                       (["--snow-grain-um", "100", "--snow-crust-m", "0.02",
+                         "--snow-crust-density", "5"], "--snow-crust-density")):
+        p = subprocess.run(exe + args + ["--out", str(bad)], capture_output=True, text=True,
+                           cwd=tmp_path)
+        assert p.returncode == 2 and flag in p.stderr and "Traceback" not in p.stderr, p.stderr
+        assert len(p.stderr.strip().splitlines()) == 1 and not bad.exists()
