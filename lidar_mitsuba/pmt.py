@@ -57,6 +57,15 @@ def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths
         paths_per_shot``; (n_shots,) photons arriving per shot (before fill factor and PDE);
         (n_shots,) bool, the shots whose picks ran out of distinct returns.
     """
+    return _arrivals(shot, weight, n_shots=n_shots, paths_per_shot=paths_per_shot,
+                     signal_photons=signal_photons, rng=rng, exchangeable=exchangeable,
+                     keep_probability=keep_probability, signal_scale=signal_scale)[:4]
+
+
+def _arrivals(shot, weight, *, n_shots, paths_per_shot, signal_photons, rng, exchangeable,
+              keep_probability, signal_scale):
+    """:func:`sample_arrivals`, and the (n_shots + 1,) offsets of each shot's picks in its
+    ``return_index`` (the picks come grouped by shot)."""
     shot = np.asarray(shot)
     w = np.asarray(weight)
     w_sum, start, w_max, ordered = _deadtime.shot_stats(shot, w, int(n_shots))
@@ -68,10 +77,12 @@ def sample_arrivals(shot: np.ndarray, weight: np.ndarray, *, n_shots: int, paths
     counts = rng.poisson(mu)
     kept = rng.binomial(counts, keep_probability) if keep_probability < 1 else counts
     if kept.sum() == 0:
-        return np.zeros(0, np.int64), mu, counts, np.zeros(mu.size, bool)
-    idx, run_out = _deadtime.choose_returns(start, w, float(w_max), kept.astype(np.int64),
-                                            bool(exchangeable), int(rng.integers(0, 2 ** 62)))
-    return idx, mu, counts, run_out
+        return (np.zeros(0, np.int64), mu, counts, np.zeros(mu.size, bool),
+                np.zeros(mu.size + 1, np.int64))
+    idx, run_out, offsets = _deadtime.choose_returns(
+        start, w, float(w_max), kept.astype(np.int64), bool(exchangeable),
+        int(rng.integers(0, 2 ** 62)))
+    return idx, mu, counts, run_out, offsets
 
 
 def nonparalyzable_mask(group: np.ndarray, time_ns: np.ndarray, dead_time_ns: float) -> np.ndarray:
@@ -143,15 +154,13 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
     if gate_center_ns is None and np.any(noise_rate > 0):
         raise ValueError("noise needs a range gate: pass gate_center_ns")
     # fill factor then PDE: two independent thinnings, i.e. one with probability ff * pde
-    idx, mu, counts, run_out = sample_arrivals(
+    idx, mu, counts, run_out, sig_start = _arrivals(
         returns.shot, returns.weight, n_shots=n_shots,
         paths_per_shot=int(returns.paths_per_shot),
         signal_photons=float(instrument.signal_photons), rng=rng,
         exchangeable=returns.single_bounce, signal_scale=signal_scale,
         keep_probability=instrument.fill_factor * instrument.pde)
     anode = rng.integers(0, instrument.anodes, idx.size)
-    shot_sig = np.asarray(returns.shot, np.int64)[idx]
-    sig_start = np.searchsorted(shot_sig, np.arange(n_shots + 1)).astype(np.int64)
     if gate_center_ns is not None:
         gate_start = np.asarray(gate_center_ns, np.float64) - instrument.range_gate_ns / 2.0
         gate_ns = instrument.range_gate_ns
