@@ -99,41 +99,43 @@ def _add_track_and_orbit_options(s) -> None:
     d.add_argument("--atl06", metavar="FILE.h5", help="also write ATL06 land-ice segments")
 
 
+#: the ``--snow-*`` options after ``--snow-grain-um``: (flag, type, metavar, the keyword of
+#: ``snow.snow_from_grains`` it sets (None: handled apart), help)
+SNOW_OPTIONS = (
+    ("--snow-density", float, "KG_M3", "density_kg_m3", "snow density [kg/m^3] (350)"),
+    ("--snow-depth-m", float, "M", "depth_m", "snow layer thickness [m] (inf: semi-infinite)"),
+    ("--snow-base-albedo", float, "A", "base_albedo",
+     "Lambertian albedo of the base under a finite layer (0)"),
+    ("--snow-max-events", int, "N", "max_events", "scatterings traced per photon; later light "
+     "is lost (default: enough for 10 m of path in the snow)"),
+    ("--snow-similarity-g", float, "G", None, "trace a similar snow with this asymmetry (0 <= "
+     "G < the snow's g) and the same sigma_s (1 - g): fewer scatterings, faster, approximate "
+     "near the surface"),
+    ("--snow-g", float, "G", "g",
+     "Henyey-Greenstein asymmetry of the grains (0.80, natural snow; 0.89: spheres)"),
+    ("--snow-absorption-b", float, "B", "absorption_enhancement_b",
+     "absorption enhancement B (1.6, natural snow, Libois et al. 2014; 1.25: spheres)"),
+    ("--snow-ice-absorption", float, "PER_M", "ice_absorption_per_m",
+     "ice's absorption coefficient at 532 nm [1/m] (0.04)"),
+    ("--snow-backscatter", float, "FRACTION", "backscatter_fraction", "a backscattering lobe: "
+     "this fraction of the phase function is HG with g = -0.5 (two-term HG; 0)"),
+    ("--snow-crust-m", float, "M", "crust_m",
+     "a denser surface layer (wind crust) this thick [m] (0: none)"),
+    ("--snow-crust-grain-um", float, "UM", "crust_grain_um",
+     "the crust's optical grain radius [um] (default: the pack's)"),
+    ("--snow-crust-density", float, "KG_M3", "crust_density_kg_m3",
+     "the crust's density [kg/m^3] (default: the pack's)"),
+)
+
+
 def _add_snow_options(s) -> None:
     """Snow as a scattering volume under the surface."""
     v = s.add_argument_group("snow volume (off by default: the surface's BSDF is the snow)")
     v.add_argument("--snow-grain-um", type=float, metavar="UM",
                    help="trace snow as a scattering volume of this optical grain radius [um] "
                    "under the surface (built-in surfaces and --dem)")
-    v.add_argument("--snow-density", type=float, metavar="KG_M3",
-                   help="snow density [kg/m^3] (350)")
-    v.add_argument("--snow-depth-m", type=float, metavar="M",
-                   help="snow layer thickness [m] (inf: semi-infinite)")
-    v.add_argument("--snow-base-albedo", type=float, metavar="A",
-                   help="Lambertian albedo of the base under a finite layer (0)")
-    v.add_argument("--snow-max-events", type=int, metavar="N",
-                   help="scatterings traced per photon; later light is lost (default: enough "
-                   "for 10 m of path in the snow)")
-    v.add_argument("--snow-similarity-g", type=float, metavar="G",
-                   help="trace a similar snow with this asymmetry (0 <= G < the snow's g) and the same "
-                   "sigma_s (1 - g): fewer scatterings, faster, approximate near the surface")
-    v.add_argument("--snow-g", type=float, metavar="G",
-                   help="Henyey-Greenstein asymmetry of the grains (0.80, natural snow; 0.89: "
-                   "spheres)")
-    v.add_argument("--snow-absorption-b", type=float, metavar="B",
-                   help="absorption enhancement B (1.6, natural snow, Libois et al. 2014; "
-                   "1.25: spheres)")
-    v.add_argument("--snow-ice-absorption", type=float, metavar="PER_M",
-                   help="ice's absorption coefficient at 532 nm [1/m] (0.04)")
-    v.add_argument("--snow-backscatter", type=float, metavar="FRACTION",
-                   help="a backscattering lobe: this fraction of the phase function is "
-                   "HG with g = -0.5 (two-term HG; 0)")
-    v.add_argument("--snow-crust-m", type=float, metavar="M",
-                   help="a denser surface layer (wind crust) this thick [m] (0: none)")
-    v.add_argument("--snow-crust-grain-um", type=float, metavar="UM",
-                   help="the crust's optical grain radius [um] (default: the pack's)")
-    v.add_argument("--snow-crust-density", type=float, metavar="KG_M3",
-                   help="the crust's density [kg/m^3] (default: the pack's)")
+    for flag, type_, metavar, _, help_ in SNOW_OPTIONS:
+        v.add_argument(flag, type=type_, metavar=metavar, help=help_)
     v.add_argument("--snow-model", choices=("auto", "walk", "kernel"), default=None,
                    help="kernel: the walk tabulated once per snowpack against incidence angle "
                    "(cached on disk), at the cost of a surface hit; walk: the full random walk "
@@ -254,18 +256,8 @@ def _snow_model(a) -> str:
 def _snow(a):
     """The run's snow volume from the ``--snow-*`` options, or ``None`` (no --snow-grain-um)."""
     from . import snow
-    options = (("--snow-density", "density_kg_m3", a.snow_density),
-               ("--snow-depth-m", "depth_m", a.snow_depth_m),
-               ("--snow-base-albedo", "base_albedo", a.snow_base_albedo),
-               ("--snow-max-events", "max_events", a.snow_max_events),
-               ("--snow-g", "g", a.snow_g),
-               ("--snow-absorption-b", "absorption_enhancement_b", a.snow_absorption_b),
-               ("--snow-ice-absorption", "ice_absorption_per_m", a.snow_ice_absorption),
-               ("--snow-backscatter", "backscatter_fraction", a.snow_backscatter),
-               ("--snow-crust-m", "crust_m", a.snow_crust_m),
-               ("--snow-crust-grain-um", "crust_grain_um", a.snow_crust_grain_um),
-               ("--snow-crust-density", "crust_density_kg_m3", a.snow_crust_density),
-               ("--snow-similarity-g", None, a.snow_similarity_g))
+    options = [(flag, key, getattr(a, flag[2:].replace("-", "_")))
+               for flag, _, _, key, _ in SNOW_OPTIONS]
     given = [(flag, key, value) for flag, key, value in options if value is not None]
     if a.snow_grain_um is None:
         if given:
