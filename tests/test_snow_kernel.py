@@ -16,6 +16,7 @@ import math
 import mitsuba as mi
 import numpy as np
 import pytest
+from scipy import stats
 
 from lidar_mitsuba import snow, snow_kernel
 from lidar_mitsuba.constants import C_M_PER_NS, ParameterError
@@ -155,15 +156,16 @@ CASES = {
 @pytest.mark.slow
 @pytest.mark.parametrize("case", list(CASES))
 def test_kernel_matches_the_walk(case, monkeypatch):
-    """The kernel gives the walk's signal photons per shot and photon heights (the raw mean,
-    which every later step, ATL06 included, is a function of) within their Monte Carlo
-    errors, in the regimes where a tabulation could fail. The table is built with 2^15 walk
+    """The kernel gives the walk's signal photons per shot and photon heights (their mean
+    within the Monte Carlo errors, their distribution by a two-sample KS test: every later
+    step, ATL06 included, is a function of them), in the regimes where a tabulation could
+    fail. The table is built with 2^15 walk
     photons per node here (its error enters the tolerance) to keep the test short."""
     import warnings
     monkeypatch.setattr(snow_kernel, "PHOTONS", 1 << 15)
     surface, opts, shots = CASES[case]
     vol = snow.snow_from_grains(**opts)
-    out = {}
+    out, heights = {}, {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for model in ("walk", "kernel"):
@@ -175,6 +177,7 @@ def test_kernel_matches_the_walk(case, monkeypatch):
             rep = res.report().overall
             sig = np.asarray(res.detections.mean_photons_per_shot, np.float64)
             out[model] = (rep.bias_m, rep.bias_se_m, sig.mean(), sig.std() / math.sqrt(sig.size))
+            heights[model] = np.asarray(res.h_m)[np.asarray(res.detections.is_signal)]
     _, t = snow_kernel.table(vol, progress=False)
     steep_deg = {"flat": 0.0, "slope": surface.slope_deg, "fractal": 90.0}[surface.kind]
     steepest = min(int(np.ceil(steep_deg / kernel_table.THETA_STEP_DEG)),
@@ -186,6 +189,10 @@ def test_kernel_matches_the_walk(case, monkeypatch):
     rel_w = float(np.max(t["weight_se"][:steepest + 1] / t["weight"][:steepest + 1]))
     tol_n = Z * math.sqrt(snw ** 2 + snk ** 2 + (rel_w * nk) ** 2)
     assert abs(nk - nw) < tol_n, (case, nw, nk, tol_n)
+    # and the whole distribution of the signal photons' heights (two-sample Kolmogorov-
+    # Smirnov; ATL06's h_li is a function of these photons)
+    p = stats.ks_2samp(heights["walk"], heights["kernel"]).pvalue
+    assert p > 1e-4, (case, p, heights["walk"].size, heights["kernel"].size)
 
 
 def test_auto_takes_the_kernel_and_refuses_bad_models(monkeypatch):
