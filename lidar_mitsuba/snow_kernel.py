@@ -82,10 +82,11 @@ def _tilted_plane(vol, theta_deg: float):
 
 def build_node(vol, theta_deg: float, *, photons: int, seed: int) -> dict:
     """The walk at one incidence angle: ``weight`` (the mean return weight per incident
-    photon) and its standard error ``weight_se``, ``extra_path_m`` (N_QUANTILES,) the quantiles of the weighted extra path, its
-    weighted ``mean_path_m`` and that mean's standard error ``mean_path_se_m`` (from the
-    weighted returns' effective count), and the returned light's sideways spread from the
-    entry point along the facet (weighted ``lateral_rms_m`` and 99th percentile)."""
+    photon) and its standard error ``weight_se``; ``extra_path_m`` (N_QUANTILES,) the
+    quantiles of the weighted extra path [m], its weighted ``mean_path_m`` and that mean's
+    standard error ``mean_path_se_m`` (from the weighted returns' effective count); and the
+    returned light's sideways spread from the entry point along the facet (weighted
+    ``lateral_rms_m`` and 99th percentile ``lateral_p99_m``) [m]."""
     import mitsuba as mi
     scene, normal = _tilted_plane(vol, theta_deg)
     params = {**vol.integrator_params(), "pulse_sigma_ns": 0.0, "footprint_sigma_m": 0.0,

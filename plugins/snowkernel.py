@@ -1,4 +1,5 @@
-"""Lidar path-length integrator with a tabulated subsurface kernel (``<integrator type="snowkernel">``).
+"""Lidar path-length integrator with a tabulated subsurface kernel
+(``<integrator type="snowkernel">``).
 
 Registered in every JIT variant by ``import lidar_mitsuba_plugins`` (or ``import lidar_mitsuba``),
 after ``pathlength``, on which it builds.
