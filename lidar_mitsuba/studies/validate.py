@@ -360,7 +360,8 @@ def plot(doc: dict, out_dir) -> None:
 
     rows = doc["interior"]["rows"]
     fig, ax = plt.subplots(1, 2, figsize=(12, 4.2))
-    labels = [f"{r['beam']}\n{r['surface']}" for r in rows]
+    labels = [r["beam"] + "\n" + r["surface"].replace(", ", "\n").replace(" (", "\n(")
+              for r in rows]
     x = np.arange(len(rows))
     pub = doc["interior"]["published"]
     ax[0].errorbar(x, [100 * (r["h_li_bias_m"] or np.nan) for r in rows],
@@ -369,7 +370,7 @@ def plot(doc: dict, out_dir) -> None:
     ax[0].axhspan(-100 * pub["bias_m"], 100 * pub["bias_m"], color="k", alpha=0.12,
                   label="published: accurate to 1.5 cm")
     ax[0].axhline(0, color="k", lw=0.8)
-    ax[0].set_xticks(x, labels, fontsize=8)
+    ax[0].set_xticks(x, labels, fontsize=7)
     ax[0].set_ylabel("ATL06 h_li bias [cm]")
     ax[0].legend(fontsize=8)
     ax[1].bar(x - 0.2, [100 * r["h_li_precision_m"] for r in rows], 0.4, color="tab:red",
@@ -377,7 +378,7 @@ def plot(doc: dict, out_dir) -> None:
     ax[1].bar(x + 0.2, [100 * r["h_li_vs_centre_line_sd_m"] for r in rows], 0.4,
               color="tab:orange", label="ours, against the centre line (as a traverse)")
     ax[1].axhline(100 * pub["precision_m"], color="k", ls="--", label="published: 9.1 cm")
-    ax[1].set_xticks(x, labels, fontsize=8)
+    ax[1].set_xticks(x, labels, fontsize=7)
     ax[1].set_ylabel("ATL06 h_li precision [cm]")
     ax[1].legend(fontsize=8)
     fig.suptitle(f"ATLAS over interior snow ({rows[0]['shots']} shots per run, sun "
