@@ -10,11 +10,14 @@ from . import bounce_pilot, path_budget, scene as scn, snow_kernel
 
 def choices_and_warnings(*, instrument, surf, max_depth, pilot, paths_per_shot, crop, triangles,
              det, volume=False, snow=None, shots=0, timings=None, budget=None,
-             kernel=None, facet_m=None) -> tuple[list[str], list[str]]:
+             kernel=None, facet_m=None, media=None) -> tuple[list[str], list[str]]:
     """The modelling choices of a run in words (``lidar-mitsuba simulate --explain``), and
-    the ones that deserve a warning."""
+    the ones that deserve a warning. ``media``: a scene's materials in words
+    (:meth:`lidar_mitsuba.materials.SceneMaterials.describe`) when they chose the model."""
     out, warns = [], []
-    if volume:
+    if media:
+        out += media
+    elif volume:
         out.append(snow.describe() if snow is not None else
                    f"snow volume on (the scene's <medium>), up to {max_depth} interactions "
                    f"per photon")

@@ -173,15 +173,47 @@ def run_out_warning(run_out: int, shots: int) -> str | None:
     return None
 
 
-def scout(integrator, scene, x_m, y_m, instrument, *, returns_per_path: int) -> dict:
+def path_moments(shot: np.ndarray, weight: np.ndarray, *, n_shots: int,
+                 paths_per_shot: int) -> dict:
+    """:func:`shot_moments` exactly, from a scout traced one path per "shot" (``n_shots *
+    paths_per_shot`` of them, each real shot's paths side by side): each path's weight ``W``
+    is the sum of its returns, so ``m2`` is the mean of ``W**2`` itself; every return of a
+    path can be picked, so ``m1 = m`` (a path of several strong returns, a lake's surface and
+    bottom, is not held to its first)."""
+    w_path = np.bincount(np.asarray(shot, np.int64), weights=np.asarray(weight, np.float64),
+                         minlength=n_shots * paths_per_shot).reshape(n_shots, paths_per_shot)
+    m = w_path.mean(axis=1)
+    return {"m": m, "m1": m, "m2": (w_path ** 2).mean(axis=1),
+            "w_max": float(np.max(weight, initial=0.0))}
+
+
+def scout(integrator, scene, x_m, y_m, instrument, *, returns_per_path: int,
+          per_path: bool = False, gate_z_m: np.ndarray | None = None) -> dict:
     """``paths_per_shot="auto"``: trace the run's own model (``integrator`` on ``scene``, an
     :class:`~lidar_mitsuba.instrument.Instrument`) on up to :data:`SCOUT_SHOTS` of the shots
     at ``x_m``, ``y_m`` [m] spread along the track (fixed random numbers) and choose the paths
-    per shot from its weights (:func:`choose`)."""
+    per shot from its weights (:func:`choose`). ``per_path``: trace each path as a shot of its
+    own and take the exact moments (:func:`path_moments`; for paths with several strong
+    returns, where :func:`shot_moments`'s bound is loose). ``gate_z_m``: (n_shots,) range
+    gate centres [m] (with ``per_path``): returns outside the instrument's gate are left out,
+    as the run's detector leaves them (:class:`~lidar_mitsuba.chunks.GatedSource`)."""
     idx = spread_shots(x_m.size, SCOUT_SHOTS)
-    ret = integrator.trace(scene, shot_x_m=x_m[idx], shot_y_m=y_m[idx],
-                           paths_per_shot=SCOUT_PATHS, seed=SCOUT_SEED)
-    moments = shot_moments(ret.shot, ret.weight, ret.depth, n_shots=idx.size,
-                           paths_per_shot=SCOUT_PATHS, max_depth=returns_per_path)
+    if per_path:
+        ret = integrator.trace(scene, shot_x_m=np.repeat(x_m[idx], SCOUT_PATHS),
+                               shot_y_m=np.repeat(y_m[idx], SCOUT_PATHS), paths_per_shot=1,
+                               seed=SCOUT_SEED)
+        if gate_z_m is not None:
+            from .chunks import gate_center_ns, in_gate
+            centre = np.repeat(gate_center_ns(instrument, np.asarray(gate_z_m)[idx]),
+                               SCOUT_PATHS)
+            ret = ret.select(np.flatnonzero(in_gate(ret.shot, ret.time_ns, centre,
+                                                    instrument.range_gate_ns / 2)))
+        moments = path_moments(ret.shot, ret.weight, n_shots=idx.size,
+                               paths_per_shot=SCOUT_PATHS)
+    else:
+        ret = integrator.trace(scene, shot_x_m=x_m[idx], shot_y_m=y_m[idx],
+                               paths_per_shot=SCOUT_PATHS, seed=SCOUT_SEED)
+        moments = shot_moments(ret.shot, ret.weight, ret.depth, n_shots=idx.size,
+                               paths_per_shot=SCOUT_PATHS, max_depth=returns_per_path)
     return choose(moments=moments, kept_per_weight=(
         instrument.signal_photons * instrument.fill_factor * instrument.pde))

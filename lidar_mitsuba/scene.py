@@ -113,12 +113,15 @@ def _one_line(message: str, where: str) -> str:
     return first
 
 
-def cast_down(scene: mi.Scene, x_m, y_m) -> tuple[np.ndarray, np.ndarray]:
+def cast_down(scene: mi.Scene, x_m, y_m, *,
+              through_null: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Cast vertical rays down from above the scene at each (x, y) [m].
 
     Returns ``(z_m, normal_z)``, float64 arrays of the inputs' broadcast shape: the height of
     the first surface hit and the z component of its geometric normal (NaN where the ray
     misses; a negative ``normal_z`` means the surface faces down, away from the lidar).
+    ``through_null``: go on through ``null`` surfaces (the boundaries of layers in the air)
+    to the first surface that reflects.
     """
     x = np.asarray(x_m, np.float32)
     y = np.asarray(y_m, np.float32)
@@ -127,6 +130,12 @@ def cast_down(scene: mi.Scene, x_m, y_m) -> tuple[np.ndarray, np.ndarray]:
     top = float(scene_bounds(scene)[1][2]) + 1.0
     ray = mi.Ray3f(mi.Point3f(mi.Float(x), mi.Float(y), top), mi.Vector3f(0, 0, -1))
     si = scene.ray_intersect(ray)
+    for _ in range(16 if through_null else 0):
+        null = si.is_valid() & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Null)
+        if not null.numpy().any():
+            break
+        ray = mi.Ray3f(dr.select(null, si.p, ray.o) + mi.Vector3f(0, 0, -1e-3), ray.d)
+        si = dr.select(null, scene.ray_intersect(ray, null), si)
     z = dr.select(si.is_valid(), si.p.z, dr.nan)
     nz = dr.select(si.is_valid(), si.n.z, dr.nan)
     return (z.numpy().astype(np.float64).reshape(shape),
@@ -170,17 +179,19 @@ def sunlit_albedo(scene: mi.Scene, x_m, y_m, *, solar_elevation_deg: float,
     return float(dr.sum(w)[0]) / int(hits[0])
 
 
-def cast_heights_m(scene: mi.Scene, x_m, y_m) -> np.ndarray:
-    """Height [m] of the first surface below each (x, y) (NaN where a vertical ray misses).
+def cast_heights_m(scene: mi.Scene, x_m, y_m, *, through_null: bool = False) -> np.ndarray:
+    """Height [m] of the first surface below each (x, y) (NaN where a vertical ray misses;
+    ``through_null``: as :func:`cast_down`).
 
     ``x_m``, ``y_m``: arrays of the same shape [m]; returns float64 of that shape.
     """
-    return cast_down(scene, x_m, y_m)[0]
+    return cast_down(scene, x_m, y_m, through_null=through_null)[0]
 
 
 def raycast_reference_elevation_m(scene: mi.Scene, x_m, y_m, *, sigma_m: float,
                                   step_sigma: float = 0.25, radius_sigma: float = 5.0,
-                                  max_rays: int = 2 ** 22) -> np.ndarray:
+                                  max_rays: int = 2 ** 22,
+                                  through_null: bool = False) -> np.ndarray:
     """Gaussian-footprint-weighted mean height around each (x, y) for any scene.
 
     Deterministic midpoint quadrature: vertical rays on a square grid of spacing
@@ -191,7 +202,7 @@ def raycast_reference_elevation_m(scene: mi.Scene, x_m, y_m, *, sigma_m: float,
     """
     x_m, y_m = np.broadcast_arrays(np.asarray(x_m, float), np.asarray(y_m, float))
     if sigma_m <= 0:
-        return cast_heights_m(scene, x_m, y_m)
+        return cast_heights_m(scene, x_m, y_m, through_null=through_null)
     k = int(math.ceil(radius_sigma / step_sigma))
     g = np.arange(-k, k + 1) * step_sigma
     gx, gy = np.meshgrid(g, g)
@@ -202,7 +213,8 @@ def raycast_reference_elevation_m(scene: mi.Scene, x_m, y_m, *, sigma_m: float,
     out = np.empty(xs.size)
     per = max(1, max_rays // ox.size)
     for s in range(0, xs.size, per):
-        z = cast_heights_m(scene, xs[s:s + per, None] + ox, ys[s:s + per, None] + oy)
+        z = cast_heights_m(scene, xs[s:s + per, None] + ox, ys[s:s + per, None] + oy,
+                           through_null=through_null)
         ok = np.isfinite(z)
         out[s:s + per] = (np.where(ok, z, 0.0) * w).sum(1) / np.maximum((ok * w).sum(1), 1e-300)
         out[s:s + per][~ok.any(1)] = np.nan

@@ -14,8 +14,8 @@ detect chunk by chunk (:mod:`.chunks`), and finally place and classify the photo
 """
 from __future__ import annotations
 
+import dataclasses
 import inspect
-import math
 import pathlib
 import time
 import warnings
@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 import mitsuba as mi
 import numpy as np
 
-from . import (bounce_pilot, chunks, classify, explain, path_budget, radiometry,
+from . import (bounce_pilot, chunks, classify, explain, materials, path_budget, radiometry,
                retrieval, scene as scn, snow_kernel, surface as surfaces, warmup)
-from .constants import FWHM_PER_SIGMA, ParameterError, SimulationWarning
+from .constants import ParameterError, SimulationWarning
 from .instrument import Instrument
 from .photons import Detections, Returns
 from .snow import SnowVolume, medium_events_cap
@@ -147,43 +147,6 @@ def estimate_memory_bytes(instrument: Instrument, shots: int) -> float:
     photons = ((1.5 * instrument.signal_photons + bg) * instrument.fill_factor * instrument.pde
                + dark * instrument.channels)
     return shots * (BYTES_PER_SHOT + BYTES_PER_PHOTON * photons)
-
-
-# pathlength parameters a scene's <integrator> may set -> (Instrument field, factor to it)
-_XML_GEOMETRY = {"altitude_m": ("altitude_m", 1.0),
-                 "footprint_sigma_m": ("footprint_diameter_m", 4.0),
-                 "pulse_sigma_ns": ("pulse_fwhm_ns", FWHM_PER_SIGMA),
-                 "fov_radius_m": ("fov_diameter_m", 2.0)}
-
-
-def _scene_settings(scene: mi.Scene, instrument: Instrument, max_depth):
-    """Honour a ``<integrator type="pathlength">`` in the scene: the parameters it sets become
-    the run's unless the instrument or ``max_depth`` set another value (refused: one place).
-    Returns ``(instrument, max_depth, max_lanes, honoured)``."""
-    explicit = getattr(scene.integrator(), "explicit", None)
-    if not explicit:                 # no integrator, another one (for mi.render), or defaults
-        return instrument, max_depth, None, {}
-    nominal = Instrument(beam=instrument.beam)
-    changes = {}
-    for key, (name, factor) in _XML_GEOMETRY.items():
-        if key not in explicit:
-            continue
-        value, given = explicit[key] * factor, getattr(instrument, name)
-        if given != getattr(nominal, name) and not math.isclose(given, value, rel_tol=1e-9):
-            raise ParameterError(name, f"the scene's <integrator type=\"pathlength\"> sets "
-                                 f"{key} = {explicit[key]:g}, i.e. {name} = {value:g}, and "
-                                 f"{given:g} was given too: set it in one place")
-        changes[name] = value
-    if "max_depth" in explicit:
-        if max_depth == "auto":
-            max_depth = int(explicit["max_depth"])
-        elif max_depth != explicit["max_depth"]:
-            raise ParameterError("max_depth", f"the scene's <integrator type=\"pathlength\"> "
-                                 f"sets max_depth = {explicit['max_depth']} and {max_depth} "
-                                 f"was given too: set it in one place")
-    if changes:
-        instrument = instrument.replace(**changes)
-    return instrument, max_depth, explicit.get("max_lanes"), dict(explicit)
 
 
 def _resolve_surface(*, surface, scene, scene_file, params, bsdf):
@@ -312,6 +275,7 @@ class _Run:
     chunk_shots: int
     volume: bool
     snow_model: str = "walk"
+    materials: materials.SceneMaterials | None = None
     max_lanes: int | None = None
     honoured: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
@@ -385,18 +349,32 @@ def _resolve(*, instrument, surface, scene, scene_file, params, bsdf, shots, see
         run.max_depth = snow.events_cap
         run.snow_model = "walk" if snow_model == "walk" else "kernel"
     if isinstance(surf, SceneSurface):
-        try:
-            medium = scn.scene_medium(surf.scene)
-        except ValueError as e:
-            raise ParameterError("scene", str(e)) from None
-        run.volume = medium is not None
-        run.instrument, run.max_depth, run.max_lanes, run.honoured = _scene_settings(
-            surf.scene, run.instrument, run.max_depth)
-        if run.volume and run.max_depth == "auto":
-            run.max_depth = medium_events_cap(medium)
+        _scene_materials(run)
     check_memory("shots", estimate_memory_bytes(run.instrument, shots),
                  f"a run of {shots} shots", "split the track into several runs")
     return run
+
+
+def _scene_materials(run: _Run) -> None:
+    """A scene's materials choose its model (:mod:`.materials`): snow under a surface is
+    walked (``volpathlength``); water and layers in the air take ``mediapathlength`` with the
+    vertices they need; the scene's ``<integrator>`` settings are honoured."""
+    surf = run.surf
+    try:
+        run.materials = mats = materials.inspect(surf.scene)
+        medium = scn.scene_medium(surf.scene) if mats.snow is not None else None
+    except ValueError as e:
+        raise ParameterError("scene", str(e)) from None
+    run.volume = medium is not None
+    run.instrument, run.max_depth, run.max_lanes, run.honoured = materials.scene_settings(
+        surf.scene, run.instrument, run.max_depth)
+    if run.volume and run.max_depth == "auto":
+        run.max_depth = medium_events_cap(medium)
+    if mats.needs_media_tracer:
+        if run.max_depth == "auto":
+            run.max_depth = mats.min_depth(run.instrument.fov_diameter_m / 2)
+        if mats.air_layers:      # heights and references: the ground under the layers
+            run.surf = dataclasses.replace(surf, through_null=True)
 
 
 def _lay_out(run: _Run, track, *, crop_to_track: bool) -> None:
@@ -433,6 +411,11 @@ def _lay_out(run: _Run, track, *, crop_to_track: bool) -> None:
     if top + 1.0 >= inst.altitude_m:
         raise ParameterError("altitude_m", f"the spacecraft ({inst.altitude_m:g} m) must "
                              f"be above the scene, which reaches z = {top:g} m")
+    if run.materials is not None:
+        try:
+            materials.refuse_mirrors(run.materials, run.scene, run.x_loc, run.y_loc, inst)
+        except ValueError as e:
+            raise ParameterError("scene", str(e)) from None
     run.surface_z = surf.height_m(run.x, run.y)
     run.z_ref = surf.reference_elevation_m(run.x, run.y, sigma_m=inst.footprint_sigma_m)
     run.gate_z = chunks.gate_heights_m(run.z_ref)
@@ -464,6 +447,9 @@ def _choose_model(run: _Run, *, progress: bool = False) -> None:
         d = inst.integrator_dict(max_depth=1, **lanes)
         d.update(type="snowkernel", filename=str(path))
         run.timings["kernel_table_s"] = time.perf_counter() - t1
+    elif run.materials is not None and run.materials.needs_media_tracer:
+        d.update(type="mediapathlength", max_depth=int(run.max_depth),
+                 **{k: v for k, v in run.honoured.items() if k == "group_index"})
     elif run.volume:             # one record per photon, whatever its interactions
         d.update(run.snow.integrator_params() if run.snow is not None else
                  {"type": "volpathlength", **{k: v for k, v in run.honoured.items()
@@ -474,7 +460,9 @@ def _choose_model(run: _Run, *, progress: bool = False) -> None:
     if ppp == "auto":
         t1 = time.perf_counter()
         run.budget = path_budget.scout(run.integrator, run.scene, run.x_loc, run.y_loc, inst,
-                            returns_per_path=1 if run.volume else int(run.max_depth))
+                            returns_per_path=1 if run.volume else int(run.max_depth),
+                            per_path=d["type"] == "mediapathlength",
+                            gate_z_m=run.gate_z if d["type"] == "mediapathlength" else None)
         run.paths_per_shot = run.budget["paths_per_shot"]
         run.timings["scout_s"] = time.perf_counter() - t1
 
@@ -511,6 +499,10 @@ def _trace_and_detect(run: _Run, *, keep_returns: bool | None,
         source = chunks.traced(run.integrator, run.scene, x_m=run.x_loc, y_m=run.y_loc,
                                paths_per_shot=ppp, dx_m=run.x - run.x_loc,
                                dy_m=run.y - run.y_loc, dz_m=run.dz)
+    if run.materials is not None and run.materials.air_layers:
+        source = chunks.GatedSource(source, gate_ns=run.instrument.range_gate_ns,
+                                    gate_center_ns=chunks.gate_center_ns(run.instrument,
+                                                                         run.z_ref))
     if progress:       # a first run on this machine compiles the detector: say so
         warmup.compile_kernels()
     chunked = chunks.run(
@@ -547,7 +539,10 @@ def _result(run: _Run, chunked: chunks.ChunkedRun) -> SimulationResult:
         instrument=inst, surf=run.surf, max_depth=run.max_depth, pilot=run.pilot,
         paths_per_shot=run.paths_per_shot, budget=run.budget, crop=run.crop,
         triangles=run.triangles, det=det, volume=run.volume, snow=run.snow, shots=run.shots,
-        timings=run.timings, kernel=run.kernel, facet_m=facet_m)
+        timings=run.timings, kernel=run.kernel, facet_m=facet_m,
+        media=(run.materials.describe(max_depth=run.max_depth,
+                                      fov_radius_m=inst.fov_diameter_m / 2)
+               if run.materials is not None and run.materials.needs_media_tracer else None))
     warns += explain.diagnose(surf=run.surf, scene_of=lambda: _scene_of(run), x_m=run.x_loc,
                        y_m=run.y_loc, surface_z=run.surface_z[:run.x_loc.size],
                        n_returns=chunked.n_returns, det=det, instrument=inst)

@@ -286,6 +286,8 @@ class SceneSurface(Surface):
     """
     scene: mi.Scene
     source: str = "mi.Scene"
+    #: heights through ``null`` surfaces (a scene with layers in the air: the ground's)
+    through_null: bool = False
 
     takes_bsdf = False
 
@@ -305,10 +307,11 @@ class SceneSurface(Surface):
         return x_m, y_m, np.zeros(np.broadcast(x_m, y_m).shape)
 
     def height_m(self, x_m, y_m):
-        return scn.cast_heights_m(self.scene, x_m, y_m)
+        return scn.cast_heights_m(self.scene, x_m, y_m, through_null=self.through_null)
 
     def reference_elevation_m(self, x_m, y_m, *, sigma_m):
-        return scn.raycast_reference_elevation_m(self.scene, x_m, y_m, sigma_m=sigma_m)
+        return scn.raycast_reference_elevation_m(self.scene, x_m, y_m, sigma_m=sigma_m,
+                                                 through_null=self.through_null)
 
     def mitsuba_scene(self, *, bsdf, margin_m, bounds_m):
         return self.scene, -1

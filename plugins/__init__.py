@@ -5,6 +5,8 @@ them, never the other way round.
 
 - ``ward.py``: ``<bsdf type="ward">``, the Ward BRDF (three normalisations, importance
   sampled, textures as albedo).
+- ``water.py``: ``<bsdf type="water">``, a wind-roughened water surface (Beckmann dielectric,
+  Cox-Munk slopes from the wind speed, Quan-Fry refractive and group indices).
 - ``pathlength.py``: ``<integrator type="pathlength">``, the lidar path-length integrator:
   per photon return, its shot, exact round-trip time and radiometric weight.
 - ``volpathlength.py``: ``<integrator type="volpathlength">``, the same with a participating
@@ -12,12 +14,16 @@ them, never the other way round.
 - ``snowkernel.py``: ``<integrator type="snowkernel">``, the same snow as a tabulated kernel
   (the walk's return weight and delay against incidence angle, ``kernel_table.py``): the
   cost of a surface hit; it subclasses ``pathlength``.
+- ``mediapathlength.py``: ``<integrator type="mediapathlength">``, the same through water
+  (transmissive BSDFs, the group index delaying the light inside) and through participating
+  media in the air (fog, cloud), with next-event returns by transmittance; it subclasses
+  ``pathlength``.
 
 Use from plain Mitsuba::
 
     import mitsuba as mi
     mi.set_variant("llvm_ad_mono")
-    import lidar_mitsuba_plugins          # registers ward, pathlength, volpathlength
+    import lidar_mitsuba_plugins          # registers ward, water and the integrators
     scene = mi.load_file("scene.xml")      # <bsdf type="ward"/>, <integrator type="pathlength"/>
     image = mi.render(scene)               # a lidar-intensity image
     returns = scene.integrator().trace(scene, shot_x_m=..., shot_y_m=...)
@@ -43,9 +49,9 @@ import types
 
 import mitsuba as mi
 
-PLUGIN_FILES = ("ward", "pathlength", "volpathlength", "snowkernel")
-"""The plugin files, in load order (``volpathlength`` and ``snowkernel`` build on
-``pathlength``)."""
+PLUGIN_FILES = ("ward", "water", "pathlength", "volpathlength", "snowkernel", "mediapathlength")
+"""The plugin files, in load order (``volpathlength``, ``snowkernel`` and
+``mediapathlength`` build on ``pathlength``)."""
 
 _registered: set[str] = set()
 

@@ -75,3 +75,36 @@ def _vertex_bounds(shape) -> tuple[np.ndarray, np.ndarray]:
     if not bool(finite[0]):
         return np.full(3, np.nan), np.full(3, np.nan)
     return np.array([float(c[0]) for c in lo]), np.array([float(c[0]) for c in hi])
+
+
+def bsdf_group_index(bsdf, default: float | None = None) -> float:
+    """Group index of the interior of a transmissive BSDF (the region a refraction against
+    its normal enters): the ``water`` BSDF's own, else ``default`` when given, else the phase
+    index ``int_ior / ext_ior`` of a ``dielectric`` or ``roughdielectric`` (its ``eta``);
+    1 for a BSDF that transmits nothing."""
+    import sys
+    water = sys.modules.get(f"lidar_mitsuba_plugins._{mi.variant()}_water")
+    if water is not None and isinstance(bsdf, water.WaterBSDF):
+        return float(bsdf.group_index)
+    params = mi.traverse(bsdf)
+    if "eta" not in params:
+        return 1.0
+    if default is not None:
+        return float(default)
+    return float(np.asarray(params["eta"]).ravel()[0])
+
+
+def group_index_table(scene: mi.Scene, default: float | None = None) -> np.ndarray:
+    """(n,) float32 group index per BSDF registry id (``dr.reinterpret_array(UInt32, bsdf)``)
+    of the scene's shapes (:func:`bsdf_group_index`); 1 for ids the scene does not use."""
+    found = {}
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        if bsdf is None:
+            continue
+        bid = int(dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(bsdf))[0])
+        found[bid] = bsdf_group_index(bsdf, default)
+    table = np.ones(max(found, default=0) + 1, np.float32)
+    for bid, n_g in found.items():
+        table[bid] = n_g
+    return table

@@ -108,6 +108,13 @@ def test_bench_quick(bench_run):
     assert [r["max_events"] for r in sn["events"]] == [100, 1000, 10000, 30000]
     assert [r["similarity_g"] for r in sn["similarity"]] == [0.0, 0.5]
     assert "snow volume, 200 um" in doc["accuracy_vs_time"]
+    # water and air: the pond's bottom within a few cm of n_g x depth with the default depth,
+    # and one vertex in fog (attenuation only) further from the reference than eight
+    pond = {r["value"]: r for r in doc["media"]["melt pond 2 m"]["rows"]}
+    assert pond[8]["error_m"] < 0.05
+    fog = {r["value"]: r for r in doc["media"]["fog, optical depth 0.5"]["rows"]}
+    assert fog[1]["error_m"] > fog[8]["error_m"]
+    assert "melt pond 2 m: fastest" in printed
     # snow optics (quick: two rows, small tables; the README's table is the full run)
     so = doc["snow_optics"]["rows"]
     assert [r["name"] for r in so] == ["default (natural snow)", "spheres (g 0.89, B 1.25)"]

@@ -113,3 +113,21 @@ def test_validate_interior_runs_are_in_nasas_expected_range(validated):
             assert abs(r["h_li_bias_m"]) < 5 * r["h_li_bias_se_m"] + 0.005
     verdict = {v["quantity"]: v["verdict"] for v in doc["verdicts"]}
     assert verdict["interior, flat, snow volume, strong: ATL06 h_li bias"] == "disagrees"
+
+
+def test_validate_water_air_and_sea_ice_rows(validated):
+    """Issue 32's rows: the pond's apparent depth is n_g x depth and its bottom as bright as
+    T^2 rho e^(-2cd) / (n^2 0.9); Parrish et al.'s phase-index correction is said to leave
+    depths too deep; the cloud and sea-ice rows and their figures are there."""
+    doc, out = validated
+    v = {r["quantity"]: r for r in doc["verdicts"]}
+    assert v["lake: apparent depth / true depth (nadir, 1-4 m)"]["verdict"] == "agrees"
+    assert v["lake: bottom brightness against T^2 rho e^(-2cd) / (n^2 0.9)"]["verdict"] == \
+        "agrees"
+    parrish = v["lake: Parrish et al. 2019 correction on our ATL03 / true depth"]
+    assert parrish["verdict"] == "disagrees" and 1.005 < float(parrish["ours"]) < 1.02
+    assert "cloud (1-1.5 km, optical depth 1): mean surface vs clear sky" in v
+    assert sum(q.startswith("sea ice, floe twin") for q in v) == 2
+    assert any(q.startswith("night: blowing snow") for q in v)
+    for png in ("lake.png", "cloud.png", "sea_ice.png"):
+        assert (out / png).stat().st_size > 10_000

@@ -228,8 +228,16 @@ GAP = ''.join(f'<shape type="rectangle"><transform name="to_world"><scale x="100
               f'<translate y="{y}"/></transform><bsdf type="ward"/></shape>' for y in (-40, 40))
 
 
+def test_a_smooth_conductor_under_the_track_is_refused_naming_water(tmp_path):
+    """A perfect mirror's glint is not traced (lidar_mitsuba.materials): refused, one line."""
+    p = tmp_path / "m.xml"
+    p.write_text(f'<scene version="3.0.0">{CONDUCTOR}</scene>')
+    with pytest.raises(ParameterError, match="perfect mirror.*water"):
+        run(scene=p, shots=100)
+
+
 @pytest.mark.parametrize("body,cause", [
-    (FACE_DOWN, "face down"), (CONDUCTOR, "mirror direction"), (GAP, "misses the geometry")])
+    (FACE_DOWN, "face down"), (GAP, "misses the geometry")])
 def test_no_photons_come_with_their_likely_cause(tmp_path, body, cause):
     p = tmp_path / "z.xml"
     p.write_text(f'<scene version="3.0.0">{body}</scene>')

@@ -398,8 +398,10 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False,
         doc["track_length"] = track_length.run(out=out, quick=quick)
         doc["snow"] = snow_bias.run(quick=quick)
         doc["accuracy_vs_time"]["snow volume, 200 um"] = snow_bias.pareto_rows(doc["snow"])
-        from . import snow_optics
+        from . import media_accuracy, snow_optics
         doc["snow_optics"] = snow_optics.run(quick=quick)
+        doc["media"] = media_accuracy.run(quick=quick)
+        doc["accuracy_vs_time"].update(doc["media"])
     charts = {"throughput.png": lambda p: _chart(doc, p)}
     if not throughput_only:
         charts.update({
@@ -482,6 +484,9 @@ def format_summary(doc: dict) -> str:
         from . import snow_optics
         lines.append("snow optics: ATLAS h_li bias over interior snow (polar night)")
         lines += snow_optics.format_table(doc["snow_optics"])
+    if "media" in doc:
+        from . import media_accuracy
+        lines += media_accuracy.format_summary(doc["media"])
     for name, rows in doc.get("stability", {}).items():
         bad = [f"{r['value']:g}: {r['status']}" for r in rows
                if not str(r.get("status", "ok")).startswith("ok")]

@@ -29,6 +29,7 @@ import time
 import numpy as np
 
 from .. import atl06, granule, snow, twin
+from . import validate_media
 from ..geotrack import Site
 from ..instrument import Instrument
 from ..simulate import simulate
@@ -279,6 +280,8 @@ def verdicts(doc: dict) -> list[dict]:
             "would survey it; the published precision also holds the GNSS survey's errors, "
             "geolocation (3.5 m) on slopes and changes between survey and overpass",
             when_ok="consistent")
+    if "media" in doc:
+        validate_media.verdict_rows(doc["media"], row)
     return rows
 
 
@@ -290,6 +293,7 @@ def run(out_dir, *, quick: bool = False) -> dict:
     t0 = time.perf_counter()
     doc = {"quick": bool(quick), "twin": real_twin(out),
            "interior": interior(shots=4000 if quick else 40000)}
+    doc["media"] = validate_media.run(out, quick=quick, twin_doc=doc["twin"])
     doc["verdicts"] = verdicts(doc)
     doc["seconds"] = time.perf_counter() - t0
     plot(doc, out)
@@ -306,12 +310,14 @@ def _json_safe(obj):
         return [_json_safe(v) for v in obj]
     if isinstance(obj, np.generic):
         return obj.item()
+    if isinstance(obj, np.ndarray):
+        return _json_safe(obj.tolist())
     if isinstance(obj, float) and not np.isfinite(obj):
         return None
     return obj
 
 
-PNG = ("twin.png", "interior.png")
+PNG = ("twin.png", "interior.png", "lake.png", "cloud.png", "sea_ice.png")
 
 
 def plot(doc: dict, out_dir) -> None:
@@ -403,7 +409,11 @@ def report_md(doc: dict) -> str:
              f"2. **Interior snow**: ATLAS over the East Antarctic plateau "
              f"({doc['interior']['site']['lat_deg']} deg, {doc['interior']['site']['lon_deg']} "
              f"deg, {doc['interior']['site']['height_m']:g} m, "
-             f"{doc['interior']['site']['epoch_utc']}), ATL06 segments.", "",
+             f"{doc['interior']['site']['epoch_utc']}), ATL06 segments.",
+             "3. **Water and air** (`studies/validate_media.py`): a melt pond's depth and "
+             "brightness, a cloud's lowering of the surface (Yang et al. 2011), the real "
+             "sea ice's height tails against a floe of snow over rough ice, and the night "
+             "background a blowing-snow layer would add.", "",
              "| quantity | ours | real / published | verdict | note |", "|---|---|---|---|---|"]
     for r in doc["verdicts"]:
         lines.append(f"| {r['quantity']} | {r['ours']} | {r['real_or_published']} | "
@@ -412,7 +422,9 @@ def report_md(doc: dict) -> str:
          for v in ("agrees", "consistent", "disagrees")}
     lines += ["", f"{n['agrees']} agree, {n['consistent']} are consistent (ours a lower bound), "
               f"{n['disagrees']} disagree, of {len(doc['verdicts'])}.", "",
-              "![twin](twin.png)", "", "![interior](interior.png)", ""]
+              "![twin](twin.png)", "", "![interior](interior.png)", "",
+              "![lake](lake.png)", "", "![cloud](cloud.png)", "", "![sea ice](sea_ice.png)",
+              ""]
     return "\n".join(lines)
 
 
