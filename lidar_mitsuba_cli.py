@@ -1,7 +1,8 @@
 """Launcher of the ``lidar-mitsuba`` command.
 
-It lives outside the ``lidar_mitsuba`` package so that an environment problem found while the
-package is imported (no usable libLLVM) is reported as one line instead of a traceback.
+It lives outside the ``lidar_mitsuba`` package so that an environment problem (no usable
+libLLVM, found when a command first needs the renderer) is reported as one line instead of a
+traceback.
 """
 import sys
 
@@ -12,8 +13,12 @@ def main(argv=None) -> int:
     except ImportError as e:
         sys.stderr.write(f"lidar-mitsuba: error: {e}\n")
         return 1
+    from lidar_mitsuba.trace.variant import RendererUnavailable
     try:
         return cli_main(argv)
+    except RendererUnavailable as e:     # no usable libLLVM or variant, found on first use
+        sys.stderr.write(f"lidar-mitsuba: error: {e}\n")
+        return 1
     except BrokenPipeError:          # e.g. `lidar-mitsuba stats f.h5 | head`
         import os
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

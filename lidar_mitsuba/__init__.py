@@ -1,22 +1,84 @@
-"""lidar_mitsuba: first-principles simulation of spaceborne photon-counting lidar.
+"""lidar_mitsuba: first-principles simulation of spaceborne photon-counting lidar
+(ICESat-2 / ATLAS-like) on Mitsuba 3 and Dr.Jit.
 
-``import lidar_mitsuba`` finds a usable libLLVM for Dr.Jit (or stops with a message saying what
-to install), selects the Mitsuba variant named by the environment variable
-``LIDAR_MITSUBA_VARIANT`` (default ``llvm_ad_mono``) unless one is already active, and
-registers the plugins ``ward`` (BSDF), ``pathlength`` and ``volpathlength`` (integrators) in
-every variant. With ``LIDAR_MITSUBA_VARIANT=cuda_ad_mono`` a machine needs no libLLVM.
+The front door: everything a run needs, under one name.
+
+>>> import lidar_mitsuba as lm
+>>> res = lm.simulate(instrument=lm.Instrument.atlas("weak"),
+...                   surface=lm.SurfaceSpec(kind="fractal", p=1.8), shots=1000, seed=1)
+...                                                                   # doctest: +SKIP
+>>> res.report().overall                                              # doctest: +SKIP
+
+The package folders follow the data flow: ``ground/`` (terrain, DEMs, surfaces, snow, water),
+``trace/`` (the renderer: variant, scenes, materials, the chunk stream), ``detector/`` (PMT,
+dead time, records), ``products/`` (ATL03, ATL06, ATL07, classification, retrieval,
+first-photon-bias correction), ``planning.py`` (a run's plan: ``lm.plan``), ``run.py`` (one
+beam's run: ``lm.simulate`` = ``lm.plan`` + ``lm.stream`` + ``lm.assemble``), ``granule.py``
+(six beams over a DEM), ``cli/``, ``studies/`` and ``sweep/``.
+
+Importing the package loads neither Mitsuba nor Dr.Jit: the names below are looked up when
+first used, and the renderer (a usable libLLVM, the variant ``LIDAR_MITSUBA_VARIANT``,
+default ``llvm_ad_mono``, and the plugins) is set up the first time something traces
+(:func:`ensure_renderer`). Reading our products and the pure stages never need it.
 """
-import os as _os
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.1.0"
 
-from ._llvm import ensure_libllvm as _ensure_libllvm
+#: public name -> (module, attribute); nothing is imported until the name is used
+_EXPORTS = {
+    # a run
+    "simulate": ("lidar_mitsuba.run", "simulate"),
+    "plan": ("lidar_mitsuba.planning", "plan"),
+    "RunPlan": ("lidar_mitsuba.planning", "RunPlan"),
+    "stream": ("lidar_mitsuba.run", "stream"),
+    "assemble": ("lidar_mitsuba.run", "assemble"),
+    "SimulationResult": ("lidar_mitsuba.run", "SimulationResult"),
+    "simulate_granule": ("lidar_mitsuba.granule", "simulate_granule"),
+    "stream_granule": ("lidar_mitsuba.granule", "stream_granule"),
+    "Instrument": ("lidar_mitsuba.instrument", "Instrument"),
+    "Track": ("lidar_mitsuba.track", "Track"),
+    "GeoTrack": ("lidar_mitsuba.geotrack", "GeoTrack"),
+    "Site": ("lidar_mitsuba.geotrack", "Site"),
+    # the ground: surfaces and materials
+    "SurfaceSpec": ("lidar_mitsuba.ground.surface", "SurfaceSpec"),
+    "Plane": ("lidar_mitsuba.ground.surface", "Plane"),
+    "SceneSurface": ("lidar_mitsuba.ground.surface", "SceneSurface"),
+    "Heightfield": ("lidar_mitsuba.ground.terrain", "Heightfield"),
+    "fractal": ("lidar_mitsuba.ground.terrain", "fractal"),
+    "DEM": ("lidar_mitsuba.ground.dem", "DEM"),
+    "DEMSurface": ("lidar_mitsuba.ground.dem", "DEMSurface"),
+    "SnowVolume": ("lidar_mitsuba.ground.snow", "SnowVolume"),
+    "snow_from_grains": ("lidar_mitsuba.ground.snow", "snow_from_grains"),
+    "water_bsdf": ("lidar_mitsuba.ground.water", "water_bsdf"),
+    # the renderer
+    "load_scene": ("lidar_mitsuba.trace.scene", "load_scene"),
+    "inspect_materials": ("lidar_mitsuba.trace.materials", "inspect"),
+    "ensure_renderer": ("lidar_mitsuba.trace.variant", "ensure_renderer"),
+    "set_variant": ("lidar_mitsuba.trace.variant", "set_variant"),
+    "DEFAULT_VARIANT": ("lidar_mitsuba.trace.variant", "DEFAULT_VARIANT"),
+    # products
+    "read_atl03": ("lidar_mitsuba.products.atl03", "read"),
+    "write_atl03": ("lidar_mitsuba.products.atl03", "write"),
+    # errors
+    "ParameterError": ("lidar_mitsuba.constants", "ParameterError"),
+    "SimulationWarning": ("lidar_mitsuba.constants", "SimulationWarning"),
+}
 
-_ensure_libllvm(required=not _os.environ.get("LIDAR_MITSUBA_VARIANT", "").startswith("cuda"))
+__all__ = sorted(_EXPORTS) + ["__version__"]
 
-from . import variant as _variant  # noqa: E402
 
-_variant.init()
+def __getattr__(name: str):
+    try:
+        module, attr = _EXPORTS[name]
+    except KeyError:
+        raise AttributeError(f"module 'lidar_mitsuba' has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(module), attr)
+    globals()[name] = value          # looked up once
+    return value
 
-from .variant import set_variant, DEFAULT_VARIANT  # noqa: E402,F401
 
+def __dir__():
+    return __all__

@@ -14,6 +14,13 @@ from lidar_mitsuba_plugins.constants import (  # noqa: F401 (defined once, with 
 class ParameterError(ValueError):
     """An out-of-range or inconsistent parameter.
 
+    >>> import lidar_mitsuba as lm
+    >>> try:
+    ...     lm.Instrument(pde=2.0)
+    ... except lm.ParameterError as e:
+    ...     print(e.name)
+    pde
+
     ``name`` is the parameter as the Python API spells it (a dataclass field or keyword, e.g.
     ``grid_m``); the CLI turns it into the option (``--grid-m``). ``message`` is the text
     without the name.

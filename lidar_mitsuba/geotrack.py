@@ -358,7 +358,7 @@ class Site:
 @dataclass(frozen=True)
 class ProjectedTrack:
     """Precomputed shot positions in a surface's frame, in the shape
-    :func:`~lidar_mitsuba.simulate.simulate` takes as ``track``.
+    :func:`~lidar_mitsuba.run.simulate` takes as ``track``.
 
     Attributes:
         x_m, y_m: (n_shots,) footprint centres in the simulation frame [m].

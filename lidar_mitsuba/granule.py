@@ -8,12 +8,12 @@ readers use.
 ...                                                      azimuth_deg=0), shots=2000)  # doctest: +SKIP
 >>> granule.write_atl03(g, "ATL03_sim.h5"); granule.write_atl06(g, "ATL06_sim.h5")  # doctest: +SKIP
 
-**ATL03** (``write_atl03``; the writer is :mod:`lidar_mitsuba.atl03_beam` and
-:mod:`lidar_mitsuba.atl03_file`, shared with the single-beam files of
-:func:`lidar_mitsuba.atl03.write`): per beam group ``gtXx`` every dataset of a real granule's
+**ATL03** (``write_atl03``; the writer is :mod:`lidar_mitsuba.products.atl03.beam` and
+:mod:`lidar_mitsuba.products.atl03.file`, shared with the single-beam files of
+:func:`lidar_mitsuba.products.atl03.write`): per beam group ``gtXx`` every dataset of a real granule's
 ``heights/``, ``geolocation/`` (20 m segments from the track's first shot), ``bckgrd_atlas/``
 (every 50 shots), ``geophys_corr/`` and ``signal_find_output/<surface type>/``, with ATL03's
-names, dtypes, shapes, units and fill values (:mod:`lidar_mitsuba.atl03_fields` lists them and
+names, dtypes, shapes, units and fill values (:mod:`lidar_mitsuba.products.atl03.fields` lists them and
 what the simulation writes in each); ``ancillary_data/``, ``atlas_impulse_response/``,
 ``orbit_info/``, ``METADATA/``; the beam attributes ``atlas_beam_type``,
 ``atlas_spot_number``, ``atlas_pce``, ``groundtrack_id``, ``sc_orientation``; and
@@ -23,7 +23,7 @@ what the simulation writes in each); ``ancillary_data/``, ``atlas_impulse_respon
 **ATL06** (``write_atl06``): ``gtXx/land_ice_segments/{h_li, h_li_sigma, latitude,
 longitude, delta_time, segment_id, atl06_quality_summary, sigma_geo_h}`` and the subgroups
 ``fit_statistics``, ``bias_correction``, ``geophysical``, ``ground_track``, ``dem``, from
-:func:`lidar_mitsuba.atl06.segments_from_result` (40 m segments every 20 m).
+:func:`lidar_mitsuba.products.atl06.segments_from_result` (40 m segments every 20 m).
 """
 from __future__ import annotations
 
@@ -34,15 +34,17 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import __version__, atl06, geotrack, h5chunks, snow_kernel, warmup
-from .atl03 import _ds, atomic_h5file
-from .atl03_beam import (BCKGRD_SHOTS, PULSES_PER_MAJOR_FRAME, SEGMENT_M,  # noqa: F401
-                         write_beam as _beam_atl03)
-from .atl03_file import (ancillary as _ancillary, header as _atl03_header,
-                         orbit_info as _orbit_info)
+from . import __version__, geotrack, precompile as warmup
+from .products import atl06, h5write as h5chunks
+from .ground.snow import kernel as snow_kernel
+from .products.atl03 import _ds, atomic_h5file
+from .products.atl03.beam import (BCKGRD_SHOTS, PULSES_PER_MAJOR_FRAME, SEGMENT_M,
+                                  write_beam as _beam_atl03)  # noqa: F401
+from .products.atl03.file import (ancillary as _ancillary, header as _atl03_header,
+                                  orbit_info as _orbit_info)
 from .constants import ParameterError, check
-from .dem import DEMSurface
-from .snow import SnowVolume
+from .ground.dem import DEMSurface
+from .ground.snow import SnowVolume
 from .geotrack import Beam, GeoTrack
 from .instrument import INSTRUMENT_PRESETS, Instrument
 
@@ -53,7 +55,7 @@ class BeamRun:
 
     Attributes:
         beam: the :class:`~lidar_mitsuba.geotrack.Beam`.
-        result: its :class:`~lidar_mitsuba.simulate.SimulationResult` (positions in the
+        result: its :class:`~lidar_mitsuba.run.SimulationResult` (positions in the
             granule's frame).
         lat_deg, lon_deg: (n_shots,) footprint centres [deg].
         azimuth_deg: (n_shots,) direction of travel [deg clockwise from north].
@@ -97,6 +99,11 @@ def simulate_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                      **simulate_options) -> Granule:
     """Simulate ``shots`` shots of each of ``beams`` along ``track`` over a DEM.
 
+    >>> import lidar_mitsuba as lm
+    >>> dem = lm.DEMSurface(lm.DEM.open("demo_dem.tif"))                 # doctest: +SKIP
+    >>> track = lm.GeoTrack.parse("69.97,-45,0")                         # doctest: +SKIP
+    >>> g = lm.simulate_granule(surface=dem, track=track, shots=2000)   # doctest: +SKIP
+
     Args:
         surface: the DEM surface (its ``origin_m`` is set here, near the track's start).
         track: the reference ground track (:class:`~lidar_mitsuba.geotrack.GeoTrack`), or a
@@ -111,7 +118,7 @@ def simulate_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
             background from its link budget).
         seed: the granule's seed; each beam runs with its own stream.
         paths_per_shot, max_depth, progress, simulate_options: as
-            :func:`~lidar_mitsuba.simulate.simulate`.
+            :func:`~lidar_mitsuba.run.simulate`.
     """
     if isinstance(beams, str):
         beams = geotrack.select_beams(beams, sc_orient)
@@ -160,7 +167,7 @@ class _Context:
 
     def beam_run(self, beam: Beam, first: int, n: int, *, seed: int, **simulate_kw) -> BeamRun:
         """Simulate shots ``first`` .. ``first + n - 1`` of ``beam``."""
-        from .simulate import simulate
+        from .run import simulate
         geo, along = self.track.beam_geolocation(beam, first, n,
                                                  spacing_m=self.base.shot_spacing_m,
                                                  prf_hz=self.base.prf_hz)
@@ -200,7 +207,7 @@ def _beam_bar(beams, progress):
 def _put(group, name, data, units, description):
     """Create a resizable, compressed dataset, or append ``data`` to it along axis 0 (a
     streamed granule writes each section's rows after the last); whole chunks are compressed
-    on every core (:mod:`lidar_mitsuba.h5chunks`)."""
+    on every core (:mod:`lidar_mitsuba.products.h5write`)."""
     return h5chunks.put(group, name, data, units, description, append=True)
 
 
@@ -247,7 +254,7 @@ _ATL06_NAMES = {
 
 
 def write_atl06(granule: Granule, path: str | os.PathLike, **options) -> pathlib.Path:
-    """Fit ATL06 segments to every beam (:func:`lidar_mitsuba.atl06.segments_from_result`,
+    """Fit ATL06 segments to every beam (:func:`lidar_mitsuba.products.atl06.segments_from_result`,
     ``options`` passed on) and write them with ATL06's names, atomically."""
     path = pathlib.Path(path)
     with atomic_h5file(path) as f:
@@ -261,7 +268,7 @@ def write_atl06(granule: Granule, path: str | os.PathLike, **options) -> pathlib
 
 def _atl06_header(f, granule, instruments, t_first, t_last):
     f.attrs["short_name"] = "ATL06"
-    f.attrs["description"] = ("Simulated land-ice heights (lidar_mitsuba.atl06: 40 m "
+    f.attrs["description"] = ("Simulated land-ice heights (lidar_mitsuba.products.atl06: 40 m "
                               "segments every 20 m, first-photon-bias corrected)")
     f.attrs["lidar_mitsuba_version"] = __version__
     f.attrs["config"] = json.dumps(granule.config)

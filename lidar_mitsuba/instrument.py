@@ -200,7 +200,11 @@ class Instrument:
         signal and background. ``changes``: fields of the instrument, of its
         :class:`~lidar_mitsuba.radiometry.LinkBudget` (``pulse_energy_uj``, ...) or of the
         :class:`~lidar_mitsuba.radiometry.Atmosphere` (``aerosol_optical_depth``, ...) to
-        set otherwise."""
+        set otherwise.
+
+        >>> import lidar_mitsuba as lm
+        >>> lm.Instrument.atlas("weak").channels
+        4"""
         from .radiometry import Atmosphere
         _check("beam", beam, beam in BEAMS, f"must be one of {', '.join(BEAMS)}")
         budget_fields = {f.name for f in dataclasses.fields(LinkBudget)} - {"atmosphere"}

@@ -12,7 +12,7 @@ with ``E_pulse`` the beam's transmitted pulse energy, ``h nu = h c / lambda``, `
 one-way clear-sky transmission between the surface and space, ``A_tel`` the telescope's
 collecting area, ``R`` the range and ``eta_rx`` the receiver's optical transmission (telescope,
 filter, fibres, aft optics) up to the detector. The detector's own efficiency (the PDE) and
-its fill factor apply later, per photon (:mod:`lidar_mitsuba.pmt`), to signal and background
+its fill factor apply later, per photon (:mod:`lidar_mitsuba.detector.pmt`), to signal and background
 alike.
 
 Atmosphere (clear sky, :class:`Atmosphere`): Rayleigh optical depth at sea level from
@@ -372,3 +372,28 @@ def shot_radiometry(instrument, *, delta_time_s, z_m, albedo: float, solar_eleva
                           background_mhz=solar + back + instrument.background_mhz,
                           solar_mhz=solar, backscatter_mhz=back, solar_elevation_deg=elev,
                           solar_azimuth_deg=azim, albedo=float(albedo))
+
+
+def run_radiometry(instrument, geoloc, z_m: np.ndarray, *, scene,
+                     x_m, y_m, snow) -> ShotRadiometry:
+    """Each shot's signal scale and background (:func:`shot_radiometry`) for a run of
+    ``instrument`` (an :class:`~lidar_mitsuba.instrument.Instrument`) at ``geoloc`` (a
+    :class:`~lidar_mitsuba.geotrack.Geolocation`): the sun where and when the shot is, the surface's albedo for sunlight from its own BSDF (a snow
+    volume: diffusion theory's albedo), the air above the surface height ``z_m``."""
+    if geoloc.solar_elevation_deg is not None:            # a real granule's own
+        elev, azim = geoloc.solar_elevation_deg, geoloc.solar_azimuth_deg
+    else:
+        elev, azim = solar_angles(geoloc.lat_deg, geoloc.lon_deg, geoloc.delta_time_s)
+    if snow is not None:
+        albedo = float(snow.diffusion().total_reflectance())
+    else:
+        from .trace import scene as scn
+        from .track import spread_shots
+        pick = spread_shots(np.size(x_m), 5)
+        albedo = scn.sunlit_albedo(scene, np.asarray(x_m)[pick], np.asarray(y_m)[pick],
+                                   solar_elevation_deg=float(np.median(elev)),
+                                   solar_azimuth_deg=float(np.median(azim)))
+        if not np.isfinite(albedo):       # an XML scene's medium, or no surface in reach
+            albedo = DEFAULT_ALBEDO
+    return shot_radiometry(instrument, delta_time_s=geoloc.delta_time_s, z_m=z_m,
+                           albedo=albedo, solar_elevation_deg=elev, solar_azimuth_deg=azim)

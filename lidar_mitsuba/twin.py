@@ -101,7 +101,7 @@ class TwinGranule:
 
     @property
     def epoch_utc(self) -> str:
-        from .atl03_file import utc
+        from .products.atl03.file import utc
         return utc(self.time_span_s()[0]).decode()
 
     def median_range_m(self) -> float:
@@ -274,7 +274,7 @@ def simulate_over_surface(twin: TwinGranule, *, surface=None, beams: str = "all"
                           progress: bool = True, strength: str | None = None,
                           **simulate_options):
     """The twin of ``twin`` over a built-in surface (a
-    :class:`~lidar_mitsuba.surface.SurfaceSpec`; default: the flat Ward snow), in memory: each
+    :class:`~lidar_mitsuba.ground.surface.SurfaceSpec`; default: the flat Ward snow), in memory: each
     beam's pulses are placed in a frame centred on the granule's first pulse (an azimuthal
     equidistant projection, x east, y north) at the real latitudes, longitudes, times and sun,
     the surface's z = 0 under them and the spacecraft at the real range to the surface (the
@@ -287,14 +287,14 @@ def simulate_over_surface(twin: TwinGranule, *, surface=None, beams: str = "all"
         instrument: ``atlas`` (default) or ``paper``; ``instrument_options``: fields.
         strength: fire every beam's shots as a ``"strong"`` or ``"weak"`` beam instead of its
             own (``None``): e.g. the strong:weak ratio on the same shots.
-        seed, progress, simulate_options: as :func:`~lidar_mitsuba.simulate.simulate`.
+        seed, progress, simulate_options: as :func:`~lidar_mitsuba.run.simulate`.
     """
     from pyproj import Transformer
     from .geotrack import GeoTrack, ProjectedTrack, Site
     from .granule import BeamRun, Granule, _beam_seed
     from .instrument import Instrument
-    from .simulate import simulate
-    from .surface import SurfaceSpec
+    from .run import simulate
+    from .ground.surface import SurfaceSpec
     lat0, lon0 = twin.start_lat_lon()
     aeqd = (f"+proj=aeqd +lat_0={lat0!r} +lon_0={lon0!r} +x_0=0 +y_0=0 +ellps=WGS84 "
             "+units=m")

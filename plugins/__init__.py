@@ -24,6 +24,8 @@ Use from plain Mitsuba::
     import mitsuba as mi
     mi.set_variant("llvm_ad_mono")
     import lidar_mitsuba_plugins          # registers ward, water and the integrators
+                                          # (lidar_mitsuba_plugins.install() if it was
+                                          # imported before Mitsuba)
     scene = mi.load_file("scene.xml")      # <bsdf type="ward"/>, <integrator type="pathlength"/>
     image = mi.render(scene)               # a lidar-intensity image
     returns = scene.integrator().trace(scene, shot_x_m=..., shot_y_m=...)
@@ -31,9 +33,12 @@ Use from plain Mitsuba::
 Python plugins subclass variant-specific classes (``mi.BSDF`` differs between
 ``llvm_ad_mono`` and ``cuda_ad_mono``), so each plugin file is executed once per variant,
 under its own module name (``lidar_mitsuba_plugins._<variant>_<name>``), and registers
-itself with ``mi.register_*`` there. Importing this package registers them in the active
-variant and, through a Mitsuba variant callback, in every variant activated later. Scalar
-variants are skipped: the plugins are vectorised.
+itself with ``mi.register_*`` there. :func:`install` registers them in the active variant
+and, through a Mitsuba variant callback, in every variant activated later; importing this
+package calls it when Mitsuba is already imported (as above), and ``lidar_mitsuba`` calls it
+when it sets its renderer up. Scalar variants are skipped: the plugins are vectorised. The
+shared modules below import without Mitsuba, so a pipeline that only reads its files never
+loads it.
 
 Shared, variant-independent modules: ``constants`` (c, the FWHM factor, the reference plate,
 the nominal geometry), ``returns`` (the integrators' output record), ``scene_utils`` (scene
@@ -47,8 +52,6 @@ import pathlib
 import sys
 import types
 
-import mitsuba as mi
-
 PLUGIN_FILES = ("ward", "water", "pathlength", "volpathlength", "snowkernel", "mediapathlength")
 """The plugin files, in load order (``volpathlength``, ``snowkernel`` and
 ``mediapathlength`` build on ``pathlength``)."""
@@ -60,6 +63,7 @@ def register(variant: str | None = None) -> None:
     """Execute every plugin file once in ``variant`` (default: the active one), so that
     ``ward``, ``pathlength`` and ``volpathlength`` can be loaded there. Idempotent; a scalar
     variant or no variant is skipped."""
+    import mitsuba as mi
     variant = variant if variant is not None else mi.variant()
     if variant is None or variant.startswith("scalar") or variant in _registered:
         return
@@ -79,6 +83,7 @@ def register(variant: str | None = None) -> None:
 def module(name: str, variant: str | None = None) -> types.ModuleType:
     """The plugin file ``name`` (``"pathlength"``, ...) as executed in ``variant`` (default:
     the active one), e.g. to reach its helpers or classes. Registers the plugins first."""
+    import mitsuba as mi
     variant = variant if variant is not None else mi.variant()
     register(variant)
     return sys.modules[f"{__name__}._{variant}_{name}"]
@@ -93,5 +98,22 @@ def _on_variant_change(old: str | None, new: str | None) -> None:
     register(new)
 
 
-mi.detail.add_variant_callback(_on_variant_change)
-register()
+_installed = False
+
+
+def install() -> None:
+    """Register the plugins in the active variant and, through a Mitsuba variant callback, in
+    every variant activated later. Idempotent. Runs on ``import lidar_mitsuba_plugins`` when
+    Mitsuba is already imported (the plain-Mitsuba recipe above); ``lidar_mitsuba`` calls it
+    when it sets the renderer up. The shared modules (``constants``, ``returns``,
+    ``kernel_table``) import without Mitsuba."""
+    global _installed
+    import mitsuba as mi
+    if not _installed:
+        mi.detail.add_variant_callback(_on_variant_change)
+        _installed = True
+    register()
+
+
+if "mitsuba" in sys.modules:
+    install()

@@ -23,7 +23,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
 
     Traces the photons of a nadir-pointing, monostatic, pulsed lidar and records, per photon
     return, its shot, its round-trip time and its radiometric weight. It does not bin, detect or
-    add noise: those are separate steps (in the lidar pipeline, ``lidar_mitsuba.pmt``).
+    add noise: those are separate steps (in the lidar pipeline, ``lidar_mitsuba.detector.pmt``).
 
     .. pluginparameters::
 

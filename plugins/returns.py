@@ -1,7 +1,7 @@
 """The integrators' output record: traced photon returns (:class:`Returns`), before any
 detector effect. Pure numpy: a typed container with the few operations a chunked pipeline
 needs (select, slice by shot, move a folded trace back, join chunks). ``lidar_mitsuba``
-re-exports it from ``lidar_mitsuba.photons``.
+re-exports it from ``lidar_mitsuba.detector.records``.
 """
 from __future__ import annotations
 

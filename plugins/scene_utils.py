@@ -1,6 +1,6 @@
 """Scene queries the integrators need before tracing: the one participating medium of a scene
 and the scene's bounds from its geometry (Mitsuba merges meshes that share a BSDF and keeps a
-stale box). Shared by ``pathlength`` and ``volpathlength``; ``lidar_mitsuba.scene`` re-exports
+stale box). Shared by ``pathlength`` and ``volpathlength``; ``lidar_mitsuba.trace.scene`` re-exports
 them.
 """
 from __future__ import annotations

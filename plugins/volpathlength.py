@@ -22,7 +22,7 @@ class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
     ----------------------------------------------------------------------------
 
     The ``pathlength`` integrator for scenes with a participating medium: snow under the
-    terrain (:mod:`lidar_mitsuba.snow`). The medium is the interior of a shape with a
+    terrain (:mod:`lidar_mitsuba.ground.snow`). The medium is the interior of a shape with a
     ``null`` BSDF (an index-matched boundary), homogeneous, with any Mitsuba phase function.
 
     .. pluginparameters::

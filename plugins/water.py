@@ -10,7 +10,7 @@ import math
 import drjit as dr
 import mitsuba as mi
 
-# The two closed forms the defaults need, repeated from lidar_mitsuba.water (the plugins do
+# The two closed forms the defaults need, repeated from lidar_mitsuba.ground.water (the plugins do
 # not import the pipeline; tests/test_water.py checks that both give the same numbers).
 AIR_IOR = 1.000277
 
@@ -88,13 +88,13 @@ class WaterBSDF(mi.BSDF):
     44(11), 838-850, 1954). The default indices come from the empirical formula of X. Quan and
     E. S. Fry, "Empirical equation for the index of refraction of seawater", Appl. Opt. 34(18),
     3477-3480, 1995, at 532 nm (the phase index, and the group index
-    :math:`n - \lambda\,dn/d\lambda` from its derivative); ``lidar_mitsuba.water`` gives them
+    :math:`n - \lambda\,dn/d\lambda` from its derivative); ``lidar_mitsuba.ground.water`` gives them
     at any wavelength, temperature and salinity.
 
     At nadir the surface returns :math:`\pi f_r\cos\theta_o = F(0)/(4 s^2)`, with
     :math:`F(0) = ((n-1)/(n+1))^2` (:math:`G = 1` there): in the integrators' weight units
     (a 0.9 Lambertian plate weighs 1), :math:`F(0)/(3.6\,s^2)`, about 1.9 for calm water and 0.2
-    at 5 m/s (``lidar_mitsuba.water.nadir_return_weight``).
+    at 5 m/s (``lidar_mitsuba.ground.water.nadir_return_weight``).
 
     The instance exposes ``mss``, ``alpha``, ``phase_index`` (``int_ior / ext_ior``),
     ``group_index`` and ``wind_speed_mps`` (``None`` when ``mss`` was given). ``mi.traverse``

@@ -14,8 +14,9 @@ import pathlib
 import numpy as np
 import trimesh
 
-import lidar_mitsuba  # noqa: F401  (a Mitsuba variant for mi.Bitmap)
-import mitsuba as mi
+import lidar_mitsuba
+
+mi = lidar_mitsuba.ensure_renderer()      # a Mitsuba variant, for mi.Bitmap
 
 HERE = pathlib.Path(__file__).parent
 

@@ -30,9 +30,11 @@ CASES = (("strong", "auto"), ("strong", 1))
 CHILD = r"""
 import json, sys, time
 import lidar_mitsuba
-from lidar_mitsuba.simulate import simulate
+try:                                    # the layout since issue 33
+    from lidar_mitsuba.run import simulate, SurfaceSpec
+except ImportError:                     # an older commit's
+    from lidar_mitsuba.simulate import simulate, SurfaceSpec
 from lidar_mitsuba.instrument import Instrument
-from lidar_mitsuba.simulate import SurfaceSpec
 beam, depth, shots = sys.argv[1], sys.argv[2], int(sys.argv[3])
 depth = depth if depth == "auto" else int(depth)
 def run():

@@ -21,7 +21,6 @@ import tempfile
 import time
 from datetime import datetime
 
-import lidar_mitsuba  # noqa: F401  (libLLVM, variant)
 from lidar_mitsuba import sweep
 
 SPEC = {"sweep": {"name": "bench", "replicates": 2},

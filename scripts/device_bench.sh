@@ -19,7 +19,7 @@ export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1 LIDAR_MITSUBA_VARIANT=cuda_a
 nvidia-smi -L || true
 python3 -c "import lidar_mitsuba, mitsuba as mi; print('variant', mi.variant())" || exit 1
 variants=cuda_ad_mono
-if python3 -c "import sys, lidar_mitsuba.variant as v; sys.exit('llvm_ad_mono' not in v.usable_variants())" 2>/dev/null; then
+if python3 -c "import sys, lidar_mitsuba.trace.variant as v; sys.exit('llvm_ad_mono' not in v.usable_variants())" 2>/dev/null; then
     variants=cuda_ad_mono,llvm_ad_mono
 fi
 if [ "$mode" = bench ] || [ "$mode" = all ]; then

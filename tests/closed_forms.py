@@ -12,7 +12,7 @@ import numpy as np
 from scipy import integrate, stats
 
 from lidar_mitsuba.constants import C_M_PER_NS
-from lidar_mitsuba.photons import Returns
+from lidar_mitsuba.detector.records import Returns
 
 Z = 4.5
 T0 = 2 * 496e3 / C_M_PER_NS          # round-trip time to h = 0 [ns]

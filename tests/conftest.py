@@ -1,14 +1,14 @@
-"""Shared fixtures. The Mitsuba variant is the one ``import lidar_mitsuba`` chose from
+"""Shared fixtures. The Mitsuba variant is the one the renderer's set-up chose from
 LIDAR_MITSUBA_VARIANT (default llvm_ad_mono), with our plugins registered in it."""
 import gc
 
-import mitsuba as mi
 import numpy as np
 import pytest
 
-import lidar_mitsuba  # noqa: F401
+import lidar_mitsuba
 
-VARIANT = mi.variant()        # import lidar_mitsuba applied LIDAR_MITSUBA_VARIANT
+mi = lidar_mitsuba.ensure_renderer()     # the renderer, set up as a first run would
+VARIANT = mi.variant()
 
 
 @pytest.fixture
@@ -24,7 +24,7 @@ def variant():
 
 @pytest.fixture(autouse=True, scope="session")
 def _kernel_cache(tmp_path_factory):
-    """Snow kernel tables (lidar_mitsuba.snow_kernel) go to a folder of this session's own:
+    """Snow kernel tables (lidar_mitsuba.ground.snow.kernel) go to a folder of this session's own:
     every test that uses one builds it from the walk, never reads a table from an earlier
     run (subprocesses inherit the setting)."""
     import os

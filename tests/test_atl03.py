@@ -1,4 +1,4 @@
-"""ATL03-layout HDF5 output (lidar_mitsuba.atl03): exact round trip of a simulated run, units
+"""ATL03-layout HDF5 output (lidar_mitsuba.products.atl03): exact round trip of a simulated run, units
 and descriptions on every dataset, dtypes, atomic writes, and refusal of foreign files.
 No tolerances: the file must give back exactly what was simulated."""
 import dataclasses
@@ -9,10 +9,11 @@ import h5py
 import numpy as np
 import pytest
 
-from lidar_mitsuba import __version__, atl03
+from lidar_mitsuba import __version__
+from lidar_mitsuba.products import atl03
 from lidar_mitsuba.instrument import Instrument
-from lidar_mitsuba.simulate import simulate
-from lidar_mitsuba.surface import SurfaceSpec
+from lidar_mitsuba.run import simulate
+from lidar_mitsuba.ground.surface import SurfaceSpec
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +71,7 @@ def test_the_run_has_what_the_round_trip_needs(result):
 
 
 def test_every_array_round_trips_exactly(result, written):
-    from lidar_mitsuba.atl03_fields import GROUPS
+    from lidar_mitsuba.products.atl03.fields import GROUPS
     expect = expected_datasets(result)
     with h5py.File(written) as f:
         names = set()

@@ -11,11 +11,15 @@ import h5py
 import numpy as np
 import pytest
 
-from lidar_mitsuba import atl03, atl03_fields, dem as dems, geotrack, granule, pmt, radiometry
+from lidar_mitsuba.products import atl03
+from lidar_mitsuba.products.atl03 import fields as atl03_fields
+from lidar_mitsuba.ground import dem as dems
+from lidar_mitsuba import geotrack, granule, radiometry
+from lidar_mitsuba.detector import pmt
 from lidar_mitsuba.cli import main
 from lidar_mitsuba.instrument import Instrument
-from lidar_mitsuba.simulate import simulate
-from lidar_mitsuba.surface import SurfaceSpec
+from lidar_mitsuba.run import simulate
+from lidar_mitsuba.ground.surface import SurfaceSpec
 from lidar_mitsuba.twin import REAL_SUBSET as REAL          # the shipped real subset
 
 GROUPS = ("heights", "geolocation", "bckgrd_atlas", "geophys_corr", "signal_find_output/ocean")

@@ -1,4 +1,4 @@
-"""ATL06-style surface finding and first-photon-bias (FPB) correction (lidar_mitsuba.atl06),
+"""ATL06-style surface finding and first-photon-bias (FPB) correction (lidar_mitsuba.products.atl06),
 end to end on simulated tracks; the FPB building blocks are tested in test_fpb.py.
 
 Tolerances. Every Monte Carlo estimate is compared with its truth within Z = 4.5 standard
@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from lidar_mitsuba import atl06, pmt
+from lidar_mitsuba.products import atl06
+from lidar_mitsuba.detector import pmt
 from lidar_mitsuba.instrument import Instrument
 from lidar_mitsuba.constants import C_M_PER_NS
 from closed_forms import T0, Z, gaussian_returns
@@ -27,8 +28,8 @@ from closed_forms import T0, Z, gaussian_returns
 
 @pytest.fixture(scope="module")
 def fractal_tracks():
-    from lidar_mitsuba.simulate import simulate
-    from lidar_mitsuba.surface import SurfaceSpec
+    from lidar_mitsuba.run import simulate
+    from lidar_mitsuba.ground.surface import SurfaceSpec
     out = {}
     for k, bg in enumerate((1.0, 5.0, 10.0)):
         out[bg] = simulate(instrument=Instrument(beam="strong", background_mhz=bg),
@@ -109,7 +110,7 @@ def test_fractal_tracks_pooled(fractal_tracks):
 def test_atl03_file_to_segments_and_back(fractal_tracks, tmp_path):
     """segments_from_atl03 on a written ATL03 file matches fitting in memory; write/read
     round-trips with units; summarize is JSON-safe; a failed write leaves nothing behind."""
-    from lidar_mitsuba import atl03
+    from lidar_mitsuba.products import atl03
     res = fractal_tracks[5.0]
     f03 = atl03.write(res, tmp_path / "track.h5")
     tab = atl06.segments_from_atl03(f03)

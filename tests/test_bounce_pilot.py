@@ -14,9 +14,9 @@ from scipy import stats
 
 from lidar_mitsuba.constants import ParameterError
 from lidar_mitsuba.instrument import Instrument
-from lidar_mitsuba.bounce_pilot import single_bounce_error
-from lidar_mitsuba.simulate import simulate
-from lidar_mitsuba.surface import SurfaceSpec
+from lidar_mitsuba.trace.pilot import single_bounce_error
+from lidar_mitsuba.run import simulate
+from lidar_mitsuba.ground.surface import SurfaceSpec
 
 
 def _gaussian_nodes(n, sigma):
@@ -119,7 +119,7 @@ def test_bad_max_depth(bad):
 def test_pilot_without_returns_in_the_gate_traces_two_bounces(monkeypatch):
     """If the pilot has nothing to judge (no first-surface return in the gate), auto takes the
     fuller model and says so instead of failing."""
-    import lidar_mitsuba.bounce_pilot as sim
+    import lidar_mitsuba.trace.pilot as sim
 
     def nothing(**kw):
         raise ValueError("the pilot has no first-surface returns")

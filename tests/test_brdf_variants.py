@@ -13,7 +13,7 @@ import pytest
 
 from lidar_mitsuba.studies import brdf_variants as compare
 from lidar_mitsuba.instrument import Instrument
-from lidar_mitsuba.surface import SurfaceSpec
+from lidar_mitsuba.ground.surface import SurfaceSpec
 
 Z = 4.5
 

@@ -11,8 +11,8 @@ import pytest
 
 from lidar_mitsuba.constants import ParameterError
 from lidar_mitsuba.instrument import Instrument
-from lidar_mitsuba.simulate import simulate
-from lidar_mitsuba.surface import SurfaceSpec
+from lidar_mitsuba.run import simulate
+from lidar_mitsuba.ground.surface import SurfaceSpec
 from lidar_mitsuba.studies import breaking_points as stability
 
 Z = 4.5

@@ -1,5 +1,5 @@
-"""The trace -> detect chunk loop and its seeding (lidar_mitsuba.chunks), on synthetic sources
-(lidar_mitsuba.photons.Returns.at_times): no rendering.
+"""The trace -> detect chunk loop and its seeding (lidar_mitsuba.trace.stream), on synthetic sources
+(lidar_mitsuba.detector.records.Returns.at_times): no rendering.
 
 Results depend on the chunk size by design (chunk k traces with trace_seed(seed, k) and detects
 with detector_rng(seed, k)), so nothing here compares different chunkings; every comparison is
@@ -7,10 +7,11 @@ exact, against the same stages called by hand."""
 import numpy as np
 import pytest
 
-from lidar_mitsuba import chunks, pmt
+from lidar_mitsuba.trace import stream as chunks
+from lidar_mitsuba.detector import pmt
 from lidar_mitsuba.constants import C_M_PER_NS
 from lidar_mitsuba.instrument import Instrument
-from lidar_mitsuba.photons import Detections, Returns
+from lidar_mitsuba.detector.records import Detections, Returns
 
 ALT = 496e3
 T0 = 2 * ALT / C_M_PER_NS          # round-trip time to h = 0 [ns]

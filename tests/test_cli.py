@@ -130,7 +130,7 @@ def test_the_catalogue_is_large():
 
 @pytest.mark.parametrize("args,option", BAD, ids=[o + ":" + " ".join(a) for a, o in BAD])
 def test_bad_simulate_input(tmp_path, capsys, inputs, monkeypatch, args, option):
-    from lidar_mitsuba import resources
+    from lidar_mitsuba import machine as resources
     monkeypatch.setattr(resources, "available_memory_bytes", lambda: 8 * 2 ** 30)   # 8 GB
     out_dir = tmp_path / "out"
     out_dir.mkdir()
@@ -243,9 +243,10 @@ def test_terrain_command(tmp_path, capsys):
 
 
 def test_atomic_write_leaves_nothing(tmp_path, monkeypatch):
-    from lidar_mitsuba import atl03, atl03_beam
-    from lidar_mitsuba.simulate import simulate
-    from lidar_mitsuba.surface import SurfaceSpec
+    from lidar_mitsuba.products import atl03
+    from lidar_mitsuba.products.atl03 import beam as atl03_beam
+    from lidar_mitsuba.run import simulate
+    from lidar_mitsuba.ground.surface import SurfaceSpec
     res = simulate(surface=SurfaceSpec(kind="flat"), shots=20, progress=False)
     real = atl03_beam._put                      # (the beam writer's datasets)
 
@@ -323,7 +324,7 @@ def test_no_command_lists_the_commands_and_version(capsys):
 def test_generated_options_show_the_api_defaults(capsys):
     """Options come from the dataclasses and simulate(): the help shows their defaults."""
     from lidar_mitsuba.instrument import Instrument
-    from lidar_mitsuba.surface import SurfaceSpec
+    from lidar_mitsuba.ground.surface import SurfaceSpec
     assert call(["simulate", "--help"]) == 0
     text = " ".join(capsys.readouterr().out.split())
     assert f"(default {Instrument().altitude_m:g})" in text
@@ -367,7 +368,7 @@ def test_outputs_follow_the_umask(tmp_path, capsys):
 
 
 def test_terrain_refuses_what_memory_cannot_hold(tmp_path, capsys, monkeypatch):
-    from lidar_mitsuba import resources
+    from lidar_mitsuba import machine as resources
     monkeypatch.setattr(resources, "available_memory_bytes", lambda: 2 * 2 ** 30)    # 2 GB
     for args, option in ((["--size-m", "8192", "--out", str(tmp_path / "x.ply")], "--grid-m"),
                          (["--size-m", "8", "--grid-m", "1e-3", "--out", str(tmp_path / "x.npy")],

@@ -1,8 +1,8 @@
 """The detector's output, pinned bit for bit (issue 27: the detector was made faster "without
 changing any detection").
 
-Each case runs :func:`lidar_mitsuba.pmt.detect` on seeded synthetic returns (no rendering) and
-compares a SHA-256 digest of every array of the :class:`~lidar_mitsuba.photons.Detections` with
+Each case runs :func:`lidar_mitsuba.detector.pmt.detect` on seeded synthetic returns (no rendering) and
+compares a SHA-256 digest of every array of the :class:`~lidar_mitsuba.detector.records.Detections` with
 the digest the detector gave at commit 052b8fe, before its kernels were restructured. The cases
 cover what the detector does differently: no noise, background and dark counts, saturation (the
 argsort path), paralyzable dead time, the ideal detector, multi-bounce returns (the shuffle),
@@ -18,10 +18,10 @@ import sys
 import numpy as np
 import pytest
 
-from lidar_mitsuba import pmt
+from lidar_mitsuba.detector import pmt
 from lidar_mitsuba.constants import C_M_PER_NS
 from lidar_mitsuba.instrument import Instrument
-from lidar_mitsuba.photons import Returns
+from lidar_mitsuba.detector.records import Returns
 
 T0_NS = 2 * 496e3 / C_M_PER_NS
 
@@ -99,7 +99,7 @@ def test_a_block_that_overflows_its_room_runs_again_with_the_same_events():
     """``detect_shots`` reserves each block of shots room for its signal and expected noise;
     with no allowance for noise (``spare=0``) every noisy block overflows and the pass runs
     again with room to spare: the events must be those of a pass that fitted at once."""
-    from lidar_mitsuba import _deadtime
+    from lidar_mitsuba.detector import deadtime as _deadtime
     rng = np.random.default_rng(3)
     n_shots = 2 * _deadtime.BLOCK_SHOTS + 17
     n_sig = rng.poisson(5.0, n_shots)
@@ -130,8 +130,8 @@ SIMULATE_DIGESTS = {
 def test_paper_mode_runs_are_pinned(case):
     """Photons, heights, confidence and reference elevations of two paper-mode runs (a flat
     plate with background; the fractal snow with the bounce pilot and the path scout)."""
-    from lidar_mitsuba.simulate import simulate
-    from lidar_mitsuba.surface import SurfaceSpec
+    from lidar_mitsuba.run import simulate
+    from lidar_mitsuba.ground.surface import SurfaceSpec
     inst, surf, shots, seed = {
         "flat, strong, 10 MHz": (dict(beam="strong", background_mhz=10.0),
                                  SurfaceSpec(kind="flat"), 2000, 3),

@@ -1,4 +1,4 @@
-"""The first-photon-bias building blocks (lidar_mitsuba.fpb): dead-time weights that undo the
+"""The first-photon-bias building blocks (lidar_mitsuba.products.first_photon_bias): dead-time weights that undo the
 first-photon bias of both dead-time models, against closed forms and plain loops, and the
 background-rate correction. Tolerances: see tests/closed_forms.py."""
 import math
@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from lidar_mitsuba import fpb, pmt
+from lidar_mitsuba.products import first_photon_bias as fpb
+from lidar_mitsuba.detector import pmt
 from lidar_mitsuba.instrument import Instrument
 from closed_forms import (T0, Z, batch_se, first_photon_moments, gaussian_returns,
                           loop_paralyzable_weights, paralyzable_detections_per_channel)

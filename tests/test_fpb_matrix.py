@@ -1,6 +1,6 @@
 """The land-ice team's first-photon-bias test matrix (lidar_mitsuba.studies.fpb_matrix):
 flat surfaces through roughness x signal x channels x dead-time model, detected by
-lidar_mitsuba.pmt and fitted by lidar_mitsuba.atl06 (moved here from test_atl06.py).
+lidar_mitsuba.detector.pmt and fitted by lidar_mitsuba.products.atl06 (moved here from test_atl06.py).
 
 Tolerances. Every Monte Carlo estimate is compared with its truth within Z = 4.5 standard
 errors (two-sided p ~ 7e-6 each), the standard error taken from the sample: sd / sqrt(n) of

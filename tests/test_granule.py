@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from pyproj import Geod, Transformer
 
-from lidar_mitsuba import dem as dems, geotrack, granule
+from lidar_mitsuba.ground import dem as dems
+from lidar_mitsuba import geotrack, granule
 from lidar_mitsuba.constants import C_M_PER_NS, ParameterError
 
 TRACK = geotrack.GeoTrack(start_lat_deg=69.97, start_lon_deg=-45.0, azimuth_deg=0.0)
@@ -84,7 +85,7 @@ def test_pixel_mesh_is_the_dem_within_its_tolerance(tmp_path, monkeypatch, posti
     the mesh has fewer triangles than a 1 m grid along the track (here 0.39 of them at 20 m
     posting and 0.14 at 100 m, where the undulations twist the cells; 0.01 on bench's
     smoother 100 m DEM)."""
-    from lidar_mitsuba import scene as scn
+    from lidar_mitsuba.trace import scene as scn
     d = dems.DEM.open(dems.synthetic_ice_sheet(tmp_path / "d.tif", posting_m=posting_m,
                                                width_m=8000.0, length_m=8000.0, hole=False))
     surf = dems.DEMSurface(d)
@@ -385,7 +386,7 @@ def test_streamed_granule_sections_join_exactly(dem_path, tmp_path):
     count, global shot numbers), and the streamed ATL06 segments, fitted section by section
     with a 40 m tail, equal a fit of the whole track's photons read back from the file (the
     same photons: every segment is fitted once, with all its photons, on the same grid)."""
-    from lidar_mitsuba import atl06
+    from lidar_mitsuba.products import atl06
     surf = dems.DEMSurface(dems.DEM.open(dem_path), tile_shots=512)
     a3, a6 = tmp_path / "s3.h5", tmp_path / "s6.h5"
     out = granule.stream_granule(surface=surf, track=TRACK, shots=2400, beams="gt2l,gt2r",

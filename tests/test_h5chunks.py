@@ -1,9 +1,9 @@
-"""Chunks compressed on the thread pool (lidar_mitsuba.h5chunks) against HDF5's own filters."""
+"""Chunks compressed on the thread pool (lidar_mitsuba.products.h5write) against HDF5's own filters."""
 import h5py
 import numpy as np
 import pytest
 
-from lidar_mitsuba import atl03, h5chunks
+from lidar_mitsuba.products import atl03, h5write as h5chunks
 
 C = h5chunks.CHUNK_ROWS
 

@@ -12,8 +12,8 @@ import pytest
 
 from lidar_mitsuba.constants import C_M_PER_NS
 from lidar_mitsuba.instrument import Instrument
-from lidar_mitsuba.simulate import simulate
-from lidar_mitsuba.surface import SurfaceSpec
+from lidar_mitsuba.run import simulate
+from lidar_mitsuba.ground.surface import SurfaceSpec
 
 Z = 4.5
 SCENES = pathlib.Path(__file__).resolve().parents[1] / "scenes"
@@ -231,8 +231,9 @@ def test_new_terrain_reuses_the_compiled_trace(kind):
     import gc
 
     import drjit as dr
-    from lidar_mitsuba import snow
-    from lidar_mitsuba.scene import scene_from_mesh, ward_bsdf_dict
+    from lidar_mitsuba.ground import snow
+    from lidar_mitsuba.ground.brdf import ward_bsdf_dict
+    from lidar_mitsuba.trace.scene import scene_from_mesh
     vol = snow.snow_from_grains(grain_radius_um=200) if kind == "snow" else None
     other = (snow.snow_from_grains(grain_radius_um=200, density_kg_m3=250, depth_m=0.5)
              if vol is not None else ward_bsdf_dict(rho_d=0.6, rho_s=0.1, alpha=0.2))

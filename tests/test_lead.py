@@ -1,4 +1,4 @@
-"""An open lead in sea ice: the ATL07-like finder (``lidar_mitsuba.atl07``) on synthetic
+"""An open lead in sea ice: the ATL07-like finder (``lidar_mitsuba.products.atl07``) on synthetic
 photons with exact answers, and the lead study (``lidar_mitsuba.studies.lead`` on
 ``scenes/lead.xml``) against closed forms.
 
@@ -31,7 +31,8 @@ import numpy as np
 import pytest
 
 import lidar_mitsuba  # noqa: F401 (variant, plugins)
-from lidar_mitsuba import atl07, scene as scn
+from lidar_mitsuba.products import atl07
+from lidar_mitsuba.trace import scene as scn
 from lidar_mitsuba.instrument import Instrument
 from lidar_mitsuba.studies import lead
 
@@ -142,7 +143,7 @@ def test_fractional_shots_dark_leads_and_edge_cases():
 
 
 def test_atl07_imports_no_mitsuba():
-    """lidar_mitsuba/atl07.py executed on its own leaves mitsuba and drjit unimported."""
+    """lidar_mitsuba/products/atl07.py executed on its own leaves mitsuba and drjit unimported."""
     code = ("import importlib.util, sys\n"
             f"spec = importlib.util.spec_from_file_location('a', {atl07.__file__!r})\n"
             "m = importlib.util.module_from_spec(spec); spec.loader.exec_module(m)\n"

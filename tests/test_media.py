@@ -1,5 +1,5 @@
 """Water and air: the mediapathlength integrator against closed forms, and simulate()'s choice
-of model from a scene's materials (lidar_mitsuba.materials).
+of model from a scene's materials (lidar_mitsuba.trace.materials).
 
 Every Monte Carlo check compares a mean over iid shots with its closed form within four
 standard errors, the standard error taken from the spread of the per-shot means (the shots
@@ -11,9 +11,9 @@ import pytest
 
 import mitsuba as mi
 
-from lidar_mitsuba import materials
+from lidar_mitsuba.trace import materials
 from lidar_mitsuba.constants import C_M_PER_NS, ParameterError
-from lidar_mitsuba.simulate import simulate
+from lidar_mitsuba.run import simulate
 
 T = mi.ScalarTransform4f
 ALT_M = 496e3

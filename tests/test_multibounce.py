@@ -53,7 +53,7 @@ import trimesh
 from scipy import stats
 
 from lidar_mitsuba.constants import C_M_PER_NS
-from lidar_mitsuba.scene import scene_from_mesh
+from lidar_mitsuba.trace.scene import scene_from_mesh
 
 Z = 4.5
 H = 496e3                      # altitude [m] (the integrator's default)

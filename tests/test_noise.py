@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from lidar_mitsuba import classify, pmt
-from lidar_mitsuba.photons import Returns
+from lidar_mitsuba.products import classify
+from lidar_mitsuba.detector import pmt
+from lidar_mitsuba.detector.records import Returns
 from lidar_mitsuba.constants import C_M_PER_NS
 from lidar_mitsuba.instrument import Instrument
 

@@ -1,4 +1,4 @@
-"""``paths_per_shot="auto"`` (:mod:`lidar_mitsuba.path_budget`): its run-out bound against the
+"""``paths_per_shot="auto"`` (:mod:`lidar_mitsuba.trace.path_budget`): its run-out bound against the
 sampler it bounds, its weight moments against exact ones, the ladder choice, and simulate's
 choice against the fixed 128 paths it replaces."""
 import math
@@ -8,7 +8,8 @@ import pytest
 from scipy import stats
 
 from closed_forms import Z
-from lidar_mitsuba import path_budget as pb, pmt
+from lidar_mitsuba.trace import path_budget as pb
+from lidar_mitsuba.detector import pmt
 
 
 def _run_out_rate(weights_of, *, n_shots, k, signal_photons, rng, exchangeable=True):
@@ -112,7 +113,7 @@ def test_simulate_auto_matches_128_paths_single_bounce():
     combined standard errors (independent runs: seeds differ; the single-bounce return is
     near-Gaussian, so the normal-theory SE of the std holds)."""
     from lidar_mitsuba.instrument import Instrument
-    from lidar_mitsuba.simulate import simulate
+    from lidar_mitsuba.run import simulate
     for beam, expect in (("strong", 16), ("weak", 8)):
         runs = [simulate(instrument=Instrument(beam=beam), shots=20000, seed=seed,
                          max_depth=1, paths_per_shot=pps, progress=False)

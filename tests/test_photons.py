@@ -1,4 +1,4 @@
-"""The typed records between the stages (lidar_mitsuba.photons): Returns and Detections.
+"""The typed records between the stages (lidar_mitsuba.detector.records): Returns and Detections.
 Pure numpy; exact comparisons (these are bookkeeping operations, no sampling)."""
 import dataclasses
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from lidar_mitsuba.constants import C_M_PER_NS
-from lidar_mitsuba.photons import Detections, Returns
+from lidar_mitsuba.detector.records import Detections, Returns
 
 T0 = 2 * 496e3 / C_M_PER_NS          # round-trip time to h = 0 [ns]
 

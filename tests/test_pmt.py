@@ -10,8 +10,8 @@ import math
 import numpy as np
 import pytest
 
-from lidar_mitsuba import pmt
-from lidar_mitsuba.photons import Returns
+from lidar_mitsuba.detector import pmt
+from lidar_mitsuba.detector.records import Returns
 from lidar_mitsuba.constants import C_M_PER_NS
 from lidar_mitsuba.instrument import Instrument
 from closed_forms import T0, Z, first_photon_moments, gaussian_returns

@@ -7,13 +7,14 @@ import h5py
 import numpy as np
 import pytest
 
-from lidar_mitsuba import pmt, radiometry as R, twin
+from lidar_mitsuba.detector import pmt
+from lidar_mitsuba import radiometry as R, twin
 from lidar_mitsuba.constants import C_M_PER_NS
 from lidar_mitsuba.geotrack import Site
 from lidar_mitsuba.instrument import ATLAS, Instrument
-from lidar_mitsuba.photons import Returns
-from lidar_mitsuba.simulate import simulate
-from lidar_mitsuba.surface import SurfaceSpec
+from lidar_mitsuba.detector.records import Returns
+from lidar_mitsuba.run import simulate
+from lidar_mitsuba.ground.surface import SurfaceSpec
 
 H, C = 6.62607015e-34, 299792458.0
 HNU = H * C / 532e-9                          # one 532 nm photon [J]: 3.7340e-19

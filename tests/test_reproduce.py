@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from lidar_mitsuba import terrain
+from lidar_mitsuba.ground import terrain
 from lidar_mitsuba.studies import reproduce
 from lidar_mitsuba.cli import main
 from lidar_mitsuba.instrument import Instrument
-from lidar_mitsuba.simulate import simulate
-from lidar_mitsuba.surface import SurfaceSpec
+from lidar_mitsuba.run import simulate
+from lidar_mitsuba.ground.surface import SurfaceSpec
 
 PROFILE_P = 1.7
 

@@ -1,4 +1,4 @@
-"""Elevation retrieval (lidar_mitsuba.retrieval): photon heights, bias and precision with their
+"""Elevation retrieval (lidar_mitsuba.products.retrieval): photon heights, bias and precision with their
 standard errors, the per-window / per-channel report and its text table. Pure numpy.
 
 Tolerances: exact arithmetic is compared exactly (or to float64 rounding); the one Monte Carlo
@@ -12,8 +12,8 @@ import pytest
 from scipy.special import gammaln
 
 from lidar_mitsuba.constants import ALTITUDE_M
-from lidar_mitsuba.retrieval import (ElevationStats, elevation_report, elevation_stats,
-                                     format_report, photon_heights_m)
+from lidar_mitsuba.products.retrieval import (ElevationStats, elevation_report, elevation_stats,
+                                              format_report, photon_heights_m)
 
 Z = 4.5
 C_M_PER_S = 299_792_458.0            # SI definition, independent of lidar_mitsuba.constants

@@ -1,11 +1,11 @@
-"""lidar_mitsuba.scene: bounds taken from the geometry, one-line XML errors, vertical ray casts."""
+"""lidar_mitsuba.trace.scene: bounds taken from the geometry, one-line XML errors, vertical ray casts."""
 import math
 
 import mitsuba as mi
 import numpy as np
 import pytest
 
-from lidar_mitsuba import scene as scn
+from lidar_mitsuba.trace import scene as scn
 
 SNOW = '<bsdf type="ward" id="snow"/>'
 

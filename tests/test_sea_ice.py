@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from lidar_mitsuba import snow_kernel, twin
+from lidar_mitsuba.ground.snow import kernel as snow_kernel
+from lidar_mitsuba import twin
 from lidar_mitsuba.studies import sea_ice
 
 

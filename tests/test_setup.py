@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from lidar_mitsuba import _llvm
+from lidar_mitsuba.trace import libllvm as _llvm
 from lidar_mitsuba.constants import ParameterError
 from lidar_mitsuba.instrument import Instrument
 
@@ -30,33 +30,41 @@ def test_find_libllvm_prefers_newest_usable(tmp_path):
     assert _llvm.find_libllvm(bad) is None
 
 
-def test_import_refuses_bad_llvm_without_aborting(tmp_path):
-    """With only libLLVM 15 on offer, `import lidar_mitsuba` raises an ImportError that says what
-    to install; the interpreter is not aborted by LLVM."""
+def test_renderer_refuses_bad_llvm_without_aborting(tmp_path):
+    """With only libLLVM 15 on offer, `import lidar_mitsuba` still works (it loads no renderer);
+    the first use of the renderer raises an ImportError (RendererUnavailable) that says what
+    to install, and a simulation from the command line is one line, exit 1; the interpreter
+    is never aborted by LLVM. Reading a file (`stats`) needs no renderer."""
     fake = tmp_path / "libLLVM-15.so"
     fake.touch()
     env = dict(os.environ, DRJIT_LIBLLVM_PATH=str(fake))
-    r = subprocess.run([sys.executable, "-c", "import lidar_mitsuba"], env=env,
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run([sys.executable, "-c", "import lidar_mitsuba as lm; lm.Instrument()"],
+                       env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([sys.executable, "-c", "import lidar_mitsuba as lm; lm.ensure_renderer()"],
+                       env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 1
-    assert "ImportError" in r.stderr and "libllvm19" in r.stderr
-    r = subprocess.run([sys.executable, "-m", "lidar_mitsuba_cli", "stats", "x.h5"], env=env,
+    assert "RendererUnavailable" in r.stderr and "libllvm19" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "lidar_mitsuba_cli", "simulate", "--surface",
+                        "flat", "--shots", "10", "--out", str(tmp_path / "x.h5")], env=env,
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and r.stderr.count("\n") == 1 and "libllvm19" in r.stderr
+    assert not (tmp_path / "x.h5").exists()
 
 
 def test_variant_from_the_environment():
-    """LIDAR_MITSUBA_VARIANT picks the variant at import; an unusable one is one ImportError
-    line naming the variable (a CUDA variant on a machine without a GPU, too)."""
+    """LIDAR_MITSUBA_VARIANT picks the variant when the renderer is set up; an unusable one is
+    one ImportError line naming the variable (a CUDA variant on a machine without a GPU,
+    too)."""
     def imported(variant):
         env = dict(os.environ, LIDAR_MITSUBA_VARIANT=variant)
-        return subprocess.run([sys.executable, "-c", "import lidar_mitsuba, mitsuba as mi; "
-                               "print(mi.variant())"], env=env, capture_output=True,
-                              text=True, timeout=120)
+        return subprocess.run([sys.executable, "-c", "import lidar_mitsuba as lm; "
+                               "print(lm.ensure_renderer().variant())"], env=env,
+                              capture_output=True, text=True, timeout=120)
     r = imported("llvm_ad_rgb")
     assert r.returncode == 0 and r.stdout.strip() == "llvm_ad_rgb"
     r = imported("llvm_ad_nope")
-    assert r.returncode == 1 and "ImportError: LIDAR_MITSUBA_VARIANT: variant 'llvm_ad_nope'" in r.stderr
+    assert r.returncode == 1 and "LIDAR_MITSUBA_VARIANT: variant 'llvm_ad_nope'" in r.stderr
 
 
 def test_a_cuda_variant_needs_no_libllvm(monkeypatch):

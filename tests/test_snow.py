@@ -1,4 +1,4 @@
-"""Snow as a volume (lidar_mitsuba.snow, the volpathlength integrator): checked against closed
+"""Snow as a volume (lidar_mitsuba.ground.snow, the volpathlength integrator): checked against closed
 forms, never against itself.
 
 References:
@@ -7,7 +7,7 @@ References:
   hemispherical albedo 1 - H(1) sqrt(1 - omega);
 - single scattering in a layer of optical depth tau (exact when only the first interaction
   returns, and the limit of the full walk as tau -> 0);
-- diffusion theory (lidar_mitsuba.snow.DiffusionHalfSpace) for the hemispherical albedo and
+- diffusion theory (lidar_mitsuba.ground.snow.DiffusionHalfSpace) for the hemispherical albedo and
   the mean and variance of the path length, where it holds (mu_a / mu_s' = 0.01);
 - the grain-size law of diffusion: the mean path scales as sqrt(r) at fixed density.
 
@@ -21,7 +21,8 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from lidar_mitsuba import scene as scn, snow
+from lidar_mitsuba.trace import scene as scn
+from lidar_mitsuba.ground import snow
 from lidar_mitsuba.constants import C_M_PER_NS, ParameterError, REFERENCE_ALBEDO
 
 from closed_forms import Z, batch_se, chandrasekhar_h
@@ -268,7 +269,7 @@ def test_return_path_lengths_and_a_gamma_law():
 
 # --------------------------------------------------------------------------- plumbing
 def test_pathlength_refuses_a_medium_and_xml_medium_runs(tmp_path):
-    from lidar_mitsuba.simulate import simulate
+    from lidar_mitsuba.run import simulate
     vol = snow.snow_from_grains(grain_radius_um=200, density_kg_m3=350)
     xml = tmp_path / "snow.xml"
     xml.write_text(f"""<scene version="3.0.0">
@@ -321,7 +322,8 @@ def test_snow_over_a_dem_granule_across_sections(tmp_path):
     snow volume: each section keeps the snow, and the segments sit lower than without it."""
     import h5py
     import json
-    from lidar_mitsuba import dem as dems, geotrack, granule
+    from lidar_mitsuba.ground import dem as dems
+    from lidar_mitsuba import geotrack, granule
     dem = dems.DEM.open(dems.synthetic_ice_sheet(tmp_path / "ice.tif"))
     track = geotrack.GeoTrack(start_lat_deg=69.97, start_lon_deg=-45.0, azimuth_deg=0.0)
     vol = snow.snow_from_grains(grain_radius_um=1000, density_kg_m3=350).similar(0.0)

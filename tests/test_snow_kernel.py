@@ -1,4 +1,4 @@
-"""Snow as a tabulated subsurface kernel (issue 27: lidar_mitsuba.snow_kernel, the snowkernel
+"""Snow as a tabulated subsurface kernel (issue 27: lidar_mitsuba.ground.snow.kernel, the snowkernel
 integrator): the table's statistics against closed forms, the plugin's draws against the table
 it was given, and the kernel against the full walk it tabulates, in the regimes where a
 tabulation could fail (between angle nodes, steep facets, a thin layer over a bright base, large
@@ -18,10 +18,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from lidar_mitsuba import snow, snow_kernel
+from lidar_mitsuba.ground import snow
+from lidar_mitsuba.ground.snow import kernel as snow_kernel
 from lidar_mitsuba.constants import C_M_PER_NS, ParameterError
-from lidar_mitsuba.simulate import simulate
-from lidar_mitsuba.surface import SurfaceSpec
+from lidar_mitsuba.run import simulate
+from lidar_mitsuba.ground.surface import SurfaceSpec
 from lidar_mitsuba_plugins import kernel_table
 
 from closed_forms import Z

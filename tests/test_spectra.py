@@ -1,4 +1,4 @@
-"""Tests for lidar_mitsuba.spectra (periodograms and the fit of the fractal exponent p).
+"""Tests for lidar_mitsuba.ground.spectra (periodograms and the fit of the fractal exponent p).
 
 All seeds are fixed. Statistical tolerances are derived from the sampling error of the quantity
 tested (explained next to each assertion); deterministic properties are tested to
@@ -12,8 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from lidar_mitsuba import spectra as S
-from lidar_mitsuba import terrain as T
+from lidar_mitsuba.ground import spectra as S
+from lidar_mitsuba.ground import terrain as T
 
 P_VALUES = (1.5, 1.8, 2.0)
 

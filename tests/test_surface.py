@@ -1,14 +1,14 @@
-"""lidar_mitsuba.surface: every surface answers the same questions the same way."""
+"""lidar_mitsuba.ground.surface: every surface answers the same questions the same way."""
 import math
 
 import mitsuba as mi
 import numpy as np
 import pytest
 
-from lidar_mitsuba import terrain
+from lidar_mitsuba.ground import terrain
 from lidar_mitsuba.constants import ParameterError
-from lidar_mitsuba.surface import (HeightfieldSurface, Plane, SceneSurface, SurfaceSpec,
-                                   heightfield_to_trimesh, resolve)
+from lidar_mitsuba.ground.surface import (HeightfieldSurface, Plane, SceneSurface, SurfaceSpec,
+                                          heightfield_to_trimesh, resolve)
 
 
 def test_plane_folds_a_long_track_exactly():

@@ -238,10 +238,10 @@ def test_plot_of_a_real_sweep(serial, tmp_path):
 
 
 def test_atl06_from_the_result_equals_the_file_route(tmp_path):
-    from lidar_mitsuba import atl03, atl06
+    from lidar_mitsuba.products import atl03, atl06
     from lidar_mitsuba.instrument import Instrument
-    from lidar_mitsuba.simulate import simulate
-    from lidar_mitsuba.surface import SurfaceSpec
+    from lidar_mitsuba.run import simulate
+    from lidar_mitsuba.ground.surface import SurfaceSpec
     res = simulate(instrument=Instrument(beam="weak", background_mhz=2.0, paralyzable=True),
                    surface=SurfaceSpec(kind="slope", slope_deg=3.0), shots=300, seed=2,
                    progress=False)

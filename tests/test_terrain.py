@@ -1,4 +1,4 @@
-"""Tests for lidar_mitsuba.terrain (fractal synthesis, heightfield look-ups, roughness).
+"""Tests for lidar_mitsuba.ground.terrain (fractal synthesis, heightfield look-ups, roughness).
 
 All seeds are fixed. Statistical tolerances are derived from the sampling error
 of the quantity tested (explained next to each assertion); deterministic
@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from lidar_mitsuba import terrain as T
+from lidar_mitsuba.ground import terrain as T
 from lidar_mitsuba.constants import ParameterError
 
 # --------------------------------------------------------------------------- #

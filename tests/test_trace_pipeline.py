@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 
 import lidar_mitsuba_plugins
-from lidar_mitsuba import _deadtime, chunks, terrain
+from lidar_mitsuba.detector import deadtime as _deadtime
+from lidar_mitsuba.trace import stream as chunks
+from lidar_mitsuba.ground import terrain
 from lidar_mitsuba.instrument import Instrument
-from lidar_mitsuba.photons import Returns
-from lidar_mitsuba.scene import scene_from_mesh
-from lidar_mitsuba.surface import heightfield_to_trimesh
+from lidar_mitsuba.detector.records import Returns
+from lidar_mitsuba.trace.scene import scene_from_mesh
+from lidar_mitsuba.ground.surface import heightfield_to_trimesh
 
 pathlength = lidar_mitsuba_plugins.module("pathlength")
 
@@ -163,7 +165,7 @@ def test_parallel_shot_stats_equals_the_loop(rng, n_returns):
 
 
 def test_bounds_of_a_mesh_with_a_nan_vertex_are_refused():
-    from lidar_mitsuba.scene import scene_bounds
+    from lidar_mitsuba.trace.scene import scene_bounds
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, math.nan]], float)
     scene = scene_from_mesh(v, np.array([[0, 1, 2]]))
     with pytest.raises(ValueError, match="non-finite"):

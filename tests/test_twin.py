@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lidar_mitsuba import twin
-from lidar_mitsuba.dem import synthetic_ice_sheet
+from lidar_mitsuba.ground.dem import synthetic_ice_sheet
 from lidar_mitsuba.geotrack import _geod
 
 REAL = twin.REAL_SUBSET

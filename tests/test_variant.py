@@ -1,4 +1,4 @@
-"""Mitsuba variant selection (lidar_mitsuba.variant) and plugin registration
+"""Mitsuba variant selection (lidar_mitsuba.trace.variant) and plugin registration
 (lidar_mitsuba_plugins).
 
 The conftest activates the session's variant once; tests here that switch variants put it
@@ -73,9 +73,9 @@ def test_cuda_is_refused_without_a_gpu(name, variant):
 def test_llvm_variants_are_unusable_without_libllvm(monkeypatch, variant):
     """Where ``import lidar_mitsuba`` found no libLLVM (a GPU machine; DRJIT_LIBLLVM_PATH is
     then os.devnull) the LLVM variants are not offered, and asking for one says why."""
-    assert "llvm_ad_mono" in lidar_mitsuba.variant.usable_variants()
+    assert "llvm_ad_mono" in lidar_mitsuba.trace.variant.usable_variants()
     monkeypatch.setenv("DRJIT_LIBLLVM_PATH", os.devnull)
-    assert not any(v.startswith("llvm") for v in lidar_mitsuba.variant.usable_variants())
+    assert not any(v.startswith("llvm") for v in lidar_mitsuba.trace.variant.usable_variants())
     with pytest.raises(ValueError, match="'llvm_ad_rgb' needs libLLVM"):
         lidar_mitsuba.set_variant("llvm_ad_rgb")
     assert mi.variant() == variant

@@ -1,7 +1,7 @@
 """Validation of the Ward BSDF plugin (plugins/ward.py) the way Mitsuba validates its BSDFs.
 
 * chi-square goodness of fit of ``sample`` against ``pdf`` (``mitsuba.chi2``);
-* ``eval`` against an independent float64 numpy implementation (``lidar_mitsuba.brdf``, written
+* ``eval`` against an independent float64 numpy implementation (``lidar_mitsuba.ground.brdf``, written
   in half-angle form from the papers, not from the plugin's half-vector form);
 * reciprocity, sample weight == eval / pdf, energy (directional albedo) by the plugin's own
   sample weights and by deterministic quadrature of ``eval``;
@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 
 import lidar_mitsuba
-from lidar_mitsuba.brdf import NORMALIZATIONS, ward_brdf_numpy, ward_eval_mitsuba, \
-    ward_polar_figure, ward_polar_grid
+from lidar_mitsuba.ground.brdf import (NORMALIZATIONS, ward_brdf_numpy, ward_eval_mitsuba,
+                                       ward_polar_figure, ward_polar_grid)
 
 Z = 5.0
 PAPER = dict(rho_d=0.9, rho_s=0.05, alpha_u=0.3, alpha_v=0.3)   # the paper's snow (Fig. 6)

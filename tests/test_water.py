@@ -1,4 +1,4 @@
-"""The water material: closed forms (``lidar_mitsuba.water``), the ``<bsdf type="water">``
+"""The water material: closed forms (``lidar_mitsuba.ground.water``), the ``<bsdf type="water">``
 plugin (``plugins/water.py``) loaded from XML and dicts, and its nadir return traced by the
 ``pathlength`` integrator against the Cox-Munk / Kirchhoff closed form.
 
@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 import lidar_mitsuba_plugins
-from lidar_mitsuba import water
-from lidar_mitsuba.water import (
-    WATER_GROUP_INDEX_532, WATER_INDEX_532, cox_munk_mss, fresnel_normal,
-    nadir_return_weight, quan_fry_group_index, quan_fry_index, sigma0_nadir, water_bsdf)
+from lidar_mitsuba.ground import water
+from lidar_mitsuba.ground.water import (WATER_GROUP_INDEX_532, WATER_INDEX_532, cox_munk_mss,
+                                        fresnel_normal, nadir_return_weight, quan_fry_group_index,
+                                        quan_fry_index, sigma0_nadir, water_bsdf)
 
 Z = 4.0
 AIR = 1.000277
@@ -96,7 +96,7 @@ def test_nadir_sigma0_and_weight():
 
 
 def test_module_imports_no_mitsuba():
-    """lidar_mitsuba/water.py executed on its own (not through the package, which sets up
+    """lidar_mitsuba/ground/water.py executed on its own (not through the package, which sets up
     Mitsuba) leaves mitsuba and drjit unimported."""
     code = ("import importlib.util, sys\n"
             f"spec = importlib.util.spec_from_file_location('w', {water.__file__!r})\n"

@@ -16,11 +16,11 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from lidar_mitsuba import terrain
+from lidar_mitsuba.ground import terrain
 from lidar_mitsuba.constants import ParameterError, SimulationWarning
 from lidar_mitsuba.instrument import Instrument
-from lidar_mitsuba.simulate import simulate
-from lidar_mitsuba.surface import SurfaceSpec
+from lidar_mitsuba.run import simulate
+from lidar_mitsuba.ground.surface import SurfaceSpec
 from lidar_mitsuba.track import Track
 
 SCENES = pathlib.Path(__file__).resolve().parents[1] / "scenes"
@@ -65,7 +65,7 @@ def check_reference(res, profile, near):
     """The ray casts against the geometry: the height under each footprint centre is the
     profile's (float32 precision), and the reference elevation is exactly the documented
     quadrature of the profile (midpoint rule on a 0.25 sigma grid within 5 sigma,
-    :func:`lidar_mitsuba.scene.raycast_reference_elevation_m`; its accuracy on smooth terrain
+    :func:`lidar_mitsuba.trace.scene.raycast_reference_elevation_m`; its accuracy on smooth terrain
     is tested in test_scene.py: across the kinks of these profiles it is a few mm from the
     continuous Gaussian mean)."""
     x0 = res.shot_x_m[near]
@@ -229,7 +229,7 @@ GAP = ''.join(f'<shape type="rectangle"><transform name="to_world"><scale x="100
 
 
 def test_a_smooth_conductor_under_the_track_is_refused_naming_water(tmp_path):
-    """A perfect mirror's glint is not traced (lidar_mitsuba.materials): refused, one line."""
+    """A perfect mirror's glint is not traced (lidar_mitsuba.trace.materials): refused, one line."""
     p = tmp_path / "m.xml"
     p.write_text(f'<scene version="3.0.0">{CONDUCTOR}</scene>')
     with pytest.raises(ParameterError, match="perfect mirror.*water"):

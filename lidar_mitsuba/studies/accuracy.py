@@ -22,9 +22,9 @@ import time
 import numpy as np
 
 from ..instrument import Instrument
-from ..simulate import simulate
-from ..surface import SurfaceSpec
-from ..terrain import Heightfield, fractal
+from ..run import simulate
+from ..ground.surface import SurfaceSpec
+from ..ground.terrain import Heightfield, fractal
 
 DEFAULT = {"shots": 8000, "paths_per_shot": 128, "grid_m": 1.0, "max_depth": "auto",
            "chunk_shots": 65536}

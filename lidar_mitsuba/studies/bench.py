@@ -20,17 +20,20 @@ import subprocess
 import sys
 import time
 
-import drjit as dr
-import mitsuba as mi
 import numpy as np
 
-from .. import pmt, scene as scn, terrain
+from ..detector import pmt
+from ..trace import lazy
+from ..trace.lazy import dr, mi
+
+scn = lazy.module("lidar_mitsuba.trace.scene")
+from ..ground import terrain
 from ..constants import C_M_PER_NS
 from ..instrument import Instrument
-from ..photons import Returns
-from ..simulate import simulate
-from ..surface import SurfaceSpec, heightfield_to_trimesh
-from ..variant import set_variant
+from ..detector.records import Returns
+from ..run import simulate
+from ..ground.surface import SurfaceSpec, heightfield_to_trimesh
+from ..trace.variant import set_variant
 from . import accuracy, breaking_points, peer
 
 

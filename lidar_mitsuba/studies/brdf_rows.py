@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from ..simulate import SimulationResult
+    from ..run import SimulationResult
 
 #: Numeric fields of a row that :func:`sweep` fills (all floats; see :func:`row_of`).
 ROW_FIELDS = ("photons_per_shot", "photons_per_shot_se", "return_weight", "bias_m", "bias_se_m",

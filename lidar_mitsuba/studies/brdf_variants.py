@@ -1,6 +1,6 @@
 """Compare BRDF variants on the simulated returns: sweeps over surfaces, a table and figures.
 
-One *row* is one :func:`~lidar_mitsuba.simulate.simulate` run (one BRDF on one surface) reduced
+One *row* is one :func:`~lidar_mitsuba.run.simulate` run (one BRDF on one surface) reduced
 to photons per shot, elevation bias and precision of the signal photons, each with its Monte
 Carlo standard error. Every variant on a surface is run with the same ``seed``, so the footprint
 positions and pulse times of the traced photons are the same for all of them (common random
@@ -28,12 +28,11 @@ import time
 from collections.abc import Iterable, Mapping, Sequence
 
 from ..instrument import Instrument
-from ..simulate import simulate
-from ..surface import SurfaceSpec
+from ..run import simulate
+from ..ground.surface import SurfaceSpec
 from .brdf_conclusions import conclusions  # noqa: F401 (re-exported)
 from .brdf_plots import STYLES, plot_sweep  # noqa: F401 (re-exported)
-from .brdf_rows import (ROW_FIELDS, format_table, relative_to,  # noqa: F401 (re-exported)
-                        row_of, select, surface_label)
+from .brdf_rows import ROW_FIELDS, format_table, relative_to, row_of, select, surface_label  # noqa: F401 (re-exported)
 
 _WARD = {"type": "ward", "rho_d": 0.9, "rho_s": 0.05, "alpha": 0.3}
 
@@ -108,7 +107,7 @@ def sweep(*, variants: Mapping[str, dict], surfaces: Sequence[SurfaceSpec], shot
         max_depth: surface interactions per path. Default 1: every BRDF under one model (the
             paper's single bounce), so that common random numbers pair the runs; 2 adds
             multiple scattering; ``"auto"`` lets each run choose (see
-            :func:`~lidar_mitsuba.simulate.simulate`), which may differ between BRDFs.
+            :func:`~lidar_mitsuba.run.simulate`), which may differ between BRDFs.
         progress: print one line per run.
         workers: run the simulations as tasks on a Dask ``LocalCluster`` of this many
             processes (:func:`lidar_mitsuba.sweep.compute_all`); the rows are the same.

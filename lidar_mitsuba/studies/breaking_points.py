@@ -9,13 +9,13 @@ from __future__ import annotations
 import math
 import time
 
-import mitsuba as mi
 import numpy as np
 
 from ..constants import C_M_PER_NS, ParameterError
 from ..instrument import Instrument
-from ..simulate import simulate
-from ..surface import SurfaceSpec
+from ..run import simulate
+from ..ground.surface import SurfaceSpec
+from ..trace.lazy import mi
 
 
 def _row(value, res=None, *, t0: float, **extra) -> dict:
@@ -123,7 +123,7 @@ def sweep_grid(*, quick: bool) -> list[dict]:
     """Mesh spacing 0.25-16 m against the 10 m footprint (sigma 2.5 m): ONE 512 m terrain made
     at 0.25 m and decimated, so only the resolution changes. The error columns are against the
     finest mesh; spacing coarser than ~sigma/2 no longer resolves what the footprint sees."""
-    from ..terrain import Heightfield, fractal
+    from ..ground.terrain import Heightfield, fractal
     shots = 300 if quick else 2000
     fine = fractal(p=1.8, size_m=512.0, grid_m=0.25, relief_m=10.0, seed=0)
     rows = []

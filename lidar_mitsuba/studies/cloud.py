@@ -2,7 +2,7 @@
 
 Set-up. A flat Lambertian (albedo 0.9) ground plate (10 km wide) under a homogeneous layer
 in a ``null``-bounded box (a "layer in the air", traced by ``mediapathlength`` with 8
-vertices per path: :mod:`lidar_mitsuba.materials`), built as a Python scene dict
+vertices per path: :mod:`lidar_mitsuba.trace.materials`), built as a Python scene dict
 (:func:`layer_scene`). The lidar is ATLAS's strong beam as this project models it
 (:meth:`Instrument.atlas`: 16 channels, 3.2 ns non-paralyzable dead time, 1.5 ns pulse,
 10.9 m footprint, 45 m field of view, ~63 photons per shot reaching the detector from the
@@ -47,13 +47,13 @@ from __future__ import annotations
 import math
 import time
 
-import mitsuba as mi
 import numpy as np
 
 from ..constants import C_M_PER_NS
 from ..geotrack import Site
 from ..instrument import ATLAS_PULSE_ENERGY_UJ, Instrument
-from ..simulate import simulate
+from ..run import simulate
+from ..trace.lazy import mi
 
 NIGHT = Site(epoch_utc="2019-12-21T04:00:00Z")
 """The default site (northern Greenland) in the polar night: no solar background."""

@@ -2,7 +2,7 @@
 
 Flat surfaces seen through every combination of surface roughness (in pulse widths), signal
 level, channel count and dead-time model, with solar background; each cell is detected by
-:func:`lidar_mitsuba.pmt.detect` and fitted by :func:`lidar_mitsuba.atl06.fit_segments`, so
+:func:`lidar_mitsuba.detector.pmt.detect` and fitted by :func:`lidar_mitsuba.products.atl06.fit_segments`, so
 the table shows how well the first-photon-bias correction recovers the true height (0).
 """
 from __future__ import annotations
@@ -11,12 +11,12 @@ import math
 
 import numpy as np
 
-from .. import pmt
-from ..atl06 import FLAG_BITS, HALF_C, SegmentTable, fit_segments
-from ..fpb import corrected_background_mhz
+from ..detector import pmt
+from ..products.atl06 import FLAG_BITS, HALF_C, SegmentTable, fit_segments
+from ..products.first_photon_bias import corrected_background_mhz
 from ..constants import C_M_PER_NS
 from ..instrument import Instrument
-from ..photons import Returns
+from ..detector.records import Returns
 
 
 def fpb_test_matrix(*, roughness_pulse_widths=(0, 1, 3, 6, 12), signal_photons=(1, 3, 6, 12),

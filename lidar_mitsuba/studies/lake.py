@@ -13,7 +13,7 @@ median within 0.3 m of the densest 5 cm bin below it.
 Closed forms beside each measurement:
 
 - apparent depth = n_g x depth (light in water travels at c / n_g; Parrish et al. 2019);
-- Parrish et al.'s correction (phase index 1.34116, :func:`lidar_mitsuba.water.refraction_correction`)
+- Parrish et al.'s correction (phase index 1.34116, :func:`lidar_mitsuba.ground.water.refraction_correction`)
   gives the true depth times n_g / 1.34116; the same correction with our group index gives it
   exactly at nadir;
 - the bottom's return weight per photon path: T^2 rho e^{-2 c d} / (n^2 0.9) (Fresnel
@@ -28,8 +28,9 @@ import tempfile
 
 import numpy as np
 
-from .. import atl03, water
-from ..simulate import simulate
+from ..products import atl03
+from ..ground import water
+from ..run import simulate
 
 SCENE = pathlib.Path(__file__).resolve().parents[2] / "scenes" / "melt_pond.xml"
 DEPTHS_M = (0.5, 1.0, 2.0, 4.0)

@@ -1,6 +1,6 @@
 """An open lead in sea ice (``scenes/lead.xml``): the water's glint against wind speed, the
 detector's saturation and first-photon bias over the lead against the floe, and the freeboard
-an ATL07-like surface finder (:mod:`lidar_mitsuba.atl07`) reads from the photons.
+an ATL07-like surface finder (:mod:`lidar_mitsuba.products.atl07`) reads from the photons.
 
 Three measurements, each checked against a closed form where one exists:
 
@@ -30,9 +30,10 @@ import time
 
 import numpy as np
 
-from .. import atl07, water
+from ..products import atl07
+from ..ground import water
 from ..instrument import Instrument
-from ..simulate import SimulationResult, simulate
+from ..run import SimulationResult, simulate
 from ..track import Track
 
 SCENE = pathlib.Path(__file__).resolve().parents[2] / "scenes" / "lead.xml"
@@ -221,7 +222,7 @@ def freeboard_retrieval(*, freeboards_m=FREEBOARDS_M, wind_mps: float = 0.0,
                         shots: int = 1600, seed: int = 3,
                         instrument: Instrument | None = None, signal: str = "truth",
                         lead_width_m: float = 100.0) -> list[dict]:
-    """The ATL07-like finder (:mod:`lidar_mitsuba.atl07`, default rule) on a track across the
+    """The ATL07-like finder (:mod:`lidar_mitsuba.products.atl07`, default rule) on a track across the
     lead, one row per true freeboard (default instrument: ATLAS as flown, strong beam, with
     its dead time).
 

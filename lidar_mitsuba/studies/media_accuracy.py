@@ -22,9 +22,9 @@ import time
 
 import numpy as np
 
-from .. import water
+from ..ground import water
 from ..instrument import Instrument
-from ..simulate import simulate
+from ..run import simulate
 
 SCENES = pathlib.Path(__file__).resolve().parents[2] / "scenes"
 SEEDS = (1, 2, 3)

@@ -43,14 +43,15 @@ import math
 import statistics
 import time
 
-import drjit as dr
-import mitsuba as mi
 import numpy as np
 from scipy.signal import fftconvolve
 from scipy.special import ndtr
 
 from ..constants import C_M_PER_NS
-from ..scene import mitsuba_mesh
+from ..trace import lazy
+from ..trace.lazy import dr, mi
+
+scn = lazy.module("lidar_mitsuba.trace.scene")
 
 PULSE_SIGMA_NS = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
 PULSE_SIGMA_M = C_M_PER_NS * PULSE_SIGMA_NS          # pulse sigma in OPL [m]
@@ -83,7 +84,7 @@ def _plate_mesh(slope_deg: float, z0_m: float = PLATE_Z0_M) -> mi.Mesh:
     h = PLATE_HALF_M
     v = np.array([[-h, -h, z0_m - h * t], [h, -h, z0_m + h * t],
                   [h, h, z0_m + h * t], [-h, h, z0_m - h * t]])
-    return mitsuba_mesh(v, [[0, 1, 2], [0, 2, 3]],
+    return scn.mitsuba_mesh(v, [[0, 1, 2], [0, 2, 3]],
                         bsdf={"type": "diffuse", "reflectance": {"type": "spectrum",
                                                                  "value": ALBEDO}})
 

@@ -69,12 +69,14 @@ from __future__ import annotations
 import math
 import time
 
-import mitsuba as mi
 import numpy as np
 from scipy import stats
 
 from ..constants import C_M_PER_NS
-from ..scene import mitsuba_mesh
+from ..trace import lazy
+from ..trace.lazy import mi
+
+scn = lazy.module("lidar_mitsuba.trace.scene")
 from .peer import (NEAR_CLIP_M, NEAR_M, PLATE_HALF_M, PLATE_Z0_M, WINDOW_SIGMAS,
                    _import_mitransient, _plate_mesh, available)
 
@@ -96,14 +98,13 @@ CLOUD_BIN_M = 0.5
 CLOUD_WINDOW_M = (-64.25, 60.25)
 CLOUD_CAMERA_HALF_M = PLATE_HALF_M + 2.0
 MIN_MASS = 1e-4                    # bins used in chi^2
-T4 = mi.ScalarTransform4f
 
 
 # --------------------------------------------------------------------------- scenes
 def _square(z_m: float, bsdf: dict) -> mi.Mesh:
     h = PLATE_HALF_M
     v = np.array([[-h, -h, z_m], [h, -h, z_m], [h, h, z_m], [-h, h, z_m]])
-    return mitsuba_mesh(v, [[0, 1, 2], [0, 2, 3]], bsdf=bsdf)
+    return scn.mitsuba_mesh(v, [[0, 1, 2], [0, 2, 3]], bsdf=bsdf)
 
 
 def _lake_shapes() -> dict:
@@ -118,7 +119,7 @@ def _cloud_shapes() -> dict:
     h = CLOUD_TOP_M - CLOUD_BASE_M
     return {"plate": _plate_mesh(0.0),
             "layer": {"type": "cube", "bsdf": {"type": "null"},
-                      "to_world": T4().translate([0, 0, PLATE_Z0_M + CLOUD_BASE_M + h / 2])
+                      "to_world": mi.ScalarTransform4f().translate([0, 0, PLATE_Z0_M + CLOUD_BASE_M + h / 2])
                       .scale([PLATE_HALF_M, PLATE_HALF_M, h / 2]),
                       "interior": {"type": "homogeneous", "sigma_t": CLOUD_TAU / h,
                                    "albedo": CLOUD_ALBEDO,
@@ -168,7 +169,7 @@ def _mit_scene(shapes: dict, edges: np.ndarray, *, sigma_m: float, camera_half_m
     npx = 512
     u = ((np.arange(npx) + 0.5) / npx * 2 - 1) * WINDOW_SIGMAS
     g = np.exp(-0.5 * (u[:, None] ** 2 + u[None, :] ** 2)).astype(np.float32)
-    look = T4().look_at(origin=[0.0, 0.0, PLATE_Z0_M + RANGE_M],
+    look = mi.ScalarTransform4f().look_at(origin=[0.0, 0.0, PLATE_Z0_M + RANGE_M],
                         target=[0.0, 0.0, PLATE_Z0_M], up=[0.0, 1.0, 0.0])
     bin_m = float(edges[1] - edges[0])
     return mi.load_dict({

@@ -29,8 +29,9 @@ import time
 
 import numpy as np
 
-from .. import granule, snow, terrain, twin
-from ..surface import SurfaceSpec
+from .. import granule, twin
+from ..ground import snow, terrain
+from ..ground.surface import SurfaceSpec
 from . import validate
 
 CUT_M = 0.2

@@ -8,13 +8,13 @@ the whole chain (detector with dead time, ATL06 segments with first-photon-bias 
   the raw signal photons, of ATL06's uncorrected ``h_mean`` and of ``h_li`` (fpb-corrected),
   against the surface, with Monte Carlo standard errors;
 * ``walk`` and ``cost``: the full walk at each grain size (the reference) and the shots per
-  second of the walk, the kernel (:mod:`lidar_mitsuba.snow_kernel`) and the surface alone
+  second of the walk, the kernel (:mod:`lidar_mitsuba.ground.snow.kernel`) and the surface alone
   (Ward snow BRDF), each with its own automatic paths per shot; ``kernel_vs_surface``: the
   kernel's time against the bare surface, paired runs, median ratio;
 * ``events``: the accuracy-versus-time trade-off of the interactions traced per photon
   (``max_events``): bias and time per setting at one grain size;
 * ``similarity``: the same snow traced with a smaller asymmetry g and the same reduced
-  scattering (:meth:`~lidar_mitsuba.snow.SnowVolume.similar`): its speed and its error.
+  scattering (:meth:`~lidar_mitsuba.ground.snow.SnowVolume.similar`): its speed and its error.
 """
 from __future__ import annotations
 
@@ -22,10 +22,11 @@ import time
 
 import numpy as np
 
-from .. import atl06, snow
+from ..products import atl06
+from ..ground import snow
 from ..instrument import Instrument
-from ..simulate import simulate
-from ..surface import SurfaceSpec
+from ..run import simulate
+from ..ground.surface import SurfaceSpec
 
 
 def _one(*, beam: str, grain_um: float | None, density: float, shots: int, seed: int,

@@ -4,7 +4,7 @@ each optical choice (``bench``; README, snow).
 ATLAS as flown (:meth:`~lidar_mitsuba.instrument.Instrument.atlas`, strong and weak beam) over a
 flat, semi-infinite snowpack on the East Antarctic plateau in the polar night (no solar
 background: the snow's delay alone), traced with the snow kernel
-(:mod:`lidar_mitsuba.snow_kernel`), ATL06 segments against the surface. One row per change
+(:mod:`lidar_mitsuba.ground.snow.kernel`), ATL06 segments against the surface. One row per change
 from the baseline (100 um, 350 kg/m^3, the module's default optics: natural snow, g 0.80 and
 B 1.6), each changing one thing:
 
@@ -12,7 +12,7 @@ B 1.6), each changing one thing:
   grains) and a backscattering lobe (two-term Henyey-Greenstein);
 * the absorption enhancement B (1.25 for spheres, 1.6 recommended for natural snow by
   Libois et al. 2014) and ice's absorption at 532 nm (x0.5 and x2.5: the spread between
-  compilations, see :mod:`lidar_mitsuba.snow`);
+  compilations, see :mod:`lidar_mitsuba.ground.snow`);
 * the grain radius and the density, and a denser, finer-grained surface layer (a wind
   crust: 2 cm of 50 um grains at 450 kg/m^3, our estimate of a plateau crust).
 
@@ -27,11 +27,13 @@ import time
 
 import numpy as np
 
-from .. import atl06, snow, snow_kernel
+from ..products import atl06
+from ..ground import snow
+from ..ground.snow import kernel as snow_kernel
 from ..geotrack import Site
 from ..instrument import Instrument
-from ..simulate import simulate
-from ..surface import SurfaceSpec
+from ..run import simulate
+from ..ground.surface import SurfaceSpec
 
 #: interior East Antarctica, winter solstice noon: the sun 10 deg below the horizon
 SITE = Site(lat_deg=-80.0, lon_deg=77.0, height_m=3000.0, epoch_utc="2019-06-21T12:00:00Z")

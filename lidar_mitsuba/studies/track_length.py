@@ -30,7 +30,7 @@ KERNELS_UP_TO_KM = 100.0
 
 def make_dem(path: pathlib.Path, length_km: float) -> pathlib.Path:
     """A DEM long enough for a ``length_km`` track north from 65 N along -45 E."""
-    from .. import dem
+    from ..ground import dem
     from pyproj import Geod, Transformer
     lon1, lat1, _ = Geod(ellps="WGS84").fwd(-45.0, START_LAT, 0.0, length_km * 1e3)
     to = Transformer.from_crs("EPSG:4326", "EPSG:3413", always_xy=True)
@@ -61,9 +61,11 @@ def _peak_rss_mb() -> float:
 def measure(dem_path: str, length_km: float) -> dict:
     """Run one length in this process (call in a fresh one)."""
     import tempfile
-    import lidar_mitsuba  # noqa: F401  (libLLVM, variant)
+    from ..trace.variant import ensure_renderer
+    ensure_renderer()                  # libLLVM, variant, plugins
     import drjit as dr
-    from .. import dem, geotrack, granule
+    from ..ground import dem
+    from .. import geotrack, granule
     surf = dem.DEMSurface(dem.DEM.open(dem_path))
     shots = int(round(length_km * 1e3 / 0.7))
     before = _peak_rss_mb()

@@ -28,12 +28,14 @@ import time
 
 import numpy as np
 
-from .. import atl06, granule, snow, twin
+from ..products import atl06
+from .. import granule, twin
+from ..ground import snow
 from . import validate_media
 from ..geotrack import Site
 from ..instrument import Instrument
-from ..simulate import simulate
-from ..surface import SurfaceSpec
+from ..run import simulate
+from ..ground.surface import SurfaceSpec
 
 #: Li et al. 2021 (The Cryosphere 15, 3083, doi:10.5194/tc-15-3083-2021): ATL06 against GNSS
 #: along the CHINARE traverse, East Antarctica (Zhongshan to Taishan, 520 km)

@@ -1,7 +1,7 @@
 """Parameter sweeps on Dask: ``lidar-mitsuba sweep SPEC.toml --out DIR`` and :func:`run`.
 
 A sweep is a grid (or list) of parameters times a number of replicates; each task is one
-:func:`~lidar_mitsuba.simulate.simulate` run reduced to one row of statistics. Tasks run on
+:func:`~lidar_mitsuba.run.simulate` run reduced to one row of statistics. Tasks run on
 Dask distributed: a ``LocalCluster`` on this machine by default, or any running scheduler
 (``client=`` / ``--scheduler tcp://...``: a workstation, an HPC cluster through dask-jobqueue,
 Kubernetes through dask-kubernetes; its workers need lidar_mitsuba installed and the spec's
@@ -31,9 +31,9 @@ scene files at the same paths). ``workers=0`` runs the tasks one after another i
 
 Parameters are the API's names (the CLI's options without ``--``): the fields of
 :class:`~lidar_mitsuba.instrument.Instrument` (``beam``, ``background_mhz``, ``dead_time_ns``,
-...), of :class:`~lidar_mitsuba.surface.SurfaceSpec` (``surface`` for its kind, ``p``,
+...), of :class:`~lidar_mitsuba.ground.surface.SurfaceSpec` (``surface`` for its kind, ``p``,
 ``relief_m``, ``size_m``, ``grid_m``, ``terrain_seed``, ``rho_d``, ...), of
-:class:`~lidar_mitsuba.track.Track` and :func:`~lidar_mitsuba.simulate.simulate`'s ``shots``,
+:class:`~lidar_mitsuba.track.Track` and :func:`~lidar_mitsuba.run.simulate`'s ``shots``,
 ``seed``, ``paths_per_shot``, ``max_depth``, ``chunk_shots``, ``crop_to_track``, ``variant``;
 ``scene`` (an XML file) and ``params.NAME`` (``[grid] params.slope_deg = [0, 4, 8]`` sweeps an
 XML parameter). A key belongs to one section; ``slope_deg`` without ``surface`` means the
@@ -87,8 +87,7 @@ from datetime import datetime, timezone
 
 from ..constants import ParameterError
 from .spec import Spec, SpecError, Task, expand, load_spec, parameter_names, task_id  # noqa: F401
-from .task import (COLUMNS, RUN_DEPENDENT, _HEAD, _one_line, _row, _set_threads,  # noqa: F401
-                   build, run_task)
+from .task import COLUMNS, RUN_DEPENDENT, _HEAD, _one_line, _row, _set_threads, build, run_task  # noqa: F401
 
 
 # --------------------------------------------------------------------------- storage
@@ -293,9 +292,10 @@ def compute_all(calls: dict, *, workers: int | None = None, log=None) -> dict:
     seed every computation themselves."""
     if not workers:
         return {key: _timed(fn) for key, fn in calls.items()}
-    import mitsuba as mi
+    from ..trace.variant import ensure_renderer
+    variant = ensure_renderer().variant()
     with local_client(workers, log=log) as (client, threads):
-        futures = {key: client.submit(_timed, fn, threads, mi.variant(), pure=False)
+        futures = {key: client.submit(_timed, fn, threads, variant, pure=False)
                    for key, fn in calls.items()}
         return {key: fut.result() for key, fut in futures.items()}
 
@@ -303,7 +303,7 @@ def compute_all(calls: dict, *, workers: int | None = None, log=None) -> dict:
 def _timed(fn, threads: int | None = None, variant: str | None = None):
     """``(fn(), seconds)``, with ``threads`` Dr.Jit / numba threads in ``variant``."""
     if variant is not None:
-        from ..variant import set_variant
+        from ..trace.variant import set_variant
         set_variant(variant)
     _set_threads(threads)
     t0 = time.perf_counter()

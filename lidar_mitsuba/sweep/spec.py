@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..instrument import Instrument
-from ..surface import SurfaceSpec
+from ..ground.surface import SurfaceSpec
 from ..track import Track
 
 _TERRAIN_STREAM = 0x54455252        # 'TERR': keeps the terrain seeds apart from photon seeds

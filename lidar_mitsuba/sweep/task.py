@@ -14,14 +14,14 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from .. import atl06
+from ..products import atl06
 from ..constants import ParameterError
-from ..resources import versions
+from ..machine import versions
 from ..instrument import Instrument
-from ..simulate import check_run, simulate
-from ..surface import SurfaceSpec
+from ..run import check_run, simulate
+from ..ground.surface import SurfaceSpec
 from ..track import Track
-from ..variant import DEFAULT_VARIANT
+from ..trace.variant import DEFAULT_VARIANT
 from .spec import Task, _key, parameter_names
 
 #: columns that differ between identical runs (when and where a task ran)
@@ -48,7 +48,7 @@ COLUMNS: dict[str, str] = {
                     "precision without the late tail of multiply scattered photons)",
     "robust_std_se_m": "standard error of robust_std_m, 1.1664 robust_std_m / sqrt(n) (normal "
                        "approximation: the MAD's 37 % efficiency) [m]",
-    "atl06_n_segments": "ATL06-style 40 m segments (lidar_mitsuba.atl06, all photons)",
+    "atl06_n_segments": "ATL06-style 40 m segments (lidar_mitsuba.products.atl06, all photons)",
     "atl06_n_good": "unflagged segments",
     "h_li_bias_m": "mean of h_li - h_ref over the good segments [m]",
     "h_li_bias_se_m": "its standard error, from every other good segment (independent) [m]",
@@ -73,7 +73,7 @@ _HEAD = ("task_id", "task_index", "replicate")
 
 
 def build(task: Task | dict) -> dict:
-    """The :func:`~lidar_mitsuba.simulate.simulate` keywords of a task (ParameterError, named,
+    """The :func:`~lidar_mitsuba.run.simulate` keywords of a task (ParameterError, named,
     for a bad value: cheap, nothing is loaded)."""
     t = task if isinstance(task, dict) else dataclasses.asdict(task)
     groups = parameter_names()
@@ -123,6 +123,8 @@ def _versions() -> dict:
 def _set_threads(n: int | None) -> None:
     if n is None:
         return
+    from ..trace.variant import ensure_renderer
+    ensure_renderer()                  # (libLLVM checked before Dr.Jit loads)
     import drjit as dr
     import numba
     dr.set_thread_count(int(n))

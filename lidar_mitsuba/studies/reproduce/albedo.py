@@ -10,8 +10,8 @@ import numpy as np
 
 from ...constants import WARD_NORMALIZATIONS as NORMALIZATIONS
 from ...instrument import Instrument
-from ...scene import ward_bsdf_dict
-from ...surface import SurfaceSpec
+from ...ground.brdf import ward_bsdf_dict
+from ...ground.surface import SurfaceSpec
 from .common import (ALBEDOS, SEEDS, _cli_simulate, _cm, _mean_se, _plt, _row, _save, _seq,
                      _simulate, _trend, _verdict, redetect, return_offset_m, track_of)
 from .complex_surfaces import _beam_summary

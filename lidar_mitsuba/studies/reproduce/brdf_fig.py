@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 
-from ... import brdf
+from ...ground import brdf
 from .common import _row
 
 def fig6_brdf() -> dict:

@@ -7,14 +7,16 @@ import os
 import pathlib
 from dataclasses import dataclass
 
-import mitsuba as mi
 import numpy as np
 
-from ... import chunks, retrieval, terrain
+from ...trace import stream as chunks
+from ...products import retrieval
+from ...ground import terrain
 from ...instrument import Instrument
-from ...simulate import simulate
-from ...surface import SurfaceSpec
+from ...run import simulate
+from ...ground.surface import SurfaceSpec
 from ...track import Track as TrackLine
+from ...trace.lazy import mi
 
 P_VALUES = (1.5, 1.6, 1.7, 1.8, 1.9, 2.0)
 SLOPES_DEG = (0.0, 2.0, 4.0, 6.0, 8.0, 10.0)
@@ -117,7 +119,7 @@ def counts_for(quick: bool) -> Counts:
 
 def elevation_stats(dh_m, *, shots: int) -> dict:
     """Bias and precision of residuals ``dh_m`` [m] with their Monte Carlo standard errors
-    (:func:`lidar_mitsuba.retrieval.elevation_stats`), as a dict."""
+    (:func:`lidar_mitsuba.products.retrieval.elevation_stats`), as a dict."""
     return retrieval.elevation_stats(dh_m, shots=shots).to_dict()
 
 
@@ -140,7 +142,7 @@ class Track:
 
 
 def track_of(res) -> Track:
-    """The signal photons of a :class:`~lidar_mitsuba.simulate.SimulationResult`."""
+    """The signal photons of a :class:`~lidar_mitsuba.run.SimulationResult`."""
     d = res.detections
     sig = d.is_signal
     return Track(n_shots=res.n_shots, n_channels=res.instrument.channels, shot=d.shot[sig],
@@ -151,8 +153,8 @@ def track_of(res) -> Track:
 def redetect(res, instrument: Instrument, *, seed: int, chunk_shots: int = CHUNK_SHOTS) -> Track:
     """Run another detector on a simulation's traced returns (``simulate(keep_returns=True)``).
 
-    Only the PMT runs again, through the same chunk loop (:mod:`lidar_mitsuba.chunks`) and
-    detector streams as :func:`~lidar_mitsuba.simulate.simulate`, so the result is exactly
+    Only the PMT runs again, through the same chunk loop (:mod:`lidar_mitsuba.trace.stream`) and
+    detector streams as :func:`~lidar_mitsuba.run.simulate`, so the result is exactly
     what ``simulate(instrument=instrument, <same surface>, seed=seed, chunk_shots=chunk_shots)``
     gives, at the cost of the detector alone. ``instrument`` must share the run's geometry
     (altitude, footprint, pulse, field of view); signal level, channels, dead time and noise
@@ -202,8 +204,8 @@ def flat_plate_tracks(instruments: dict, *, shots: int, seed: int, paths_per_sho
                       chunk_shots: int = CHUNK_SHOTS) -> dict:
     """Several detectors on ONE trace of a flat plate (the paper's snow), chunk by chunk, without
     keeping the traced returns: ``{name: Track}`` for ``instruments = {name: Instrument}``
-    (same geometry). The chunk loop and random streams are :func:`~lidar_mitsuba.simulate.
-    simulate`'s (:mod:`lidar_mitsuba.chunks`), so each Track is exactly what
+    (same geometry). The chunk loop and random streams are :func:`~lidar_mitsuba.run.
+    simulate`'s (:mod:`lidar_mitsuba.trace.stream`), so each Track is exactly what
     ``simulate(instrument=..., surface=SurfaceSpec(kind="flat"), shots=shots, seed=seed)``
     detects (a test checks this)."""
     insts = list(instruments.values())

@@ -7,9 +7,9 @@ import math
 import numpy as np
 
 
-from ... import terrain
+from ...ground import terrain
 from ...instrument import Instrument
-from ...surface import SurfaceSpec
+from ...ground.surface import SurfaceSpec
 from ...plotting import photon_cloud
 from .common import (P_VALUES, SEEDS, _cli_simulate, _cm, _fractal, _list_cm, _mean_se, _plt, _row,
                      _save, _seq, _simulate, _trend, _verdict, redetect, return_offset_m, track_of)

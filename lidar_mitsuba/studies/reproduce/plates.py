@@ -8,7 +8,7 @@ import numpy as np
 
 
 from ...instrument import Instrument
-from ...surface import SurfaceSpec
+from ...ground.surface import SurfaceSpec
 from .common import (PIXELS, SEEDS, SLOPES_DEG, _cli_simulate, _cm, _list_cm, _plt, _row, _save,
                      _simulate, _trend, _verdict, _z, flat_plate_tracks, redetect, track_of)
 

@@ -10,7 +10,6 @@ import platform
 import time
 from dataclasses import asdict
 
-import mitsuba as mi
 import numpy as np
 
 from .common import PAPER, PNG, SEEDS, TITLES, _cm, _seq, counts_for
@@ -22,6 +21,7 @@ from .plates import (fig7_flat, fig8_9_slopes, plot_fig7, plot_fig8, plot_fig9, 
 from .complex_surfaces import (_beam_summary, fig10_12_complex, plot_fig10, plot_fig11, plot_fig12,
                                rows_fig10, rows_fig11, rows_fig12)
 from .albedo import fig13_albedo, plot_fig13, rows_fig13
+from ...trace.lazy import mi
 
 ROWS = {"fig3": rows_fig3, "fig4": rows_fig4, "fig5": rows_fig5, "fig6": rows_fig6,
         "fig7": rows_fig7, "fig8": rows_fig8, "fig9": rows_fig9, "fig10": rows_fig10,

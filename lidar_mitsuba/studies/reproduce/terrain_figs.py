@@ -8,7 +8,7 @@ import pathlib
 import numpy as np
 
 
-from ... import spectra, terrain
+from ...ground import spectra, terrain
 from .common import (ATM_POINTS, ATM_SPACING_M, P_VALUES, RMS_LENGTHS_M, SEGMENT_M, _fractal, _plt,
                      _row, _save, _trend)
 

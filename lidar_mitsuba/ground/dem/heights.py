@@ -1,0 +1,133 @@
+"""Heights of a DEM at points, from its windows: bilinear look-ups (:func:`heights_at`) and the
+exact Gaussian-footprint mean of the bilinear surface (:func:`footprint_mean`). Pure numpy/scipy.
+
+In the data flow of :mod:`lidar_mitsuba.ground.dem`: :meth:`~lidar_mitsuba.ground.dem.DEM.windows` reads one
+DEM window per block of points, these functions turn each window into the heights
+:class:`~lidar_mitsuba.ground.dem.DEMSurface` gives (``height_m``, ``fold``'s footprint probes,
+``reference_elevation_m``), and :mod:`lidar_mitsuba.ground.dem.tiles` meshes the corridor with
+:func:`bilinear_nan`. Coordinates here are the DEM's CRS [m], heights its vertical datum [m].
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.special import ndtr
+
+from ...machine import host_pool
+
+#: the largest footprint weight of missing DEM pixels a reference elevation spreads over the rest
+MISSING_WEIGHT_MAX = 1e-4
+
+
+def bilinear_nan(z: np.ndarray, g: float, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear look-up of the grid ``z`` (node (i, j) at (j g, i g)) [m] at (x, y) [m]; NaN
+    off the grid and wherever a node with a non-zero weight is NaN (so a point on the last
+    row or column of valid pixels is defined)."""
+    ny, nx = z.shape
+    fx, fy = x / g, y / g
+    outside = ~((fx >= 0) & (fy >= 0) & (fx <= nx - 1) & (fy <= ny - 1))
+    fx = np.where(outside, 0.0, fx)
+    fy = np.where(outside, 0.0, fy)
+    ix = np.minimum(fx.astype(np.intp), nx - 2)
+    iy = np.minimum(fy.astype(np.intp), ny - 2)
+    tx, ty = fx - ix, fy - iy
+    out = np.zeros(np.shape(fx))
+    for w, zz in (((1 - tx) * (1 - ty), z[iy, ix]), (tx * (1 - ty), z[iy, ix + 1]),
+                  ((1 - tx) * ty, z[iy + 1, ix]), (tx * ty, z[iy + 1, ix + 1])):
+        out += np.where(w > 0, w * zz, 0.0)     # a node of weight 0 may be nodata (an edge)
+    return np.where(outside, np.nan, out)
+
+
+def heights_at(dem, x_crs: np.ndarray, y_crs: np.ndarray, offsets_m, block: int
+               ) -> np.ndarray:
+    """The DEM's bilinear heights [m] at every point (``x_crs``, ``y_crs``, CRS [m], of one
+    shape) shifted by each ``(dx, dy)`` [m] of ``offsets_m``: shape ``(len(offsets_m),) +
+    x_crs.shape``; NaN over nodata or off the DEM. One window read per ``block`` points
+    covers all the shifts."""
+    offs = np.asarray(offsets_m, np.float64).reshape(-1, 2)
+    pad = float(np.abs(offs).max(initial=0.0))
+    xf, yf = x_crs.ravel(), y_crs.ravel()
+    out = np.full((len(offs), xf.size), np.nan)
+    g = dem.posting_m
+    for s, z, (ox, oy) in dem.windows(xf, yf, pad_m=pad, block=block):
+        if z is None:
+            continue
+        px, py = xf[s] - ox, yf[s] - oy
+        for k, (dx, dy) in enumerate(offs):
+            out[k, s] = bilinear_nan(z, g, px + dx, py + dy)
+    return out.reshape((len(offs),) + x_crs.shape)
+
+
+def footprint_mean(dem, x_crs: np.ndarray, y_crs: np.ndarray, *, sigma_m: float, block: int
+                   ) -> np.ndarray:
+    """The mean of the DEM's bilinear surface over a Gaussian footprint (sigma ``sigma_m``
+    [m]) at each point (``x_crs``, ``y_crs``, CRS [m], of one shape), exact; same shape [m].
+
+    The bilinear interpolant is ``sum_ij z_ij h_i(x) h_j(y)`` with hat functions of the
+    posting ``P``, and a hat is a sum of three ramps, whose Gaussian mean is ``R(d) = d
+    Phi(d / s) + s phi(d / s)``; so each pixel weighs ``a_j(x) b_i(y)``, ``a_j(x) = (R(d + P) -
+    2 R(d) + R(d - P)) / P`` with ``d = x - x_j`` (:func:`_axis_weights`). Pixels farther than
+    ``P + 5 sigma`` on either axis are left out (weight below 3e-7). Near nodata or the DEM's
+    edge the missing pixels' weight, when at most :data:`MISSING_WEIGHT_MAX` (the footprint's
+    tail beyond ~3.7 sigma), is spread over the present ones (an error of that weight times
+    the height change across the footprint); beyond it the mean is NaN.
+
+    The windows (one per ``block`` points) are read here, one after another; their sums
+    (numpy, which lets go of the GIL) run on the host's threads, each block into its own
+    points."""
+    xf, yf = x_crs.ravel(), y_crs.ravel()
+    out = np.full(xf.size, np.nan)
+    reach, _ = _stencil(dem.posting_m, sigma_m)
+    pool = host_pool()
+    jobs = [pool.submit(_window_mean, out, s, xf[s], yf[s], z, ox, oy,
+                        posting_m=dem.posting_m, sigma_m=sigma_m)
+            for s, z, (ox, oy) in dem.windows(xf, yf, pad_m=reach, block=block)
+            if z is not None]
+    for job in jobs:
+        job.result()
+    return out.reshape(x_crs.shape)
+
+
+def _stencil(posting_m: float, sigma_m: float) -> tuple[float, int]:
+    """(reach [m], pixels per axis) of the footprint-mean stencil: pixels within ``P + 5
+    sigma`` of a point."""
+    reach = posting_m + 5.0 * sigma_m
+    return reach, 2 * math.ceil(reach / posting_m) + 2
+
+
+def _axis_weights(p: np.ndarray, *, posting_m: float, sigma_m: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """For (m,) positions ``p`` [m] along one axis of a window (from its first pixel centre):
+    the index of each one's first stencil pixel (m,) and the Gaussian mean of the n pixels'
+    hat functions there (m, n). NaN positions get weights of position 0 (their means are
+    set NaN by the caller)."""
+    P = posting_m
+    reach, n = _stencil(P, sigma_m)
+    p = np.where(np.isfinite(p), p, 0.0)
+    first = np.floor((p - reach) / P).astype(np.int64)
+    if sigma_m > 0:             # ramps at d + P, d, d - P: neighbours share them
+        u = (p[:, None] - (first[:, None] + np.arange(-1, n + 1)) * P) / sigma_m
+        r = sigma_m * (u * ndtr(u) + np.exp(-0.5 * u * u) / math.sqrt(2.0 * math.pi))
+        return first, (r[:, :-2] - 2.0 * r[:, 1:-1] + r[:, 2:]) / P
+    d = p[:, None] - (first[:, None] + np.arange(n)) * P
+    return first, np.maximum(0.0, 1.0 - np.abs(d) / P)
+
+
+def _window_mean(out: np.ndarray, s: slice, xs: np.ndarray, ys: np.ndarray, z: np.ndarray,
+                 ox: float, oy: float, *, posting_m: float, sigma_m: float) -> None:
+    """The footprint means of the points ``xs``, ``ys`` (CRS [m]) from the DEM window ``z``
+    whose first pixel is centred at (``ox``, ``oy``), into ``out[s]``."""
+    ny, nx = z.shape
+    step = np.arange(_stencil(posting_m, sigma_m)[1])
+    j0, a = _axis_weights(xs - ox, posting_m=posting_m, sigma_m=sigma_m)
+    i0, b = _axis_weights(ys - oy, posting_m=posting_m, sigma_m=sigma_m)
+    jj, ii = j0[:, None] + step, i0[:, None] + step
+    on = ((ii >= 0) & (ii < ny))[:, :, None] & ((jj >= 0) & (jj < nx))[:, None, :]
+    zz = z[np.clip(ii, 0, ny - 1)[:, :, None], np.clip(jj, 0, nx - 1)[:, None, :]]
+    w = b[:, :, None] * a[:, None, :]
+    good = on & np.isfinite(zz)
+    present = np.sum(np.where(good, w, 0.0), axis=(1, 2))
+    total = np.sum(np.where(good, w * np.where(good, zz, 0.0), 0.0), axis=(1, 2))
+    bad = (1.0 - present > MISSING_WEIGHT_MAX) | ~(np.isfinite(xs) & np.isfinite(ys))
+    out[s] = np.where(bad, np.nan, total / np.where(bad, 1.0, present))

@@ -1,0 +1,100 @@
+"""The first run on a machine compiles the compiled kernels: the detector's (numba, ~12 s on
+2 cores) and, for tracks of 20 km or more, the compiled ATL06 fit (numba, ~17 s); numba keeps
+them in ``__pycache__`` beside the package, so later runs load them in a fraction of a second.
+(Dr.Jit's tracing kernels compile too, ~0.1-1 s each, and stay in ``~/.drjit``.)
+
+:func:`compile_kernels` compiles them up front on tiny inputs, in a worker thread, while a
+progress bar says what is happening and keeps moving; when every kernel is already cached it
+returns at once and shows nothing.
+"""
+from __future__ import annotations
+
+import pathlib
+import sys
+import threading
+import time
+
+import numpy as np
+
+#: rough compile times on the 2-core VM [s], for the bar's length
+DETECTOR_S = 12.0
+ATL06_S = 17.0
+
+
+def _detector() -> None:
+    from .detector import pmt
+    from .instrument import Instrument
+    from .detector.records import Returns
+    t0 = 3.3e6
+    ret = Returns.at_times(np.full(64 * 4, t0), paths_per_shot=64)
+    pmt.detect(ret, Instrument(background_mhz=1.0), np.random.default_rng(0),
+               gate_center_ns=np.full(4, t0))
+    pmt.paralyzable_mask(np.zeros(3, np.int64), np.arange(3.0), 3.0)
+
+
+def _atl06() -> None:
+    from .products import atl06
+    n = 2000
+    along = np.arange(n) * 0.7
+    atl06.fit_segments(photon_along_m=along, h_m=np.zeros(n), shot=np.arange(n),
+                       channel=np.zeros(n, np.int16), n_shots=n, shot_along_m=along,
+                       n_channels=16, dead_time_ns=3.0, paralyzable=False, pulse_sigma_ns=0.42,
+                       range_gate_m=30.0, engine="compiled")
+
+
+def _cached(module: str, functions: tuple[str, ...]) -> bool:
+    """Whether numba's cache beside the package holds the index of each of ``functions`` of
+    ``module`` as the code stands (numba names it ``module.function-LINE.pyXY.nbi``, LINE the
+    function's first line): a missing one means a compile."""
+    from importlib import import_module
+    mod = import_module(f"lidar_mitsuba.{module}")
+    cache = pathlib.Path(mod.__file__).parent / "__pycache__"
+    tag = f"py{sys.version_info.major}{sys.version_info.minor}"
+    for fn in functions:
+        line = getattr(mod, fn).py_func.__code__.co_firstlineno
+        if not (cache / f"{pathlib.Path(mod.__file__).stem}.{fn}-{line}.{tag}.nbi").exists():
+            return False
+    return True
+
+
+def compile_kernels(*, atl06: bool = False, progress: bool = True) -> float:
+    """Compile the detector's kernels (and, with ``atl06``, the compiled ATL06 fit) if they are
+    not cached yet; returns the seconds it took. With ``progress``, a bar on stderr says
+    "compiling kernels (first run on this machine)" and moves every half second."""
+    steps = []
+    if not _cached("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")):
+        steps.append(("the detector", DETECTOR_S, _detector))
+    if atl06 and not _cached("products.atl06.kernel", ("fit_segment",)):
+        steps.append(("the ATL06 fit", ATL06_S, _atl06))
+    if not steps:
+        return 0.0
+    t0 = time.perf_counter()
+    errors: list[BaseException] = []
+
+    def work():
+        try:
+            for _, _, fn in steps:
+                fn()
+        except BaseException as e:          # raised again in the caller's thread
+            errors.append(e)
+
+    worker = threading.Thread(target=work, name="lidar-compile", daemon=True)
+    worker.start()
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        total = sum(s for _, s, _ in steps)
+        names = " and ".join(n for n, _, _ in steps)
+        bar = tqdm(total=round(total), unit="s", file=sys.stderr, leave=False,
+                   desc=f"first run on this machine: compiling {names} (cached for later runs)",
+                   bar_format="{desc}: {elapsed} of ~{total}s")
+    while worker.is_alive():
+        worker.join(0.5)
+        if bar is not None:
+            bar.n = min(round(time.perf_counter() - t0), bar.total)
+            bar.refresh()
+    if bar is not None:
+        bar.close()
+    if errors:
+        raise errors[0]
+    return time.perf_counter() - t0

@@ -1,0 +1,418 @@
+"""One beam of an ATL03 file: every dataset of a real granule's beam group
+(:mod:`lidar_mitsuba.products.atl03.fields`) from a simulated run, and the run's truth.
+
+:func:`write_beam` appends one run (a whole paper-mode track, or one section of a streamed
+granule) to the beam's groups:
+
+* ``heights/``: one row per detected photon, in shot order;
+* ``geolocation/``, ``geophys_corr/``: one row per 20 m segment from the track's first shot
+  (sections hold whole segments); the reference shot is the one nearest the segment centre;
+* ``bckgrd_atlas/``: one row per 50 shots of the whole track (a row cut by a section's end is
+  held until the next section completes it, or until the file closes: :func:`flush`);
+* ``signal_find_output/<surface type>/``: one row per block of the histogram test
+  (:mod:`lidar_mitsuba.products.classify`, 20 shots of the run);
+* ``/truth/<beam>/{photons,shots}``: the simulation truth (:func:`truth_fields`).
+
+Every row's ``delta_time`` is the group's HDF5 dimension scale, as in real granules.
+"""
+from __future__ import annotations
+
+import functools
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import file as atl03_file
+from .. import h5write as h5chunks
+from ...detector import pmt
+from ... import radiometry
+from .fields import COORDINATES, F4_FILL, GROUPS, SURFACE_TYPES
+from ...trace.stream import gate_heights_m
+from ..classify import histogram_test
+from ...constants import C_M_PER_NS
+
+SEGMENT_M = 20.0            #: ATL03 geolocation segment length [m]
+PULSES_PER_MAJOR_FRAME = 200
+BCKGRD_SHOTS = 50           #: shots per ATL03 bckgrd_atlas row (200 Hz at 10 kHz)
+_C_M_PER_S = C_M_PER_NS * 1e9
+_pending: dict = {}         # (file key, beam) -> the bckgrd_atlas row the next section continues
+
+
+def _put(group, name, data, units, description, fillvalue=None):
+    """A resizable, compressed dataset, or ``data`` appended to it along axis 0 (see
+    :mod:`lidar_mitsuba.products.h5write`)."""
+    return h5chunks.put(group, name, data, units, description, append=True,
+                        fillvalue=fillvalue)
+
+
+# --------------------------------------------------------------------------- the run's rows
+@dataclass
+class _Section:
+    """One run's photons in shot order, its segments and its histogram test."""
+    run: object
+    done: int              # photons of this beam already written (earlier sections)
+
+    def __post_init__(self):
+        res = self.run.result
+        self.res, self.inst, det = res, res.instrument, res.detections
+        self.order = np.argsort(det.shot, kind="stable")
+        self.shot = det.shot[self.order].astype(np.int64)          # local to this run
+        self.gshot = self.shot + self.run.first_shot                 # in the whole track
+        self.channel = det.channel[self.order]
+        self.conf = np.asarray(res.signal_conf)[self.order].astype(np.int8)
+        (self.seg_of_shot, self.first, self.count, self.ref_shot,
+         self.k0) = _segments(res.along_track_m, self.shot)
+        self.gate = gate_heights_m(res.z_ref_m)       # the gates simulate() centred
+        self.test = histogram_test(shot=det.shot, h_m=res.h_m, gate_center_h_m=self.gate,
+                                   range_gate_m=self.inst.range_gate_m)
+
+
+def _segments(along_m: np.ndarray, photon_shot: np.ndarray):
+    """The 20 m segments ``k0 .. k0 + n - 1`` the shots fall in (``along_m`` (n_shots,) from
+    the track's first shot): each shot's segment, the index of each segment's first photon
+    and its photon count (photons sorted by shot, ``photon_shot`` local), the shot nearest
+    each segment's centre, and ``k0``."""
+    seg_of_shot = np.floor(along_m / SEGMENT_M).astype(np.int64)
+    k0 = int(seg_of_shot[0]) if along_m.size else 0
+    n_seg = int(seg_of_shot[-1]) - k0 + 1 if along_m.size else 0
+    count = np.bincount(seg_of_shot[photon_shot] - k0, minlength=n_seg)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    centre = (k0 + np.arange(n_seg) + 0.5) * SEGMENT_M
+    ref_shot = np.clip(np.searchsorted(along_m, centre), 0, along_m.size - 1)
+    prev = np.maximum(ref_shot - 1, 0)
+    closer = np.abs(along_m[prev] - centre) < np.abs(along_m[ref_shot] - centre)
+    ref_shot = np.where(closer, prev, ref_shot)
+    return seg_of_shot, first, count, ref_shot, k0
+
+
+def _ph_id_count(shot: np.ndarray, channel: np.ndarray) -> np.ndarray:
+    """1-based index of each event among the events of its shot and channel, in order."""
+    n = shot.size
+    if n == 0:
+        return np.zeros(0, np.uint8)
+    key = shot.astype(np.int64) * 64 + channel.astype(np.int64)
+    order = np.argsort(key, kind="stable")
+    k = key[order]
+    start = np.r_[True, k[1:] != k[:-1]]
+    run_start = np.maximum.accumulate(np.where(start, np.arange(n), 0))
+    out = np.empty(n, np.int64)
+    out[order] = np.arange(n) - run_start + 1
+    return np.minimum(out, 255).astype(np.uint8)
+
+
+def _heights(s: _Section) -> dict:
+    run, res = s.run, s.res
+    shot = s.shot
+    p = s.test.tail_p[s.order]
+    base = 1 if run.beam.strength == "strong" else 17
+    return {
+        "lat_ph": run.lat_deg[shot], "lon_ph": run.lon_deg[shot], "h_ph": res.h_m[s.order],
+        "delta_time": run.delta_time_s[shot],
+        "dist_ph_along": res.along_track_m[shot] - SEGMENT_M * s.seg_of_shot[shot],
+        "dist_ph_across": np.zeros(shot.size),
+        "signal_conf_ph": np.repeat(s.conf[:, None], len(SURFACE_TYPES), axis=1),
+        "weight_ph": np.round(255.0 * np.clip(-np.log10(np.maximum(p, 1e-300)) / 6.0, 0, 1)),
+        "ph_id_count": _ph_id_count(shot, s.channel),
+        "ph_id_channel": s.channel.astype(np.int64) + base,
+        "ph_id_pulse": s.gshot % PULSES_PER_MAJOR_FRAME + 1,
+        "pce_mframe_cnt": s.gshot // PULSES_PER_MAJOR_FRAME,
+    }
+
+
+def _geolocation(s: _Section, sc_orient: int) -> dict:
+    run, res, inst, ref = s.run, s.res, s.inst, s.ref_shot
+    n_seg, shot, first = s.count.size, s.shot, s.first
+    ref_ph = np.searchsorted(shot, ref)
+    has = ((ref_ph < shot.size) & (shot[np.minimum(ref_ph, max(shot.size - 1, 0))] == ref)
+           if shot.size else np.zeros(n_seg, bool))
+    z_ref = res.z_ref_m[ref]
+    elev, azim = _solar(s)
+    full, near = _saturation(s)
+    link = getattr(inst, "link_budget", None)
+    return {
+        "segment_id": s.k0 + np.arange(1, n_seg + 1), "segment_ph_cnt": s.count,
+        "ph_index_beg": np.where(s.count > 0, s.done + first + 1, 0),
+        "segment_dist_x": SEGMENT_M * (s.k0 + np.arange(n_seg, dtype=np.float64)),
+        "segment_length": np.full(n_seg, SEGMENT_M),
+        "reference_photon_lat": run.lat_deg[ref], "reference_photon_lon": run.lon_deg[ref],
+        "reference_photon_index": np.where(has, ref_ph - first + 1, 0),
+        "delta_time": run.delta_time_s[ref],
+        "ref_azimuth": np.deg2rad(run.azimuth_deg[ref]), "ref_elev": np.full(n_seg, np.pi / 2),
+        "altitude_sc": np.full(n_seg, inst.altitude_m),
+        "bounce_time_offset": _or_fill((inst.altitude_m - z_ref) / _C_M_PER_S),
+        "solar_elevation": elev, "solar_azimuth": azim,
+        "full_sat_fract": full, "near_sat_fract": near,
+        "velocity_sc": _velocity_enu(run.lat_deg, run.lon_deg, run.delta_time_s, ref),
+        "yaw": np.full(n_seg, 180.0 if sc_orient == 0 else 0.0),
+        "surf_type": np.tile(np.array([0, 0, 0, 1, 0]), (n_seg, 1)),
+        "tx_pulse_energy": (np.full(n_seg, link.pulse_energy_uj * 1e-6) if link is not None
+                            else NotModelled("the instrument has no link budget (the paper's "
+                                             "instrument: signal_photons is given, not a "
+                                             "pulse energy); --instrument atlas has one")),
+    }
+
+
+@dataclass(frozen=True)
+class NotModelled:
+    """A field written with its fill value in this file, and why (``model_note``)."""
+    why: str
+
+
+def _or_fill(v):
+    v = np.asarray(v, np.float64)
+    return np.where(np.isfinite(v), v, F4_FILL)
+
+
+def _solar(s: _Section):
+    """The sun at each segment's reference shot [deg]: the run's radiometry's where it has
+    one, else :func:`lidar_mitsuba.radiometry.solar_angles` there."""
+    rad, run, ref = s.res.radiometry, s.run, s.ref_shot
+    if rad is not None:
+        return rad.solar_elevation_deg[ref], rad.solar_azimuth_deg[ref]
+    return radiometry.solar_angles(run.lat_deg[ref], run.lon_deg[ref], run.delta_time_s[ref])
+
+
+def _saturation(s: _Section):
+    """Per segment, the fractions of its pulses with photons that are fully saturated (their
+    surface events, ``signal_conf_ph >= 2``, at least the beam's channels) and nearly
+    saturated (at least 3/4 of the channels, fewer than all); fill value without photons."""
+    n_shots, n_seg = s.res.n_shots, s.count.size
+    surface = np.bincount(s.shot[s.conf >= 2], minlength=n_shots)
+    with_photons = np.bincount(s.shot, minlength=n_shots) > 0
+    channels = s.inst.channels
+    full = surface >= channels
+    near = (surface >= math.ceil(0.75 * channels)) & ~full
+    seg = s.seg_of_shot - s.k0
+    pulses = np.bincount(seg, weights=with_photons, minlength=n_seg)
+    out = []
+    for flag in (full, near):
+        k = np.bincount(seg, weights=flag & with_photons, minlength=n_seg)
+        out.append(np.where(pulses > 0, k / np.maximum(pulses, 1), F4_FILL))
+    return out
+
+
+@functools.lru_cache(maxsize=1)
+def _to_ecef():
+    from pyproj import Transformer
+    return Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+
+
+def _velocity_enu(lat_deg, lon_deg, t_s, at) -> np.ndarray:
+    """(n, 3) east, north, up velocity [m/s] of the footprint at shots ``at``: the central
+    difference of its neighbours' ECEF positions on the ellipsoid, in the local frame."""
+    n = lat_deg.size
+    i0, i1 = np.maximum(at - 1, 0), np.minimum(at + 1, n - 1)
+    ecef = _to_ecef()
+    p0 = np.column_stack(ecef.transform(lon_deg[i0], lat_deg[i0], np.zeros(at.size)))
+    p1 = np.column_stack(ecef.transform(lon_deg[i1], lat_deg[i1], np.zeros(at.size)))
+    dt = t_s[i1] - t_s[i0]
+    v = (p1 - p0) / np.where(dt > 0, dt, np.inf)[:, None]
+    lat, lon = np.deg2rad(lat_deg[at]), np.deg2rad(lon_deg[at])
+    east = np.column_stack([-np.sin(lon), np.cos(lon), np.zeros(at.size)])
+    north = np.column_stack([-np.sin(lat) * np.cos(lon), -np.sin(lat) * np.sin(lon), np.cos(lat)])
+    up = np.column_stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+    out = np.column_stack([(v * e).sum(1) for e in (east, north, up)])
+    return np.where((dt > 0)[:, None], out, F4_FILL)
+
+
+def _geophys(s: _Section) -> dict:
+    return {"delta_time": s.run.delta_time_s[s.ref_shot],
+            "dem_h": _or_fill(s.res.surface_z_m[s.ref_shot])}
+
+
+def _signal_find(s: _Section) -> dict:
+    """One row per histogram block of the run (its noise level, pooled as the test pooled it;
+    blocks after the last photon's take the last block's)."""
+    test, n_shots = s.test, s.res.n_shots
+    n_blocks = -(-n_shots // test.block_shots)
+    lam = test.noise_per_bin
+    lam = lam[np.minimum(np.arange(n_blocks), lam.size - 1)] if lam.size else np.zeros(n_blocks)
+    start = np.arange(n_blocks) * test.block_shots
+    return {"bckgrd_mean": lam, "bckgrd_sigma": np.sqrt(lam),
+            "delta_time": s.run.delta_time_s[start],
+            "t_pc_delta": np.full(n_blocks, test.block_shots / s.inst.prf_hz),
+            "z_pc_delta": np.full(n_blocks, test.bin_m)}
+
+
+# --------------------------------------------------------------------------- bckgrd_atlas
+_ROW_SUMS = ("counts", "signal", "rate_sum", "shots")
+
+
+def _bckgrd_rows(s: _Section) -> dict:
+    """The run's 50-shot rows (of the whole track's grid): sums over the run's shots in each,
+    and what the row's first shot gives it (when that shot is in this run)."""
+    res, inst, g0 = s.res, s.inst, s.run.first_shot
+    n = res.n_shots
+    row = (g0 + np.arange(n)) // BCKGRD_SHOTS
+    lr = row - row[0]
+    n_rows = int(lr[-1]) + 1
+    bg = None if res.radiometry is None else res.radiometry.background_mhz
+    rate = np.broadcast_to(pmt.noise_rate_per_ns(inst, bg) * 1e9, (n,))
+    sig = s.conf >= 2
+    h = res.h_m[s.order][sig]
+    lo, hi = np.full(n_rows, np.inf), np.full(n_rows, -np.inf)
+    np.minimum.at(lo, lr[s.shot[sig]], h)
+    np.maximum.at(hi, lr[s.shot[sig]], h)
+    first = np.searchsorted(lr, np.arange(n_rows))
+    return {"row": row[0] + np.arange(n_rows), "counts": np.bincount(lr[s.shot], minlength=n_rows),
+            "signal": np.bincount(lr[s.shot[sig]], minlength=n_rows),
+            "rate_sum": np.bincount(lr, weights=rate, minlength=n_rows),
+            "shots": np.bincount(lr, minlength=n_rows), "lo": lo, "hi": hi,
+            "time": s.run.delta_time_s[first],
+            "top": s.gate[first] + inst.range_gate_m / 2.0,
+            "gate": np.full(n_rows, inst.range_gate_m)}
+
+
+def _join_rows(held: dict, rows: dict) -> dict:
+    """``rows`` with the row held from the previous run merged into its first."""
+    if rows["row"][0] != held["row"][0]:           # (a row the track does not continue)
+        return {k: np.concatenate([held[k], rows[k]]) for k in rows}
+    out = {k: v.copy() for k, v in rows.items()}
+    for k in _ROW_SUMS:
+        out[k][0] += held[k][0]
+    out["lo"][0] = min(out["lo"][0], held["lo"][0])
+    out["hi"][0] = max(out["hi"][0], held["hi"][0])
+    for k in ("time", "top", "gate"):
+        out[k][0] = held[k][0]
+    return out
+
+
+def _bckgrd(rows: dict) -> dict:
+    span = np.where(rows["signal"] > 0, rows["hi"] - rows["lo"], 0.0)
+    return {"bckgrd_counts": rows["counts"],
+            "bckgrd_counts_reduced": rows["counts"] - rows["signal"],
+            "bckgrd_hist_top": rows["top"], "bckgrd_int_height": rows["gate"],
+            "bckgrd_int_height_reduced": rows["gate"] - span,
+            "bckgrd_rate": rows["rate_sum"] / np.maximum(rows["shots"], 1),
+            "delta_time": rows["time"],
+            "pce_mframe_cnt": rows["row"] * BCKGRD_SHOTS // PULSES_PER_MAJOR_FRAME,
+            "tlm_height_band1": rows["gate"], "tlm_top_band1": rows["top"]}
+
+
+def _append_bckgrd(gt, s: _Section) -> None:
+    """Append the run's complete 50-shot rows; hold a row the next run continues."""
+    key = (h5chunks._file_key(gt), gt.name)
+    rows = _bckgrd_rows(s)
+    held = _pending.pop(key, None)
+    if held is not None:
+        rows = _join_rows(held, rows)
+    if (s.run.first_shot + s.res.n_shots) % BCKGRD_SHOTS:       # the last row goes on
+        _pending[key] = {k: v[-1:] for k, v in rows.items()}
+        rows = {k: v[:-1] for k, v in rows.items()}
+    _write_group(gt, "bckgrd_atlas", _bckgrd(rows))
+
+
+def flush(f) -> None:
+    """Append the rows held for file ``f`` (a track's last, shorter than 50 shots)."""
+    key = h5chunks._file_key(f)
+    for k in [k for k in _pending if k[0] == key]:
+        _write_group(f[k[1]], "bckgrd_atlas", _bckgrd(_pending.pop(k)))
+
+
+def discard(f) -> None:
+    """Forget the rows held for file ``f`` (its write failed)."""
+    key = h5chunks._file_key(f)
+    for k in [k for k in _pending if k[0] == key]:
+        del _pending[k]
+
+
+# --------------------------------------------------------------------------- writing
+def _write_group(gt, name: str, values: dict) -> None:
+    """Append ``values`` to group ``gt/name`` as its fields (:data:`GROUPS`) say: dtype,
+    constants for the fields not given, attributes and the ``delta_time`` dimension scale
+    when the group is new."""
+    spec = GROUPS[name]
+    new = name not in gt
+    g = gt.require_group(name)
+    extra = set(values) - set(spec)
+    if extra:
+        raise KeyError(f"{name}: not ATL03 fields: {sorted(extra)}")
+    n = len(values["delta_time"])
+    for field_name, fld in spec.items():
+        v = values.get(field_name, fld.const)
+        note = fld.model_note
+        if isinstance(v, NotModelled):
+            v, note = fld.fill, v.why
+        if v is None:
+            raise KeyError(f"{name}/{field_name}: no values and no constant")
+        data = np.asarray(v)
+        if data.ndim == 0 or data.shape[0] != n:
+            data = np.broadcast_to(data, (n,) + fld.shape)
+        ds = _put(g, field_name, data.astype(fld.dtype), fld.units, fld.description,
+                  fillvalue=fld.fill)
+        if new:
+            _field_attrs(ds, fld, note, COORDINATES.get(name, "delta_time"), field_name)
+    if new:
+        atl03_file.dimension_scale(g)
+
+
+def _field_attrs(ds, fld, note: str, coordinates: str, name: str) -> None:
+    ds.attrs["long_name"] = fld.long_name
+    if fld.fill is not None:
+        ds.attrs["_FillValue"] = np.asarray(fld.fill, fld.dtype)
+    for k, v in fld.attrs.items():
+        ds.attrs[k] = np.asarray(v, fld.dtype) if not isinstance(v, str) else v
+    coords = " ".join(c for c in coordinates.split() if c != name)
+    if coords:
+        ds.attrs["coordinates"] = coords
+    if note:
+        ds.attrs["model_note"] = note
+
+
+def write_beam(f, run, sc_orient: int) -> None:
+    """Append one run (a :class:`~lidar_mitsuba.granule.BeamRun`: the beam, its result and
+    each shot's latitude, longitude, direction and time) to the beam's groups of ATL03 file
+    ``f``, and its truth to ``/truth/<beam>``. The file's header
+    (:func:`lidar_mitsuba.products.atl03.file.header`) comes first; a file not opened with
+    :func:`lidar_mitsuba.products.atl03.atomic_h5file` needs :func:`flush` before it closes."""
+    beam = run.beam
+    gt = f.require_group(beam.name)
+    done = gt["heights/h_ph"].shape[0] if "heights/h_ph" in gt else 0   # earlier sections
+    gt.attrs.update({"atlas_beam_type": beam.strength, "atlas_spot_number": str(beam.spot),
+                     "atlas_pce": f"pce{beam.pce}", "groundtrack_id": beam.name,
+                     "sc_orientation": "Backward" if sc_orient == 0 else "Forward",
+                     "description": "one ATLAS beam: photons, geolocation, background"})
+    s = _Section(run, done)
+    _write_group(gt, "heights", _heights(s))
+    _write_group(gt, "geolocation", _geolocation(s, sc_orient))
+    _write_group(gt, "geophys_corr", _geophys(s))
+    _append_bckgrd(gt, s)
+    found = _signal_find(s)
+    for surface in SURFACE_TYPES:
+        _write_group(gt, f"signal_find_output/{surface}", found)
+    truth = f.require_group("truth").require_group(beam.name)
+    for group, name, data, units, desc in truth_fields(s.res, order=s.order,
+                                                       first_shot=run.first_shot):
+        _put(truth.require_group(group), name, data, units, desc)
+    if "config" not in truth.attrs:                       # (the first section's)
+        truth.attrs["config"] = json.dumps(s.res.config)
+    atl03_file.extend_extent(f, run.lat_deg, run.lon_deg)
+
+
+def truth_fields(result, *, order: np.ndarray | None = None, first_shot: int = 0):
+    """The ``/truth/<beam>`` datasets of one beam's result: ``(group, name, data, units,
+    description)`` with group ``photons`` (per detected photon, in ``order``) or ``shots``
+    (per shot); shot numbers count from ``first_shot`` (a granule written in sections)."""
+    det = result.detections
+    o = slice(None) if order is None else order
+    yield "photons", "shot", det.shot[o] + first_shot, "1", "shot index"
+    yield "photons", "channel", det.channel[o], "1", "detector channel (0-based)"
+    yield "photons", "anode", det.anode[o], "1", "PMT anode segment"
+    yield "photons", "is_signal", det.is_signal[o].astype(np.int8), "1", "1 signal, 0 noise"
+    yield "photons", "time_ns", det.time_ns[o], "ns", "round-trip time from the pulse centre"
+    yield ("photons", "return_index", det.return_index[o], "1",
+           "index of the traced return in its run (-1 for noise)")
+    yield "photons", "h_m", result.h_m[o], "meters", "photon height (float64)"
+    for j, axis in enumerate(("x", "y", "z")):
+        yield ("photons", f"hit_{axis}_m", det.hit_xyz_m[o, j], "meters",
+               f"{axis} of the scattering point (NaN for noise)")
+    yield "shots", "along_track_m", result.along_track_m, "meters", "along-track distance"
+    yield "shots", "x_m", result.shot_x_m, "meters", "footprint centre x"
+    yield "shots", "y_m", result.shot_y_m, "meters", "footprint centre y"
+    yield ("shots", "z_ref_m", result.z_ref_m, "meters",
+           "reference elevation: Gaussian-footprint-weighted mean height")
+    yield "shots", "surface_z_m", result.surface_z_m, "meters", "height at the footprint centre"
+    yield "shots", "arrivals", det.arrivals_per_shot, "1", "photons reaching the detector"
+    yield "shots", "mean_photons", det.mean_photons_per_shot, "1", "Poisson mean per shot"
