@@ -14,7 +14,7 @@ tails:
    published climatology) over a bare-ice base;
 4. ``ridged floe``: the same with the rms roughness of deformed (ridged) ice.
 
-Every twin is written to ATL03 and read back by :func:`validate.atl03_rates`, the code that
+Every twin is written to ATL03 and read back by :func:`~lidar_mitsuba.products.atl03.rates.atl03_rates`, the code that
 reads the real file, so both sides' residuals come from the same classifier output, the same
 segments and the same medians. :func:`tails` counts them beyond +-20 cm with binomial
 standard errors; :func:`run` puts the rows side by side with a verdict each; :func:`plot`
@@ -32,7 +32,7 @@ import numpy as np
 from .. import granule, twin
 from ..ground import snow, terrain
 from ..ground.surface import SurfaceSpec
-from . import validate
+from ..products.atl03.rates import atl03_rates
 
 CUT_M = 0.2
 """Residuals beyond +-this [m] are the tails (the issue's 20 cm)."""
@@ -143,7 +143,7 @@ def twin_tails(name: str, *, real=None, seed: int = 1, repeats: int = 1,
     """One rung of the ladder: the real subset's twin over model ``name`` (:data:`MODELS`),
     ``repeats`` times (seeds ``seed + k``; a rough floe also gets terrain seed ``k``: a new
     patch of the same ice), each written to ATL03 and read back by
-    :func:`validate.atl03_rates`; their residuals pooled into :func:`tails`."""
+    :func:`~lidar_mitsuba.products.atl03.rates.atl03_rates`; their residuals pooled into :func:`tails`."""
     what, rms, make_snow = MODELS[name]
     real = twin.read(twin.REAL_SUBSET) if real is None else real
     out = pathlib.Path(out_dir or tempfile.mkdtemp(prefix="sea_ice_"))
@@ -156,7 +156,7 @@ def twin_tails(name: str, *, real=None, seed: int = 1, repeats: int = 1,
                                        progress=False, snow=vol)
         path = out / f"{name}_{k}_ATL03.h5"
         granule.write_atl03(g, path)
-        r = validate.atl03_rates(path, g.beams[0].beam.name)
+        r = atl03_rates(path, g.beams[0].beam.name)
         resid.append(r["residuals_m"])
         per_shot.append(r["signal_per_shot"])
         seg_rms.append(_segment_rms_m(g.beams[0].result))
@@ -232,7 +232,7 @@ def run(*, quick: bool = False, seed: int = 1, out_dir=None,
     out = pathlib.Path(out_dir or tempfile.mkdtemp(prefix="sea_ice_"))
     t0 = time.perf_counter()
     real = twin.read(twin.REAL_SUBSET)
-    r = validate.atl03_rates(twin.REAL_SUBSET, real.beams[0].beam.name)
+    r = atl03_rates(twin.REAL_SUBSET, real.beams[0].beam.name)
     doc = {"quick": bool(quick), "seed": int(seed), "cut_m": CUT_M, "floe": FLOE,
            "real": {"file": twin.REAL_SUBSET.name, "signal_per_shot": r["signal_per_shot"],
                     "spread_robust_m": r["spread_robust_m"],

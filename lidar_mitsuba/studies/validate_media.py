@@ -18,7 +18,7 @@ from __future__ import annotations
 import pathlib
 import time
 
-from . import cloud, lake
+from . import cloud, lake, sea_ice
 
 #: the high cloud of the Yang et al. comparison, and the optical depths validate runs
 CLOUD_HEIGHTS_M = cloud.HIGH
@@ -28,7 +28,6 @@ CLOUD_TAUS = (0.0, 1.0)
 def run(out: pathlib.Path, *, quick: bool, twin_doc: dict) -> dict:
     """The four checks (``twin_doc``: validate's real-twin check, for the night background's
     real and modelled rates). Figures ``lake.png``, ``cloud.png`` and ``sea_ice.png``."""
-    from . import sea_ice          # (it reads the subset with validate's own code)
     t0 = time.perf_counter()
     doc = {"lake": lake.run(quick=quick)}
     shots, ppp = (1500, 128) if quick else (6000, 512)
