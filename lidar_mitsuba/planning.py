@@ -140,7 +140,7 @@ class _Run:
     reach: float = 0.0
     bsdf_used: object = None
     scene: object = None
-    first_tile: tuple | None = None
+    tiling: object = None
     triangles: int = 0
     crop: bool = True
     surface_z: np.ndarray | None = None
@@ -156,18 +156,6 @@ class _Run:
     site: Site | None = None
     geoloc: Geolocation | None = None
     rad: radiometry.ShotRadiometry | None = None
-
-
-class _Scenes:
-    """The plan's Mitsuba scene and, for a streamed DEM, its first corridor tile: the one
-    part of a plan that a stream lets go of (a live stale scene joins every later tile's
-    kernel calls)."""
-
-    def __init__(self, scene, first_tile):
-        self.scene, self.first_tile = scene, first_tile
-
-    def release(self) -> None:
-        self.scene = self.first_tile = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -195,7 +183,9 @@ class RunPlan:
         site, geoloc, rad: where on the Earth, each shot's place and time, and (a link
             budget) its radiometry.
         timings: wall time of each step [s] (the stream adds its own); t0: the start.
-        scenes: the Mitsuba scene (and a DEM's first tile): ``plan.scene``.
+        tiling: the scenes the chunks trace (:class:`~lidar_mitsuba.ground.surface.Tiling`:
+            one for every chunk, or a DEM's corridor tile per chunk); ``plan.scene`` is the
+            first chunk's.
     """
     instrument: Instrument
     surf: surfaces.Surface
@@ -237,16 +227,12 @@ class RunPlan:
     site: Site
     geoloc: Geolocation
     rad: radiometry.ShotRadiometry | None
-    scenes: _Scenes
+    tiling: object
 
     @property
     def scene(self):
-        """The Mitsuba scene traced (a streamed DEM's first tile; None once streamed)."""
-        return self.scenes.scene
-
-    @property
-    def first_tile(self):
-        return self.scenes.first_tile
+        """The first chunk's Mitsuba scene (a DEM's first corridor tile: None once streamed)."""
+        return self.tiling.scene
 
     def describe(self) -> list[str]:
         """The plan in words, one line per decision."""
@@ -278,9 +264,7 @@ class RunPlan:
 
 def _freeze(run: _Run) -> RunPlan:
     """The finished builder as a :class:`RunPlan`."""
-    names = [f.name for f in dataclasses.fields(RunPlan) if f.name != "scenes"]
-    return RunPlan(**{n: getattr(run, n) for n in names},
-                   scenes=_Scenes(run.scene, run.first_tile))
+    return RunPlan(**{f.name: getattr(run, f.name) for f in dataclasses.fields(RunPlan)})
 
 
 def plan(*, instrument: Instrument | None = None, surface=None, scene=None,
@@ -392,19 +376,14 @@ def _lay_out(run: _Run, track, *, crop_to_track: bool) -> None:
                  else max(margin, inst.fov_diameter_m / 2 + 5.0))
     run.bsdf_used = (run.snow if run.snow is not None else run.bsdf if run.bsdf is not None
                      else run.default_bsdf)
-    if surf.streamed:       # a DEM: every chunk traces its own corridor tile
-        run.chunk_shots = n = min(run.chunk_shots, surf.tile_shots)
-        run.first_tile = surf.corridor_tile(run.x[:n], run.y[:n], reach_m=run.reach,
-                                            bsdf=run.bsdf_used)
-        run.scene, (ox, oy), run.triangles = run.first_tile
-        run.x_loc, run.y_loc = run.x[:n] - ox, run.y[:n] - oy     # the pilot's tile
-    else:
-        bounds = None
-        if crop_to_track:
-            bounds = (float(run.x_loc.min()) - run.reach, float(run.x_loc.max()) + run.reach,
-                      float(run.y_loc.min()) - run.reach, float(run.y_loc.max()) + run.reach)
-        run.scene, run.triangles = surf.mitsuba_scene(bsdf=run.bsdf_used, margin_m=run.reach,
-                                                      bounds_m=bounds)
+    # the scenes every chunk traces: one for a plane, a tile or a scene; a corridor tile
+    # per chunk for a DEM (the first is built here: the pilot and the scout trace it)
+    run.tiling = surf.tiles(run.x, run.y, x_local_m=run.x_loc, y_local_m=run.y_loc,
+                            dz_m=run.dz, reach_m=run.reach, bsdf=run.bsdf_used,
+                            crop=crop_to_track, chunk_shots=run.chunk_shots)
+    run.chunk_shots, run.triangles = run.tiling.chunk_shots, run.tiling.triangles
+    run.scene = run.tiling.scene
+    run.x_loc, run.y_loc = run.tiling.x_local_m, run.tiling.y_local_m   # the pilot's shots
     top = float(scn.scene_bounds(run.scene)[1][2] + np.max(np.abs(run.dz), initial=0.0))
     if top + 1.0 >= inst.altitude_m:
         raise ParameterError("altitude_m", f"the spacecraft ({inst.altitude_m:g} m) must "

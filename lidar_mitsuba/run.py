@@ -195,21 +195,15 @@ def simulate(*, instrument: Instrument | None = None,
 
 def stream(run: RunPlan, *, keep_returns: bool | None = None,
            progress: bool = False) -> chunks.ChunkedRun:
-    """The chunk loop over the run's source: the scene, or a DEM's corridor tiles (the first
-    tile goes with its chunk: a live stale scene would join every later tile's kernel calls;
-    the rare diagnosis that needs it builds it again)."""
+    """Trace and detect the plan chunk by chunk (:func:`lidar_mitsuba.trace.stream.run`) over
+    its surface's tiling: every chunk in the scene it is given (one for every chunk, or a
+    DEM's corridor tile per chunk; the first plan's scene is let go once the stream has it:
+    a live stale scene would join every later tile's kernel calls)."""
     ppp = int(run.paths_per_shot)
     if keep_returns is None:
         keep_returns = run.shots * ppp * (1 if run.volume else run.max_depth) <= 2 ** 24
-    if run.surf.streamed:
-        source = chunks.CorridorSource(run.integrator, run.surf, x_m=run.x, y_m=run.y,
-                                       paths_per_shot=ppp, reach_m=run.reach,
-                                       bsdf=run.bsdf_used, first=run.first_tile)
-        run.scenes.release()
-    else:
-        source = chunks.traced(run.integrator, run.scene, x_m=run.x_loc, y_m=run.y_loc,
-                               paths_per_shot=ppp, dx_m=run.x - run.x_loc,
-                               dy_m=run.y - run.y_loc, dz_m=run.dz)
+    source = chunks.TiledSource(run.integrator, run.tiling, paths_per_shot=ppp)
+    run.tiling.release()
     if run.materials is not None and run.materials.air_layers:
         source = chunks.GatedSource(source, gate_ns=run.instrument.range_gate_ns,
                                     gate_center_ns=chunks.gate_center_ns(run.instrument,
@@ -221,18 +215,13 @@ def stream(run: RunPlan, *, keep_returns: bool | None = None,
         chunk_shots=run.chunk_shots, keep_returns=keep_returns, progress=progress,
         detector_inputs=None if run.rad is None else run.rad.detector_inputs)
     run.timings.update(chunked.timings_s)
-    if run.surf.streamed:
-        run.surf_cfg.update(tiles=source.tiles, max_tile_triangles=source.triangles)
+    run.surf_cfg.update(run.tiling.stats())
     return chunked
 
 
 def _scene_of(run: RunPlan):
-    """The scene of the run's first shots (a streamed DEM's first tile, built again)."""
-    if run.scene is not None:
-        return run.scene
-    n = run.x_loc.size
-    return run.surf.corridor_tile(run.x[:n], run.y[:n], reach_m=run.reach,
-                                  bsdf=run.bsdf_used)[0]
+    """The scene of the run's first shots (a DEM's first tile, built again)."""
+    return run.tiling.first_scene()
 
 
 def assemble(run: RunPlan, chunked: chunks.ChunkedRun) -> SimulationResult:

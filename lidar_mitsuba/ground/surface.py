@@ -49,8 +49,23 @@ class Surface:
     exact_single_bounce: bool = False
     #: built-in surfaces take a BSDF; a scene has its own
     takes_bsdf: bool = True
-    #: traced in corridor tiles along the track (``corridor_tile``), never as one scene
-    streamed: bool = False
+
+    def tiles(self, x_m: np.ndarray, y_m: np.ndarray, *, x_local_m: np.ndarray,
+              y_local_m: np.ndarray, dz_m: np.ndarray, reach_m: float, bsdf,
+              crop: bool, chunk_shots: int) -> "Tiling":
+        """The scenes the shots at (``x_m``, ``y_m``) [m] are traced in, chunk by chunk
+        (:class:`Tiling`). Here one scene for every chunk (:class:`OneTile`): the surface's
+        mesh, cropped to ``reach_m`` around the folded positions (``x_local_m``,
+        ``y_local_m``) when ``crop``, the offsets ``(x - x_local, y - y_local, dz)`` putting
+        the returns back on the track. A DEM yields a corridor tile per chunk instead."""
+        bounds = None
+        if crop:
+            bounds = (float(x_local_m.min()) - reach_m, float(x_local_m.max()) + reach_m,
+                      float(y_local_m.min()) - reach_m, float(y_local_m.max()) + reach_m)
+        scene, triangles = self.mitsuba_scene(bsdf=bsdf, margin_m=reach_m, bounds_m=bounds)
+        return OneTile(scene, triangles, x_local_m=x_local_m, y_local_m=y_local_m,
+                       offsets_m=(x_m - x_local_m, y_m - y_local_m, dz_m),
+                       chunk_shots=chunk_shots)
 
     def centre_xy_m(self) -> tuple[float, float]:
         """Where the middle of a default track goes [m]."""
@@ -337,6 +352,52 @@ class SceneSurface(Surface):
         lo, hi = self.bounds_m
         return {"kind": "scene", "scene_file": self.source,
                 "bounds_m": [lo.tolist(), hi.tolist()]}
+
+
+class Tiling:
+    """The scenes a track's shots are traced in, chunk by chunk: what every surface yields
+    (:meth:`Surface.tiles`), so that nothing downstream asks which kind of surface it has.
+
+    Attributes: ``scene``, ``x_local_m``, ``y_local_m`` and ``triangles``: the first
+    chunk's scene, its shots' positions in it [m] (the bounce pilot's and the path scout's)
+    and its size; ``chunk_shots``: the shots per chunk the stream must use."""
+    scene = None
+    x_local_m: np.ndarray
+    y_local_m: np.ndarray
+    triangles: int = 0
+    chunk_shots: int = 1
+
+    def tile(self, a: int, b: int):
+        """``(scene, x_local_m, y_local_m, offsets_m)`` of shots ``a`` .. ``b - 1``: the scene
+        they are traced in, their positions in it, and three arrays (dx, dy, dz) [m] that
+        put the returns back on the track (the integrator's ``offset_m``)."""
+        raise NotImplementedError
+
+    def release(self) -> None:
+        """Let go of the first chunk's scene once the stream has it (a live stale scene joins
+        every later tile's kernel calls)."""
+
+    def first_scene(self):
+        """The first chunk's scene (built again if released: a diagnosis that needs it)."""
+        return self.scene
+
+    def stats(self) -> dict:
+        """What the tiles cost (for the run's config), after the stream."""
+        return {}
+
+
+class OneTile(Tiling):
+    """One scene for every chunk (planes, heightfield tiles, Mitsuba scenes)."""
+
+    def __init__(self, scene, triangles: int, *, x_local_m, y_local_m, offsets_m,
+                 chunk_shots: int):
+        self.scene, self.triangles, self.chunk_shots = scene, int(triangles), int(chunk_shots)
+        self.x_local_m, self.y_local_m = x_local_m, y_local_m
+        self.offsets_m = tuple(np.asarray(d, np.float64) for d in offsets_m)
+
+    def tile(self, a: int, b: int):
+        return (self.scene, self.x_local_m[a:b], self.y_local_m[a:b],
+                tuple(d[a:b] for d in self.offsets_m))
 
 
 # --------------------------------------------------------------------------- built-in surfaces

@@ -97,44 +97,20 @@ class TracedSource:
 traced = TracedSource
 
 
-class CorridorSource:
-    """A source that traces every chunk over its own corridor tile of a streamed surface
-    (:meth:`lidar_mitsuba.ground.dem.DEMSurface.corridor_tile`): the tile is meshed when the chunk
-    is launched and dropped with its trace, so memory is one or two tiles for any track.
+class TiledSource:
+    """A source over a surface's :class:`~lidar_mitsuba.ground.surface.Tiling`: each chunk is
+    traced in the scene the tiling gives it (one scene for every chunk, or a DEM's corridor
+    tile per chunk), its returns put back on the track on the device (the integrator's
+    ``offset_m``)."""
 
-    ``x_m``, ``y_m``: (n_shots,) footprint centres in the surface's frame [m]; each tile is
-    traced in its own local frame and the returns are moved back on the device.
-    ``first``: an already built ``(scene, origin, triangles)`` of the chunk starting at
-    shot 0 (the run's pilot used it)."""
-
-    def __init__(self, integrator, surface, *, x_m: np.ndarray, y_m: np.ndarray,
-                 paths_per_shot: int, reach_m: float, bsdf: dict | None, first=None):
-        self.integrator, self.surface = integrator, surface
-        self.x_m = np.asarray(x_m, np.float64)
-        self.y_m = np.asarray(y_m, np.float64)
-        self.paths_per_shot, self.reach_m, self.bsdf = int(paths_per_shot), reach_m, bsdf
-        self._first = first
-        self.tiles = 0
-        self.triangles = 0
-
-    def tile(self, a: int, b: int):
-        """``(scene, (ox, oy), triangles)`` of the corridor of shots ``a`` .. ``b - 1``."""
-        if a == 0 and self._first is not None:
-            out, self._first = self._first, None
-        else:
-            out = self.surface.corridor_tile(self.x_m[a:b], self.y_m[a:b],
-                                             reach_m=self.reach_m, bsdf=self.bsdf)
-        self.tiles += 1
-        self.triangles = max(self.triangles, out[2])
-        return out
+    def __init__(self, integrator, tiling, *, paths_per_shot: int):
+        self.integrator, self.tiling, self.paths_per_shot = integrator, tiling, int(paths_per_shot)
 
     def launch(self, a: int, b: int, seed: int):
-        scene, (ox, oy), _ = self.tile(a, b)
-        n = b - a
-        return self.integrator.launch(scene, shot_x_m=self.x_m[a:b] - ox,
-                                      shot_y_m=self.y_m[a:b] - oy,
+        scene, x_local, y_local, offsets = self.tiling.tile(a, b)
+        return self.integrator.launch(scene, shot_x_m=x_local, shot_y_m=y_local,
                                       paths_per_shot=self.paths_per_shot, seed=seed,
-                                      offset_m=(np.full(n, ox), np.full(n, oy), np.zeros(n)))
+                                      offset_m=offsets)
 
     def __call__(self, a: int, b: int, seed: int) -> Returns:
         return self.launch(a, b, seed).result()

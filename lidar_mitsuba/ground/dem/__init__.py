@@ -39,7 +39,7 @@ from .. import terrain
 from .heights import footprint_mean, heights_at
 from ...constants import ParameterError, check
 from ...machine import check_memory
-from ..surface import Surface
+from ..surface import Surface, Tiling
 from ..terrain import Heightfield
 
 #: most shots per corridor tile (about 2.9 km at 0.7 m): bounds a tile's mesh
@@ -220,7 +220,6 @@ class DEMSurface(Surface):
     tile_shots: int = TILE_SHOTS
     origin_m: tuple[float, float] = (0.0, 0.0)
 
-    streamed = True
 
     def __post_init__(self):
         if self.mesh_grid_m is not None:
@@ -287,6 +286,13 @@ class DEMSurface(Surface):
         zero = np.zeros(x.shape)
         return x, y, zero
 
+    def tiles(self, x_m, y_m, *, x_local_m, y_local_m, dz_m, reach_m: float, bsdf,
+              crop: bool, chunk_shots: int) -> "CorridorTiles":
+        """A corridor tile per chunk of at most :attr:`tile_shots` shots
+        (:class:`CorridorTiles`): the DEM is never one scene."""
+        return CorridorTiles(self, x_m, y_m, reach_m=reach_m, bsdf=bsdf,
+                             chunk_shots=min(int(chunk_shots), self.tile_shots))
+
     def corridor_tile(self, x_m: np.ndarray, y_m: np.ndarray, *, reach_m: float,
                       bsdf: dict | None):
         """Mesh the corridor of one chunk's shots and load it.
@@ -350,6 +356,51 @@ class DEMSurface(Surface):
             return []
         return [f"the corridor mesh spacing ({self.mesh_grid_m:g} m) is coarser than half the "
                 f"footprint sigma ({instrument.footprint_sigma_m:g} m)"]
+
+
+class CorridorTiles(Tiling):
+    """A DEM's tiling: every chunk of shots traces its own corridor tile
+    (:meth:`DEMSurface.corridor_tile`), meshed when the chunk is launched and dropped with
+    its trace, so memory is one or two tiles for any track. The first chunk's tile is built
+    here (the pilot and the scout trace it) and handed to the stream once."""
+
+    def __init__(self, surface: DEMSurface, x_m, y_m, *, reach_m: float, bsdf,
+                 chunk_shots: int):
+        self.surface, self.reach_m, self.bsdf = surface, reach_m, bsdf
+        self.x_m = np.asarray(x_m, np.float64)
+        self.y_m = np.asarray(y_m, np.float64)
+        self.chunk_shots = n = int(chunk_shots)
+        self._first = surface.corridor_tile(self.x_m[:n], self.y_m[:n], reach_m=reach_m,
+                                            bsdf=bsdf)
+        self.scene, (ox, oy), self.triangles = self._first
+        self.x_local_m, self.y_local_m = self.x_m[:n] - ox, self.y_m[:n] - oy
+        self.count, self.max_triangles = 0, 0
+
+    def tile(self, a: int, b: int):
+        if a == 0 and self._first is not None:
+            out, self._first = self._first, None
+        else:
+            out = self.surface.corridor_tile(self.x_m[a:b], self.y_m[a:b],
+                                             reach_m=self.reach_m, bsdf=self.bsdf)
+        self.count += 1
+        self.max_triangles = max(self.max_triangles, out[2])
+        scene, (ox, oy), _ = out
+        n = b - a
+        return (scene, self.x_m[a:b] - ox, self.y_m[a:b] - oy,
+                (np.full(n, ox), np.full(n, oy), np.zeros(n)))
+
+    def release(self) -> None:
+        self.scene = None
+
+    def first_scene(self):
+        if self.scene is not None:
+            return self.scene
+        n = self.chunk_shots
+        return self.surface.corridor_tile(self.x_m[:n], self.y_m[:n], reach_m=self.reach_m,
+                                          bsdf=self.bsdf)[0]
+
+    def stats(self) -> dict:
+        return {"tiles": self.count, "max_tile_triangles": self.max_triangles}
 
 
 def write_geotiff(path: str | os.PathLike, z_m: np.ndarray, *, x0_m: float, y1_m: float,

@@ -2,7 +2,7 @@
 (:func:`pixel_tile`) or on a grid along the chunk's chord (:func:`grid_tile`). Pure numpy.
 
 In the data flow of :mod:`lidar_mitsuba.ground.dem`: :meth:`~lidar_mitsuba.ground.dem.DEMSurface.corridor_tile`
-picks one of these for every chunk that :class:`lidar_mitsuba.trace.stream.CorridorSource` launches,
+picks one of these for every chunk that :class:`lidar_mitsuba.ground.dem.CorridorTiles` hands the stream,
 and loads the mesh into a Mitsuba scene. Vertices are in a local frame whose origin is the
 chunk's first shot (float32 holds millimetres there), heights absolute [m]; a tile that would
 reach nodata or the DEM's edge is refused (:func:`nodata_error`).
