@@ -20,7 +20,8 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 import time
-from dataclasses import dataclass, field
+import types
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -105,57 +106,6 @@ def _resolve_surface(*, surface, scene, scene_file, params, bsdf):
         raise ParameterError("bsdf", "does not apply to a Mitsuba scene: it has its own BSDFs "
                              "(set them in the scene)")
     return surf, default_bsdf, cfg
-
-
-@dataclass
-class _Run:
-    """A plan as :func:`plan`'s steps build it (the same fields as :class:`RunPlan`, the
-    scenes held directly); :func:`_freeze` makes the :class:`RunPlan`."""
-    instrument: Instrument
-    surf: surfaces.Surface
-    surf_cfg: dict
-    default_bsdf: dict | None
-    bsdf: dict | None
-    snow: SnowVolume | None
-    shots: int
-    seed: int
-    paths_per_shot: int | str
-    max_depth: int | str
-    chunk_shots: int
-    volume: bool
-    snow_model: str = "walk"
-    materials: materials.SceneMaterials | None = None
-    max_lanes: int | None = None
-    honoured: dict = field(default_factory=dict)
-    timings: dict = field(default_factory=dict)
-    t0: float = field(default_factory=time.perf_counter)
-    # _lay_out
-    track: object = None
-    along: np.ndarray | None = None
-    x: np.ndarray | None = None
-    y: np.ndarray | None = None
-    x_loc: np.ndarray | None = None
-    y_loc: np.ndarray | None = None
-    dz: np.ndarray | None = None
-    reach: float = 0.0
-    bsdf_used: object = None
-    scene: object = None
-    tiling: object = None
-    triangles: int = 0
-    crop: bool = True
-    surface_z: np.ndarray | None = None
-    z_ref: np.ndarray | None = None
-    gate_z: np.ndarray | None = None
-    # _choose_model
-    pilot: dict | None = None
-    budget: dict | None = None
-    integrator_dict: dict | None = None
-    integrator: object = None
-    kernel: dict | None = None
-    # _place_on_earth
-    site: Site | None = None
-    geoloc: Geolocation | None = None
-    rad: radiometry.ShotRadiometry | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -262,6 +212,19 @@ class RunPlan:
         return "\n".join(self.describe())
 
 
+class _Run(types.SimpleNamespace):
+    """A plan as :func:`plan`'s steps build it: :class:`RunPlan`'s fields, settable (those a
+    step has not set yet are None); :func:`_freeze` makes the :class:`RunPlan`."""
+
+    def __init__(self, **given):
+        super().__init__(**{**dict.fromkeys(f.name for f in dataclasses.fields(RunPlan)),
+                            "snow_model": "walk", "honoured": {}, "timings": {}, **given})
+
+    @property
+    def scene(self):
+        return self.tiling.scene
+
+
 def _freeze(run: _Run) -> RunPlan:
     """The finished builder as a :class:`RunPlan`."""
     return RunPlan(**{f.name: getattr(run, f.name) for f in dataclasses.fields(RunPlan)})
@@ -339,13 +302,13 @@ def _scene_materials(run: _Run) -> None:
     """A scene's materials choose its model (:mod:`.trace.materials`): snow under a surface is
     walked (``volpathlength``); water and layers in the air take ``mediapathlength`` with the
     vertices they need; the scene's ``<integrator>`` settings are honoured."""
-    from .trace import materials, scene as scn
+    from .trace import materials
     surf = run.surf
     try:
         run.materials = mats = materials.inspect(surf.scene)
-        medium = scn.scene_medium(surf.scene) if mats.snow is not None else None
     except ValueError as e:
         raise ParameterError("scene", str(e)) from None
+    medium = mats.snow
     run.volume = medium is not None
     run.instrument, run.max_depth, run.max_lanes, run.honoured = materials.scene_settings(
         surf.scene, run.instrument, run.max_depth)
@@ -382,7 +345,6 @@ def _lay_out(run: _Run, track, *, crop_to_track: bool) -> None:
                             dz_m=run.dz, reach_m=run.reach, bsdf=run.bsdf_used,
                             crop=crop_to_track, chunk_shots=run.chunk_shots)
     run.chunk_shots, run.triangles = run.tiling.chunk_shots, run.tiling.triangles
-    run.scene = run.tiling.scene
     run.x_loc, run.y_loc = run.tiling.x_local_m, run.tiling.y_local_m   # the pilot's shots
     top = float(scn.scene_bounds(run.scene)[1][2] + np.max(np.abs(run.dz), initial=0.0))
     if top + 1.0 >= inst.altitude_m:

@@ -42,7 +42,8 @@ loads it.
 
 Shared, variant-independent modules: ``constants`` (c, the FWHM factor, the reference plate,
 the nominal geometry), ``returns`` (the integrators' output record), ``scene_utils`` (scene
-bounds and medium), ``kernel_table`` (the layout of a snow kernel's table).
+bounds and medium), ``kernel_table`` (the layout of a snow kernel's table), ``water_optics``
+(Cox & Munk's slopes and Quan & Fry's index, the ``water`` BSDF's closed forms).
 """
 from __future__ import annotations
 

@@ -167,9 +167,10 @@ class MediaPathLengthIntegrator(_pathlength.PathLengthIntegrator):
         return d_up, dr.select(ok, w[0] * dr.exp(-tau), 0.0), dist_m, p_if, t_above
 
     def _next_event(self, scene, sampler, si, mei, medium, ray, p, scatter, surface, vertex,
-                    throughput, n_g, x0, y0, sx64, sy64):
-        """The return toward the receiver from a vertex at ``p`` (a scattering or a surface
-        hit): its weight, and the float64 length [m] of its way up (delays included).
+                    throughput, n_g, phase, ssa, x0, y0, sx64, sy64):
+        """The return toward the receiver from a vertex at ``p`` (a scattering, of the
+        medium's ``phase`` function and single-scattering albedo ``ssa``, or a surface hit):
+        its weight, and the float64 length [m] of its way up (delays included).
         Through ``null`` surfaces by transmittance; under a transmissive surface the way out
         is sampled at that surface (:meth:`_through_interface`)."""
         fov2 = self.fov_radius_m ** 2
@@ -191,9 +192,6 @@ class MediaPathLengthIntegrator(_pathlength.PathLengthIntegrator):
         d_ret = dr.select(under, d_out, wo)
         trans = dr.select(under, w_if * t_above,
                           self._transmittance(scene, p, n_up, wo, med_up, seen & ~under))
-        sigma_s, _, sigma_t = medium.get_scattering_coefficients(mei, scatter)
-        ssa = dr.select(scatter, sigma_s[0] / dr.maximum(sigma_t[0], 1e-30), 0.0)
-        phase = medium.phase_function()
         ph_val, _ = phase.eval_pdf(pctx, mei, d_ret, scatter & seen)
         # an interface seen from below returns nothing itself: its light is counted at
         # the vertices under it
@@ -252,17 +250,18 @@ class MediaPathLengthIntegrator(_pathlength.PathLengthIntegrator):
             p_prev = dr.select(active, p, p_prev)
 
             # -- next-event return toward the receiver
+            phase = medium.phase_function()
+            sigma_s, _, sigma_t = medium.get_scattering_coefficients(mei, scatter)
+            ssa = dr.select(scatter, sigma_s[0] / dr.maximum(sigma_t[0], 1e-30), 0.0)
             w, up_m = self._next_event(scene, sampler, si, mei, medium, ray, p, scatter,
-                                       surface, vertex, throughput, n_g, x0, y0, sx64, sy64)
+                                       surface, vertex, throughput, n_g, phase, ssa,
+                                       x0, y0, sx64, sy64)
             t_ns = mi.Float64(t_emit_ns) + (down_m + inner_m + up_m) / C_M_PER_NS
             slot = lane * depth_max + depth
             for target, val in zip(out, (t_ns, w, p.x, p.y, p.z)):
                 dr.scatter(target, val, slot, vertex)
 
             # -- the next direction
-            phase = medium.phase_function()
-            sigma_s, _, sigma_t = medium.get_scattering_coefficients(mei, scatter)
-            ssa = dr.select(scatter, sigma_s[0] / dr.maximum(sigma_t[0], 1e-30), 0.0)
             wo_ph, ph_w, _ = phase.sample(pctx, mei, sampler.next_1d(scatter),
                                           sampler.next_2d(scatter), scatter)
             bsdf = si.bsdf()

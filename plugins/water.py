@@ -10,26 +10,7 @@ import math
 import drjit as dr
 import mitsuba as mi
 
-# The two closed forms the defaults need, repeated from lidar_mitsuba.ground.water (the plugins do
-# not import the pipeline; tests/test_water.py checks that both give the same numbers).
-AIR_IOR = 1.000277
-
-
-def cox_munk_mss(wind_speed_mps: float) -> float:
-    """Cox & Munk (1954) clean-surface total mean-square slope, s^2 = 0.003 + 0.00512 U."""
-    return 0.003 + 0.00512 * wind_speed_mps
-
-
-def quan_fry_index(wavelength_nm: float = 532.0, temperature_c: float = 0.0,
-                   salinity_psu: float = 0.0, group: bool = False) -> float:
-    """Quan & Fry (1995) phase index of water (``group``: the group index n - lambda dn/dlambda)."""
-    lam, t, s = wavelength_nm, temperature_c, salinity_psu
-    a = 15.868 + 0.01155 * s - 0.00423 * t
-    n = (1.31405 + (1.779e-4 - 1.05e-6 * t + 1.6e-8 * t * t) * s - 2.02e-6 * t * t
-         + a / lam - 4382.0 / lam ** 2 + 1.1455e6 / lam ** 3)
-    if group:
-        n += a / lam + 2 * -4382.0 / lam ** 2 + 3 * 1.1455e6 / lam ** 3
-    return n
+from lidar_mitsuba_plugins.water_optics import AIR_IOR, cox_munk_mss, quan_fry_index
 
 
 def _param_error(name: str, message: str) -> ValueError:

@@ -18,32 +18,10 @@ import math
 
 import numpy as np
 
-REFERENCE_ALBEDO = 0.9
-"""Albedo of the flat Lambertian plate that weighs 1 (``lidar_mitsuba_plugins.constants``'s
-``REFERENCE_ALBEDO``, repeated here so that this module needs no Mitsuba)."""
-
-AIR_IOR = 1.000277
-"""Refractive index of air at the surface (Mitsuba's ``air``): ``ext_ior`` of the water BSDF."""
-
-COX_MUNK_MSS_CALM = 0.003
-"""Cox & Munk (1954) clean-surface total mean-square slope at zero wind [1]."""
-COX_MUNK_MSS_PER_MPS = 0.00512
-"""Cox & Munk (1954) clean-surface growth of the total mean-square slope with the wind speed
-at 12.5 m height [1 / (m/s)]."""
-
-# Quan & Fry (1995) coefficients, RECALLED FROM MEMORY (not copied from the paper): they are
-# checked in tests/test_water.py against the textbook index of pure water at the sodium D line
-# and 20 C (1.3330, within 5e-4) and for normal dispersion (n rising toward blue).
-_QF_N0 = 1.31405
-_QF_N1 = 1.779e-4      # S
-_QF_N2 = -1.05e-6      # S T
-_QF_N3 = 1.6e-8        # S T^2
-_QF_N4 = -2.02e-6      # T^2
-_QF_N5 = 15.868        # 1 / lambda [nm]
-_QF_N6 = 0.01155       # S / lambda
-_QF_N7 = -0.00423      # T / lambda
-_QF_N8 = -4382.0       # 1 / lambda^2 [nm^2]
-_QF_N9 = 1.1455e6      # 1 / lambda^3 [nm^3]
+from lidar_mitsuba_plugins import water_optics as _optics
+from lidar_mitsuba_plugins.constants import REFERENCE_ALBEDO
+from lidar_mitsuba_plugins.water_optics import (AIR_IOR, COX_MUNK_MSS_CALM,  # noqa: F401
+                                                COX_MUNK_MSS_PER_MPS)
 
 
 def _finite_array(name: str, value) -> np.ndarray:
@@ -71,7 +49,7 @@ def cox_munk_mss(wind_speed_mps):
     u = _finite_array("wind_speed_mps", wind_speed_mps)
     if np.any(u < 0):
         raise ValueError(f"wind_speed_mps must be >= 0 (got {wind_speed_mps!r})")
-    return _result(COX_MUNK_MSS_CALM + COX_MUNK_MSS_PER_MPS * u)
+    return _result(_optics.cox_munk_mss(u))
 
 
 def fresnel_normal(n):
@@ -112,12 +90,10 @@ def quan_fry_index(wavelength_nm=532.0, *, temperature_c=0.0, salinity_psu=0.0):
     :math:`n_7 = -0.00423`, :math:`n_8 = -4382`, :math:`n_9 = 1.1455\times10^{6}`
     (:math:`\lambda` in nm). X. Quan and E. S. Fry, "Empirical equation for the index of
     refraction of seawater", Appl. Opt. 34(18), 3477-3480 (1995); fitted over 400-700 nm,
-    0-30 C, 0-35 PSU. (The coefficients are recalled from memory; the tests check them against
-    n = 1.3330 at 589.3 nm, 20 C.) Scalars or broadcastable arrays."""
+    0-30 C, 0-35 PSU. (The coefficients are those of ``lidar_mitsuba_plugins.water_optics``,
+    checked against n = 1.3330 at 589.3 nm, 20 C.) Scalars or broadcastable arrays."""
     lam, t, s = _quan_fry_args(wavelength_nm, temperature_c, salinity_psu)
-    n = (_QF_N0 + (_QF_N1 + _QF_N2 * t + _QF_N3 * t * t) * s + _QF_N4 * t * t
-         + (_QF_N5 + _QF_N6 * s + _QF_N7 * t) / lam + _QF_N8 / lam ** 2 + _QF_N9 / lam ** 3)
-    return _result(n)
+    return _result(np.asarray(_optics.quan_fry_index(lam, t, s)))
 
 
 def quan_fry_group_index(wavelength_nm=532.0, *, temperature_c=0.0, salinity_psu=0.0):
@@ -132,10 +108,7 @@ def quan_fry_group_index(wavelength_nm=532.0, *, temperature_c=0.0, salinity_psu
 
     (Quan & Fry 1995, Appl. Opt. 34, 3477). 1.3577 at 532 nm, 0 C, fresh water."""
     lam, t, s = _quan_fry_args(wavelength_nm, temperature_c, salinity_psu)
-    n = quan_fry_index(lam, temperature_c=t, salinity_psu=s)
-    ng = n + (_QF_N5 + _QF_N6 * s + _QF_N7 * t) / lam + 2 * _QF_N8 / lam ** 2 \
-        + 3 * _QF_N9 / lam ** 3
-    return _result(np.asarray(ng))
+    return _result(np.asarray(_optics.quan_fry_index(lam, t, s, group=True)))
 
 
 WATER_INDEX_532 = quan_fry_index(532.0, temperature_c=0.0, salinity_psu=0.0)

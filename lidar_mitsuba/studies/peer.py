@@ -208,6 +208,32 @@ class _Ours(_Tool):
         return _coarse(fine), fine
 
 
+def mitransient_scene(shapes: dict, *, eye_z_m: float, target_z_m: float,
+                      projector_fov_deg: float, camera_fov_deg: float, texels: int,
+                      far_clip_m: float, temporal_bins: int, bin_width_opl: float,
+                      start_opl: float) -> mi.Scene:
+    """mitransient's lidar over ``shapes``: a co-located ``projector`` (its irradiance the
+    Gaussian footprint, ``texels``^2 over +-WINDOW_SIGMAS) and one-pixel ``perspective``
+    camera at ``eye_z_m`` looking down at ``target_z_m``, a ``transient_hdr_film`` binning the
+    optical path length from ``start_opl`` [m] (the near clip subtracted)."""
+    u = ((np.arange(texels) + 0.5) / texels * 2 - 1) * WINDOW_SIGMAS
+    g = np.exp(-0.5 * (u[:, None] ** 2 + u[None, :] ** 2)).astype(np.float32)
+    look = mi.ScalarTransform4f().look_at(origin=[0.0, 0.0, eye_z_m],
+                                          target=[0.0, 0.0, target_z_m], up=[0.0, 1.0, 0.0])
+    return mi.load_dict({
+        "type": "scene", **shapes,
+        "laser": {"type": "projector", "fov": projector_fov_deg, "to_world": look,
+                  "irradiance": {"type": "bitmap", "bitmap": mi.Bitmap(g[:, :, None]),
+                                 "raw": True}},
+        "sensor": {"type": "perspective", "fov": camera_fov_deg, "to_world": look,
+                   "near_clip": NEAR_CLIP_M, "far_clip": far_clip_m,
+                   "film": {"type": "transient_hdr_film", "width": 1, "height": 1,
+                            "temporal_bins": int(temporal_bins),
+                            "bin_width_opl": bin_width_opl, "start_opl": start_opl,
+                            "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent", "sample_count": 1}}})
+
+
 class _Mitransient(_Tool):
     geometry = "projector"
 
@@ -217,23 +243,11 @@ class _Mitransient(_Tool):
         super().__init__(slope_deg, range_m=altitude_m, centre_m=2.0 * altitude_m - NEAR_CLIP_M,
                          float32_start=True)
         fov = 2.0 * math.degrees(math.atan(WINDOW_SIGMAS * FOOTPRINT_SIGMA_M / altitude_m))
-        npx = 1024
-        u = ((np.arange(npx) + 0.5) / npx * 2 - 1) * WINDOW_SIGMAS
-        g = np.exp(-0.5 * (u[:, None] ** 2 + u[None, :] ** 2)).astype(np.float32)
-        eye = [0.0, 0.0, z0_m + altitude_m]
-        look = mi.ScalarTransform4f().look_at(origin=eye, target=[0.0, 0.0, z0_m],
-                                              up=[0.0, 1.0, 0.0])
-        self.scene = mi.load_dict({
-            "type": "scene", "plate": _plate_mesh(slope_deg, z0_m),
-            "laser": {"type": "projector", "fov": fov, "to_world": look,
-                      "irradiance": {"type": "bitmap", "bitmap": mi.Bitmap(g[:, :, None]),
-                                     "raw": True}},
-            "sensor": {"type": "perspective", "fov": fov, "to_world": look,
-                       "near_clip": NEAR_CLIP_M, "far_clip": 4.0 * altitude_m,
-                       "film": {"type": "transient_hdr_film", "width": 1, "height": 1,
-                                "temporal_bins": self.n_fine, "bin_width_opl": FINE_BIN_M,
-                                "start_opl": self.lo, "rfilter": {"type": "box"}},
-                       "sampler": {"type": "independent", "sample_count": 1}}})
+        self.scene = mitransient_scene(
+            {"plate": _plate_mesh(slope_deg, z0_m)}, eye_z_m=z0_m + altitude_m,
+            target_z_m=z0_m, projector_fov_deg=fov, camera_fov_deg=fov, texels=1024,
+            far_clip_m=4.0 * altitude_m, temporal_bins=self.n_fine, bin_width_opl=FINE_BIN_M,
+            start_opl=self.lo)
         self.integ = mi.load_dict({"type": "transient_path", "max_depth": 2})
 
     def run(self, n_paths: int, seed: int) -> tuple[np.ndarray, np.ndarray]:

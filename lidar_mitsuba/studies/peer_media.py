@@ -78,6 +78,7 @@ from ..trace.lazy import mi
 
 scn = lazy.module("lidar_mitsuba.trace.scene")
 from .peer import (NEAR_CLIP_M, NEAR_M, PLATE_HALF_M, PLATE_Z0_M, WINDOW_SIGMAS,
+                   mitransient_scene,
                    _import_mitransient, _plate_mesh, available)
 
 RANGE_M = NEAR_M                   # lidar above the water surface / plate [m]
@@ -164,27 +165,13 @@ def _mit_scene(shapes: dict, edges: np.ndarray, *, sigma_m: float, camera_half_m
                extra_bins: int = 0) -> mi.Scene:
     """mitransient's scene: camera and projector 1 km above z0; the film's window is
     ``edges`` (OPL - 2R + the near clip) plus ``extra_bins`` more after it."""
-    fov_p = 2.0 * math.degrees(math.atan(WINDOW_SIGMAS * sigma_m / RANGE_M))
-    fov_c = 2.0 * math.degrees(math.atan(camera_half_m / RANGE_M))
-    npx = 512
-    u = ((np.arange(npx) + 0.5) / npx * 2 - 1) * WINDOW_SIGMAS
-    g = np.exp(-0.5 * (u[:, None] ** 2 + u[None, :] ** 2)).astype(np.float32)
-    look = mi.ScalarTransform4f().look_at(origin=[0.0, 0.0, PLATE_Z0_M + RANGE_M],
-                        target=[0.0, 0.0, PLATE_Z0_M], up=[0.0, 1.0, 0.0])
-    bin_m = float(edges[1] - edges[0])
-    return mi.load_dict({
-        "type": "scene", **shapes,
-        "laser": {"type": "projector", "fov": fov_p, "to_world": look,
-                  "irradiance": {"type": "bitmap", "bitmap": mi.Bitmap(g[:, :, None]),
-                                 "raw": True}},
-        "sensor": {"type": "perspective", "fov": fov_c, "to_world": look,
-                   "near_clip": NEAR_CLIP_M, "far_clip": 4.0 * RANGE_M,
-                   "film": {"type": "transient_hdr_film", "width": 1, "height": 1,
-                            "temporal_bins": edges.size - 1 + extra_bins,
-                            "bin_width_opl": bin_m,
-                            "start_opl": 2.0 * RANGE_M - NEAR_CLIP_M + float(edges[0]),
-                            "rfilter": {"type": "box"}},
-                   "sampler": {"type": "independent", "sample_count": 1}}})
+    return mitransient_scene(
+        shapes, eye_z_m=PLATE_Z0_M + RANGE_M, target_z_m=PLATE_Z0_M,
+        projector_fov_deg=2.0 * math.degrees(math.atan(WINDOW_SIGMAS * sigma_m / RANGE_M)),
+        camera_fov_deg=2.0 * math.degrees(math.atan(camera_half_m / RANGE_M)), texels=512,
+        far_clip_m=4.0 * RANGE_M, temporal_bins=edges.size - 1 + extra_bins,
+        bin_width_opl=float(edges[1] - edges[0]),
+        start_opl=2.0 * RANGE_M - NEAR_CLIP_M + float(edges[0]))
 
 
 def _mit(scene: mi.Scene, integrator: dict, *, spp: int, seeds: int,

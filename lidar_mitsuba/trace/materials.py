@@ -41,6 +41,8 @@ from lidar_mitsuba_plugins.scene_utils import bsdf_group_index, scene_bounds
 
 from ..constants import FWHM_PER_SIGMA, ParameterError
 from ..instrument import Instrument
+from ..track import spread_shots
+from .scene import first_hits
 
 #: vertices per path for a scene with interfaces (the bottom under water is the second; the
 #: fourth sees the light the surface reflects back to the bottom, up to a third of the
@@ -253,29 +255,13 @@ def inspect(scene: mi.Scene) -> SceneMaterials:
 def first_surfaces(scene: mi.Scene, x_m, y_m) -> list[str]:
     """The names of the shapes first met by vertical rays down at (x_m, y_m), through
     ``null`` surfaces (the boundaries of media), without repeats, in the order met."""
-    x = np.asarray(x_m, np.float32).ravel()
-    y = np.asarray(y_m, np.float32).ravel()
-    top = float(scene_bounds(scene)[1][2]) + 1.0
-    ray = mi.Ray3f(mi.Point3f(mi.Float(x), mi.Float(y), top), mi.Vector3f(0, 0, -1))
-    names = {}
-    for shape in scene.shapes():
-        names[int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])] = (
-            shape.id() or shape.class_name())
-    found = []
-    active = mi.Bool(True)
-    for _ in range(16):
-        si = scene.ray_intersect(ray, active)
-        null = si.is_valid() & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Null)
-        stop = active & si.is_valid() & ~null
-        ids = dr.reinterpret_array(mi.UInt32, si.shape).numpy()[stop.numpy()]
-        for i in np.unique(ids):
-            if names.get(int(i)) not in found:
-                found.append(names.get(int(i)))
-        active &= null
-        if not bool(dr.any(active)[0] if dr.width(dr.any(active)) else dr.any(active)):
-            break
-        ray = mi.Ray3f(si.p + ray.d * 1e-3, ray.d)
-    return found
+    names = {int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0]):
+             shape.id() or shape.class_name() for shape in scene.shapes()}
+    si, _ = first_hits(scene, x_m, y_m, through_null=True)
+    hit = (si.is_valid() & ~mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Null)).numpy()
+    ids = dr.reinterpret_array(mi.UInt32, si.shape).numpy()[hit]
+    first = sorted(np.unique(ids, return_index=True)[1])     # the order met along the shots
+    return list(dict.fromkeys(names[int(ids[i])] for i in first))
 
 
 def mirror_message(shape: str, instrument) -> str:
@@ -297,7 +283,7 @@ def refuse_mirrors(mats: SceneMaterials, scene: mi.Scene, x_m, y_m, instrument) 
     under the footprint centres (x_m, y_m) [m] (64 of them, spread along the track)."""
     if not mats.mirrors:
         return
-    pick = np.unique(np.linspace(0, np.size(x_m) - 1, 64).astype(int))
+    pick = spread_shots(np.size(x_m), 64)
     hit = [m for m in first_surfaces(scene, np.asarray(x_m)[pick], np.asarray(y_m)[pick])
            if m in mats.mirrors]
     if hit:

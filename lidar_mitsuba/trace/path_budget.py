@@ -27,6 +27,7 @@ import numpy as np
 from scipy import stats
 
 from ..track import spread_shots
+from .stream import gate_center_ns, in_gate
 
 LADDER = (8, 16, 32, 64, 128, 256, 512, 1024)
 """Paths per shot ``auto`` chooses from (powers of two)."""
@@ -203,7 +204,6 @@ def scout(integrator, scene, x_m, y_m, instrument, *, returns_per_path: int,
                                shot_y_m=np.repeat(y_m[idx], SCOUT_PATHS), paths_per_shot=1,
                                seed=SCOUT_SEED)
         if gate_z_m is not None:
-            from .stream import gate_center_ns, in_gate
             centre = np.repeat(gate_center_ns(instrument, np.asarray(gate_z_m)[idx]),
                                SCOUT_PATHS)
             ret = ret.select(np.flatnonzero(in_gate(ret.shot, ret.time_ns, centre,

@@ -115,16 +115,11 @@ def _one_line(message: str, where: str) -> str:
     return first
 
 
-def cast_down(scene: mi.Scene, x_m, y_m, *,
-              through_null: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Cast vertical rays down from above the scene at each (x, y) [m].
-
-    Returns ``(z_m, normal_z)``, float64 arrays of the inputs' broadcast shape: the height of
-    the first surface hit and the z component of its geometric normal (NaN where the ray
-    misses; a negative ``normal_z`` means the surface faces down, away from the lidar).
-    ``through_null``: go on through ``null`` surfaces (the boundaries of layers in the air)
-    to the first surface that reflects.
-    """
+def first_hits(scene: mi.Scene, x_m, y_m, *, through_null: bool = False):
+    """The first surfaces vertical rays down from above the scene meet at each (x, y) [m]
+    (``through_null``: going on through ``null`` surfaces, the boundaries of media, to the first
+    surface that reflects, up to 16 of them): ``(si, shape)``, the Dr.Jit surface
+    interactions of the flattened, broadcast inputs and that shape."""
     x = np.asarray(x_m, np.float32)
     y = np.asarray(y_m, np.float32)
     shape = np.broadcast(x, y).shape
@@ -138,6 +133,20 @@ def cast_down(scene: mi.Scene, x_m, y_m, *,
             break
         ray = mi.Ray3f(dr.select(null, si.p, ray.o) + mi.Vector3f(0, 0, -1e-3), ray.d)
         si = dr.select(null, scene.ray_intersect(ray, null), si)
+    return si, shape
+
+
+def cast_down(scene: mi.Scene, x_m, y_m, *,
+              through_null: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Cast vertical rays down from above the scene at each (x, y) [m].
+
+    Returns ``(z_m, normal_z)``, float64 arrays of the inputs' broadcast shape: the height of
+    the first surface hit and the z component of its geometric normal (NaN where the ray
+    misses; a negative ``normal_z`` means the surface faces down, away from the lidar).
+    ``through_null``: go on through ``null`` surfaces (the boundaries of layers in the air)
+    to the first surface that reflects (:func:`first_hits`).
+    """
+    si, shape = first_hits(scene, x_m, y_m, through_null=through_null)
     z = dr.select(si.is_valid(), si.p.z, dr.nan)
     nz = dr.select(si.is_valid(), si.n.z, dr.nan)
     return (z.numpy().astype(np.float64).reshape(shape),
