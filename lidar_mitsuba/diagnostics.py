@@ -6,41 +6,21 @@ from __future__ import annotations
 import numpy as np
 
 from .trace import path_budget
-from .ground.snow import kernel as snow_kernel
 
 
 def choices_and_warnings(*, instrument, surf, max_depth, pilot, paths_per_shot, crop, triangles,
-             det, volume=False, snow=None, shots=0, timings=None, budget=None,
-             kernel=None, facet_m=None, media=None) -> tuple[list[str], list[str]]:
+             det, material, shots=0, timings=None, budget=None,
+             facet_m=None) -> tuple[list[str], list[str]]:
     """The modelling choices of a run in words (``lidar-mitsuba simulate --explain``), and
-    the ones that deserve a warning. ``media``: a scene's materials in words
-    (:meth:`lidar_mitsuba.trace.materials.SceneMaterials.describe`) when they chose the model."""
+    the ones that deserve a warning. The ``material``
+    (:class:`~lidar_mitsuba.ground.materials.Material`) says its own words first; a surface
+    that leaves the model to the bounces gets the pilot's."""
     out, warns = [], []
-    if media:
-        out += media
-    elif volume:
-        out.append(snow.describe() if snow is not None else
-                   f"snow volume on (the scene's <medium>), up to {max_depth} interactions "
-                   f"per photon")
-        if kernel is not None:
-            out.append(_kernel_words(kernel))
-            w = snow_kernel.plane_warning(kernel, facet_m=facet_m)
-            if w is not None:
-                warns.append(w)
-        if timings and "total_s" in timings:
-            rate = shots / max(timings["total_s"], 1e-9)
-            out.append(f"its cost: {rate:.3g} shots/s end to end ({timings['total_s']:.3g} s "
-                       f"for {shots} shots" + (
-                           f", of which {timings['kernel_table_s']:.3g} s getting the table)"
-                           if kernel is not None else
-                           "), some hundred times slower than the surface alone (`lidar-mitsuba"
-                           " bench` measures the ratio); --snow-model kernel (the default for "
-                           "--snow-grain-um) runs at the cost of a surface hit; "
-                           + ("--snow-similarity-g 0 traces ~9x fewer scatterings, with h_li "
-                              "within ~1 cm in bench's check"
-                              if snow is None or snow.similar_to_g is None else
-                              "similarity-rescaled: h_li within ~1 cm of the exact phase "
-                              "function in bench's check")))
+    words = material.choices(max_depth=max_depth, fov_radius_m=instrument.fov_diameter_m / 2,
+                             shots=shots, timings_s=timings or {}, facet_m=facet_m)
+    if words is not None:
+        out += words[0]
+        warns += words[1]
     elif surf.exact_single_bounce and max_depth == 1:
         out.append("single bounce (max_depth 1): exact for a plane, where nothing bounces twice")
     elif pilot is not None:
@@ -53,8 +33,8 @@ def choices_and_warnings(*, instrument, surf, max_depth, pilot, paths_per_shot, 
                    "checks whether that matters)")
     else:
         out.append(f"{max_depth} bounces per path with shadow-tested returns toward the receiver")
-    out += surf.notes(instrument=instrument, max_depth=1 if volume else max_depth, crop=crop,
-                      triangles=triangles)
+    out += surf.notes(instrument=instrument, max_depth=1 if material.volume else max_depth,
+                      crop=crop, triangles=triangles)
     warns += surf.warnings(instrument=instrument)
     peak = float(np.max(det.mean_photons_per_shot)) if det.mean_photons_per_shot.size else 0.0
     kept = peak * instrument.fill_factor * instrument.pde
@@ -68,20 +48,6 @@ def choices_and_warnings(*, instrument, surf, max_depth, pilot, paths_per_shot, 
     if ran_out is not None:
         warns.append(ran_out)
     return out, warns
-
-
-def _kernel_words(t: dict) -> str:
-    """The snow kernel's line for ``--explain``."""
-    s = snow_kernel.summary(t)
-    return (f"snow model: kernel (--snow-model kernel; the full walk tabulated against incidence "
-            f"angle, {s['nodes']} angles, {s['photons_nadir']} walk photons at nadir, cached on "
-            f"disk): at nadir a return weight of {s['weight_nadir']:.3f} per photon and a mean "
-            f"extra path of {100 * s['mean_extra_path_nadir_m']:.1f} +- "
-            f"{100 * s['mean_extra_path_se_nadir_m']:.1f} cm (the table's own Monte Carlo "
-            f"error); each photon's delay is drawn from it at the cost of a surface hit, from "
-            f"where it entered (the light comes out {100 * s['lateral_rms_max_m']:.2g} cm "
-            f"from there, rms; {100 * s['lateral_p99_max_m']:.2g} cm, 99th percentile); "
-            f"--snow-model walk traces the walk itself")
 
 
 def diagnose(*, surf, scene_of, x_m, y_m, surface_z, n_returns, det,

@@ -30,7 +30,7 @@ from __future__ import annotations
 import json
 import os
 import pathlib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -46,49 +46,8 @@ from .constants import ParameterError, check
 from .ground.dem import DEMSurface
 from .ground.snow import SnowVolume
 from .geotrack import Beam, GeoTrack
+from .products.record import BeamRun, Granule
 from .instrument import INSTRUMENT_PRESETS, Instrument
-
-
-@dataclass
-class BeamRun:
-    """One beam of a granule.
-
-    Attributes:
-        beam: the :class:`~lidar_mitsuba.geotrack.Beam`.
-        result: its :class:`~lidar_mitsuba.run.SimulationResult` (positions in the
-            granule's frame).
-        lat_deg, lon_deg: (n_shots,) footprint centres [deg].
-        azimuth_deg: (n_shots,) direction of travel [deg clockwise from north].
-        delta_time_s: (n_shots,) transmit times [s since 2018-01-01T00:00:00Z].
-        first_shot: index of the result's first shot in the whole track (a streamed granule
-            is simulated and written in sections; :func:`simulate_granule`: 0).
-    """
-    beam: Beam
-    result: object
-    lat_deg: np.ndarray
-    lon_deg: np.ndarray
-    azimuth_deg: np.ndarray
-    delta_time_s: np.ndarray
-    first_shot: int = 0
-
-
-@dataclass
-class Granule:
-    """Beams simulated along one reference ground track over one DEM.
-
-    Attributes:
-        beams: the :class:`BeamRun` of each beam simulated.
-        sc_orient: spacecraft orientation (0 backward, 1 forward).
-        crs: the DEM's CRS; frame_origin_m: its (x, y) [m] at the simulation frame's origin.
-        track: the reference ground track.
-        config: the run's settings.
-    """
-    beams: list[BeamRun]
-    sc_orient: int
-    crs: str
-    frame_origin_m: tuple[float, float]
-    track: GeoTrack
-    config: dict = field(default_factory=dict)
 
 
 def simulate_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
@@ -120,13 +79,18 @@ def simulate_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
         paths_per_shot, max_depth, progress, simulate_options: as
             :func:`~lidar_mitsuba.run.simulate`.
     """
+    from .run import assemble, stream
     if isinstance(beams, str):
         beams = geotrack.select_beams(beams, sc_orient)
     ctx = _Context(surface, track, instrument_options, instrument)
-    runs = [ctx.beam_run(beam, 0, track.beam_shot_count(beam, shots),
-                         seed=_beam_seed(seed, beam), progress=progress,
-                         paths_per_shot=paths_per_shot, max_depth=max_depth, **simulate_options)
-            for beam in _beam_bar(beams, progress)]
+    keep = simulate_options.pop("keep_returns", False)
+    runs = []
+    for beam in _beam_bar(beams, progress):
+        p = ctx.plan(beam, track.beam_shot_count(beam, shots), seed=_beam_seed(seed, beam),
+                     progress=progress, paths_per_shot=paths_per_shot, max_depth=max_depth,
+                     **simulate_options)
+        runs.append(BeamRun(beam=beam, result=assemble(p, stream(p, keep_returns=keep,
+                                                                 progress=progress))))
     return Granule(beams=runs, sc_orient=int(sc_orient), crs=ctx.surface.dem.crs.to_string(),
                    frame_origin_m=ctx.origin, track=track,
                    config=ctx.config(shots=shots, seed=seed, sc_orient=sc_orient, beams=beams))
@@ -165,9 +129,9 @@ class _Context:
             return Instrument.atlas(strength, **self.opts)
         return Instrument(**self.opts, beam=strength)
 
-    def beam_run(self, beam: Beam, first: int, n: int, *, seed: int, **simulate_kw) -> BeamRun:
-        """Simulate shots ``first`` .. ``first + n - 1`` of ``beam``."""
-        from .run import simulate
+    def projected(self, beam: Beam, first: int, n: int) -> geotrack.ProjectedTrack:
+        """Shots ``first`` .. ``first + n - 1`` of ``beam`` in the granule's frame, with
+        their geolocation."""
         geo, along = self.track.beam_geolocation(beam, first, n,
                                                  spacing_m=self.base.shot_spacing_m,
                                                  prf_hz=self.base.prf_hz)
@@ -175,19 +139,20 @@ class _Context:
         if not (np.isfinite(x).all() and np.isfinite(y).all()):
             raise ParameterError("track", f"{beam.name}: the track leaves the DEM's projection "
                                  f"({self.surface.dem.crs.to_string()})")
-        ptrack = geotrack.ProjectedTrack(
+        return geotrack.ProjectedTrack(
             x_m=np.asarray(x) - self.origin[0], y_m=np.asarray(y) - self.origin[1],
             along_m=along, info={"reference_track": self.track.to_dict(), "beam": beam.name,
                                  "across_m": beam.across_m, "first_shot": int(first)},
             geolocation=geo)
+
+    def plan(self, beam: Beam, n: int, *, seed: int, **plan_kw):
+        """The plan of ``beam``'s first ``n`` shots (:func:`lidar_mitsuba.planning.plan`)."""
+        from .planning import plan
         try:
-            res = simulate(instrument=self.instrument(beam), surface=self.surface, track=ptrack,
-                           shots=n, seed=seed, **{"keep_returns": False, **simulate_kw})
+            return plan(instrument=self.instrument(beam), surface=self.surface,
+                        track=self.projected(beam, 0, n), shots=n, seed=seed, **plan_kw)
         except ParameterError as e:
             raise ParameterError(e.name, f"{beam.name}: {e.message}") from None
-        return BeamRun(beam=beam, result=res, lat_deg=geo.lat_deg, lon_deg=geo.lon_deg,
-                       azimuth_deg=geo.azimuth_deg, delta_time_s=geo.delta_time_s,
-                       first_shot=int(first))
 
     def config(self, *, shots, seed, sc_orient, beams, **extra) -> dict:
         return {"shots": int(shots), "seed": int(seed), "sc_orient": int(sc_orient),
@@ -211,19 +176,11 @@ def _put(group, name, data, units, description):
     return h5chunks.put(group, name, data, units, description, append=True)
 
 
-def _span(granule: Granule):
-    """``(instruments, t_first, t_last)`` of an in-memory granule, for the file headers."""
-    runs = granule.beams
-    return ([(r.beam, r.result.instrument) for r in runs],
-            min(float(r.delta_time_s[0]) for r in runs),
-            max(float(r.delta_time_s[-1]) for r in runs))
-
-
 def write_atl03(granule: Granule, path: str | os.PathLike) -> pathlib.Path:
     """Write ``granule`` as an ATL03 file (see the module docstring), atomically."""
     path = pathlib.Path(path)
     with atomic_h5file(path) as f:
-        _atl03_header(f, granule, *_span(granule))
+        _atl03_header(f, granule, *granule.span())
         for r in granule.beams:
             _beam_atl03(f, r, granule.sc_orient)
     return path
@@ -258,7 +215,7 @@ def write_atl06(granule: Granule, path: str | os.PathLike, **options) -> pathlib
     ``options`` passed on) and write them with ATL06's names, atomically."""
     path = pathlib.Path(path)
     with atomic_h5file(path) as f:
-        _atl06_header(f, granule, *_span(granule))
+        _atl06_header(f, granule, *granule.span())
         for r in granule.beams:
             table = atl06.segments_from_result(r.result, **options)
             _beam_atl06(f, r.beam, granule.sc_orient, table, along_m=r.result.along_track_m,
@@ -453,21 +410,24 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     """Simulate a granule section by section straight into its ATL03 (and ATL06) files, so
     memory is bounded by a section (``section_shots`` shots) for a track of any length.
 
-    Arguments as :func:`simulate_granule`. Each section of each beam is an independent run
-    (its own seed); ``max_depth="auto"`` and ``paths_per_shot="auto"`` are decided by each
-    beam's first section (its pilot and scout) and kept for the rest. ATL06 segments are
+    Arguments as :func:`simulate_granule`. Each beam is planned once
+    (:func:`lidar_mitsuba.planning.plan`: its positions, references and model; with
+    ``max_depth="auto"`` and ``paths_per_shot="auto"``, its pilot and scout trace its first
+    tile) and streamed section by section (:meth:`~lidar_mitsuba.planning.RunPlan.section`),
+    each section an independent draw with its own seed. ATL06 segments are
     fitted across section boundaries (see :class:`_SegmentStream`). Both files are written
     atomically: a failure leaves neither. Returns each beam's running statistics.
     """
     import contextlib
+    simulate_options.pop("keep_returns", None)     # sections keep no traced returns
     if isinstance(beams, str):
         beams = geotrack.select_beams(beams, sc_orient)
     if not (isinstance(section_shots, (int, np.integer)) and section_shots >= 1):
         raise ParameterError("section_shots", f"must be an integer >= 1 (got {section_shots!r})")
     ctx = _Context(surface, track, instrument_options, instrument)
     spacing = ctx.base.shot_spacing_m
-    streams = [_BeamStream(b, track, shots, spacing=spacing, section_shots=int(section_shots),
-                           depth=max_depth, paths=paths_per_shot) for b in beams]
+    streams = [_BeamStream(b, track, shots, spacing=spacing, section_shots=int(section_shots))
+               for b in beams]
     n_sections = max(len(st.bounds) for st in streams)
     t_first, t_last = track.time_span_s(shots, prf_hz=ctx.base.prf_hz)
     meta = Granule(beams=[], sc_orient=int(sc_orient), crs=ctx.surface.dem.crs.to_string(),
@@ -501,6 +461,7 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
             for k in range(n_sections):
                 for st in streams:
                     done = st.section(k, ctx, f3, f6, seed=seed, sc_orient=sc_orient,
+                                      paths_per_shot=paths_per_shot, max_depth=max_depth,
                                       **simulate_options)
                     if bar is not None:
                         bar.update(done)
@@ -511,32 +472,34 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
 
 
 class _BeamStream:
-    """One beam of a streamed granule: its sections, the modelling choices its first section
-    made (kept for the rest), its ATL06 segments across sections and its running statistics."""
+    """One beam of a streamed granule: planned once (its first section's turn: the pilot and
+    the scout trace its first tile), then streamed section by section, each section with its
+    own seed; its ATL06 segments across sections and its running statistics."""
 
-    def __init__(self, beam: Beam, track, shots: int, *, spacing: float, section_shots: int,
-                 depth, paths):
-        self.beam, self.depth, self.paths = beam, depth, paths
+    def __init__(self, beam: Beam, track, shots: int, *, spacing: float, section_shots: int):
+        self.beam = beam
         self.n_shots = track.beam_shot_count(beam, shots)
         self.bounds = section_bounds(self.n_shots, spacing_m=spacing,
                                      section_shots=section_shots,
                                      along_m=_along_of(track, beam, self.n_shots, spacing))
+        self.plan = None
         self.segments: _SegmentStream | None = None
         self.summary = BeamSummary(beam=beam)
 
     def section(self, k: int, ctx: _Context, f3, f6, *, seed: int, sc_orient: int,
-                **simulate_options) -> int:
+                **plan_kw) -> int:
         """Simulate section ``k`` (if the beam has it) into the files; returns its shots."""
+        from .run import assemble, stream
         if k >= len(self.bounds):
             return 0
+        if self.plan is None:
+            self.plan = ctx.plan(self.beam, self.n_shots, seed=_beam_seed(seed, self.beam, 0),
+                                 progress=False,
+                                 section_shots=max(b - a for a, b in self.bounds), **plan_kw)
         a, b = self.bounds[k]
-        run = ctx.beam_run(self.beam, a, b - a, seed=_beam_seed(seed, self.beam, k),
-                           progress=False, paths_per_shot=self.paths, max_depth=self.depth,
-                           **simulate_options)
-        cfg = run.result.config
-        if cfg.get("snow") is None:                     # a volume sets its own
-            self.depth = cfg["max_depth"]
-        self.paths = cfg["paths_per_shot"]
+        part = self.plan.section(a, b, seed=_beam_seed(seed, self.beam, k))
+        run = BeamRun(beam=self.beam, result=assemble(part, stream(part, keep_returns=False)),
+                      first_shot=a)
         _beam_atl03(f3, run, sc_orient)
         if f6 is not None:
             table, along, lat, lon, t = self.segments.fit(run, last=k == len(self.bounds) - 1)

@@ -29,12 +29,12 @@ from . import radiometry
 from .constants import ParameterError
 from .geotrack import Geolocation, Site
 from .ground import surface as surfaces
-from .ground.snow import SnowVolume, medium_events_cap
-from .ground.snow import kernel as snow_kernel
+from .ground.materials import Material, Reflector, Snow
+from .ground.snow import SnowVolume
 from .ground.surface import SceneSurface
 from .instrument import Instrument
 from .machine import check_memory
-from .trace import path_budget, stream as chunks
+from .trace import path_budget as budgets, stream as chunks
 from .trace.variant import ensure_renderer, set_variant
 from .track import Track
 
@@ -112,71 +112,65 @@ def _resolve_surface(*, surface, scene, scene_file, params, bsdf):
 class RunPlan:
     """What a run will trace and how (:func:`plan`), frozen: ``print(plan)`` says it in words.
 
-    Attributes (per-shot arrays have shape (shots,), lengths in [m]):
+    Attributes (per-shot arrays have shape (shots,)):
         instrument: the instrument after a scene's ``<integrator>`` overrides.
-        surf, surf_cfg: the surface (:class:`~lidar_mitsuba.ground.surface.Surface`) and its
-            config; default_bsdf, bsdf, bsdf_used: the built-in surface's BSDF, the one given,
-            the one traced (a snow volume's boundary for snow).
-        snow, snow_model, volume, kernel: a snow volume, walked or as a kernel (its table's
-            summary), and whether the run traces a volume.
-        materials: what a Mitsuba scene holds and needs (:mod:`.trace.materials`), or None.
+        surface, surface_config: the surface (:class:`~lidar_mitsuba.ground.surface.Surface`)
+            and its config.
+        material: what the surface is made of and what it needs from the tracer
+            (:class:`~lidar_mitsuba.ground.materials.Material`: a reflector's BSDF, a snow
+            volume, or a scene's own materials).
         shots, seed, chunk_shots: the run's size and seed, shots per chunk.
-        max_depth, pilot: vertices per path, and the pilot that chose them (or None).
-        paths_per_shot, budget: paths per shot, and the scout that chose them (or None).
+        max_depth, bounce_pilot: vertices per path, and the pilot that chose them (or None).
+        paths_per_shot, path_budget: paths per shot, and the scout that chose them (or None).
         integrator_dict, integrator: the integrator (its Mitsuba dict, and loaded).
-        max_lanes, honoured: a scene's ``<integrator>`` settings kept.
-        track, along, x, y: the track, along-track distance and footprint centres.
-        x_loc, y_loc, dz: the centres folded into the traced tile, and the offsets back.
-        reach, crop, triangles: the corridor meshed around the track, and its size.
-        surface_z, z_ref, gate_z: surface height, footprint-mean reference elevation and
-            range-gate centre of each shot.
-        site, geoloc, rad: where on the Earth, each shot's place and time, and (a link
-            budget) its radiometry.
-        timings: wall time of each step [s] (the stream adds its own); t0: the start.
+        max_lanes, scene_integrator: a scene's ``<integrator>`` settings kept.
+        track, along_m, x_m, y_m: the track, along-track distance and footprint centres [m].
+        x_local_m, y_local_m, dz_m: the centres folded into the traced tile, and the height
+            offsets back [m].
+        reach_m, crop_to_track, triangles: the corridor meshed around the track [m], whether
+            it is cropped, and its size.
+        surface_z_m, z_ref_m, gate_z_m: surface height, footprint-mean reference elevation
+            and range-gate centre of each shot [m].
+        site, geolocation, radiometry: where on the Earth, each shot's place and time, and (a
+            link budget) its radiometry.
+        timings_s: wall time of each step [s] (the stream adds its own); t0: the start.
         tiling: the scenes the chunks trace (:class:`~lidar_mitsuba.ground.surface.Tiling`:
             one for every chunk, or a DEM's corridor tile per chunk); ``plan.scene`` is the
             first chunk's.
     """
     instrument: Instrument
-    surf: surfaces.Surface
-    surf_cfg: dict
-    default_bsdf: dict | None
-    bsdf: dict | None
-    snow: SnowVolume | None
+    surface: surfaces.Surface
+    surface_config: dict
+    material: Material
     shots: int
     seed: int
     paths_per_shot: int
     max_depth: int
     chunk_shots: int
-    volume: bool
-    snow_model: str
-    materials: object
     max_lanes: int | None
-    honoured: dict
-    timings: dict
+    scene_integrator: dict
+    timings_s: dict
     t0: float
     track: object
-    along: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    x_loc: np.ndarray
-    y_loc: np.ndarray
-    dz: np.ndarray
-    reach: float
-    bsdf_used: object
+    along_m: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    x_local_m: np.ndarray
+    y_local_m: np.ndarray
+    dz_m: np.ndarray
+    reach_m: float
     triangles: int
-    crop: bool
-    surface_z: np.ndarray
-    z_ref: np.ndarray
-    gate_z: np.ndarray
-    pilot: dict | None
-    budget: dict | None
+    crop_to_track: bool
+    surface_z_m: np.ndarray
+    z_ref_m: np.ndarray
+    gate_z_m: np.ndarray
+    bounce_pilot: dict | None
+    path_budget: dict | None
     integrator_dict: dict
     integrator: object
-    kernel: dict | None
     site: Site
-    geoloc: Geolocation
-    rad: radiometry.ShotRadiometry | None
+    geolocation: Geolocation
+    radiometry: radiometry.ShotRadiometry | None
     tiling: object
 
     @property
@@ -184,32 +178,63 @@ class RunPlan:
         """The first chunk's Mitsuba scene (a DEM's first corridor tile: None once streamed)."""
         return self.tiling.scene
 
+    @property
+    def snow(self) -> SnowVolume | None:
+        """The snow volume traced (a built-in surface's), or None."""
+        return self.material.snow
+
     def describe(self) -> list[str]:
         """The plan in words, one line per decision."""
-        inst = self.instrument
+        inst, cfg = self.instrument, self.surface_config
         out = [f"{inst.beam} beam, {self.shots} shots (seed {self.seed}), "
                f"{inst.signal_photons:g} signal photons per shot from the reference plate, "
                f"{inst.channels} channels, dead time {inst.dead_time_ns:g} ns",
-               f"surface: {self.surf_cfg.get('kind', type(self.surf).__name__)}"
-               + (f" ({self.surf_cfg.get('scene_file')})" if self.surf_cfg.get("scene_file")
-                  else "") + (f", {self.triangles} triangles" if self.triangles > 0 else "")]
-        if self.materials is not None and self.materials.needs_media_tracer:
-            out += self.materials.describe(max_depth=self.max_depth,
-                                           fov_radius_m=inst.fov_diameter_m / 2)
-        if self.snow is not None:
-            out.append(f"snow: {self.snow.describe()} ({self.snow_model})")
+               f"surface: {cfg.get('kind', type(self.surface).__name__)}"
+               + (f" ({cfg.get('scene_file')})" if cfg.get("scene_file") else "")
+               + (f", {self.triangles} triangles" if self.triangles > 0 else "")]
+        out += self.material.describe(max_depth=self.max_depth,
+                                      fov_radius_m=inst.fov_diameter_m / 2)
         out.append(f"integrator {self.integrator_dict['type']}, max_depth {self.max_depth}"
-                   + (" (the pilot's choice)" if self.pilot is not None else "")
+                   + (" (the pilot's choice)" if self.bounce_pilot is not None else "")
                    + f", {self.paths_per_shot} paths per shot"
-                   + (" (the scout's choice)" if self.budget is not None else ""))
-        out.append(f"corridor: {self.reach:g} m around the track"
-                   + ("" if self.crop else " (the whole tile)"))
-        out.append(f"site: {self.site.to_dict()}" + ("" if self.rad is None else
+                   + (" (the scout's choice)" if self.path_budget is not None else ""))
+        out.append(f"corridor: {self.reach_m:g} m around the track"
+                   + ("" if self.crop_to_track else " (the whole tile)"))
+        out.append(f"site: {self.site.to_dict()}" + ("" if self.radiometry is None else
                                                       ", radiometry from the link budget"))
         return out
 
     def __str__(self) -> str:
         return "\n".join(self.describe())
+
+    def section(self, a: int, b: int, *, seed: int) -> RunPlan:
+        """Shots ``a`` .. ``b - 1`` as a plan of their own, seeded ``seed``: the model (the
+        material, depth, paths per shot, integrator) is this plan's; the positions, heights
+        and references are its shots'; the tiles and, with a link budget, the radiometry (the
+        sunlit albedo of the section's first tile) are the section's own. A granule plans a
+        beam once and streams it section by section (:mod:`lidar_mitsuba.granule`)."""
+        t0 = time.perf_counter()
+        sl, surf, inst = slice(a, b), self.surface, self.instrument
+        x, y = self.x_m[sl], self.y_m[sl]
+        x_loc, y_loc, dz = surf.fold(x, y, margin_m=_footprint_reach_m(inst))
+        tiling = surf.tiles(x, y, x_local_m=x_loc, y_local_m=y_loc, dz_m=dz,
+                            reach_m=self.reach_m, bsdf=self.material.mesh_bsdf,
+                            crop=self.crop_to_track, chunk_shots=self.chunk_shots)
+        geo = self.geolocation.select(sl)
+        rad = self.radiometry
+        if rad is not None:
+            rad = radiometry.run_radiometry(inst, geo, self.gate_z_m[sl] + self.site.height_m,
+                                            scene=tiling.scene, x_m=tiling.x_local_m,
+                                            y_m=tiling.y_local_m, snow=self.material.snow)
+        track = self.track.section(a, b)
+        return dataclasses.replace(
+            self, shots=b - a, seed=int(seed), track=track, along_m=self.along_m[sl],
+            x_m=x, y_m=y, x_local_m=tiling.x_local_m, y_local_m=tiling.y_local_m, dz_m=dz,
+            surface_z_m=self.surface_z_m[sl], z_ref_m=self.z_ref_m[sl],
+            gate_z_m=self.gate_z_m[sl], geolocation=geo, radiometry=rad, tiling=tiling,
+            triangles=tiling.triangles,
+            surface_config=dict(self.surface_config), timings_s={"scene_s": time.perf_counter() - t0},
+            t0=t0)
 
 
 class _Run(types.SimpleNamespace):
@@ -218,7 +243,7 @@ class _Run(types.SimpleNamespace):
 
     def __init__(self, **given):
         super().__init__(**{**dict.fromkeys(f.name for f in dataclasses.fields(RunPlan)),
-                            "snow_model": "walk", "honoured": {}, "timings": {}, **given})
+                            "scene_integrator": {}, "timings_s": {}, **given})
 
     @property
     def scene(self):
@@ -236,26 +261,25 @@ def plan(*, instrument: Instrument | None = None, surface=None, scene=None,
          max_depth: int | str = "auto", track: Track | None = None,
          variant: str | None = None, progress: bool = True, chunk_shots: int = chunks.CHUNK_SHOTS,
          crop_to_track: bool = True, snow: SnowVolume | None = None, snow_model: str = "auto",
-         site: Site | None = None) -> RunPlan:
+         site: Site | None = None, section_shots: int | None = None) -> RunPlan:
     """Everything :func:`~lidar_mitsuba.run.simulate` decides before tracing, as a
     :class:`RunPlan`. Arguments as ``simulate``'s (``progress``: show the snow kernel's
-    tabulation). Raises :class:`~lidar_mitsuba.constants.ParameterError` naming a bad value.
+    tabulation); ``section_shots``: the plan is streamed in sections of at most this many
+    shots (:meth:`RunPlan.section`: a granule's), so memory is checked for a section. Raises
+    :class:`~lidar_mitsuba.constants.ParameterError` naming a bad value.
     """
     run = _resolve(instrument=instrument, surface=surface, scene=scene, scene_file=scene_file,
                    params=params, bsdf=bsdf, shots=shots, seed=seed,
                    paths_per_shot=paths_per_shot, max_depth=max_depth, variant=variant,
-                   chunk_shots=chunk_shots, snow=snow, snow_model=snow_model)
+                   chunk_shots=chunk_shots, snow=snow, snow_model=snow_model,
+                   memory_shots=section_shots or shots)
     _lay_out(run, track or Track(), crop_to_track=crop_to_track)
     _choose_model(run, progress=progress)
     _place_on_earth(run, site or Site())
     return _freeze(run)
 
 
-def _resolve(*, instrument, surface, scene, scene_file, params, bsdf, shots, seed,
-             paths_per_shot, max_depth, variant, chunk_shots, snow, snow_model) -> _Run:
-    """Check the run's arguments, activate the variant, resolve the surface; a snow volume or
-    a scene's medium and ``<integrator>`` settle the model's inputs."""
-    instrument = instrument or Instrument()
+def _check_snow(snow, snow_model, *, surf, bsdf, max_depth) -> None:
     if snow is not None and not isinstance(snow, SnowVolume):
         raise ParameterError("snow", f"must be a SnowVolume (got {type(snow).__name__})")
     if snow_model not in SNOW_MODELS:
@@ -264,6 +288,25 @@ def _resolve(*, instrument, surface, scene, scene_file, params, bsdf, shots, see
     if snow_model != "auto" and snow is None:
         raise ParameterError("snow_model", "only applies with a snow volume (snow=, "
                              "--snow-grain-um)")
+    if snow is None or surf is None:
+        return
+    if isinstance(surf, SceneSurface):
+        raise ParameterError("snow", "does not apply to a Mitsuba scene: put a <medium> "
+                             "inside its terrain shape (docs: README, snow)")
+    if bsdf is not None:
+        raise ParameterError("bsdf", "a snow volume replaces the surface BSDF: give one")
+    if max_depth not in ("auto", snow.events_cap):
+        raise ParameterError("max_depth", "with a snow volume the interactions per photon "
+                             "are the snow's max_events (--snow-max-events)")
+
+
+def _resolve(*, instrument, surface, scene, scene_file, params, bsdf, shots, seed,
+             paths_per_shot, max_depth, variant, chunk_shots, snow, snow_model,
+             memory_shots) -> _Run:
+    """Check the run's arguments, activate the variant, resolve the surface and its material
+    (a reflector's BSDF, a snow volume, or a scene's own materials)."""
+    instrument = instrument or Instrument()
+    _check_snow(snow, snow_model, surf=None, bsdf=bsdf, max_depth=max_depth)
     _check_run(shots, seed, paths_per_shot,
                "auto" if snow is not None and max_depth == snow.events_cap else max_depth,
                chunk_shots)
@@ -277,147 +320,133 @@ def _resolve(*, instrument, surface, scene, scene_file, params, bsdf, shots, see
     surf, default_bsdf, surf_cfg = _resolve_surface(surface=surface, scene=scene,
                                                     scene_file=scene_file, params=params,
                                                     bsdf=bsdf)
-    run = _Run(instrument=instrument, surf=surf, surf_cfg=surf_cfg, default_bsdf=default_bsdf,
-               bsdf=bsdf, snow=snow, shots=shots, seed=seed, paths_per_shot=paths_per_shot,
-               max_depth=max_depth, chunk_shots=chunk_shots, volume=snow is not None, t0=t0)
+    _check_snow(snow, snow_model, surf=surf, bsdf=bsdf, max_depth=max_depth)
+    run = _Run(instrument=instrument, surface=surf, surface_config=surf_cfg, shots=shots,
+               seed=seed, paths_per_shot=paths_per_shot, max_depth=max_depth,
+               chunk_shots=chunk_shots, t0=t0)
     if snow is not None:
-        if isinstance(surf, SceneSurface):
-            raise ParameterError("snow", "does not apply to a Mitsuba scene: put a <medium> "
-                                 "inside its terrain shape (docs: README, snow)")
-        if bsdf is not None:
-            raise ParameterError("bsdf", "a snow volume replaces the surface BSDF: give one")
-        if max_depth not in ("auto", snow.events_cap):
-            raise ParameterError("max_depth", "with a snow volume the interactions per photon "
-                                 "are the snow's max_events (--snow-max-events)")
-        run.max_depth = snow.events_cap
-        run.snow_model = "walk" if snow_model == "walk" else "kernel"
-    if isinstance(surf, SceneSurface):
+        run.material = Snow(snow, "walk" if snow_model == "walk" else "kernel")
+    elif isinstance(surf, SceneSurface):
         _scene_materials(run)
-    check_memory("shots", estimate_memory_bytes(run.instrument, shots),
-                 f"a run of {shots} shots", "split the track into several runs")
+    else:
+        run.material = Reflector(bsdf if bsdf is not None else default_bsdf,
+                                 given=bsdf is not None)
+    run.max_depth = run.material.depth(run.max_depth,
+                                       fov_radius_m=run.instrument.fov_diameter_m / 2)
+    check_memory("shots", estimate_memory_bytes(run.instrument, memory_shots),
+                 f"a run of {memory_shots} shots", "split the track into several runs")
     return run
 
 
 def _scene_materials(run: _Run) -> None:
-    """A scene's materials choose its model (:mod:`.trace.materials`): snow under a surface is
-    walked (``volpathlength``); water and layers in the air take ``mediapathlength`` with the
-    vertices they need; the scene's ``<integrator>`` settings are honoured."""
+    """A scene's materials (:mod:`.trace.materials`), with the scene's ``<integrator>``
+    settings honoured; the ground under layers in the air is what heights refer to."""
     from .trace import materials
-    surf = run.surf
+    surf = run.surface
     try:
-        run.materials = mats = materials.inspect(surf.scene)
+        mats = materials.inspect(surf.scene)
     except ValueError as e:
         raise ParameterError("scene", str(e)) from None
-    medium = mats.snow
-    run.volume = medium is not None
-    run.instrument, run.max_depth, run.max_lanes, run.honoured = materials.scene_settings(
-        surf.scene, run.instrument, run.max_depth)
-    if run.volume and run.max_depth == "auto":
-        run.max_depth = medium_events_cap(medium)
-    if mats.needs_media_tracer:
-        if run.max_depth == "auto":
-            run.max_depth = mats.min_depth(run.instrument.fov_diameter_m / 2)
-        if mats.air_layers:      # heights and references: the ground under the layers
-            run.surf = dataclasses.replace(surf, through_null=True)
+    run.instrument, run.max_depth, run.max_lanes, run.scene_integrator = (
+        materials.scene_settings(surf.scene, run.instrument, run.max_depth))
+    run.material = dataclasses.replace(mats, settings=dict(run.scene_integrator))
+    if mats.air_layers:      # heights and references: the ground under the layers
+        run.surface = dataclasses.replace(surf, through_null=True)
+
+
+def _footprint_reach_m(inst: Instrument) -> float:
+    """How far from its centre a footprint's photons land [m]: 5 sigma, and a metre."""
+    return 5.0 * inst.footprint_sigma_m + 1.0
 
 
 def _lay_out(run: _Run, track, *, crop_to_track: bool) -> None:
     """The shots along the track, folded into the surface; the scene over the corridor the
     photons can reach (a streamed DEM: its first tile); heights and reference elevations."""
     from .trace import materials, scene as scn
-    inst, surf = run.instrument, run.surf
-    margin = 5.0 * inst.footprint_sigma_m + 1.0
-    run.track, run.crop = track, bool(crop_to_track)
-    run.along, run.x, run.y = track.positions(run.shots, spacing_m=inst.shot_spacing_m,
-                                              centre_xy_m=surf.centre_xy_m())
-    run.x_loc, run.y_loc, run.dz = surf.fold(run.x, run.y, margin_m=margin)
+    inst, surf, mat = run.instrument, run.surface, run.material
+    margin = _footprint_reach_m(inst)
+    run.track, run.crop_to_track = track, bool(crop_to_track)
+    run.along_m, run.x_m, run.y_m = track.positions(run.shots, spacing_m=inst.shot_spacing_m,
+                                                    centre_xy_m=surf.centre_xy_m())
+    run.x_local_m, run.y_local_m, run.dz_m = surf.fold(run.x_m, run.y_m, margin_m=margin)
     if run.max_depth == "auto" and surf.exact_single_bounce:
         run.max_depth = 1
     # mesh only the corridor the photons can reach: footprints (5 sigma) for single bounce;
     # the receiver's field of view when paths may bounce on
-    run.reach = (margin if run.max_depth == 1 or run.volume
-                 else max(margin, inst.fov_diameter_m / 2 + 5.0))
-    run.bsdf_used = (run.snow if run.snow is not None else run.bsdf if run.bsdf is not None
-                     else run.default_bsdf)
+    run.reach_m = (margin if run.max_depth == 1 or mat.volume
+                   else max(margin, inst.fov_diameter_m / 2 + 5.0))
     # the scenes every chunk traces: one for a plane, a tile or a scene; a corridor tile
     # per chunk for a DEM (the first is built here: the pilot and the scout trace it)
-    run.tiling = surf.tiles(run.x, run.y, x_local_m=run.x_loc, y_local_m=run.y_loc,
-                            dz_m=run.dz, reach_m=run.reach, bsdf=run.bsdf_used,
-                            crop=crop_to_track, chunk_shots=run.chunk_shots)
+    run.tiling = surf.tiles(run.x_m, run.y_m, x_local_m=run.x_local_m,
+                            y_local_m=run.y_local_m, dz_m=run.dz_m, reach_m=run.reach_m,
+                            bsdf=mat.mesh_bsdf, crop=crop_to_track, chunk_shots=run.chunk_shots)
     run.chunk_shots, run.triangles = run.tiling.chunk_shots, run.tiling.triangles
-    run.x_loc, run.y_loc = run.tiling.x_local_m, run.tiling.y_local_m   # the pilot's shots
-    top = float(scn.scene_bounds(run.scene)[1][2] + np.max(np.abs(run.dz), initial=0.0))
+    run.x_local_m, run.y_local_m = run.tiling.x_local_m, run.tiling.y_local_m  # pilot's shots
+    top = float(scn.scene_bounds(run.scene)[1][2] + np.max(np.abs(run.dz_m), initial=0.0))
     if top + 1.0 >= inst.altitude_m:
         raise ParameterError("altitude_m", f"the spacecraft ({inst.altitude_m:g} m) must "
                              f"be above the scene, which reaches z = {top:g} m")
-    if run.materials is not None:
+    if isinstance(mat, materials.SceneMaterials):
         try:
-            materials.refuse_mirrors(run.materials, run.scene, run.x_loc, run.y_loc, inst)
+            materials.refuse_mirrors(mat, run.scene, run.x_local_m, run.y_local_m, inst)
         except ValueError as e:
             raise ParameterError("scene", str(e)) from None
-    run.surface_z = surf.height_m(run.x, run.y)
-    run.z_ref = surf.reference_elevation_m(run.x, run.y, sigma_m=inst.footprint_sigma_m)
-    run.gate_z = chunks.gate_heights_m(run.z_ref)
+    run.surface_z_m = surf.height_m(run.x_m, run.y_m)
+    run.z_ref_m = surf.reference_elevation_m(run.x_m, run.y_m, sigma_m=inst.footprint_sigma_m)
+    run.gate_z_m = chunks.gate_heights_m(run.z_ref_m)
     if surf.takes_bsdf:
-        run.surf_cfg.update(mesh_triangles=run.triangles, crop_to_track=run.crop)
-    if run.bsdf is not None:
-        run.surf_cfg["bsdf"] = repr(run.bsdf)
-    run.timings["scene_s"] = time.perf_counter() - run.t0
+        run.surface_config.update(mesh_triangles=run.triangles, crop_to_track=run.crop_to_track)
+    if isinstance(mat, Reflector) and mat.given:
+        run.surface_config["bsdf"] = repr(mat.bsdf)
+    run.timings_s["scene_s"] = time.perf_counter() - run.t0
 
 
 def _choose_model(run: _Run, *, progress: bool = False) -> None:
-    """The bounces (``max_depth="auto"``: the pilot), the integrator, and the paths per shot
-    (``"auto"``: the scout)."""
-    from .trace import pilot as bounce_pilot
+    """The bounces (``max_depth="auto"``: the pilot), the material's integrator, and the
+    paths per shot (``"auto"``: the scout)."""
+    from .trace import pilot
     mi = ensure_renderer()
     inst, ppp = run.instrument, run.paths_per_shot
     if run.max_depth == "auto":
         t1 = time.perf_counter()
-        n_pilot = run.x_loc.size           # a streamed surface's pilot runs on its first tile
-        run.pilot = bounce_pilot.run_pilot(
-            scene=run.scene, instrument=inst, x_m=run.x_loc, y_m=run.y_loc,
-            dz_m=run.dz[:n_pilot], z_ref_m=run.z_ref[:n_pilot],
-            paths_per_shot=path_budget.SCOUT_PATHS if ppp == "auto" else int(ppp))
-        run.max_depth = 1 if run.pilot["single_bounce_enough"] else 2
-        run.timings["pilot_s"] = time.perf_counter() - t1
+        n_pilot = run.x_local_m.size        # a streamed surface's pilot runs on its first tile
+        run.bounce_pilot = pilot.run_pilot(
+            scene=run.scene, instrument=inst, x_m=run.x_local_m, y_m=run.y_local_m,
+            dz_m=run.dz_m[:n_pilot], z_ref_m=run.z_ref_m[:n_pilot],
+            paths_per_shot=budgets.SCOUT_PATHS if ppp == "auto" else int(ppp))
+        run.max_depth = 1 if run.bounce_pilot["single_bounce_enough"] else 2
+        # the footprints are all the photons reach: later tiles mesh only those
+        if run.max_depth == 1 and run.tiling.narrow(_footprint_reach_m(inst)):
+            run.reach_m = _footprint_reach_m(inst)
+        run.timings_s["pilot_s"] = time.perf_counter() - t1
+    run.material, t_prep = run.material.prepared(progress=progress)
+    if t_prep:
+        run.timings_s["kernel_table_s"] = t_prep
     lanes = {} if run.max_lanes is None else {"max_lanes": int(run.max_lanes)}
-    d = inst.integrator_dict(max_depth=run.max_depth, **lanes)
-    if run.volume and run.snow_model == "kernel":      # the walk, tabulated
-        t1 = time.perf_counter()
-        path, run.kernel = snow_kernel.table(run.snow, progress=progress)
-        d = inst.integrator_dict(max_depth=1, **lanes)
-        d.update(type="snowkernel", filename=str(path))
-        run.timings["kernel_table_s"] = time.perf_counter() - t1
-    elif run.materials is not None and run.materials.needs_media_tracer:
-        d.update(type="mediapathlength", max_depth=int(run.max_depth),
-                 **{k: v for k, v in run.honoured.items() if k == "group_index"})
-    elif run.volume:             # one record per photon, whatever its interactions
-        d.update(run.snow.integrator_params() if run.snow is not None else
-                 {"type": "volpathlength", **{k: v for k, v in run.honoured.items()
-                                              if k in ("group_index", "snow_depth_m",
-                                                       "base_albedo")}})
-        d["max_depth"] = int(run.max_depth)
+    d = run.material.integrator(inst.integrator_dict(max_depth=run.max_depth, **lanes),
+                                max_depth=run.max_depth)
     run.integrator_dict, run.integrator = d, mi.load_dict(d)
     if ppp == "auto":
         t1 = time.perf_counter()
-        run.budget = path_budget.scout(run.integrator, run.scene, run.x_loc, run.y_loc, inst,
-                            returns_per_path=1 if run.volume else int(run.max_depth),
-                            per_path=d["type"] == "mediapathlength",
-                            gate_z_m=run.gate_z if d["type"] == "mediapathlength" else None)
-        run.paths_per_shot = run.budget["paths_per_shot"]
-        run.timings["scout_s"] = time.perf_counter() - t1
+        per_path = d["type"] == "mediapathlength"
+        run.path_budget = budgets.scout(
+            run.integrator, run.scene, run.x_local_m, run.y_local_m, inst,
+            returns_per_path=run.material.returns_per_path(run.max_depth), per_path=per_path,
+            gate_z_m=run.gate_z_m if per_path else None)
+        run.paths_per_shot = run.path_budget["paths_per_shot"]
+        run.timings_s["scout_s"] = time.perf_counter() - t1
 
 
 def _place_on_earth(run: _Run, site: Site) -> None:
     """Each shot's place and time (the track's own, or the scene at ``site``) and, for an
     instrument with a link budget, its signal scale and background."""
     run.site = site
-    run.geoloc = getattr(run.track, "geolocation", None)
-    if run.geoloc is None:
-        run.geoloc = site.geolocation(run.x, run.y, prf_hz=run.instrument.prf_hz)
+    run.geolocation = getattr(run.track, "geolocation", None)
+    if run.geolocation is None:
+        run.geolocation = site.geolocation(run.x_m, run.y_m, prf_hz=run.instrument.prf_hz)
     if run.instrument.link_budget is not None:
         t1 = time.perf_counter()
-        run.rad = radiometry.run_radiometry(run.instrument, run.geoloc, run.gate_z + site.height_m,
-                                   scene=run.scene, x_m=run.x_loc, y_m=run.y_loc,
-                                   snow=run.snow)
-        run.timings["radiometry_s"] = time.perf_counter() - t1
+        run.radiometry = radiometry.run_radiometry(
+            run.instrument, run.geolocation, run.gate_z_m + site.height_m, scene=run.scene,
+            x_m=run.x_local_m, y_m=run.y_local_m, snow=run.material.snow)
+        run.timings_s["radiometry_s"] = time.perf_counter() - t1

@@ -30,7 +30,6 @@ from .detector.records import Detections, Returns
 from .geotrack import Geolocation, Site
 from .ground import surface as surfaces
 from .ground.snow import SnowVolume
-from .ground.snow import kernel as snow_kernel
 from .ground.surface import SurfaceSpec
 from .instrument import Instrument
 from .planning import RunPlan, _check_run, plan
@@ -199,23 +198,24 @@ def stream(run: RunPlan, *, keep_returns: bool | None = None,
     its surface's tiling: every chunk in the scene it is given (one for every chunk, or a
     DEM's corridor tile per chunk; the first plan's scene is let go once the stream has it:
     a live stale scene would join every later tile's kernel calls)."""
-    ppp = int(run.paths_per_shot)
+    ppp, mat = int(run.paths_per_shot), run.material
     if keep_returns is None:
-        keep_returns = run.shots * ppp * (1 if run.volume else run.max_depth) <= 2 ** 24
+        keep_returns = run.shots * ppp * mat.returns_per_path(run.max_depth) <= 2 ** 24
     source = chunks.TiledSource(run.integrator, run.tiling, paths_per_shot=ppp)
     run.tiling.release()
-    if run.materials is not None and run.materials.air_layers:
+    if mat.gated:
         source = chunks.GatedSource(source, gate_ns=run.instrument.range_gate_ns,
                                     gate_center_ns=chunks.gate_center_ns(run.instrument,
-                                                                         run.z_ref))
+                                                                         run.z_ref_m))
     if progress:       # a first run on this machine compiles the detector: say so
         warmup.compile_kernels()
+    rad = run.radiometry
     chunked = chunks.run(
-        source=source, detectors={"run": run.instrument}, z_ref_m=run.z_ref, seed=run.seed,
+        source=source, detectors={"run": run.instrument}, z_ref_m=run.z_ref_m, seed=run.seed,
         chunk_shots=run.chunk_shots, keep_returns=keep_returns, progress=progress,
-        detector_inputs=None if run.rad is None else run.rad.detector_inputs)
-    run.timings.update(chunked.timings_s)
-    run.surf_cfg.update(run.tiling.stats())
+        detector_inputs=None if rad is None else rad.detector_inputs)
+    run.timings_s.update(chunked.timings_s)
+    run.surface_config.update(run.tiling.stats())
     return chunked
 
 
@@ -228,39 +228,37 @@ def assemble(run: RunPlan, chunked: chunks.ChunkedRun) -> SimulationResult:
     """Place and classify the photons, explain the run's choices and warn where it deserves
     a look, and gather the result."""
     mi = ensure_renderer()
-    inst, det = run.instrument, chunked.detections["run"]
+    inst, det, mat, timings = run.instrument, chunked.detections["run"], run.material, run.timings_s
     t3 = time.perf_counter()
     h = retrieval.photon_heights_m(det.time_ns, altitude_m=inst.altitude_m)
-    conf = classify.signal_confidence(shot=det.shot, h_m=h, gate_center_h_m=run.gate_z,
+    conf = classify.signal_confidence(shot=det.shot, h_m=h, gate_center_h_m=run.gate_z_m,
                                       range_gate_m=inst.range_gate_m)
-    run.timings["detect_s"] += time.perf_counter() - t3
-    run.timings["total_s"] = time.perf_counter() - run.t0
-    facet_m = run.surf_cfg.get("grid_m") or run.surf_cfg.get("mesh_grid_m")
+    timings["detect_s"] += time.perf_counter() - t3
+    timings["total_s"] = time.perf_counter() - run.t0
+    cfg = run.surface_config
     choices, warns = explain.choices_and_warnings(
-        instrument=inst, surf=run.surf, max_depth=run.max_depth, pilot=run.pilot,
-        paths_per_shot=run.paths_per_shot, budget=run.budget, crop=run.crop,
-        triangles=run.triangles, det=det, volume=run.volume, snow=run.snow, shots=run.shots,
-        timings=run.timings, kernel=run.kernel, facet_m=facet_m,
-        media=(run.materials.describe(max_depth=run.max_depth,
-                                      fov_radius_m=inst.fov_diameter_m / 2)
-               if run.materials is not None and run.materials.needs_media_tracer else None))
-    warns += explain.diagnose(surf=run.surf, scene_of=lambda: _scene_of(run), x_m=run.x_loc,
-                       y_m=run.y_loc, surface_z=run.surface_z[:run.x_loc.size],
-                       n_returns=chunked.n_returns, det=det, instrument=inst)
+        instrument=inst, surf=run.surface, max_depth=run.max_depth, pilot=run.bounce_pilot,
+        paths_per_shot=run.paths_per_shot, budget=run.path_budget, crop=run.crop_to_track,
+        triangles=run.triangles, det=det, material=mat, shots=run.shots, timings=timings,
+        facet_m=cfg.get("grid_m") or cfg.get("mesh_grid_m"))
+    n_local = run.x_local_m.size
+    warns += explain.diagnose(surf=run.surface, scene_of=lambda: _scene_of(run),
+                              x_m=run.x_local_m, y_m=run.y_local_m,
+                              surface_z=run.surface_z_m[:n_local], n_returns=chunked.n_returns,
+                              det=det, instrument=inst)
     for w in warns:
         warnings.warn(w, SimulationWarning, stacklevel=3)
-    config = {"instrument": inst.to_dict(), "surface": run.surf_cfg,
+    config = {"instrument": inst.to_dict(), "surface": cfg,
               "track": run.track.to_dict(), "shots": int(run.shots), "seed": int(run.seed),
-              "paths_per_shot": int(run.paths_per_shot), "path_budget": run.budget,
-              "max_depth": int(run.max_depth), "bounce_pilot": run.pilot,
-              "variant": mi.variant(), "scene_integrator": run.honoured, "plan": run.describe(), "choices": choices,
-              "warnings": warns, "snow": run.snow.config() if run.snow is not None else None,
-              "snow_model": run.snow_model if run.volume else None,
-              "snow_kernel": snow_kernel.summary(run.kernel) if run.kernel is not None else None,
-              "integrator": run.integrator_dict["type"], "site": run.site.to_dict(),
-              "radiometry": None if run.rad is None else run.rad.summary()}
-    return SimulationResult(instrument=inst, config=config, along_track_m=run.along,
-                            shot_x_m=run.x, shot_y_m=run.y, surface_z_m=run.surface_z,
-                            z_ref_m=run.z_ref, detections=det, h_m=h, signal_conf=conf,
-                            returns=chunked.returns, timings_s=run.timings,
-                            geolocation=run.geoloc, radiometry=run.rad)
+              "paths_per_shot": int(run.paths_per_shot), "path_budget": run.path_budget,
+              "max_depth": int(run.max_depth), "bounce_pilot": run.bounce_pilot,
+              "variant": mi.variant(), "scene_integrator": run.scene_integrator,
+              "plan": run.describe(), "choices": choices, "warnings": warns,
+              **mat.config(), "integrator": run.integrator_dict["type"],
+              "site": run.site.to_dict(),
+              "radiometry": None if run.radiometry is None else run.radiometry.summary()}
+    return SimulationResult(instrument=inst, config=config, along_track_m=run.along_m,
+                            shot_x_m=run.x_m, shot_y_m=run.y_m, surface_z_m=run.surface_z_m,
+                            z_ref_m=run.z_ref_m, detections=det, h_m=h, signal_conf=conf,
+                            returns=chunked.returns, timings_s=timings,
+                            geolocation=run.geolocation, radiometry=run.radiometry)

@@ -279,7 +279,7 @@ def simulate_over_surface(twin: TwinGranule, *, surface=None, beams: str = "all"
     equidistant projection, x east, y north) at the real latitudes, longitudes, times and sun,
     the surface's z = 0 under them and the spacecraft at the real range to the surface (the
     granule's median ``altitude_sc - surface height``). Returns a
-    :class:`~lidar_mitsuba.granule.Granule` (``granule.write_atl03`` writes it).
+    :class:`~lidar_mitsuba.products.record.Granule` (``granule.write_atl03`` writes it).
 
     Args:
         beams: ``all``, ``strong``, ``weak`` or names among the file's beams.
@@ -291,7 +291,8 @@ def simulate_over_surface(twin: TwinGranule, *, surface=None, beams: str = "all"
     """
     from pyproj import Transformer
     from .geotrack import GeoTrack, ProjectedTrack, Site
-    from .granule import BeamRun, Granule, _beam_seed
+    from .granule import _beam_seed
+    from .products.record import BeamRun, Granule
     from .instrument import Instrument
     from .run import simulate
     from .ground.surface import SurfaceSpec
@@ -317,8 +318,7 @@ def simulate_over_surface(twin: TwinGranule, *, surface=None, beams: str = "all"
                            progress=progress, **simulate_options)
         except ParameterError as e:
             raise ParameterError(e.name, f"{beam.name}: {e.message}") from None
-        runs.append(BeamRun(beam=beam, result=res, lat_deg=geo.lat_deg, lon_deg=geo.lon_deg,
-                            azimuth_deg=geo.azimuth_deg, delta_time_s=geo.delta_time_s))
+        runs.append(BeamRun(beam=beam, result=res))
     first = runs[0]
     ref = GeoTrack(start_lat_deg=float(first.lat_deg[0]), start_lon_deg=float(first.lon_deg[0]),
                    azimuth_deg=float(first.azimuth_deg[0]), epoch_utc=twin.epoch_utc)

@@ -28,4 +28,77 @@ def test_the_plan_is_frozen_and_says_what_it_chose():
     text = str(p)
     assert "mediapathlength" in text and "interfaces" in text and "200 shots" in text
     assert p.max_depth == 8 and p.paths_per_shot >= 8
-    assert p.x.shape == p.z_ref.shape == (200,)
+    assert p.x_m.shape == p.z_ref_m.shape == (200,)
+
+
+# --------------------------------------------------------------------------- materials as types
+def test_each_material_chooses_its_own_tracer():
+    """The planner asks the run's material, and nothing else, which integrator traces it, how
+    many vertices a path needs and how many records a path leaves (issue 33)."""
+    from lidar_mitsuba.ground.materials import Reflector, Snow
+    from lidar_mitsuba.trace.materials import SceneMaterials
+    flat = dict(surface=lm.SurfaceSpec(kind="flat"), shots=50, progress=False)
+    p = lm.plan(**flat)
+    assert isinstance(p.material, Reflector) and p.integrator_dict["type"] == "pathlength"
+    assert p.max_depth == 1 and p.material.returns_per_path(2) == 2 and p.snow is None
+    snow = lm.snow_from_grains(grain_radius_um=200)
+    k = lm.plan(**flat, snow=snow)
+    assert isinstance(k.material, Snow) and k.material.model == "kernel" and k.snow is snow
+    assert k.integrator_dict["type"] == "snowkernel" and k.material.table is not None
+    assert k.max_depth == snow.events_cap and k.material.returns_per_path(k.max_depth) == 1
+    w = lm.plan(**flat, snow=snow, snow_model="walk", paths_per_shot=4)
+    assert w.integrator_dict["type"] == "volpathlength"
+    assert w.integrator_dict["max_depth"] == snow.events_cap
+    pond = lm.plan(scene="scenes/melt_pond.xml", shots=50, progress=False, paths_per_shot=4)
+    assert isinstance(pond.material, SceneMaterials) and pond.material.interfaces
+    assert pond.integrator_dict["type"] == "mediapathlength" and not pond.material.volume
+    fog = lm.plan(scene="scenes/fog.xml", shots=50, progress=False, paths_per_shot=4)
+    assert fog.material.gated and not pond.material.gated
+    # a result's config says what the material chose, whatever its kind
+    assert Reflector({"type": "diffuse"}).config() == {"snow": None, "snow_model": None,
+                                                      "snow_kernel": None}
+
+
+# --------------------------------------------------------------------------- a plan's sections
+@pytest.fixture(scope="module")
+def dem_surface(tmp_path_factory):
+    from lidar_mitsuba.ground import dem as dems
+    path = dems.synthetic_ice_sheet(tmp_path_factory.mktemp("dem") / "ice.tif")
+    return dems.DEMSurface(dems.DEM.open(path), tile_shots=256)
+
+
+def test_a_section_of_a_plan_is_the_plan_of_its_shots(dem_surface):
+    """``plan.section(a, b)``: the shots' positions, heights, references and tiles are those a
+    plan of those shots alone would have, and the model is the whole plan's; streamed, it
+    traces the same photons as that plan (to the bit)."""
+    from lidar_mitsuba import granule
+    track = lm.GeoTrack(start_lat_deg=69.97, start_lon_deg=-45.0, azimuth_deg=0.0)
+    ctx = granule._Context(dem_surface, track, None, "atlas")
+    beam = lm.geotrack.select_beams("gt2r", 0)[0]
+    whole = ctx.plan(beam, 900, seed=1, progress=False)
+    part = whole.section(300, 700, seed=9)
+    alone = lm.plan(instrument=ctx.instrument(beam), surface=ctx.surface,
+                    track=ctx.projected(beam, 300, 400), shots=400, seed=9, progress=False,
+                    max_depth=whole.max_depth, paths_per_shot=whole.paths_per_shot)
+    assert part.shots == 400 and part.track.to_dict()["first_shot"] == 300
+    for f in ("x_m", "along_m", "x_local_m", "z_ref_m", "gate_z_m", "reach_m", "max_depth",
+              "paths_per_shot", "chunk_shots", "triangles"):
+        np.testing.assert_array_equal(getattr(part, f), getattr(alone, f), err_msg=f)
+    np.testing.assert_allclose(part.surface_z_m, alone.surface_z_m, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(part.radiometry.background_mhz,
+                                  alone.radiometry.background_mhz)
+    a, b = lm.stream(part), lm.stream(alone)
+    np.testing.assert_array_equal(a.detections["run"].time_ns, b.detections["run"].time_ns)
+
+
+def test_a_streamed_granule_plans_each_beam_once(dem_surface, tmp_path, monkeypatch):
+    """Three sections of two beams: two plans (one per beam), six sections streamed."""
+    from lidar_mitsuba import granule, planning
+    calls = []
+    real = planning.plan
+    monkeypatch.setattr(planning, "plan", lambda **kw: calls.append(kw["shots"]) or real(**kw))
+    track = lm.GeoTrack(start_lat_deg=69.97, start_lon_deg=-45.0, azimuth_deg=0.0)
+    out = granule.stream_granule(surface=dem_surface, track=track, shots=1200,
+                                 beams="gt1l,gt1r", atl03_path=tmp_path / "a3.h5",
+                                 seed=2, progress=False, section_shots=400)
+    assert calls == [1200, 1200] and [s.shots for s in out] == [1200, 1200]

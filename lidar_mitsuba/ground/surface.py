@@ -381,6 +381,12 @@ class Tiling:
         """The first chunk's scene (built again if released: a diagnosis that needs it)."""
         return self.scene
 
+    def narrow(self, reach_m: float) -> bool:
+        """Mesh later tiles only ``reach_m`` [m] about the track (the bounce pilot found one
+        bounce enough: the footprints are all the photons reach). Returns whether it does:
+        one scene for every chunk keeps its mesh."""
+        return False
+
     def stats(self) -> dict:
         """What the tiles cost (for the run's config), after the stream."""
         return {}

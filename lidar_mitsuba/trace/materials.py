@@ -40,6 +40,8 @@ import drjit as dr  # noqa: E402  (after the libLLVM check)
 from lidar_mitsuba_plugins.scene_utils import bsdf_group_index, scene_bounds
 
 from ..constants import FWHM_PER_SIGMA, ParameterError
+from ..ground.materials import Material, volume_words
+from ..ground.snow import medium_events_cap
 from ..instrument import Instrument
 from ..track import spread_shots
 from .scene import first_hits
@@ -119,20 +121,80 @@ class Layer:
 
 
 @dataclass(frozen=True)
-class SceneMaterials:
-    """What :func:`inspect` found in a scene, and what it needs from the tracer."""
+class SceneMaterials(Material):
+    """What :func:`inspect` found in a scene, and what it needs from the tracer: a scene's own
+    :class:`~lidar_mitsuba.ground.materials.Material` (``settings``: the scene's
+    ``<integrator>`` parameters the run honours)."""
     opaque: tuple[str, ...] = ()
     interfaces: tuple[Interface, ...] = ()
     mirrors: tuple[str, ...] = ()
-    snow: mi.Medium | None = None
+    snow_medium: mi.Medium | None = None
     air_layers: tuple[Layer, ...] = ()
     water_media: tuple[Layer, ...] = ()
     notes: tuple[str, ...] = field(default=())
+    settings: dict = field(default_factory=dict)
+
+    kind = "scene"
+    mesh_bsdf = None
 
     @property
     def needs_media_tracer(self) -> bool:
         """Light crosses interfaces or air layers: ``mediapathlength``."""
         return bool(self.interfaces or self.air_layers or self.water_media)
+
+    @property
+    def volume(self) -> bool:
+        """Snow under a surface: one record per photon (``volpathlength``)."""
+        return self.snow_medium is not None and not self.needs_media_tracer
+
+    @property
+    def gated(self) -> bool:
+        """Layers in the air return light from every height: keep the range gate's."""
+        return bool(self.air_layers)
+
+    def depth(self, max_depth, *, fov_radius_m: float):
+        """The scene's snow: its medium's interaction cap; water and air: :meth:`min_depth`;
+        opaque surfaces: ``max_depth`` (``"auto"``: the bounce pilot's)."""
+        if max_depth != "auto":
+            return max_depth
+        if self.volume:
+            return medium_events_cap(self.snow_medium)
+        return self.min_depth(fov_radius_m) if self.needs_media_tracer else max_depth
+
+    def integrator(self, base: dict, *, max_depth: int) -> dict:
+        """``mediapathlength`` for water and air, ``volpathlength`` for snow (with the scene's
+        ``<integrator>`` group index, snow depth and base albedo), else ``pathlength``."""
+        d = {**base, "max_depth": int(max_depth)}
+        if self.needs_media_tracer:
+            return {**d, "type": "mediapathlength",
+                    **{k: v for k, v in self.settings.items() if k == "group_index"}}
+        if self.volume:
+            return {**d, "type": "volpathlength",
+                    **{k: v for k, v in self.settings.items()
+                       if k in ("group_index", "snow_depth_m", "base_albedo")}}
+        return d
+
+    def returns_per_path(self, max_depth: int) -> int:
+        """Records a path can leave: one in snow, one per vertex otherwise."""
+        return 1 if self.volume else int(max_depth)
+
+    def prepared(self, *, progress: bool = False):
+        return self, 0.0
+
+    def choices(self, *, max_depth: int, fov_radius_m: float, shots: int, timings_s: dict,
+                facet_m: float | None = None):
+        """Water and air: the scene's materials in words; snow: the walk's; an opaque
+        scene: None (the bounces chose)."""
+        if self.needs_media_tracer:
+            return self.describe(max_depth=max_depth, fov_radius_m=fov_radius_m), []
+        if self.volume:
+            return volume_words(None, max_depth=max_depth, table=None, shots=shots,
+                                timings_s=timings_s, facet_m=facet_m)
+        return None
+
+    def config(self) -> dict:
+        return {"snow": None, "snow_model": "walk" if self.volume else None,
+                "snow_kernel": None}
 
     def min_depth(self, fov_radius_m: float) -> int:
         """The fewest vertices per path that see what the scene holds: a layer in the air
@@ -148,6 +210,8 @@ class SceneMaterials:
     def describe(self, *, max_depth: int, fov_radius_m: float) -> list[str]:
         """The scene's materials and the model they choose, in words (``max_depth``: the
         run's vertices per path)."""
+        if not self.needs_media_tracer:
+            return []
         out = []
         if self.interfaces:
             out.append("interfaces: " + "; ".join(i.describe() for i in self.interfaces))
@@ -248,7 +312,7 @@ def inspect(scene: mi.Scene) -> SceneMaterials:
         raise ValueError(f"the scene has {len(snow)} media under its surfaces; one (the "
                          f"snow) is supported")
     return SceneMaterials(opaque=tuple(opaque), interfaces=tuple(interfaces),
-                          mirrors=tuple(mirrors), snow=snow[0] if snow else None,
+                          mirrors=tuple(mirrors), snow_medium=snow[0] if snow else None,
                           air_layers=tuple(air), water_media=tuple(water))
 
 

@@ -392,6 +392,10 @@ class CorridorTiles(Tiling):
     def release(self) -> None:
         self.scene = None
 
+    def narrow(self, reach_m: float) -> bool:
+        self.reach_m = float(reach_m)
+        return True
+
     def first_scene(self):
         if self.scene is not None:
             return self.scene

@@ -39,42 +39,28 @@ import json
 import os
 import pathlib
 import tempfile
-import types
 
 import h5py
 
 from . import beam as atl03_beam, file as atl03_file
 from ... import geotrack
 from .. import h5write as h5chunks
+from ..record import BEAM_GROUPS, Granule  # noqa: F401  (BEAM_GROUPS: readers use it)
 from .beam import truth_fields  # noqa: F401  (the truth datasets, re-exported)
-
-BEAM_GROUPS = {"strong": "gt1l", "weak": "gt1r"}
 
 
 def write(result, path: str | os.PathLike) -> pathlib.Path:
     """Write a :class:`~lidar_mitsuba.run.SimulationResult` to ``path`` atomically: one
     beam (``gt1l`` strong, ``gt1r`` weak; spacecraft orientation 0) at the run's
-    geolocation.
+    geolocation (:meth:`~lidar_mitsuba.products.record.Granule.single`).
 
     >>> import lidar_mitsuba as lm
     >>> lm.write_atl03(lm.simulate(shots=100), "run.h5")                # doctest: +SKIP"""
     path = pathlib.Path(path)
-    inst, geo = result.instrument, result.geolocation
-    if geo is None:
-        raise ValueError("the result has no geolocation (simulate() gives every run one)")
-    beam = {b.name: b for b in geotrack.beam_layout(0)}[BEAM_GROUPS[inst.beam]]
-    run = types.SimpleNamespace(beam=beam, result=result, lat_deg=geo.lat_deg,
-                                lon_deg=geo.lon_deg, azimuth_deg=geo.azimuth_deg,
-                                delta_time_s=geo.delta_time_s, first_shot=0)
-    site = result.config.get("site")
-    crs = ("unknown" if site is None else f"+proj=aeqd +lat_0={site['lat_deg']!r} "
-           f"+lon_0={site['lon_deg']!r} +x_0=0 +y_0=0 +ellps=WGS84 +units=m")
-    meta = types.SimpleNamespace(config=result.config, sc_orient=0, crs=crs,
-                                 frame_origin_m=(0.0, 0.0))
-    t = geo.delta_time_s
+    granule = Granule.single(result)
     with atomic_h5file(path) as f:
-        atl03_file.header(f, meta, [(beam, inst)], float(t[0]), float(t[-1]))
-        atl03_beam.write_beam(f, run, 0)
+        atl03_file.header(f, granule, *granule.span())
+        atl03_beam.write_beam(f, granule.beams[0], 0)
     return path
 
 

@@ -362,7 +362,7 @@ def _field_attrs(ds, fld, note: str, coordinates: str, name: str) -> None:
 
 
 def write_beam(f, run, sc_orient: int) -> None:
-    """Append one run (a :class:`~lidar_mitsuba.granule.BeamRun`: the beam, its result and
+    """Append one run (a :class:`~lidar_mitsuba.products.record.BeamRun`: the beam, its result and
     each shot's latitude, longitude, direction and time) to the beam's groups of ATL03 file
     ``f``, and its truth to ``/truth/<beam>``. The file's header
     (:func:`lidar_mitsuba.products.atl03.file.header`) comes first; a file not opened with
