@@ -63,8 +63,9 @@ autodoc_preserve_defaults = True
 autodoc_mock_imports: list[str] = []
 napoleon_google_docstring = True
 napoleon_numpy_docstring = True
-napoleon_use_ivar = True
-napoleon_attr_annotations = True
+# "Attributes:" as a list under that heading, like the parameters: several names may share
+# one description ("surf, surf_cfg: the surface and its config"), as the docstrings write them
+napoleon_custom_sections = [("Attributes", "params_style")]
 
 html_theme = "pydata_sphinx_theme"
 html_title = "lidar_mitsuba"
