@@ -6,7 +6,8 @@ Build (offline, warnings as errors), from the repository root::
 
 Nothing is fetched and nothing is rendered: the notebooks are shown with their stored outputs
 (``nb_execution_mode = "off"``), the gallery's images are committed PNGs
-(``docs/gallery/make_gallery.py`` makes them) and there is no intersphinx.
+(``docs/gallery/make_gallery.py`` makes them) and there is no intersphinx. (A browser
+showing the pages loads MathJax, which typesets the equations, from its CDN.)
 """
 from __future__ import annotations
 
@@ -48,7 +49,6 @@ myst_enable_extensions = ["dollarmath", "amsmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
 nb_execution_mode = "off"
 nb_merge_streams = True
-suppress_warnings = ["mystnb.unknown_mime_type"]
 
 # API reference: one page per module (docs/_templates/autosummary/module.rst), members from
 # the docstrings: Google style ("Args:", "Returns:", "Attributes:"), NumPy style in a few
@@ -60,7 +60,6 @@ autodoc_member_order = "bysource"
 autodoc_typehints = "description"
 autodoc_typehints_description_target = "documented"
 autodoc_preserve_defaults = True
-autodoc_mock_imports: list[str] = []
 napoleon_google_docstring = True
 napoleon_numpy_docstring = True
 # "Attributes:" as a list under that heading, like the parameters: several names may share
