@@ -283,7 +283,7 @@ def _resolve(*, instrument, surface, scene, scene_file, params, bsdf, shots, see
     if snow is not None:
         if isinstance(surf, SceneSurface):
             raise ParameterError("snow", "does not apply to a Mitsuba scene: put a <medium> "
-                                 "inside its terrain shape (docs/guide/snow.md)")
+                                 "inside its terrain shape (docs: README, snow)")
         if bsdf is not None:
             raise ParameterError("bsdf", "a snow volume replaces the surface BSDF: give one")
         if max_depth not in ("auto", snow.events_cap):
