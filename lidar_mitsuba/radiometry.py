@@ -32,8 +32,8 @@ albedo for sunlight, ``L_path`` the light the air itself scatters toward the rec
 scattering, Rayleigh phase function), ``d_lambda`` the filter's equivalent width and
 ``Omega_fov`` the field of view's solid angle. Multiple scattering between a bright surface and
 the sky (~10 % more over snow) is left out. With the sun below the horizon the solar term is
-zero (twilight sky, moon and airglow are not modelled: they add a few hundred Hz, see the
-README).
+zero (twilight sky, moon and airglow are not modelled: they add a few hundred Hz, see
+``docs/guide/atlas.md``).
 
 Laser light scattered back by the air just above the surface is a background of its own, inside
 the range gate: ``(E_pulse / h nu) T^2 beta_pi(z) (c / 2) (A_tel / R^2) eta_rx`` photons per

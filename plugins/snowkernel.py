@@ -22,7 +22,7 @@ _pathlength = sys.modules[f"lidar_mitsuba_plugins._{mi.variant()}_pathlength"]
 class SnowKernelIntegrator(_pathlength.PathLengthIntegrator):
     r"""
     Lidar path-length integrator with a subsurface kernel (:monosp:`snowkernel`)
-    ---------------------------------------------------------------------------
+    ----------------------------------------------------------------------------
 
     The ``pathlength`` integrator for a snowpack described by a *kernel*: for light arriving
     at incidence angle :math:`\theta` on a facet of a homogeneous (or layered) snowpack, the
@@ -47,7 +47,7 @@ class SnowKernelIntegrator(_pathlength.PathLengthIntegrator):
        - |string|
        - A table written by ``lidar_mitsuba_plugins.kernel_table.save`` (``.npz``:
          ``weight`` (J,), ``extra_path_m`` (J, M), nodes every 5 deg of incidence from 0);
-         or set one with :meth:`set_table`.
+         or set one with ``set_table(weight=..., extra_path_m=...)``.
      * - (others)
        - as ``pathlength``: ``altitude_m``, ``footprint_sigma_m``, ``pulse_sigma_ns``,
          ``fov_radius_m``, ``max_lanes`` (``max_depth`` is 1: one record per photon).

@@ -19,7 +19,7 @@ _pathlength = sys.modules[f"lidar_mitsuba_plugins._{mi.variant()}_pathlength"]
 class VolumePathLengthIntegrator(_pathlength.PathLengthIntegrator):
     r"""
     Lidar path-length integrator with volume scattering (:monosp:`volpathlength`)
-    ----------------------------------------------------------------------------
+    -----------------------------------------------------------------------------
 
     The ``pathlength`` integrator for scenes with a participating medium: snow under the
     terrain (:mod:`lidar_mitsuba.ground.snow`). The medium is the interior of a shape with a

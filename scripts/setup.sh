@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set up lidar_mitsuba on a fresh Debian/Ubuntu machine: libLLVM 19 (Dr.Jit's LLVM backend aborts
 # with the libLLVM 15/16 these machines ship), then a virtual environment in .venv with the
-# package installed. Usage: bash scripts/setup.sh [--test]   (--test adds the test extras)
+# package installed. Usage: bash scripts/setup.sh [--test]   (--test adds the test extras and
+# the documentation's, which tests/test_docs.py builds)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -26,7 +27,7 @@ if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
 extras=""
-[ "${1:-}" = "--test" ] && extras="[test]"
+[ "${1:-}" = "--test" ] && extras="[test,docs]"
 echo "== installing lidar_mitsuba$extras"
 .venv/bin/python -m pip install -q --disable-pip-version-check -e ".$extras"
 .venv/bin/python -c "import lidar_mitsuba as lm; print('lidar_mitsuba ready:', lm.ensure_renderer().variant())"

@@ -115,7 +115,7 @@ def test_bench_quick(bench_run):
     fog = {r["value"]: r for r in doc["media"]["fog, optical depth 0.5"]["rows"]}
     assert fog[1]["error_m"] > fog[8]["error_m"]
     assert "melt pond 2 m: fastest" in printed
-    # snow optics (quick: two rows, small tables; the README's table is the full run)
+    # snow optics (quick: two rows, small tables; docs/guide/snow.md's table is the full run)
     so = doc["snow_optics"]["rows"]
     assert [r["name"] for r in so] == ["default (natural snow)", "spheres (g 0.89, B 1.25)"]
     assert all(r["strong_bias_m"] < 0 and r["strong_segments"] > 50 for r in so)

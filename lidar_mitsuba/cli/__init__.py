@@ -115,7 +115,7 @@ def _add_terrain_parsers(sub) -> None:
                    help=".npy (heights [m], shape (N, N)) or .ply (mesh for XML scenes)")
     md = sub.add_parser("make-dem", help="write the synthetic ice-sheet test DEM (GeoTIFF)",
                         description="Write a GeoTIFF DEM like a slice of the Greenland ice "
-                        "sheet in EPSG:3413 (for simulate --dem): ~2000 m, 0.5 %% slope, "
+                        "sheet in EPSG:3413 (for simulate --dem): ~2000 m, 0.5 % slope, "
                         "kilometre-scale undulations, a 1 km nodata square in its south-west "
                         "corner.")
     md.add_argument("--out", required=True, metavar="FILE.tif", help="GeoTIFF to write")
@@ -269,7 +269,7 @@ def _add_sweep_parser(sub) -> None:
                         "parameters and replicates as independent tasks on Dask (a LocalCluster "
                         "here, or any running scheduler), one row of statistics per task, "
                         "appended to DIR as tasks finish; rerunning resumes. The spec format is "
-                        "in the README and in `lidar_mitsuba.sweep`.")
+                        "in docs/guide/sweeps.md and in `lidar_mitsuba.sweep`.")
     sw.add_argument("spec", metavar="SPEC.toml", help="the sweep: [sweep], [fixed], [grid], "
                     "[[list]]")
     sw.add_argument("--out", required=True, metavar="DIR", help="folder for rows/, "

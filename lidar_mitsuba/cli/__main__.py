@@ -3,4 +3,5 @@ import sys
 
 from lidar_mitsuba_cli import main
 
-sys.exit(main())
+if __name__ == "__main__":       # not when imported (the documentation imports every module)
+    sys.exit(main())

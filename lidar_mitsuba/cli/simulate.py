@@ -53,8 +53,8 @@ def _add_instrument_options(s) -> None:
     i.add_argument("--instrument", choices=INSTRUMENT_PRESETS, default=None,
                    help="paper (default; atlas with --like): Zhang & Kerekes' instrument, "
                    "signal and background as given; atlas: ATLAS as flown, signal from its "
-                   "link budget, background from the sun and the air at each shot (README: "
-                   "where each number comes from)")
+                   "link budget, background from the sun and the air at each shot "
+                   "(docs/guide/atlas.md: where each number comes from)")
     s.set_defaults(_instrument_opts=opts.add_options(
         i, Instrument, types_={"dead_time_ns": dead_time}, skip=("link_budget",)))
     lb = s.add_argument_group("link budget (--instrument atlas)")

@@ -1,7 +1,7 @@
 """The two records that flow between the stages: traced :class:`Returns` (the integrator's
-output, before any detector effect; defined with the plugins, in ``lidar_mitsuba_plugins.
-returns``) and detected :class:`Detections` (the PMT's output). Pure numpy: plain typed
-containers with the few operations the chunk loop needs.
+output, before any detector effect; defined with the plugins, in
+``lidar_mitsuba_plugins.returns``) and detected :class:`Detections` (the PMT's output). Pure
+numpy: plain typed containers with the few operations the chunk loop needs.
 """
 from __future__ import annotations
 

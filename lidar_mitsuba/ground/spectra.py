@@ -78,15 +78,15 @@ def radial_power_spectrum(
         Grid spacing [m].
     n_bins : int or None
         None (default): integer-radius annuli, bin k collects the FFT cells with
-        round(|f| / df) == k, df = 1 / (min(nx, ny) * grid_m), k = 1, 2, ...
+        round(``|f|`` / df) == k, df = 1 / (min(nx, ny) * grid_m), k = 1, 2, ...
         (the corners beyond the Nyquist circle are kept: partial annuli).
-        An int: that many log-spaced annuli between the lowest nonzero |f| and
-        the largest |f|.
+        An int: that many log-spaced annuli between the lowest nonzero ``|f|`` and
+        the largest ``|f|``.
 
     Returns
     -------
-    f_per_m : (nb,) mean |f| [1/m] of the cells in each non-empty bin
-    psd : (nb,) mean periodogram density |FFT|^2 dx dy / (nx ny) [m^4] in the bin
+    f_per_m : (nb,) mean ``|f|`` [1/m] of the cells in each non-empty bin
+    psd : (nb,) mean periodogram density ``|FFT|^2`` dx dy / (nx ny) [m^4] in the bin
     counts : (nb,) number of FFT cells in the bin (int)
 
     DC is excluded; empty bins are dropped.
@@ -139,7 +139,7 @@ def profile_power_spectrum(
     Returns
     -------
     f_per_m : (m,) frequencies k / (n grid_m), k = 1 .. n//2 [1/m]
-    psd : (m,) two-sided periodogram density |FFT|^2 dx / n [m^3]
+    psd : (m,) two-sided periodogram density ``|FFT|^2`` dx / n [m^3]
     """
     z = np.asarray(z_m, dtype=np.float64)
     if z.ndim not in (1, 2):
@@ -212,7 +212,7 @@ def fit_p(
     Model (for a surface made by :func:`fractal` with exponent p):
 
     * 2-D input, ``axis=None``: the radially averaged power spectrum falls as
-      |f|^(-2p) -> p = -slope / 2.
+      ``|f|^(-2p)`` -> p = -slope / 2.
     * 1-D input (one profile), or 2-D input with ``axis`` = 0 or 1 (every
       profile along that axis; axis=1 / -1 = rows, along x): a straight profile
       through an isotropic 1/f^p surface has a 1-D spectrum ~ f^-(2p-1)

@@ -319,7 +319,7 @@ def fractal(
     4. h = inverse DFT(H) * N^2                                    (eq. 4);
     5. subtract the mean and scale so that max(h) - min(h) == relief_m.
 
-    The 2-D power spectrum then falls as |f|^(-2p) and a straight profile's
+    The 2-D power spectrum then falls as ``|f|^(-2p)`` and a straight profile's
     1-D spectrum as f^-(2p-1); larger p gives a smoother surface.
 
     Args:

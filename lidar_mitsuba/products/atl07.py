@@ -189,7 +189,7 @@ def flag_leads(seg: Segments, *, specular_ratio: float = 1.15, height_tol_m: flo
 
 def lead_runs(lead: np.ndarray) -> list[tuple[int, int]]:
     """The leads as runs of consecutive flagged segments: ``[(start, stop), ...]``, segment
-    indices ``start .. stop - 1`` (``lead``: (n_segments,) bool)."""
+    indices ``start`` to ``stop - 1`` (``lead``: (n_segments,) bool)."""
     f = np.concatenate([[0], np.asarray(lead, np.int8), [0]])
     edges = np.flatnonzero(np.diff(f))
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]

@@ -84,10 +84,10 @@ def put(group, name: str, data, units: str, description: str, *, append: bool = 
 
 
 def write_rows(dset, start: int, data) -> None:
-    """Store ``data`` in rows ``start .. start + len(data)`` of the chunked dataset ``dset``
-    (already that long). When ``dset`` is byte shuffle then deflate and nothing else, whole
-    chunks are compressed on the pool and a last partial chunk waits for the next rows (or
-    :func:`drain`); otherwise HDF5 writes the rows now."""
+    """Store ``data`` in rows ``start`` to ``start + len(data)`` of the chunked dataset
+    ``dset`` (already that long). When ``dset`` is byte shuffle then deflate and nothing else,
+    whole chunks are compressed on the pool and a last partial chunk waits for the next rows
+    (or :func:`drain`); otherwise HDF5 writes the rows now."""
     data = np.ascontiguousarray(data, dtype=dset.dtype)
     key = (_file_key(dset), dset.name)
     held = _tails.pop(key, None)

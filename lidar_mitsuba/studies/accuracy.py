@@ -171,14 +171,14 @@ SIMPLIFICATIONS = {   # name: (the simplified run, the fuller run), as changes t
 
 def simplifications(*, quick: bool = False) -> dict:
     """Each simplification the simulator makes by default, against the full model, on the
-    default run (the README demo: p = 1.8 fractal, weak beam, 1000 shots, real detector);
+    default run (the paper's: p = 1.8 fractal, weak beam, 1000 shots, real detector);
     and single bounce, which ``max_depth="auto"`` turns down on this terrain.
 
     Paired design: for each seed both runs see the same random numbers, so the mean paired
     difference (with its standard error over seeds) is the error the simplification adds,
     and the spread of the default run over seeds is its Monte Carlo error. Verdict "below"
-    when |mean difference| + 2 SE is under the Monte Carlo error of bias and of precision,
-    "above" when |mean difference| - 2 SE exceeds it, else "comparable".
+    when ``|mean difference|`` + 2 SE is under the Monte Carlo error of bias and of precision,
+    "above" when ``|mean difference|`` - 2 SE exceeds it, else "comparable".
     """
     # 48 seeds: the tail of twice-scattered photons makes the precision of one run noisy
     seeds = range(1, 5 if quick else 49)

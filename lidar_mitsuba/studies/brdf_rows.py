@@ -26,16 +26,17 @@ ROW_FIELDS = ("photons_per_shot", "photons_per_shot_se", "return_weight", "bias_
 def row_of(res: SimulationResult) -> dict:
     """Photons per shot, bias and precision of one run's signal photons, with standard errors.
 
-    Returns a dict of floats (NaN where undefined):
-        photons_per_shot: detected signal photons / shots [photons/shot].
-        photons_per_shot_se: its standard error, std(per-shot counts, ddof=1) / sqrt(shots).
-        return_weight: footprint-averaged return weight, mean over shots of the Poisson mean
-            arrivals / ``signal_photons`` (1 for the flat Lambertian 0.9 plate at nadir;
-            before fill factor, PDE and dead time) [-].
-        bias_m, bias_se_m: mean of h - z_ref [m] and its standard error std / sqrt(n) [m].
-        std_m, std_se_m: precision, the standard deviation of h - z_ref [m], and its standard
-            error from the photons' kurtosis (std / sqrt(2 (n - 1)) for normal residuals) [m].
-    Also ``n_photons`` (int) and ``shots`` (int).
+    Returns:
+        A dict of floats (NaN where undefined), and ``n_photons`` (int) and ``shots`` (int):
+
+        * photons_per_shot: detected signal photons / shots [photons/shot].
+        * photons_per_shot_se: its standard error, std(per-shot counts, ddof=1) / sqrt(shots).
+        * return_weight: footprint-averaged return weight, mean over shots of the Poisson mean
+          arrivals / ``signal_photons`` (1 for the flat Lambertian 0.9 plate at nadir;
+          before fill factor, PDE and dead time) [-].
+        * bias_m, bias_se_m: mean of h - z_ref [m] and its standard error std / sqrt(n) [m].
+        * std_m, std_se_m: precision, the standard deviation of h - z_ref [m], and its standard
+          error from the photons' kurtosis (std / sqrt(2 (n - 1)) for normal residuals) [m].
     """
     st = res.report().overall
     d = res.detections
@@ -108,10 +109,12 @@ def relative_to(rows: Sequence[dict], *, reference: str = "Lambertian") -> list[
     Returns one dict per row that has a reference (the reference's own rows included: ratio 1,
     difference 0), with the row's identifying fields (``variant``, ``beam``,
     ``ideal_detector``, ``kind``, ``slope_deg``, ``p``) and
-        photons_ratio, photons_ratio_se: photons per shot / the reference's [-];
-        weight_ratio: return weight / the reference's [-];
-        bias_diff_m, bias_diff_se_m: bias - the reference's bias [m];
-        std_ratio, std_ratio_se: precision / the reference's precision [-].
+
+    * photons_ratio, photons_ratio_se: photons per shot / the reference's [-];
+    * weight_ratio: return weight / the reference's [-];
+    * bias_diff_m, bias_diff_se_m: bias - the reference's bias [m];
+    * std_ratio, std_ratio_se: precision / the reference's precision [-].
+
     Errors combine both rows' standard errors as if independent; the runs share their random
     numbers (same seed), which correlates them positively, so the errors are conservative.
     """

@@ -40,7 +40,7 @@ What each tool models differently:
 - mitransient's next-event estimate adds the emitter leg times the index of the region the
   path arrived from, not the one the leg crosses. From the underside of the water surface
   the leg to the projector is in air but is counted at n = 1.333: every bottom return comes
-  (n - 1) x |surface - projector| = 333 m (+ (n-1) r^2 / 2R) late. The comparison moves that
+  (n - 1) x ``|surface - projector|`` = 333 m (+ (n-1) r^2 / 2R) late. The comparison moves that
   window of mitransient's histogram back by (n - 1) x 1 km (an exact number of 2 cm bins) and
   reports the mass found anywhere else (none). Ours counts that leg in air.
 - Rays: ours start vertically from the footprint; mitransient's fan out from the projector

@@ -84,7 +84,7 @@ FLOE = {
                   "slab's transport mean free path is ~1 mm"},
     "snow_optics": {
         "source": "snow.snow_from_grains defaults (natural snow: g 0.80, B 1.6, alpha_ice "
-                  "0.04 /m; README 'Snow as a volume')"},
+                  "0.04 /m; docs/guide/snow.md)"},
 }
 
 

@@ -1,5 +1,5 @@
 """Snow's optics against ICESat-2's validated accuracy: the sensitivity of ATL06 ``h_li`` to
-each optical choice (``bench``; README, snow).
+each optical choice (``bench``; ``docs/guide/snow.md``).
 
 ATLAS as flown (:meth:`~lidar_mitsuba.instrument.Instrument.atlas`, strong and weak beam) over a
 flat, semi-infinite snowpack on the East Antarctic plateau in the polar night (no solar

@@ -169,7 +169,7 @@ def verdicts(doc: dict) -> list[dict]:
         lo <= s <= hi,
         f"{100 * (s / real['signal_per_shot'] - 1):+.0f} % against the real mean. Nothing is "
         "fitted: pulse energy from the file, receiver transmission 0.5 and PDE 0.2 are "
-        "estimates (README); snow's backscatter peak (coherent backscatter) is not modelled")
+        "estimates (docs/guide/atlas.md); snow's backscatter peak (coherent backscatter) is not modelled")
     row("twin: shots with no photon", f"{100 * sim['no_photon_fraction']:.1f} %",
         f"{100 * real['no_photon_fraction']:.1f} %",
         abs(sim["no_photon_fraction"] - real["no_photon_fraction"]) < 0.02,
@@ -212,7 +212,7 @@ def verdicts(doc: dict) -> list[dict]:
              "g 0.80, B 1.6): the published bias is smaller. bench's snow-optics table: a "
              "wind crust and finer surface grains halve ours; not modelled: coherent "
              "backscatter (it favours the short paths) and any part of a constant bias that "
-             "ATLAS's range calibration absorbs (README, snow)") if volume else
+             "ATLAS's range calibration absorbs (docs/guide/snow.md)") if volume else
             "ours is the instrument's own bias against the footprint-mean surface (first-photon "
             "bias corrected); no subsurface scattering (the snow-volume rows add it)")
         row(f"interior, {r['surface']}, {r['beam']}: ATL06 h_li precision",

@@ -123,7 +123,7 @@ def _sea_ice_rows(si: dict, row) -> None:
 
 def _night_rows(night: dict, row) -> None:
     """ATL03's background rate is read over its telemetry window, kilometres of air above the
-    surface (README, validate): a layer's photons count over that window, not over the 30 m
+    surface (docs/guide/atlas.md): a layer's photons count over that window, not over the 30 m
     range gate the simulator records."""
     missing = (night["real_hz"] or float("nan")) - night["model_hz"]
     top = max(night["rows"], key=lambda r: r["tau"])

@@ -1,5 +1,5 @@
 """The sweep chart: bias and precision against one swept parameter, with error bars
-(``lidar-mitsuba sweep ... --plot PARAM``)."""
+(``lidar-mitsuba sweep SPEC.toml --plot PARAM``)."""
 from __future__ import annotations
 
 import math

@@ -34,7 +34,8 @@ class SpecError(ValueError):
 
 def parameter_names() -> dict[str, str]:
     """``{name: group}`` of every parameter a task takes (group: ``instrument``, ``surface``,
-    ``track`` or ``run``); ``params.NAME`` (group ``xml``) is the XML's ``<default>``s."""
+    ``track`` or ``run``); ``params.NAME`` (group ``xml``) is one of the XML's ``<default>``
+    parameters."""
     out = {f.name: "instrument" for f in dataclasses.fields(Instrument)}
     out.update({("surface" if f.name == "kind" else f.name): "surface"
                 for f in dataclasses.fields(SurfaceSpec)})

@@ -1,0 +1,58 @@
+"""Regenerate the gallery's images: run every ``lidar-mitsuba`` command of
+``docs/gallery/index.md`` (from the repository root, as the page shows them), with the files
+they write in a temporary folder and their ``--plot`` PNG here.
+
+    python docs/gallery/make_gallery.py            # every command (about a minute)
+    python docs/gallery/make_gallery.py fog.png    # only the commands that draw fog.png
+"""
+from __future__ import annotations
+
+import os
+import pathlib
+import sys
+import tempfile
+import time
+
+HERE = pathlib.Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+sys.path[:0] = [str(ROOT), str(HERE.parent / "_ext")]
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+from doc_commands import commands, redirect_outputs  # noqa: E402
+
+MAX_PNG_BYTES = 150_000
+
+
+def shrink(path: pathlib.Path, colors: int = 64) -> int:
+    """Rewrite a PNG with a palette of ``colors`` (a plot has few): a third of its bytes."""
+    from PIL import Image
+    with Image.open(path) as im:
+        small = im.convert("RGB").quantize(colors=colors, method=Image.Quantize.MEDIANCUT)
+    small.save(path, format="PNG", optimize=True)
+    return path.stat().st_size
+
+
+def main(only: list[str]) -> int:
+    from lidar_mitsuba_cli import main as cli
+    os.chdir(ROOT)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = pathlib.Path(tmp)
+        for cmd in commands(HERE / "index.md"):
+            pngs = [a for a in cmd.argv if a.endswith(".png")]
+            if only and cmd.argv[0] != "make-dem" and not set(pngs) & set(only):
+                continue
+            argv = redirect_outputs(cmd.argv, tmp, keep={p: HERE / p for p in pngs})
+            t = time.perf_counter()
+            code = cli(argv + (["--no-progress"] if cmd.subcommand == "simulate" else []))
+            print(f"{cmd} -> {code} ({time.perf_counter() - t:.1f} s)", flush=True)
+            if code:
+                return code
+            for p in pngs:
+                size = shrink(HERE / p)
+                if size > MAX_PNG_BYTES:
+                    print(f"warning: {p} is {size} bytes (> {MAX_PNG_BYTES})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
