@@ -292,7 +292,7 @@ def _check_snow(snow, snow_model, *, surf, bsdf, max_depth) -> None:
         return
     if isinstance(surf, SceneSurface):
         raise ParameterError("snow", "does not apply to a Mitsuba scene: put a <medium> "
-                             "inside its terrain shape (docs: README, snow)")
+                             "inside its terrain shape (docs/guide/snow.md)")
     if bsdf is not None:
         raise ParameterError("bsdf", "a snow volume replaces the surface BSDF: give one")
     if max_depth not in ("auto", snow.events_cap):
