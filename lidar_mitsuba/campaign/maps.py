@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 #: longest side [pixels] of the DEM read for the background (decimated by rasterio)
-BACKGROUND_PX = 800
+BACKGROUND_PX = 400
 #: fewest good segments for a bin's precision
 MIN_SEGMENTS = 3
 
@@ -72,8 +72,8 @@ def _background(ax, dems: list[str]):
         crs = c
         shade = _hillshade(z, cell)
         lo, hi = (np.nanpercentile(shade, [1, 99]) if np.isfinite(shade).any() else (0, 1))
-        ax.imshow(shade, extent=extent, cmap="gray", vmin=lo - 0.5 * (hi - lo),
-                  vmax=hi + 0.2 * (hi - lo), origin="upper", interpolation="bilinear")
+        ax.imshow(shade, extent=extent, cmap="gray", vmin=lo - 1.5 * (hi - lo),
+                  vmax=hi + 0.1 * (hi - lo), origin="upper", interpolation="bilinear")
         x = np.linspace(extent[0], extent[1], z.shape[1])
         y = np.linspace(extent[3], extent[2], z.shape[0])
         if np.isfinite(z).sum() > 4:
@@ -99,7 +99,7 @@ def plot_map(segments, *, dems: list[str], bin_m: float, path=None, title: str =
     [m] (:func:`bins`), in cm, with every beam's track drawn and, given ``grain_raster``,
     the grain size's contours. Writes ``path`` (PNG) when given; returns the Figure."""
     from ..plotting import plt
-    fig, axes = plt.subplots(1, 2, figsize=(13, 6), dpi=110, sharex=True, sharey=True)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5), dpi=90, sharex=True, sharey=True)
     for ax, (key, name, cmap) in zip(axes, (("bias_m", "bias: mean h_li - truth", "RdBu_r"),
                                             ("std_m", "precision: std of h_li - truth",
                                              "viridis"))):

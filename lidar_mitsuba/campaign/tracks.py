@@ -28,8 +28,8 @@ equator ``360 q`` deg = 23.6 deg apart, and the 1387 RGTs' ascending nodes fill 
 ``c`` begins ``(c - 1) * days`` after ``cycle1_utc``.
 
 The sphere's latitudes are used as geodetic ones and the orbit's nodal precession is folded
-into ``q``: the geometry (headings, spacing, which tracks cross an area) is right to a few
-tenths of a degree of heading; the phase (which longitude RGT 1 crosses the equator at, when
+into ``q``: the geometry (headings, spacing, which tracks cross an area) is right to about a
+tenth of a degree of heading; the phase (which longitude RGT 1 crosses the equator at, when
 cycle 1 began) is a parameter, nominal by default, so RGT numbers are the mission's only when
 ``node_lon_deg`` and ``cycle1_utc`` are set to its own.
 
