@@ -97,10 +97,13 @@ import pathlib
 import sys
 from dataclasses import dataclass
 
-from ..sweep import SpecError, _Store, execute  # noqa: F401  (SpecError: the API's error)
+from ..sweep import SpecError, _Store, execute
 from .granules import ROW_COLUMNS, SEGMENT_COLUMNS, run_task, snow_volume
 from .spec import CampaignSpec, load_spec
 from .tasks import Task, check_tasks, expand, payload
+
+__all__ = ["run", "load", "load_spec", "expand", "check_tasks", "build_kernels", "CampaignSpec",
+           "CampaignResult", "SpecError", "Task", "SEGMENT_COLUMNS", "ROW_COLUMNS"]
 
 
 @dataclass
@@ -184,8 +187,8 @@ def _prepare(spec, out, retry_failed, log):
     store = _Store(out, spec.format)
     store.out.mkdir(exist_ok=True)
     (store.out / "granules").mkdir(exist_ok=True)
-    (store.out / "spec.json").write_text(json.dumps(
-        {"spec": spec.to_dict(), "base_dir": spec.base_dir, "tasks": len(tasks)}, indent=1, default=str) + "\n")
+    doc = {"spec": spec.to_dict(), "base_dir": spec.base_dir, "tasks": len(tasks)}
+    (store.out / "spec.json").write_text(json.dumps(doc, indent=1, default=str) + "\n")
     ids = {t.task_id for t in tasks}
     rows = {k: r for k, r in store.read().items() if k in ids
             and not (retry_failed and r.get("status") == "failed")}

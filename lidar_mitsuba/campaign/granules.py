@@ -46,9 +46,12 @@ SEGMENT_COLUMNS: dict[str, str] = {
 ROW_COLUMNS: dict[str, str] = {
     "task_id": "16 hex digits identifying the granule (resume key)",
     "task_index": "position in the spec's expansion", "granule": "file names' common part",
-    "rgt": "", "cycle": "", "region": "", "ascending": "the pass",
+    "rgt": "reference ground track (0: a spec track without one)", "cycle": "cycle",
+    "region": "granule region (1-14)", "ascending": "the pass: northward at the first shot",
     "dem": "DEM file", "shots": "shots per beam", "seed": "photon seed",
-    "grain_um": "", "density_kg_m3": "", "roughness_relief_m": "",
+    "grain_um": "snow grain radius simulated [um] (None: no snow)",
+    "density_kg_m3": "snow density simulated [kg/m^3] (None: snow_from_grains' default)",
+    "roughness_relief_m": "roughness relief simulated [m] (None or 0: none)",
     "medians_json": "raster medians along the granule before binning (JSON)",
     "status": "'ok' or 'failed'", "error": "one-line error of a failed task",
     "photons": "signal photons, all beams", "n_segments": "ATL06 segments, all beams",
@@ -59,8 +62,8 @@ ROW_COLUMNS: dict[str, str] = {
     "atl03": "ATL03 file name", "atl06": "ATL06 file name",
     "task_s": "wall time on the worker [s]", "started_at": "UTC (ISO 8601)",
     "finished_at": "UTC (ISO 8601)", "worker": "host:pid",
-    "lidar_mitsuba_version": "", "mitsuba_version": "", "drjit_version": "",
-    "track_json": "the track (GeoTrack fields, JSON)",
+    "lidar_mitsuba_version": "versions of the worker's packages", "mitsuba_version": "",
+    "drjit_version": "", "track_json": "the track (GeoTrack fields, JSON)",
 }
 RUN_DEPENDENT = ("task_s", "started_at", "finished_at", "worker")
 _FLOAT32_FILL = float(np.finfo(np.float32).max)
