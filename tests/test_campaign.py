@@ -151,6 +151,12 @@ def test_the_serial_campaign_writes_named_granules_a_table_and_a_map(serial, spe
         epoch = json.loads(t["track_json"])["epoch_utc"]
         assert epoch[:19].replace("-", "").replace(":", "").replace("T", "") == \
             name["date"] + name["time"]
+    # the files read as any of our granules: ATL06 fitted again from the ATL03 photons
+    from lidar_mitsuba.products import atl06
+    again = atl06.segments_from_atl03(serial.out / "granules" / tasks["atl03"][0])
+    mine = seg[(seg["task_index"] == 0) & (seg["beam"] == "gt1l")]
+    np.testing.assert_array_equal(again.segment_id, mine["segment_id"])
+    assert np.nanmax(np.abs(again.h_li - mine["h_li"])) < 1e-3     # (the file holds float32)
     # the table is the files' segments
     first = campaign.granules.read_segments(serial.out / "granules" / tasks["atl06"][0])
     mine = seg[seg["task_index"] == 0]
