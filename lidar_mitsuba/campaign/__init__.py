@@ -28,7 +28,7 @@ lidar_mitsuba and the spec's files at the same paths, and ``DIR`` on a shared fi
     options = { dead_time_ns = 3.2 }   # Instrument fields shared by the beams
 
     [run]
-    shots = 2000              # per beam and granule, or "all": the whole crossing
+    shots = 2000              # per beam and granule (at most a crossing), or "all"
     max_depth = 1             # or "auto"; paths_per_shot ("auto"), section_shots (65536)
 
     [epochs]
@@ -137,12 +137,18 @@ def _tables(store: _Store, tasks: list[Task]):
     for r in found:
         if r.get("status") != "ok":
             continue
-        f = store.out / "segments" / f"{r['task_id']}.{store.fmt}"
+        f = _segments_file(store, r["task_id"])
+        if not f.is_file():          # (lost: the granule runs again on the next call)
+            continue
         parts.append(pd.read_parquet(f) if store.fmt == "parquet" else
                      pd.read_csv(f, keep_default_na=True))
     seg = pd.concat(parts, ignore_index=True) if parts else \
         pd.DataFrame(columns=list(SEGMENT_COLUMNS))
     return seg[list(SEGMENT_COLUMNS)], trows
+
+
+def _segments_file(store: _Store, task_id: str) -> pathlib.Path:
+    return store.out / "segments" / f"{task_id}.{store.fmt}"
 
 
 def load(out, spec=None):
@@ -191,7 +197,8 @@ def _prepare(spec, out, retry_failed, log):
     (store.out / "spec.json").write_text(json.dumps(doc, indent=1, default=str) + "\n")
     ids = {t.task_id for t in tasks}
     rows = {k: r for k, r in store.read().items() if k in ids
-            and not (retry_failed and r.get("status") == "failed")}
+            and not (retry_failed and r.get("status") == "failed")
+            and (r.get("status") != "ok" or _segments_file(store, k).is_file())}
     if rows:
         log(f"{len(rows)} of {len(tasks)} granules already done in {out}")
     return tasks, store, rows
