@@ -1,6 +1,7 @@
 """Command-line interface ``lidar-mitsuba`` (simulate, stats, segments, terrain, make-dem, bench,
-reproduce, validate, sweep). ``simulate`` and its options are :mod:`.simulate`; the shared
-argparse pieces :mod:`.args`.
+reproduce, validate, sweep, campaign, make-raster). ``simulate`` and its options are
+:mod:`.simulate`, ``campaign`` and ``make-raster`` :mod:`.campaign`; the shared argparse pieces
+:mod:`.args`.
 
 Bad input is reported as one line naming the option, with exit code 2 and no output file.
 The options of ``simulate`` and ``terrain`` are generated from the API (:mod:`.options`):
@@ -18,7 +19,7 @@ import pathlib
 import sys
 import time
 
-from . import options as opts, simulate as cli_simulate
+from . import campaign as cli_campaign, options as opts, simulate as cli_simulate
 from .args import (PROG, Parser, UsageError, finite, nonnegative_int, out_dir, out_path,
                    positive_int, rates_line, read_input, variant_list, version_text)
 from ..constants import ParameterError
@@ -33,6 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_file_parsers(sub)
     _add_study_parsers(sub)
     _add_sweep_parser(sub)
+    cli_campaign.add_parsers(sub)
     _add_terrain_parsers(sub)
     return p
 
@@ -362,6 +364,8 @@ def main(argv: list[str] | None = None) -> int:
             return {"simulate": cli_simulate.run, "stats": _cmd_stats, "segments": _cmd_segments,
                     "bench": _cmd_bench, "terrain": _cmd_terrain, "make-dem": _cmd_make_dem,
                     "reproduce": _cmd_reproduce, "sweep": _cmd_sweep,
+                    "campaign": cli_campaign.cmd_campaign,
+                    "make-raster": cli_campaign.cmd_make_raster,
                     "validate": _cmd_validate}[args.command](args)
         except ParameterError as e:
             raise UsageError(opts.option_name(e.name), e.message) from None

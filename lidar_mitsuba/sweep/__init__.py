@@ -142,11 +142,17 @@ class _Store:
 
     def add(self, row: dict) -> None:
         import pandas as pd
-        self.rows.mkdir(parents=True, exist_ok=True)
-        self._write(pd.DataFrame([row]), self.rows / f"{row['task_id']}.{self.fmt}")
+        self.put(pd.DataFrame([row]), "rows", row["task_id"])
 
-    def results(self, df) -> pathlib.Path:
-        path = self.out / f"results.{self.fmt}"
+    def put(self, df, folder: str, key: str) -> pathlib.Path:
+        """Write ``df`` to ``out/<folder>/<key>.<format>``, atomically."""
+        path = self.out / folder / f"{key}.{self.fmt}"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._write(df, path)
+        return path
+
+    def results(self, df, name: str = "results") -> pathlib.Path:
+        path = self.out / f"{name}.{self.fmt}"
         self._write(df, path)
         return path
 
@@ -314,30 +320,46 @@ def _timed(fn, threads: int | None = None, variant: str | None = None):
 def _execute(todo: list[Task], *, client, workers, threads, record, log) -> None:
     """Run ``todo`` and ``record`` each row as it finishes (in this process with
     ``workers=0``, else on Dask)."""
-    payloads = {t.task_id: dataclasses.asdict(t) for t in todo}
+    execute([dataclasses.asdict(t) for t in todo], fn=run_task, failed=_failed_row,
+            client=client, workers=workers, threads=threads, record=record, log=log)
+
+
+def _failed_row(payload: dict, error: BaseException) -> dict:
+    now = datetime.now(timezone.utc).isoformat()
+    return _row(payload, status="failed", error=_one_line(error), started_at=now,
+                finished_at=now, worker="?")
+
+
+def execute(payloads: list[dict], *, fn, failed, client=None, workers: int | None = None,
+            threads: int | None = None, record, log=None) -> None:
+    """Run ``fn({**payload, "threads": threads})`` for every payload (dicts of plain values)
+    and ``record`` each result as it finishes: one after another in this process with
+    ``client`` None and ``workers=0``; else as Dask tasks on ``client``, or on a
+    :func:`local_client` of ``workers`` processes for the duration of the call (``threads``
+    defaulting to cores // workers there). A task whose worker died or that could not be sent
+    is recorded as ``failed(payload, exception)``. The engine of sweeps and campaigns
+    (:mod:`lidar_mitsuba.campaign`)."""
     if client is None and workers == 0:
-        for p in payloads.values():
-            record(run_task({**p, "threads": threads}))
+        for p in payloads:
+            record(fn({**p, "threads": threads}))
         return
     with contextlib.ExitStack() as stack:
         if client is None:
             client, default_threads = stack.enter_context(local_client(workers, log=log))
             threads = threads or default_threads
-        _submit(todo=payloads, client=client, threads=threads, record=record)
+        _submit(todo=payloads, fn=fn, failed=failed, client=client, threads=threads,
+                record=record)
 
 
-def _submit(*, todo: dict, client, threads, record) -> None:
+def _submit(*, todo: list[dict], fn, failed, client, threads, record) -> None:
     from dask.distributed import as_completed
-    futures = {client.submit(run_task, {**p, "threads": threads}, pure=False): p
-               for p in todo.values()}
+    futures = {client.submit(fn, {**p, "threads": threads}, pure=False): p for p in todo}
     try:
         for fut in as_completed(futures):
             try:
-                row = fut.result()
+                result = fut.result()
             except Exception as e:             # the worker died, or the task could not be sent
-                now = datetime.now(timezone.utc).isoformat()
-                row = _row(futures[fut], status="failed", error=_one_line(e),
-                           started_at=now, finished_at=now, worker="?")
-            record(row)
+                result = failed(futures[fut], e)
+            record(result)
     finally:
         client.cancel(list(futures))

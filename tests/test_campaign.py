@@ -1,0 +1,462 @@
+"""Ice-sheet campaigns on Dask (issue 34): a small campaign (four repeat-orbit granules of one
+beam pair, 400 shots per beam, snow from a grain-size raster binned to two levels) run in this
+process, through a real ``dask scheduler`` with two ``dask worker`` processes, and killed and
+resumed, gives the same segment table to the bit; the spec's errors, the ICESat-2 file names,
+the repeat orbit's geometry and the raster's windowed reads."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import pathlib
+import socket
+import subprocess
+import sys
+import time
+from datetime import datetime, timezone
+
+import h5py
+import numpy as np
+import pandas as pd
+import pytest
+
+from lidar_mitsuba import campaign
+from lidar_mitsuba.campaign import rasters, tracks as tk
+from lidar_mitsuba.cli import main
+from lidar_mitsuba.ground import dem as dems
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SPEC = """
+[campaign]
+name = "tiny"
+seed = 7
+map_bin_m = 200
+kernel_cache = "kernels"
+
+[dem]
+path = "dem.tif"
+
+[instrument]
+preset = "paper"
+beams = "gt1l,gt1r"
+
+[run]
+shots = 400
+
+[epochs]
+cycles = [4]
+
+[orbit]
+passes = "both"
+
+[snow]
+grain_um = "grain.tif"
+grain_levels_um = [150, 1000]
+"""
+
+
+@pytest.fixture(scope="module")
+def spec_path(tmp_path_factory):
+    """A 20 x 6 km DEM (80 m posting, no hole) that four repeat-orbit tracks cross with both
+    beams of gt1, a grain-size raster rising from 100 um (west) to 1000 um (east), and the
+    spec."""
+    d = tmp_path_factory.mktemp("inputs")
+    dems.synthetic_ice_sheet(d / "dem.tif", width_m=20000, length_m=6000, posting_m=80,
+                             hole=False)
+    rasters.gradient_raster(d / "grain.tif", like=d / "dem.tif", start=100, stop=1000,
+                            posting_m=200)
+    (d / "tiny.toml").write_text(SPEC)
+    return d / "tiny.toml"
+
+
+@pytest.fixture(scope="module")
+def serial(spec_path, tmp_path_factory):
+    """The campaign in this process (workers=0)."""
+    return campaign.run(spec_path, out=tmp_path_factory.mktemp("serial") / "out", workers=0)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def scheduler(tmp_path_factory):
+    """``dask scheduler`` and two ``dask worker`` processes (one thread each, no nanny) on
+    127.0.0.1 at a free port: ``(address, worker pids)``; killed at the end."""
+    dask = pathlib.Path(sys.executable).with_name("dask")
+    if not dask.exists():
+        pytest.skip("the dask command line is not installed")
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    logs = tmp_path_factory.mktemp("dask")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(ROOT)] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+    cmds = [[str(dask), "scheduler", "--host", "127.0.0.1", "--port", str(port),
+             "--no-dashboard"]]
+    cmds += [[str(dask), "worker", address, "--nthreads", "1", "--no-nanny", "--no-dashboard",
+              "--memory-limit", "0", "--name", f"w{i}", "--local-directory", str(logs),
+              "--death-timeout", "60"] for i in range(2)]
+    procs = []
+    try:
+        for k, cmd in enumerate(cmds):
+            procs.append(subprocess.Popen(cmd, env=env, cwd=logs, stdout=open(
+                logs / f"{k}.log", "w"), stderr=subprocess.STDOUT))
+            if k == 0:
+                time.sleep(1.0)
+        from dask.distributed import Client
+        with Client(address, timeout="60s") as c:
+            c.wait_for_workers(2, timeout=120)
+        yield address, {p.pid for p in procs[1:]}
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=20)
+
+
+def test_the_serial_campaign_writes_named_granules_a_table_and_a_map(serial, spec_path):
+    seg, tasks = serial.segments, serial.tasks
+    assert len(tasks) == 4 and (tasks["status"] == "ok").all() and serial.failed == 0
+    assert set(tasks["grain_um"]) == {150.0, 1000.0}          # both levels, one table each
+    # one kernel table per level, built in the kernel cache before any granule started
+    tables = sorted((spec_path.parent / "kernels" / "snow_kernel").glob("*.npz"))
+    first = min(datetime.fromisoformat(t) for t in tasks["started_at"])
+    assert len(tables) == 2 and all(datetime.fromtimestamp(f.stat().st_mtime, timezone.utc)
+                                    < first for f in tables)
+    assert len(seg) == tasks["n_segments"].sum() == 4 * 2 * 12
+    assert list(seg.columns) == list(campaign.SEGMENT_COLUMNS)
+    np.testing.assert_array_equal(seg["error"], seg["h_li"] - seg["h_truth"])
+    assert serial.map is not None and serial.map.stat().st_size > 10000
+    files = sorted(p.name for p in (serial.out / "granules").iterdir())
+    assert len(files) == 8 and not any(f.startswith(".") for f in files)
+    for _, t in tasks.iterrows():
+        f3, f6 = serial.out / "granules" / t["atl03"], serial.out / "granules" / t["atl06"]
+        name = tk.parse_product_name(f3.name)
+        assert name["product"] == "ATL03" and tk.parse_product_name(f6.name)["product"] == "ATL06"
+        assert (name["rgt"], name["cycle"], name["region"]) == (t["rgt"], t["cycle"],
+                                                                t["region"])
+        assert name["version"] == 1 and name["revision"] == 1 and name["cycle"] == 4
+        assert name["region"] == (3 if t["ascending"] else 5)       # 59.5-80 N
+        with h5py.File(f3, "r") as f:
+            assert int(f["orbit_info/rgt"][0]) == t["rgt"]
+            assert int(f["orbit_info/cycle_number"][0]) == 4
+            assert {"gt1l", "gt1r"} <= set(f)
+        # the file name's time is the first shot's
+        epoch = json.loads(t["track_json"])["epoch_utc"]
+        assert epoch[:19].replace("-", "").replace(":", "").replace("T", "") == \
+            name["date"] + name["time"]
+    # the files read as any of our granules: ATL06 fitted again from the ATL03 photons
+    from lidar_mitsuba.products import atl06
+    again = atl06.segments_from_atl03(serial.out / "granules" / tasks["atl03"][0])
+    mine = seg[(seg["task_index"] == 0) & (seg["beam"] == "gt1l")]
+    np.testing.assert_array_equal(again.segment_id, mine["segment_id"])
+    assert np.nanmax(np.abs(again.h_li - mine["h_li"])) < 1e-3     # (the file holds float32)
+    # the table is the files' segments
+    first = campaign.granules.read_segments(serial.out / "granules" / tasks["atl06"][0])
+    mine = seg[seg["task_index"] == 0]
+    np.testing.assert_array_equal(mine["h_li"], first["h_li"])
+    pd.testing.assert_frame_equal(pd.read_parquet(serial.out / "segments.parquet"), seg)
+
+
+def test_bias_follows_the_grain_size(serial):
+    """Larger grains carry the light deeper: h_li lower (README's snow table: the bias grows
+    with grain size), by far more than the Monte Carlo error."""
+    t = serial.tasks.groupby("grain_um").agg(
+        bias=("bias_m", "mean"), se=("bias_se_m", lambda s: math.sqrt((s ** 2).sum()) / s.size))
+    fine, coarse = t.loc[150.0], t.loc[1000.0]
+    assert fine["bias"] < 0 and coarse["bias"] < fine["bias"] - 4 * math.hypot(fine["se"],
+                                                                              coarse["se"])
+    seg = serial.segments
+    assert np.isfinite(seg["grain_um_raster"]).all()
+    assert seg.groupby("grain_um")["grain_um_raster"].mean().is_monotonic_increasing
+
+
+def test_two_dask_workers_give_the_serial_table_to_the_bit(serial, spec_path, scheduler,
+                                                           tmp_path, capsys):
+    address, pids = scheduler
+    out = tmp_path / "out"
+    tables = {f: f.stat().st_mtime_ns for f in (spec_path.parent / "kernels").rglob("*.npz")}
+    assert main(["campaign", str(spec_path), "--out", str(out), "--scheduler", address,
+                 "--no-progress", "--no-map"]) == 0
+    text = capsys.readouterr().out
+    assert "connected to" in text and "2 workers" in text and "4 granules, 4 run now" in text
+    seg = pd.read_parquet(out / "segments.parquet")
+    pd.testing.assert_frame_equal(seg, serial.segments, check_exact=True)
+    tasks = pd.read_parquet(out / "tasks.parquet")
+    ran_on = {int(w.rsplit(":", 1)[1]) for w in tasks["worker"]}
+    assert ran_on <= pids and os.getpid() not in ran_on
+    # the workers read the tables the first run built (none built again)
+    assert {f: f.stat().st_mtime_ns for f in (spec_path.parent / "kernels").rglob("*.npz")} \
+        == tables and len(tables) == 2
+    for name in tasks["atl06"]:      # the same files, byte for byte in their data
+        a = campaign.granules.read_segments(out / "granules" / name)
+        b = campaign.granules.read_segments(serial.out / "granules" / name)
+        for k in a:
+            np.testing.assert_array_equal(a[k], b[k])
+
+
+def test_a_killed_campaign_resumes_to_the_same_table(serial, spec_path, tmp_path):
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        campaign.run(spec_path, out=out, workers=0, plot=False, _stop_after=2)
+    assert len(list((out / "rows").glob("*.parquet"))) == 2
+    seg, tasks = campaign.load(out)
+    assert len(tasks) == 2 and set(seg["task_index"]) == set(tasks["task_index"])
+    again = campaign.run(spec_path, out=out, workers=0, plot=False)
+    assert again.ran == 2 and again.skipped == 2
+    pd.testing.assert_frame_equal(again.segments, serial.segments, check_exact=True)
+    assert campaign.run(spec_path, out=out, workers=0, plot=False).ran == 0
+    # a granule whose segments were lost runs again
+    (out / "segments" / f"{again.tasks['task_id'][1]}.parquet").unlink()
+    third = campaign.run(spec_path, out=out, workers=0, plot=False)
+    assert third.ran == 1
+    pd.testing.assert_frame_equal(third.segments, serial.segments, check_exact=True)
+
+
+def test_failing_granules_are_recorded_and_the_rest_go_on(spec_path, serial, tmp_path):
+    """A track of the spec's own that runs off the DEM's north edge fails in its run (no files
+    left for it); one wholly off the grain raster is refused before running; the orbit's four
+    granules are those of the serial run."""
+    tracks = ('[[tracks]]\nstart = [70.025, -45.0]\nazimuth_deg = 0.0\nrgt = 9\n\n'
+              '[[tracks]]\nstart = [70.3, -45.0]\nazimuth_deg = 0.0\nrgt = 10\n\n[orbit]')
+    spec = spec_path.with_name("with_bad_tracks.toml")
+    spec.write_text(SPEC.replace("[orbit]", tracks).replace('name = "tiny"', 'name = "bad"'))
+    res = campaign.run(spec, out=tmp_path / "out", workers=0, plot=False)
+    bad = res.tasks[res.tasks["status"] == "failed"].set_index("rgt")
+    assert sorted(bad.index) == [9, 10] and res.failed == 2
+    assert "off the DEM" in bad.loc[9, "error"] and bad.loc[9, "error"].startswith("track")
+    assert bad.loc[10, "error"].startswith("the grain_um raster has no value along the track")
+    assert not list((tmp_path / "out" / "granules").glob("*_00090*")) and \
+        not list((tmp_path / "out" / "granules").glob(".*"))
+    ok = res.segments[res.segments["rgt"] != 9].drop(columns="task_index").reset_index(drop=True)
+    pd.testing.assert_frame_equal(ok, serial.segments.drop(columns="task_index"),
+                                  check_exact=True)
+
+
+def test_the_demo_spec_flies_eight_tracks_of_six_beams_over_a_grain_gradient(tmp_path):
+    demo = tmp_path / "demo.toml"
+    demo.write_text((ROOT / "campaigns" / "demo.toml").read_text())
+    assert main(["make-dem", "--out", str(tmp_path / "demo_dem.tif"), "--width-m", "40000",
+                 "--length-m", "30000", "--posting-m", "40"]) == 0
+    assert main(["make-raster", "--like", str(tmp_path / "demo_dem.tif"), "--out",
+                 str(tmp_path / "demo_grain_um.tif"), "--start", "100", "--stop", "1000"]) == 0
+    spec = campaign.load_spec(demo)
+    tasks = campaign.expand(spec)
+    assert spec.beams == "all" and spec.grain.raster and len(tasks) == 8
+    assert sum(t.ascending for t in tasks) == 4 and len({t.rgt for t in tasks}) == 8
+    assert 2000 * 6 * len(tasks) <= 100000
+    assert len({t.grain_um for t in tasks}) >= 4 and all(not t.invalid for t in tasks)
+    west_east = sorted(tasks, key=lambda t: json.loads(json.dumps(t.track))["polyline"][0][1])
+    assert west_east[0].grain_um < west_east[-1].grain_um
+
+
+BAD = [
+    ("[campaigns]\n", "[campaigns]"),
+    ("[campaign]\nworkers = 2\n", "[campaign] workers"),
+    ("[campaign]\nformat = \"xlsx\"\n", "[campaign] format"),
+    ("[dem]\npath = \"none.tif\"\n", "[dem] path"),
+    ("[instrument]\npreset = \"laser\"\n", "[instrument] preset"),
+    ("[instrument]\nbeams = \"gt4l\"\n", "[instrument] beams"),
+    ("[instrument]\noptions = { pde = 2.0 }\n", "[instrument] options.pde"),
+    ("[run]\nshots = 0\n", "[run] shots"),
+    ("[run]\nmax_depth = 2\n", "[run] max_depth"),
+    ("[epochs]\ncycles = [0]\n", "[epochs] cycles"),
+    ("[epochs]\ncycles = []\n", "[epochs] cycles"),
+    ("[orbit]\npasses = \"up\"\n", "[orbit] passes"),
+    ("[orbit]\ninclination_deg = 200\n", "[orbit] inclination_deg"),
+    ("[snow]\ngrain_levels_um = []\n", "[snow] grain_levels_um"),
+    ("[snow]\ngrain_levels_um = [1, 2]\n", "[snow] grain_levels_um"),
+    ("[snow]\ngrain_um = \"none.tif\"\n", "[snow] grain_um"),
+    ("[snow]\nmodel = \"fast\"\n", "[snow] model"),
+    ("[[tracks]]\nstart = [70.0]\n", "[[tracks]] 1 start"),
+    ("[[tracks]]\nazimuth_deg = 3\n", "[[tracks]] 1"),
+    ("[[tracks]]\nstart = [70.0, -45.0]\nepoch_utc = \"yesterday\"\n", "[[tracks]] 1 epoch_utc"),
+]
+
+
+def _replace(text: str, section_text: str) -> str:
+    """The spec with ``section_text``'s keys set in their section (added if new)."""
+    head = section_text.split("\n", 1)[0]
+    if head.startswith("[[") or head not in text:
+        return text + "\n" + section_text
+    lines = text.split("\n")
+    i = lines.index(head)
+    keys = {ln.split("=")[0].strip(): ln for ln in section_text.split("\n")[1:] if "=" in ln}
+    j = i + 1
+    while j < len(lines) and not lines[j].startswith("["):
+        k = lines[j].split("=")[0].strip()
+        if k in keys:
+            lines[j] = keys.pop(k)
+        j += 1
+    lines[j:j] = list(keys.values())
+    return "\n".join(lines)
+
+
+def bad_call(argv, capsys):
+    try:
+        code = main(argv)
+    except SystemExit as e:
+        code = e.code
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+@pytest.mark.parametrize("text,key", BAD, ids=[k for _, k in BAD])
+def test_bad_spec_is_one_line_naming_the_key(spec_path, tmp_path, capsys, text, key):
+    spec = spec_path.with_name(f"bad_{abs(hash(text))}.toml")
+    body = SPEC.replace("grain_levels_um = [150, 1000]\n", "") if "grain_levels" in text \
+        else SPEC
+    spec.write_text(_replace(body, text))
+    out = tmp_path / "out"
+    err = bad_call(["campaign", str(spec), "--out", str(out), "--workers", "0"], capsys)
+    assert f"error: {spec}: {key}" in err, err
+    assert not out.exists()
+
+
+def test_bad_campaign_runs_are_refused_before_writing(spec_path, tmp_path, capsys):
+    out = tmp_path / "out"
+    narrow = spec_path.with_name("narrow.tif")      # narrower than the beam pair's offset
+    dems.synthetic_ice_sheet(narrow, width_m=3000, length_m=3000, posting_m=80, hole=False)
+    spec = spec_path.with_name("narrow.toml")
+    spec.write_text(SPEC.replace("dem.tif", "narrow.tif").replace('"gt1l,gt1r"', '"all"')
+                    .replace('grain_um = "grain.tif"\ngrain_levels_um = [150, 1000]',
+                             "grain_um = 200"))
+    err = bad_call(["campaign", str(spec), "--out", str(out), "--workers", "0"], capsys)
+    assert "no granules: no track crosses the DEM" in err and not out.exists()
+    for args, option in ((["--scheduler", "tcp://127.0.0.1:1", "--workers", "2"], "--workers"),
+                         (["--workers", "-1"], "--workers"), (["--threads", "0"], "--threads"),
+                         (["--out", str(tmp_path / "missing" / "o")], "--out")):
+        err = bad_call(["campaign", str(spec_path), "--out", str(out), *args], capsys)
+        assert f"error: {option}" in err and not out.exists()
+    err = bad_call(["campaign", str(tmp_path / "none.toml"), "--out", str(out)], capsys)
+    assert "error: SPEC" in err
+
+
+# --------------------------------------------------------------------------- names and orbit
+def test_icesat2_file_names_and_granule_regions():
+    t = (tk.parse_utc("2019-06-01T12:34:56Z") - tk.SDP_EPOCH_UTC).total_seconds()
+    name = tk.product_name("ATL03", t_s=t, rgt=123, cycle=3, region=5, version=6, revision=1)
+    assert name == "ATL03_20190601123456_01230305_006_01.h5"
+    assert tk.parse_product_name(name) == {
+        "product": "ATL03", "date": "20190601", "time": "123456", "rgt": 123, "cycle": 3,
+        "region": 5, "version": 6, "revision": 1}
+    assert tk.parse_product_name("ATL03_2019_0123_006_01.h5") is None
+    asc = [tk.granule_region(lat, ascending=True) for lat in (10, 40, 70, 85, -10, -40, -60, -85)]
+    desc = [tk.granule_region(lat, ascending=False) for lat in (10, 40, 70, 85, -10, -40, -60,
+                                                                -85)]
+    assert asc == [1, 2, 3, 4, 14, 13, 12, 11] and desc == [7, 6, 5, 4, 8, 9, 10, 11]
+
+
+def test_repeat_orbit_heading_spacing_and_times():
+    """The ground track's heading against the closed form (derived in tracks' docstring),
+    measured on a sphere between points 1 m apart; Clairaut's relation without the Earth's
+    rotation; the RGTs' nodes on a 360/1387 deg grid; times a period apart."""
+    from pyproj import Geod
+    sphere = Geod(a=tk.EARTH_RADIUS_M, b=tk.EARTH_RADIUS_M)
+    o = tk.RepeatOrbit()
+    assert o.q == pytest.approx(91 / 1387)
+    du = 1.0 / tk.EARTH_RADIUS_M
+    for rotating in (True, False):
+        orb = o if rotating else tk.RepeatOrbit(days=0)
+        for u in np.radians([5.0, 30.0, 60.0, 80.0, 100.0, 150.0, 200.0, 300.0]):
+            lat, lon = orb.ground_track(np.array([u - du, u + du]), 17)
+            az = sphere.inv(lon[0], lat[0], lon[1], lat[1])[0] % 360
+            mid = orb.ground_track(u, 17)[0]
+            ascending = math.cos(u) > 0
+            closed = float(orb.heading_deg(mid, ascending=ascending))
+            assert abs((az - closed + 180) % 360 - 180) < 1e-3, (u, az, closed)
+            if not rotating:      # Clairaut: sin(heading) = cos(i) / cos(lat)
+                assert math.sin(math.radians(closed)) == pytest.approx(
+                    math.cos(math.radians(92.0)) / math.cos(math.radians(mid)), abs=1e-9)
+    assert float(o.heading_deg(70.0, ascending=True)) == pytest.approx(352.87, abs=0.01)
+    assert float(o.heading_deg(70.0, ascending=False)) == pytest.approx(187.13, abs=0.01)
+    nodes = np.sort(o.rgt_node_lon_deg(np.arange(1, 1388)))
+    np.testing.assert_allclose(np.diff(nodes), 360 / 1387, atol=1e-9)
+    shift = (o.rgt_node_lon_deg(2) - o.rgt_node_lon_deg(1)) % 360
+    assert shift == pytest.approx(360 - 360 * 91 / 1387)
+    assert o.time_s(2, 4, 0.0) - o.time_s(1, 4, 0.0) == pytest.approx(91 * 86400 / 1387)
+    assert o.cycle_of(o.cycle_start_s(4) + 1.0) == 4 and o.cycle_of(0.0) == 0
+
+
+def test_crossings_keep_every_beam_over_the_dem(spec_path, serial):
+    from lidar_mitsuba.geotrack import beam_layout, select_beams
+    dem = dems.DEM.open(spec_path.with_name("dem.tif"))
+    cs = tk.crossings(dem, tk.RepeatOrbit(), beams=select_beams("gt1l,gt1r"), margin_m=130)
+    assert [(c.rgt, c.ascending) for c in cs] == [(414, True), (1359, True), (864, False),
+                                                  (1306, False)]
+    for c in cs:
+        h = tk.RepeatOrbit().heading_at_u_deg(c.u_rad)
+        assert np.all(np.abs(((h - (352.9 if c.ascending else 187.1)) + 180) % 360 - 180) < 0.2)
+    # every segment the campaign simulated lies on valid DEM; fewer tracks fit six beams
+    seg = serial.segments
+    surf = dems.DEMSurface(dem)
+    from pyproj import Transformer
+    x, y = Transformer.from_crs("EPSG:4326", dem.crs, always_xy=True).transform(
+        seg["longitude"].to_numpy(), seg["latitude"].to_numpy())
+    assert np.isfinite(surf.height_m(np.asarray(x), np.asarray(y))).all()
+    six = tk.crossings(dem, tk.RepeatOrbit(), beams=beam_layout(0), margin_m=130)
+    assert {(c.rgt, c.ascending) for c in six} < {(c.rgt, c.ascending) for c in cs}
+
+
+# --------------------------------------------------------------------------- rasters
+def test_a_property_raster_is_read_by_window(tmp_path, monkeypatch):
+    """Values along a 2 km track come from one small window of a 40 x 30 km raster (read by
+    rasterio's window, not whole), bilinear (exact on a linear gradient)."""
+    dem = dems.synthetic_ice_sheet(tmp_path / "dem.tif", width_m=40000, length_m=30000,
+                                   posting_m=100, hole=False)
+    path = rasters.gradient_raster(tmp_path / "g.tif", like=dem, start=100, stop=1000)
+    r = rasters.PropertyRaster(path)
+    reads = []
+    real = dems._open_for_reading
+
+    def spy(p):
+        ds = real(p)
+
+        class Spy:
+            def read(self, *a, **kw):
+                reads.append(kw["window"])
+                return ds.read(*a, **kw)
+        return Spy()
+    monkeypatch.setattr(dems, "_open_for_reading", spy)
+    from lidar_mitsuba.geotrack import GeoTrack, select_beams
+    g = GeoTrack(start_lat_deg=70.0, start_lon_deg=-45.05, azimuth_deg=0.0)
+    lat, lon = rasters.track_points(g, select_beams("gt2l"), n_shots=2858, spacing_m=0.7)
+    v = r.at(lat, lon)
+    assert len(reads) == 1 and reads[0].width * reads[0].height < 0.002 * 400 * 300
+    from pyproj import Transformer
+    x, _ = Transformer.from_crs("EPSG:4326", "EPSG:3413", always_xy=True).transform(lon, lat)
+    d = dems.DEM.open(path)
+    x0 = d.transform.c + d.posting_m / 2
+    x1 = x0 + (d.width - 1) * d.posting_m
+    expect = 100 + 900 * (np.asarray(x) - x0) / (x1 - x0)
+    np.testing.assert_allclose(v, expect, rtol=1e-5)
+    m = rasters.median_along(r, lat, lon)
+    assert rasters.snap(m, [100, 500, 1000]) == 500 and math.isnan(rasters.snap(math.nan, [1]))
+    assert np.isnan(r.at(np.array([80.0]), np.array([0.0]))).all()        # off the raster
+
+
+def test_make_raster_cli(tmp_path, capsys):
+    dem = dems.synthetic_ice_sheet(tmp_path / "dem.tif", width_m=4000, length_m=3000,
+                                   posting_m=100)
+    out = tmp_path / "g.tif"
+    assert main(["make-raster", "--like", str(dem), "--out", str(out), "--start", "100",
+                 "--stop", "1000", "--direction-deg", "0", "--log"]) == 0
+    r = dems.DEM.open(out)
+    z, _ = r.read_window(*r.bounds_m)
+    z = z[1:-1, 1:-1]                           # (the window's pad off the raster: NaN)
+    col = z.mean(axis=1)                        # rows south to north: rising northward
+    assert col[0] == pytest.approx(100, rel=0.05) and col[-1] == pytest.approx(1000, rel=0.05)
+    assert np.all(np.diff(col) > 0)
+    capsys.readouterr()
+    for args, option in ((["--start", "0", "--log"], "--log"),
+                         (["--posting-m", "-1"], "--posting-m")):
+        err = bad_call(["make-raster", "--like", str(dem), "--out", str(tmp_path / "b.tif"),
+                        "--start", "1", "--stop", "2", *args], capsys)
+        assert f"error: {option}" in err and not (tmp_path / "b.tif").exists()
