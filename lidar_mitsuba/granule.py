@@ -405,8 +405,8 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                    seed: int = 0, paths_per_shot: int | str = "auto",
                    max_depth: int | str = "auto",
                    progress: bool = True, section_shots: int = SECTION_SHOTS,
-                   segment_options: dict | None = None, **simulate_options
-                   ) -> list[BeamSummary]:
+                   segment_options: dict | None = None, orbit_info: dict | None = None,
+                   **simulate_options) -> list[BeamSummary]:
     """Simulate a granule section by section straight into its ATL03 (and ATL06) files, so
     memory is bounded by a section (``section_shots`` shots) for a track of any length.
 
@@ -416,7 +416,9 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     tile) and streamed section by section (:meth:`~lidar_mitsuba.planning.RunPlan.section`),
     each section an independent draw with its own seed. ATL06 segments are
     fitted across section boundaries (see :class:`_SegmentStream`). Both files are written
-    atomically: a failure leaves neither. Returns each beam's running statistics.
+    atomically: a failure leaves neither. ``orbit_info``: the files' ``orbit_info`` labels of
+    a repeat-orbit track (``rgt``, ``cycle_number``, ``orbit_number``). Returns each beam's
+    running statistics.
     """
     import contextlib
     simulate_options.pop("keep_returns", None)     # sections keep no traced returns
@@ -431,7 +433,7 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     n_sections = max(len(st.bounds) for st in streams)
     t_first, t_last = track.time_span_s(shots, prf_hz=ctx.base.prf_hz)
     meta = Granule(beams=[], sc_orient=int(sc_orient), crs=ctx.surface.dem.crs.to_string(),
-                   frame_origin_m=ctx.origin, track=track,
+                   frame_origin_m=ctx.origin, track=track, orbit=dict(orbit_info or {}),
                    config=ctx.config(shots=shots, seed=seed, sc_orient=sc_orient, beams=beams,
                                      sections=n_sections))
     instruments = [(b, ctx.instrument(b)) for b in beams]

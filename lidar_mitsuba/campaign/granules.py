@@ -156,20 +156,9 @@ def _surface(p: dict):
     return DEMSurface(dem, roughness=rough)
 
 
-def _label_orbit(path: pathlib.Path, p: dict) -> None:
-    """Write the granule's RGT and cycle into ``orbit_info`` (the writer leaves 0)."""
-    import h5py
-    with h5py.File(path, "r+") as f:
-        o = f["orbit_info"]
-        for key, value in (("rgt", p["rgt"]), ("cycle_number", p["cycle"])):
-            o[key][0] = value
-            o[key].attrs["long_name"] = f"{key} of the campaign's repeat-orbit track" if \
-                p["rgt"] else f"{key} (0: a track of the campaign spec's own)"
-
-
 def simulate(p: dict) -> tuple[dict, int, pathlib.Path, pathlib.Path]:
     """Stream the granule of task ``p`` to ``out/granules/ATL03_*.h5`` and ``ATL06_*.h5``
-    (each written under a temporary name, labelled with its RGT and cycle, then renamed) and
+    (each written under a temporary name with its RGT and cycle, then renamed) and
     read its segments back: ``(segments, signal photons, atl03, atl06)``."""
     from ..geotrack import GeoTrack
     from ..granule import stream_granule
@@ -188,9 +177,9 @@ def simulate(p: dict) -> tuple[dict, int, pathlib.Path, pathlib.Path]:
             atl03_path=tmp[0], atl06_path=tmp[1], beams=p["beams"], sc_orient=p["sc_orient"],
             instrument_options=p["instrument_options"], instrument=p["instrument"],
             seed=p["seed"], paths_per_shot=run["paths_per_shot"], max_depth=run["max_depth"],
-            progress=False, section_shots=run["section_shots"], variant=p.get("variant"), **kw)
-        for t in tmp:
-            _label_orbit(t, p)
+            progress=False, section_shots=run["section_shots"], variant=p.get("variant"),
+            orbit_info={"cycle_number": p["cycle"], **({"rgt": p["rgt"]} if p["rgt"] else {})},
+            **kw)
     except BaseException:
         for t in tmp:
             t.unlink(missing_ok=True)

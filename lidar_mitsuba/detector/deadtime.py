@@ -101,60 +101,40 @@ def choose_returns(start, weight, w_max, need, exchangeable, seed):
     return out, ran_out, off
 
 
-@numba.njit(cache=True, nogil=True, parallel=True)
+@numba.njit(cache=True, nogil=True)
 def shot_stats(shot, weight, n_shots):
     """Per-shot weight sums (float64, summed in return order), offsets (n_shots + 1), the
     largest weight, and whether ``shot`` is non-decreasing (if not, the rest is not valid).
 
-    One pass over the returns, in parallel blocks: a block owns the shots that begin inside it
-    (it skips the end of a shot begun before it and finishes its own last shot past its end),
-    so every shot is summed by one thread in return order, as a sequential loop would (the
-    same bits). Shots at or beyond ``n_shots`` are left out."""
+    One serial pass over the returns (~1 ns a return). It runs while the tracer's threads
+    trace the next chunk on every core: a parallel region here waited for a free core at
+    each call (1.2 s of a six-beam 100 km granule's 216 chunks against 0.02 s serial).
+    Shots at or beyond ``n_shots`` are left out."""
     n = shot.size
-    n_blocks = min(n, 1024)
-    bad = np.zeros(max(n_blocks, 1), np.bool_)
     w_sum = np.zeros(n_shots, np.float64)
     start = np.zeros(n_shots + 1, np.int64)
-    w_top = np.zeros(max(n_blocks, 1), np.float64)
-    for b in numba.prange(n_blocks):
-        lo, hi = b * n // n_blocks, (b + 1) * n // n_blocks
-        i = lo
-        if i > 0:                       # a shot begun in the block before: not ours
-            while i < hi and shot[i] == shot[i - 1]:
-                i += 1
-        top = 0.0
-        while i < hi:
-            s = np.int64(shot[i])
-            p = np.int64(shot[i - 1]) if i > 0 else np.int64(-1)
-            if s < p:
-                bad[b] = True
-                break
-            if s >= n_shots:            # the rest (sorted) is beyond the shots asked for
-                for t in range(p + 1, n_shots + 1):
-                    start[t] = i
-                break
-            for t in range(p + 1, s + 1):       # shots p + 1 .. s begin here (s: this one)
-                start[t] = i
-            acc = 0.0
-            j = i
-            while j < n and shot[j] == shot[i]:
-                w = float(weight[j])
-                acc += w
-                if w > top:
-                    top = w
-                j += 1
-            w_sum[s] = acc
-            i = j
-        w_top[b] = top
-    if bad.any():
-        return w_sum, start, 0.0, False
-    last = np.int64(shot[n - 1]) if n > 0 else np.int64(-1)
-    for t in range(last + 1, n_shots + 1):
-        start[t] = n
     w_max = 0.0
-    for b in range(w_top.size):
-        if w_top[b] > w_max:
-            w_max = w_top[b]
+    p = np.int64(-1)
+    i = 0
+    while i < n:
+        s = np.int64(shot[i])
+        if s < p:
+            return w_sum, start, 0.0, False
+        if s >= n_shots:                # the rest (sorted) is beyond the shots asked for
+            break
+        for t in range(p + 1, s + 1):   # shots p + 1 .. s begin here (s: this one)
+            start[t] = i
+        acc = 0.0
+        while i < n and shot[i] == s:
+            w = float(weight[i])
+            acc += w
+            if w > w_max:
+                w_max = w
+            i += 1
+        w_sum[s] = acc
+        p = s
+    for t in range(p + 1, n_shots + 1):
+        start[t] = i
     return w_sum, start, w_max, True
 
 

@@ -26,7 +26,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from . import terrain
 from .brdf import ward_bsdf_dict
@@ -34,8 +33,9 @@ from ..constants import ParameterError, check
 from ..machine import check_memory
 from .terrain import Heightfield
 
-if TYPE_CHECKING:                 # annotations only: the renderer is set up on first use
-    import mitsuba as mi
+if TYPE_CHECKING:                 # annotations only: the renderer is set up on first use,
+    import mitsuba as mi          # trimesh where a heightfield or plane is meshed (a DEM's
+    import trimesh                # tiles are meshed without it)
 
 SURFACES = ("flat", "slope", "fractal")
 #: peak memory of meshing a heightfield per vertex [bytes]: grid temporaries, the trimesh
@@ -142,6 +142,7 @@ def heightfield_to_trimesh(hf: Heightfield, *, margin_m: float = 0.0,
         z = hf.z_m[np.ix_(np.clip(iy, 0, hf.ny - 1), np.clip(ix, 0, hf.nx - 1))]
     X, Y = np.meshgrid(ix * g, iy * g)
     vertices = np.column_stack([X.ravel(), Y.ravel(), z.ravel()])
+    import trimesh
     return trimesh.Trimesh(vertices, grid_faces(*z.shape), process=False)
 
 
@@ -230,6 +231,7 @@ class Plane(Surface):
         x0, x1, y0, y1 = bounds_m if bounds_m is not None else (lo, hi, lo, hi)
         xy = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
         v = np.column_stack([xy, self.height_m(xy[:, 0], xy[:, 1])])
+        import trimesh
         return trimesh.Trimesh(v, np.array([[0, 1, 3], [0, 3, 2]]), process=False)
 
     def mitsuba_scene(self, *, bsdf, margin_m, bounds_m):

@@ -75,6 +75,8 @@ class Granule:
             simulation frame's origin.
         track: the reference ground track (None for a single-beam run).
         config: the run's settings (the files' ``config`` attribute).
+        orbit: ``orbit_info`` labels of a repeat-orbit track (``rgt``, ``cycle_number``,
+            ``orbit_number``), or empty (0 in the files: a track of one's own).
     """
     beams: list[BeamRun]
     sc_orient: int
@@ -82,6 +84,7 @@ class Granule:
     frame_origin_m: tuple[float, float]
     track: GeoTrack | None = None
     config: dict = field(default_factory=dict)
+    orbit: dict = field(default_factory=dict)
 
     @classmethod
     def single(cls, result) -> Granule:

@@ -108,8 +108,13 @@ def orbit_info(f, granule, t_first) -> None:
         "spacecraft orientation: 0 backward (left beams strong), 1 forward, 2 transition")
     _ds(o, "sc_orient_time", np.array([t_first]), "seconds since 2018-01-01",
         "time of the orientation")
+    orbit = granule.orbit
     for key, dtype in (("rgt", np.int16), ("cycle_number", np.int8), ("orbit_number", np.uint16)):
-        _ds(o, key, np.array([0], dtype), "1", f"{key}: not applicable to a simulated track")
+        if key in orbit:
+            _ds(o, key, np.array([orbit[key]], dtype), "1",
+                f"{key} of the repeat-orbit track the granule flies")
+        else:
+            _ds(o, key, np.array([0], dtype), "1", f"{key}: not applicable to a simulated track")
 
 
 def metadata(f, granule, instruments, t_first, t_last) -> None:
