@@ -381,13 +381,6 @@ class ProjectedTrack:
     def to_dict(self) -> dict:
         return dict(self.info)
 
-    def section(self, a: int, b: int) -> ProjectedTrack:
-        """Shots ``a`` .. ``b - 1`` (``info["first_shot"]`` counts from the whole track's)."""
-        info = {**self.info, "first_shot": int(self.info.get("first_shot", 0)) + int(a)}
-        return ProjectedTrack(x_m=self.x_m[a:b], y_m=self.y_m[a:b], along_m=self.along_m[a:b],
-                              info=info, geolocation=None if self.geolocation is None
-                              else self.geolocation.select(slice(a, b)))
-
 
 def delta_time_s(epoch_utc: str, n_shots: int, *, prf_hz: float, first: int = 0) -> np.ndarray:
     """(n_shots,) transmit time [s] since the ATLAS SDP epoch of shots ``first`` ..

@@ -410,11 +410,12 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     """Simulate a granule section by section straight into its ATL03 (and ATL06) files, so
     memory is bounded by a section (``section_shots`` shots) for a track of any length.
 
-    Arguments as :func:`simulate_granule`. Each beam is planned once
-    (:func:`lidar_mitsuba.planning.plan`: its positions, references and model; with
-    ``max_depth="auto"`` and ``paths_per_shot="auto"``, its pilot and scout trace its first
-    tile) and streamed section by section (:meth:`~lidar_mitsuba.planning.RunPlan.section`),
-    each section an independent draw with its own seed. ATL06 segments are
+    Arguments as :func:`simulate_granule`. Each beam is planned once, on its first section
+    (:func:`lidar_mitsuba.planning.plan`: the material, depth, paths per shot and integrator;
+    with ``max_depth="auto"`` and ``paths_per_shot="auto"``, its pilot and scout trace its
+    first tile); every later section is laid out with that model
+    (:meth:`~lidar_mitsuba.planning.RunPlan.section`), each section an independent draw with
+    its own seed. ATL06 segments are
     fitted across section boundaries (see :class:`_SegmentStream`). Both files are written
     atomically: a failure leaves neither. ``orbit_info``: the files' ``orbit_info`` labels of
     a repeat-orbit track (``rgt``, ``cycle_number``, ``orbit_number``). Returns each beam's
@@ -474,9 +475,10 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
 
 
 class _BeamStream:
-    """One beam of a streamed granule: planned once (its first section's turn: the pilot and
-    the scout trace its first tile), then streamed section by section, each section with its
-    own seed; its ATL06 segments across sections and its running statistics."""
+    """One beam of a streamed granule: planned once, on its first section (the pilot and the
+    scout trace its first tile), every later section laid out with that plan's model
+    (:meth:`~lidar_mitsuba.planning.RunPlan.section`) and its own seed; its ATL06 segments
+    across sections and its running statistics."""
 
     def __init__(self, beam: Beam, track, shots: int, *, spacing: float, section_shots: int):
         self.beam = beam
@@ -494,12 +496,13 @@ class _BeamStream:
         from .run import assemble, stream
         if k >= len(self.bounds):
             return 0
-        if self.plan is None:
-            self.plan = ctx.plan(self.beam, self.n_shots, seed=_beam_seed(seed, self.beam, 0),
-                                 progress=False,
-                                 section_shots=max(b - a for a, b in self.bounds), **plan_kw)
         a, b = self.bounds[k]
-        part = self.plan.section(a, b, seed=_beam_seed(seed, self.beam, k))
+        if self.plan is None:       # the first section's plan decides the beam's model
+            part = self.plan = ctx.plan(self.beam, b - a, seed=_beam_seed(seed, self.beam, 0),
+                                        progress=False, **plan_kw)
+        else:
+            part = self.plan.section(ctx.projected(self.beam, a, b - a), shots=b - a,
+                                     seed=_beam_seed(seed, self.beam, k))
         run = BeamRun(beam=self.beam, result=assemble(part, stream(part, keep_returns=False)),
                       first_shot=a)
         _beam_atl03(f3, run, sc_orient)

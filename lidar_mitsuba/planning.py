@@ -207,34 +207,20 @@ class RunPlan:
     def __str__(self) -> str:
         return "\n".join(self.describe())
 
-    def section(self, a: int, b: int, *, seed: int) -> RunPlan:
-        """Shots ``a`` .. ``b - 1`` as a plan of their own, seeded ``seed``: the model (the
-        material, depth, paths per shot, integrator) is this plan's; the positions, heights
-        and references are its shots'; the tiles and, with a link budget, the radiometry (the
-        sunlit albedo of the section's first tile) are the section's own. A granule plans a
-        beam once and streams it section by section (:mod:`lidar_mitsuba.granule`)."""
-        t0 = time.perf_counter()
-        sl, surf, inst = slice(a, b), self.surface, self.instrument
-        x, y = self.x_m[sl], self.y_m[sl]
-        x_loc, y_loc, dz = surf.fold(x, y, margin_m=_footprint_reach_m(inst))
-        tiling = surf.tiles(x, y, x_local_m=x_loc, y_local_m=y_loc, dz_m=dz,
-                            reach_m=self.reach_m, bsdf=self.material.mesh_bsdf,
-                            crop=self.crop_to_track, chunk_shots=self.chunk_shots)
-        geo = self.geolocation.select(sl)
-        rad = self.radiometry
-        if rad is not None:
-            rad = radiometry.run_radiometry(inst, geo, self.gate_z_m[sl] + self.site.height_m,
-                                            scene=tiling.scene, x_m=tiling.x_local_m,
-                                            y_m=tiling.y_local_m, snow=self.material.snow)
-        track = self.track.section(a, b)
-        return dataclasses.replace(
-            self, shots=b - a, seed=int(seed), track=track, along_m=self.along_m[sl],
-            x_m=x, y_m=y, x_local_m=tiling.x_local_m, y_local_m=tiling.y_local_m, dz_m=dz,
-            surface_z_m=self.surface_z_m[sl], z_ref_m=self.z_ref_m[sl],
-            gate_z_m=self.gate_z_m[sl], geolocation=geo, radiometry=rad, tiling=tiling,
-            triangles=tiling.triangles,
-            surface_config=dict(self.surface_config), timings_s={"scene_s": time.perf_counter() - t0},
-            t0=t0)
+    def section(self, track, *, shots: int, seed: int) -> RunPlan:
+        """The ``shots`` shots of ``track`` (the next section of a long track) laid out with
+        this plan's model, seeded ``seed``: the material, depth, paths per shot and
+        integrator are this plan's; the positions, tiles, heights, references, places on the
+        Earth and radiometry are the section's own (:func:`_lay_out`, :func:`_place_on_earth`).
+        A granule plans each beam once, on its first section, and streams the rest with this
+        (:mod:`lidar_mitsuba.granule`): memory stays a section's."""
+        run = _Run(**{f.name: getattr(self, f.name) for f in dataclasses.fields(RunPlan)})
+        run.shots, run.seed, run.t0 = int(shots), int(seed), time.perf_counter()
+        run.timings_s, run.surface_config = {}, dict(self.surface_config)
+        run.radiometry = None
+        _lay_out(run, track, crop_to_track=self.crop_to_track)
+        _place_on_earth(run, self.site)
+        return _freeze(run)
 
 
 class _Run(types.SimpleNamespace):
@@ -261,18 +247,15 @@ def plan(*, instrument: Instrument | None = None, surface=None, scene=None,
          max_depth: int | str = "auto", track: Track | None = None,
          variant: str | None = None, progress: bool = True, chunk_shots: int = chunks.CHUNK_SHOTS,
          crop_to_track: bool = True, snow: SnowVolume | None = None, snow_model: str = "auto",
-         site: Site | None = None, section_shots: int | None = None) -> RunPlan:
+         site: Site | None = None) -> RunPlan:
     """Everything :func:`~lidar_mitsuba.run.simulate` decides before tracing, as a
     :class:`RunPlan`. Arguments as ``simulate``'s (``progress``: show the snow kernel's
-    tabulation); ``section_shots``: the plan is streamed in sections of at most this many
-    shots (:meth:`RunPlan.section`: a granule's), so memory is checked for a section. Raises
-    :class:`~lidar_mitsuba.constants.ParameterError` naming a bad value.
+    tabulation). Raises :class:`~lidar_mitsuba.constants.ParameterError` naming a bad value.
     """
     run = _resolve(instrument=instrument, surface=surface, scene=scene, scene_file=scene_file,
                    params=params, bsdf=bsdf, shots=shots, seed=seed,
                    paths_per_shot=paths_per_shot, max_depth=max_depth, variant=variant,
-                   chunk_shots=chunk_shots, snow=snow, snow_model=snow_model,
-                   memory_shots=section_shots or shots)
+                   chunk_shots=chunk_shots, snow=snow, snow_model=snow_model)
     _lay_out(run, track or Track(), crop_to_track=crop_to_track)
     _choose_model(run, progress=progress)
     _place_on_earth(run, site or Site())
@@ -301,8 +284,7 @@ def _check_snow(snow, snow_model, *, surf, bsdf, max_depth) -> None:
 
 
 def _resolve(*, instrument, surface, scene, scene_file, params, bsdf, shots, seed,
-             paths_per_shot, max_depth, variant, chunk_shots, snow, snow_model,
-             memory_shots) -> _Run:
+             paths_per_shot, max_depth, variant, chunk_shots, snow, snow_model) -> _Run:
     """Check the run's arguments, activate the variant, resolve the surface and its material
     (a reflector's BSDF, a snow volume, or a scene's own materials)."""
     instrument = instrument or Instrument()
@@ -333,8 +315,8 @@ def _resolve(*, instrument, surface, scene, scene_file, params, bsdf, shots, see
                                  given=bsdf is not None)
     run.max_depth = run.material.depth(run.max_depth,
                                        fov_radius_m=run.instrument.fov_diameter_m / 2)
-    check_memory("shots", estimate_memory_bytes(run.instrument, memory_shots),
-                 f"a run of {memory_shots} shots", "split the track into several runs")
+    check_memory("shots", estimate_memory_bytes(run.instrument, shots),
+                 f"a run of {shots} shots", "split the track into several runs")
     return run
 
 

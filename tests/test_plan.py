@@ -68,23 +68,23 @@ def dem_surface(tmp_path_factory):
 
 
 def test_a_section_of_a_plan_is_the_plan_of_its_shots(dem_surface):
-    """``plan.section(a, b)``: the shots' positions, heights, references and tiles are those a
-    plan of those shots alone would have, and the model is the whole plan's; streamed, it
-    traces the same photons as that plan (to the bit)."""
+    """``plan.section(track, ...)``: the next shots laid out with the plan's model; their
+    positions, heights, references, tiles and radiometry are those a plan of those shots alone
+    would have (to the bit), and streamed, they trace the same photons."""
     from lidar_mitsuba import granule
     track = lm.GeoTrack(start_lat_deg=69.97, start_lon_deg=-45.0, azimuth_deg=0.0)
     ctx = granule._Context(dem_surface, track, None, "atlas")
     beam = lm.geotrack.select_beams("gt2r", 0)[0]
-    whole = ctx.plan(beam, 900, seed=1, progress=False)
-    part = whole.section(300, 700, seed=9)
+    first = ctx.plan(beam, 300, seed=1, progress=False)
+    part = first.section(ctx.projected(beam, 300, 400), shots=400, seed=9)
     alone = lm.plan(instrument=ctx.instrument(beam), surface=ctx.surface,
                     track=ctx.projected(beam, 300, 400), shots=400, seed=9, progress=False,
-                    max_depth=whole.max_depth, paths_per_shot=whole.paths_per_shot)
+                    max_depth=first.max_depth, paths_per_shot=first.paths_per_shot)
     assert part.shots == 400 and part.track.to_dict()["first_shot"] == 300
-    for f in ("x_m", "along_m", "x_local_m", "z_ref_m", "gate_z_m", "reach_m", "max_depth",
-              "paths_per_shot", "chunk_shots", "triangles"):
+    assert part.integrator is first.integrator and part.bounce_pilot == first.bounce_pilot
+    for f in ("x_m", "along_m", "x_local_m", "surface_z_m", "z_ref_m", "gate_z_m", "reach_m",
+              "max_depth", "paths_per_shot", "chunk_shots", "triangles"):
         np.testing.assert_array_equal(getattr(part, f), getattr(alone, f), err_msg=f)
-    np.testing.assert_allclose(part.surface_z_m, alone.surface_z_m, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(part.radiometry.background_mhz,
                                   alone.radiometry.background_mhz)
     a, b = lm.stream(part), lm.stream(alone)
@@ -92,13 +92,19 @@ def test_a_section_of_a_plan_is_the_plan_of_its_shots(dem_surface):
 
 
 def test_a_streamed_granule_plans_each_beam_once(dem_surface, tmp_path, monkeypatch):
-    """Three sections of two beams: two plans (one per beam), six sections streamed."""
+    """Three sections of two beams: two plans (one per beam, on its first section), the
+    other sections laid out with them; memory is a section's."""
     from lidar_mitsuba import granule, planning
-    calls = []
-    real = planning.plan
+    calls, sections = [], []
+    real, real_section = planning.plan, planning.RunPlan.section
     monkeypatch.setattr(planning, "plan", lambda **kw: calls.append(kw["shots"]) or real(**kw))
+    monkeypatch.setattr(planning.RunPlan, "section", lambda self, track, **kw: (
+        sections.append(kw["shots"]) or real_section(self, track, **kw)))
     track = lm.GeoTrack(start_lat_deg=69.97, start_lon_deg=-45.0, azimuth_deg=0.0)
     out = granule.stream_granule(surface=dem_surface, track=track, shots=1200,
                                  beams="gt1l,gt1r", atl03_path=tmp_path / "a3.h5",
                                  seed=2, progress=False, section_shots=400)
-    assert calls == [1200, 1200] and [s.shots for s in out] == [1200, 1200]
+    bounds = granule.section_bounds(1200, spacing_m=0.7, section_shots=400)
+    assert len(bounds) == 3 and calls == [bounds[0][1]] * 2
+    assert sorted(sections) == sorted([b - a for a, b in bounds[1:]] * 2)
+    assert [s.shots for s in out] == [1200, 1200]
