@@ -8,6 +8,8 @@ parallel on all cores, with a counter-based RNG so that parallel runs are reprod
 """
 from __future__ import annotations
 
+import contextlib
+
 import numba
 import numpy as np
 
@@ -357,3 +359,20 @@ def signal_hits(index, x_m, y_m, z_m):
             out[j, 1] = np.nan
             out[j, 2] = np.nan
     return out
+
+
+@contextlib.contextmanager
+def serial_while(busy: bool):
+    """The detector's kernels on this thread alone for the block when ``busy`` (the tracer
+    traces the next chunk on every core meanwhile: a parallel region would wait for a core
+    at each call, 0.6-1.2 s of a six-beam 100 km granule's 216 chunks); their results do
+    not depend on the thread count (counter-based random numbers, sums in return order)."""
+    if not busy:
+        yield
+        return
+    old = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(old)

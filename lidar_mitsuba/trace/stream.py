@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..detector import pmt
+from ..detector.deadtime import serial_while
 from ..constants import C_M_PER_NS
 from ..instrument import Instrument
 from ..detector.records import Detections, Returns
@@ -218,10 +219,11 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
                 pending = launch(a1, b1, trace_seed(seed, k1))
             t1 = time.perf_counter()
             per_shot = {} if detector_inputs is None else detector_inputs(a, b)
-            for name, inst in detectors.items():
-                det = pmt.detect(ret, inst, detector_rng(seed, k),
-                                 gate_center_ns=gates[name][a:b], **per_shot)
-                parts[name].append((det, a, n_returns))
+            with serial_while(pending is not None):
+                for name, inst in detectors.items():
+                    det = pmt.detect(ret, inst, detector_rng(seed, k),
+                                     gate_center_ns=gates[name][a:b], **per_shot)
+                    parts[name].append((det, a, n_returns))
             if keep_returns:
                 kept.append((ret, a))
             n_returns += len(ret)
