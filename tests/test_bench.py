@@ -86,8 +86,14 @@ def test_bench_quick(bench_run):
     crop = simp["rows"][0]        # the corridor crop is exact: photon for photon the same
     assert crop["d_bias_m"] == 0.0 and crop["d_std_m"] == 0.0
     # the DEM track-length rows: one process each, tiles in proportion to the length
-    tl = doc["track_length"]
+    tl, (granule,) = ([r for r in doc["track_length"] if "beams" not in r],
+                      [r for r in doc["track_length"] if "beams" in r])
     assert [r["length_km"] for r in tl] == [1.0, 4.0]
+    # a six-beam granule against casting its rays alone: the cast is the cheaper, and the
+    # rays are every beam's shots x paths
+    assert granule["beams"] == 6 and granule["rays"] >= 6 * granule["shots"]
+    assert 0 < granule["cast_s"] < granule["seconds"] and granule["of_cast"] > 1
+    assert "DEM granule, 6 beams x 4 km" in printed
     assert all(r["peak_rss_mb"] >= r["rss_before_mb"] > 0 and r["photons"] > 0 for r in tl)
     assert tl[1]["tiles"] > tl[0]["tiles"] and "DEM track 4 km" in printed
     # every tile is a new scene: the kernels launched must not grow with the tiles

@@ -58,8 +58,42 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def measure(dem_path: str, length_km: float) -> dict:
-    """Run one length in this process (call in a fresh one)."""
+def cast_rate(surface, track, *, paths_per_shot: int, shots: int = 4096) -> float:
+    """Rays per second [1/s] of vertical casts alone on a corridor tile of ``surface`` under
+    ``track``'s first ``shots`` shots (``paths_per_shot`` rays a shot, Gaussian footprints):
+    the bound a granule's pipeline is held against (median of 7 casts after 2)."""
+    import drjit as dr
+    from .. import geotrack, granule
+    from ..trace.scene import scene_bounds
+    from ..trace.variant import ensure_renderer
+    mi = ensure_renderer()
+    ctx = granule._Context(surface, track, None)
+    p = ctx.plan(geotrack.select_beams("gt2l", 0)[0], shots, seed=0, max_depth=1,
+                 paths_per_shot=paths_per_shot, progress=False)
+    n = p.x_local_m.size * paths_per_shot
+    rng = np.random.default_rng(0)
+    sigma = p.instrument.footprint_sigma_m
+    x = mi.Float(np.repeat(p.x_local_m, paths_per_shot) + rng.normal(0.0, sigma, n))
+    y = mi.Float(np.repeat(p.y_local_m, paths_per_shot) + rng.normal(0.0, sigma, n))
+    top = float(scene_bounds(p.scene)[1][2]) + 1.0
+
+    def cast():
+        si = p.scene.ray_intersect(mi.Ray3f(mi.Point3f(x, y, dr.full(mi.Float, top, n)),
+                                            mi.Vector3f(0.0, 0.0, -1.0)))
+        dr.eval(si.t)
+        dr.sync_thread()
+    times = []
+    for k in range(9):
+        t0 = time.perf_counter()
+        cast()
+        if k >= 2:
+            times.append(time.perf_counter() - t0)
+    return n / float(np.median(times))
+
+
+def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
+    """Run one length of ``beams`` in this process (call in a fresh one); with every beam,
+    also the time its rays alone take to cast (:func:`cast_rate`) and the run's ratio to it."""
     import tempfile
     from ..trace.variant import ensure_renderer
     ensure_renderer()                  # libLLVM, variant, plugins
@@ -79,7 +113,7 @@ def measure(dem_path: str, length_km: float) -> dict:
             out = granule.stream_granule(
                 surface=surf, track=geotrack.GeoTrack(start_lat_deg=START_LAT,
                                                       start_lon_deg=-45.0, azimuth_deg=0.0),
-                shots=shots, beams="gt2l", max_depth=1, progress=False, paths_per_shot="auto",
+                shots=shots, beams=beams, max_depth=1, progress=False, paths_per_shot="auto",
                 atl03_path=a3, atl06_path=a6)
             kernels = (len({k["hash"] for k in dr.kernel_history([dr.KernelType.JIT])})
                        if count_kernels else None)
@@ -88,7 +122,15 @@ def measure(dem_path: str, length_km: float) -> dict:
     peak = _peak_rss_mb()
     sections = len(granule.section_bounds(shots, spacing_m=0.7,
                                           section_shots=granule.SECTION_SHOTS))
-    return {"length_km": float(length_km), "shots": shots, "seconds": seconds,
+    row = {}
+    if beams == "all":           # the same rays, cast alone: the pipeline's cost over them
+        rays = sum(o.shots * o.config["paths_per_shot"] * o.config["max_depth"] for o in out)
+        rate = cast_rate(surf, geotrack.GeoTrack(start_lat_deg=START_LAT, start_lon_deg=-45.0,
+                                                 azimuth_deg=0.0),
+                         paths_per_shot=out[0].config["paths_per_shot"])
+        row = {"beams": len(out), "rays": int(rays), "cast_rays_per_s": rate,
+               "cast_s": rays / rate, "of_cast": seconds / (rays / rate)}
+    return {**row, "length_km": float(length_km), "shots": shots, "seconds": seconds,
             "shots_per_s": shots / seconds, "peak_rss_mb": peak, "rss_before_mb": before,
             "working_mb": peak - before, "files_mb": files_mb, "sections": sections,
             "tiles": -(-shots // surf.tile_shots), "kernels": kernels, "photons": out[0].photons,
@@ -96,14 +138,18 @@ def measure(dem_path: str, length_km: float) -> dict:
 
 
 def run(*, out: pathlib.Path, quick: bool) -> list[dict]:
-    """Every length in its own process; the DEM is made once for the longest."""
+    """Every length of one strong beam in its own process, then a six-beam granule (4 km
+    quick, else 100 km: a campaign's unit) against its ray casting; the DEM is made once for
+    the longest."""
     lengths = (1.0, 4.0) if quick else (10.0, 100.0, 1000.0)
+    runs = [(km, "gt2l") for km in lengths] + [(4.0 if quick else 100.0, "all")]
     out.mkdir(parents=True, exist_ok=True)
     path = make_dem(out / "long_dem.tif", max(lengths))
     rows = []
-    for km in lengths:
+    for km, beams in runs:
         p = subprocess.run([sys.executable, "-m", "lidar_mitsuba.studies.track_length",
-                            str(path), str(km)], check=True, capture_output=True, text=True)
+                            str(path), str(km), beams], check=True, capture_output=True,
+                           text=True)
         rows.append(json.loads(p.stdout.strip().splitlines()[-1]))
     path.unlink()
     return rows
@@ -113,6 +159,7 @@ def chart(rows: list[dict], path: pathlib.Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    rows = [r for r in rows if "beams" not in r]          # the one-beam lengths
     km = [r["length_km"] for r in rows]
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.8), dpi=110)
     a.plot(km, [r["peak_rss_mb"] for r in rows], "o-", label="peak RSS")
@@ -138,5 +185,6 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser()
     ap.add_argument("dem")
     ap.add_argument("km", type=float)
+    ap.add_argument("beams", nargs="?", default="gt2l")
     a = ap.parse_args()
-    print(json.dumps(measure(a.dem, a.km)))
+    print(json.dumps(measure(a.dem, a.km, a.beams)))
