@@ -145,12 +145,13 @@ class _Context:
                                  "across_m": beam.across_m, "first_shot": int(first)},
             geolocation=geo)
 
-    def plan(self, beam: Beam, n: int, *, seed: int, **plan_kw):
-        """The plan of ``beam``'s first ``n`` shots (:func:`lidar_mitsuba.planning.plan`)."""
+    def plan(self, beam: Beam, n: int, *, seed: int, first: int = 0, **plan_kw):
+        """The plan of ``beam``'s shots ``first`` .. ``first + n - 1``
+        (:func:`lidar_mitsuba.planning.plan`)."""
         from .planning import plan
         try:
             return plan(instrument=self.instrument(beam), surface=self.surface,
-                        track=self.projected(beam, 0, n), shots=n, seed=seed, **plan_kw)
+                        track=self.projected(beam, first, n), shots=n, seed=seed, **plan_kw)
         except ParameterError as e:
             raise ParameterError(e.name, f"{beam.name}: {e.message}") from None
 
@@ -417,7 +418,11 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     (:meth:`~lidar_mitsuba.planning.RunPlan.section`), each section an independent draw with
     its own seed. ATL06 segments are
     fitted across section boundaries (see :class:`_SegmentStream`). Both files are written
-    atomically: a failure leaves neither. ``orbit_info``: the files' ``orbit_info`` labels of
+    atomically: a failure leaves neither. ``snow`` may be a function ``snow(beam, k)`` giving
+    the :class:`~lidar_mitsuba.ground.snow.SnowVolume` (or None) of section ``k`` of ``beam``
+    (``section_bounds`` gives the sections): snow that varies along and across the track, a
+    section planned anew where its snow differs from the one before (equal snow: the same
+    plan). ``orbit_info``: the files' ``orbit_info`` labels of
     a repeat-orbit track (``rgt``, ``cycle_number``, ``orbit_number``). Returns each beam's
     running statistics.
     """
@@ -497,9 +502,18 @@ class _BeamStream:
         if k >= len(self.bounds):
             return 0
         a, b = self.bounds[k]
-        if self.plan is None:       # the first section's plan decides the beam's model
-            part = self.plan = ctx.plan(self.beam, b - a, seed=_beam_seed(seed, self.beam, 0),
-                                        progress=False, **plan_kw)
+        snow = plan_kw.pop("snow", None)
+        if callable(snow):                      # the snow of this beam's section
+            snow = snow(self.beam, k)
+        if snow is not None:
+            plan_kw["snow"] = snow
+        else:
+            plan_kw.pop("snow_model", None)
+        if self.plan is None or snow != self.plan.snow:
+            # the first section's plan decides the beam's model, and so does a section whose
+            # snow differs (a new material)
+            part = self.plan = ctx.plan(self.beam, b - a, first=a, progress=False,
+                                        seed=_beam_seed(seed, self.beam, k), **plan_kw)
         else:
             part = self.plan.section(ctx.projected(self.beam, a, b - a), shots=b - a,
                                      seed=_beam_seed(seed, self.beam, k))

@@ -42,6 +42,7 @@ beams = "gt1l,gt1r"
 
 [run]
 shots = 400
+section_shots = 200         # two sections a beam: the grain raster resolved per section
 
 [epochs]
 cycles = [4]
@@ -255,6 +256,8 @@ def test_the_demo_spec_flies_eight_tracks_of_six_beams_over_a_grain_gradient(tmp
     assert sum(t.ascending for t in tasks) == 4 and len({t.rgt for t in tasks}) == 8
     assert 2000 * 6 * len(tasks) <= 100000
     assert len({t.grain_um for t in tasks}) >= 4 and all(not t.invalid for t in tasks)
+    # each beam pair sees its own level: the granules' 6.6 km of beams span the gradient
+    assert any(len({g for row in t.grain_sections.values() for g in row}) >= 3 for t in tasks)
     west_east = sorted(tasks, key=lambda t: json.loads(json.dumps(t.track))["polyline"][0][1])
     assert west_east[0].grain_um < west_east[-1].grain_um
 
@@ -430,7 +433,9 @@ def test_a_property_raster_is_read_by_window(tmp_path, monkeypatch):
     monkeypatch.setattr(dems, "_open_for_reading", spy)
     from lidar_mitsuba.geotrack import GeoTrack, select_beams
     g = GeoTrack(start_lat_deg=70.0, start_lon_deg=-45.05, azimuth_deg=0.0)
-    lat, lon = rasters.track_points(g, select_beams("gt2l"), n_shots=2858, spacing_m=0.7)
+    lat, lon, shot = rasters.track_points(g, select_beams("gt2l"), n_shots=2858,
+                                          spacing_m=0.7)
+    assert shot[0] == 0 and shot[-1] == 2857 and np.all(np.diff(shot) > 0)
     v = r.at(lat, lon)
     assert len(reads) == 1 and reads[0].width * reads[0].height < 0.002 * 400 * 300
     from pyproj import Transformer
@@ -463,3 +468,19 @@ def test_make_raster_cli(tmp_path, capsys):
         err = bad_call(["make-raster", "--like", str(dem), "--out", str(tmp_path / "b.tif"),
                         "--start", "1", "--stop", "2", *args], capsys)
         assert f"error: {option}" in err and not (tmp_path / "b.tif").exists()
+
+
+def test_grain_size_is_resolved_per_beam_and_section(spec_path, serial):
+    """With a grain-size raster each beam's section has its own level (what its photons
+    see), and every segment's ``grain_um`` is the level of its beam's section."""
+    from lidar_mitsuba.granule import section_bounds
+    tasks = campaign.expand(spec_path)
+    seg = serial.segments
+    for t in tasks:
+        bounds = section_bounds(t.shots, spacing_m=0.7,
+                                section_shots=campaign.load_spec(spec_path).run["section_shots"])
+        assert set(t.grain_sections) == {"gt1l", "gt1r"}
+        assert all(len(row) == len(bounds) for row in t.grain_sections.values())
+        mine = seg[seg["task_index"] == t.task_index]
+        for beam, row in t.grain_sections.items():
+            assert set(mine.loc[mine["beam"] == beam, "grain_um"]) <= set(row)

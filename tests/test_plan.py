@@ -3,6 +3,8 @@ traced and returns a frozen, printable ``RunPlan``; ``lm.stream`` traces and det
 ``lm.assemble`` makes the result; ``lm.simulate`` is exactly the three."""
 import dataclasses
 
+import h5py
+
 import numpy as np
 import pytest
 
@@ -108,3 +110,29 @@ def test_a_streamed_granule_plans_each_beam_once(dem_surface, tmp_path, monkeypa
     assert len(bounds) == 3 and calls == [bounds[0][1]] * 2
     assert sorted(sections) == sorted([b - a for a, b in bounds[1:]] * 2)
     assert [s.shots for s in out] == [1200, 1200]
+
+
+def test_snow_that_changes_along_a_beam_is_planned_anew_where_it_changes(dem_surface, tmp_path,
+                                                                         monkeypatch):
+    """``snow(beam, k)``: a section whose snow differs from the section before gets a plan
+    of its own (a new material: the snow kernel); equal snow keeps the plan."""
+    from lidar_mitsuba import granule, planning
+    snow = lm.snow_from_grains(grain_radius_um=200)
+    calls = []
+    real = planning.plan
+    monkeypatch.setattr(planning, "plan", lambda **kw: calls.append(
+        kw.get("snow") is not None) or real(**kw))
+    track = lm.GeoTrack(start_lat_deg=69.97, start_lon_deg=-45.0, azimuth_deg=0.0)
+    out = granule.stream_granule(surface=dem_surface, track=track, shots=1200, beams="gt1r",
+                                 atl03_path=tmp_path / "a3.h5", seed=2, progress=False,
+                                 section_shots=400,
+                                 snow=lambda beam, k: None if k == 0 else snow)
+    assert calls == [False, True] and out[0].shots == 1200
+    with h5py.File(tmp_path / "a3.h5", "r") as f:
+        h = (f["truth/gt1r/photons/h_m"][()]
+             - f["truth/gt1r/shots/z_ref_m"][()][f["truth/gt1r/photons/shot"][()]])
+        sig = f["truth/gt1r/photons/is_signal"][()] == 1
+        first = f["truth/gt1r/photons/shot"][()] < granule.section_bounds(
+            1200, spacing_m=0.7, section_shots=400)[0][1]
+    # the snow section's photons come from under the surface: lower than the bare one's
+    assert np.median(h[sig & ~first]) < np.median(h[sig & first]) - 0.02

@@ -64,15 +64,17 @@ seed, task_id])`` and its roughness tile's from a stream of its own: neither dep
 or in what order granules run, so the tables are the same on 0, 1 or many workers, to the bit.
 
 **Surface properties from rasters** (:mod:`.rasters`): a grain-size (density, roughness)
-GeoTIFF is read by window along each granule's footprints (all its beams, every 20 m); the
-granule is simulated with the median, snapped to the nearest level of the spec. One snow
-kernel table per level is built here before any task is sent, into the kernel cache the
-workers read (``kernel_cache``), so a table is built once per campaign level, not per
-granule. *Resolution*: the property is resolved per granule: a 40 m ATL06 segment sees the
-level of its whole granule (its length along track and its 6.6 km of beams across), whatever
-the raster's pixels; the segment table keeps the raster's own value at each segment
-(``grain_um_raster``) beside the one simulated (``grain_um``), so the difference is visible.
-Shorter granules, or a finer grain of levels, resolve the field better.
+GeoTIFF is read by window along each granule's footprints (all its beams, every 20 m). Grain
+size is resolved per beam and granule section (``Task.grain_sections``: the median over the
+beam's footprints in the section, snapped to the nearest level of the spec; a section whose
+level changes is planned anew); density and roughness per granule (the median over every
+beam). One snow kernel table per level is built here before any task is sent, into the
+kernel cache the workers read (``kernel_cache``), so a table is built once per campaign
+level, not per granule. *Resolution*: a 40 m ATL06 segment sees its beam's level over its
+section (``[run] section_shots`` shots along track), whatever the raster's pixels; the
+segment table keeps the raster's own value at each segment (``grain_um_raster``) beside the
+one simulated (``grain_um``), so the difference is visible. Shorter sections, or a finer
+grain of levels, resolve the field better.
 
 **Outputs** (``out``): ``granules/ATL03_[yyyymmdd][hhmmss]_[ttttccss]_[vvv]_[rr].h5`` and
 ``ATL06_...``, as ICESat-2 names them (:func:`.tracks.product_name`; ``orbit_info/rgt`` and
@@ -175,8 +177,10 @@ def build_kernels(tasks: list[Task], spec: CampaignSpec, *, progress: bool = Fal
         return 0
     from ..ground.snow import kernel
     from .granules import _kernel_cache
-    levels = sorted({(t.grain_um, t.density_kg_m3) for t in tasks
-                     if not t.invalid and t.grain_um is not None})
+    levels = sorted({(g, t.density_kg_m3) for t in tasks
+                     if not t.invalid and t.grain_um is not None
+                     for g in ([t.grain_um] if not t.grain_sections else
+                               [g for row in t.grain_sections.values() for g in row])})
     with _kernel_cache(_kernel_root(spec)):
         for g, d in levels:
             (log or (lambda m: None))(f"snow kernel table: grains {g:g} um"

@@ -35,7 +35,7 @@ SEGMENT_COLUMNS: dict[str, str] = {
     "error": "h_li - h_truth [m]",
     "atl06_quality_summary": "0: good, 1: flagged",
     "n_fit_photons": "photons in the final fit",
-    "grain_um": "snow grain radius simulated in this granule [um] (NaN: no snow)",
+    "grain_um": "snow grain radius simulated at the segment: its beam's level in its section [um] (NaN: no snow)",
     "grain_um_raster": "the grain-size raster at the segment centre [um] (NaN: no raster)",
     "density_kg_m3": "snow density simulated [kg/m^3] (NaN: no snow)",
     "density_kg_m3_raster": "the density raster at the segment centre",
@@ -49,7 +49,7 @@ ROW_COLUMNS: dict[str, str] = {
     "rgt": "reference ground track (0: a spec track without one)", "cycle": "cycle",
     "region": "granule region (1-14)", "ascending": "the pass: northward at the first shot",
     "dem": "DEM file", "shots": "shots per beam", "seed": "photon seed",
-    "grain_um": "snow grain radius simulated [um] (None: no snow)",
+    "grain_um": "the granule's snow grain radius level (the median over every beam) [um]; each beam's section has its own (the segments' grain_um) [um] (None: no snow)",
     "density_kg_m3": "snow density simulated [kg/m^3] (None: snow_from_grains' default)",
     "roughness_relief_m": "roughness relief simulated [m] (None or 0: none)",
     "medians_json": "raster medians along the granule before binning (JSON)",
@@ -168,8 +168,7 @@ def simulate(p: dict) -> tuple[dict, int, pathlib.Path, pathlib.Path]:
     track = dict(p["track"])
     if track.get("polyline") is not None:
         track["polyline"] = tuple(map(tuple, track["polyline"]))
-    snow = snow_volume(p.get("grain_um"), p.get("density_kg_m3"))
-    kw = {} if snow is None else {"snow": snow, "snow_model": p["snow_model"]}
+    kw = _snow(p)
     run = p["run"]
     try:
         summaries = stream_granule(
@@ -202,10 +201,40 @@ def _with_properties(seg: dict, p: dict) -> dict:
     for k in ("grain_um", "density_kg_m3", "roughness_relief_m"):
         v = p.get(k)
         out[k] = np.full(n, math.nan if v is None else float(v))
+        if k == "grain_um" and p.get("grain_sections") and n:    # the segment's section's
+            out[k] = _section_values(seg, p)
         raster = p["rasters"].get(k)
         out[f"{k}_raster"] = (PropertyRaster(raster).at(seg["latitude"], seg["longitude"])
                               if raster and n else np.full(n, math.nan))
     return out
+
+
+def _section_values(seg: dict, p: dict) -> np.ndarray:
+    """(n,) the grain size each segment's photons were simulated with: its beam's level in
+    the section holding the segment's centre (the sections of ``p["run"]["section_shots"]``
+    shots, :func:`lidar_mitsuba.granule.section_bounds`)."""
+    from ..granule import section_bounds
+    from ..instrument import Instrument
+    spacing = p["instrument_options"].get("shot_spacing_m", Instrument().shot_spacing_m)
+    bounds = section_bounds(p["shots"], spacing_m=spacing,
+                            section_shots=p["run"]["section_shots"])
+    shot = np.nan_to_num(seg["x_atc"] / spacing).astype(np.int64)
+    k = np.clip(np.searchsorted([a for a, _ in bounds], shot, side="right") - 1, 0,
+                len(bounds) - 1)
+    levels = p["grain_sections"]
+    return np.array([levels[b][j] for b, j in zip(seg["beam"], k)], np.float64)
+
+
+def _snow(p: dict) -> dict:
+    """``stream_granule``'s snow options: one snow for the granule, or each beam's per
+    section (``grain_sections``), one :class:`SnowVolume` per level."""
+    if p.get("grain_sections"):
+        volumes = {g: snow_volume(g, p.get("density_kg_m3"))
+                   for row in p["grain_sections"].values() for g in row}
+        return {"snow": lambda beam, k: volumes[p["grain_sections"][beam.name][k]],
+                "snow_model": p["snow_model"]}
+    snow = snow_volume(p.get("grain_um"), p.get("density_kg_m3"))
+    return {} if snow is None else {"snow": snow, "snow_model": p["snow_model"]}
 
 
 def run_task(p: dict) -> dict:

@@ -64,14 +64,35 @@ def snap(value: float, levels) -> float:
 
 
 def track_points(track, beams, *, n_shots: int, spacing_m: float):
-    """``(lat, lon)`` [deg] ((n_beams, n_points)) of every beam's footprints of a granule's
-    ``n_shots`` shots, every :data:`SAMPLE_M` along the track."""
+    """``(lat, lon, shot)``: latitude and longitude [deg] ((n_beams, n_points)) of every
+    beam's footprints of a granule's ``n_shots`` shots, every :data:`SAMPLE_M` along the
+    track, and the shot index nearest each point ((n_points,))."""
     from ..geotrack import beam_shots
     n = max(2, int(math.ceil((n_shots - 1) * spacing_m / SAMPLE_M)) + 1)
     step = (n_shots - 1) * spacing_m / (n - 1) if n_shots > 1 else SAMPLE_M
     lat0, lon0, az, _ = track.shots(n, spacing_m=step)
     pts = [beam_shots(lat0, lon0, az, b) for b in beams]
-    return np.array([p[0] for p in pts]), np.array([p[1] for p in pts])
+    shot = np.minimum(np.round(np.arange(n) * step / spacing_m).astype(np.int64), n_shots - 1)
+    return np.array([p[0] for p in pts]), np.array([p[1] for p in pts]), shot
+
+
+def section_levels(raster: PropertyRaster, lat, lon, shot, *, beams, levels, bounds,
+                   fallback: float) -> dict[str, list[float]]:
+    """Each beam's level of the property per granule section (``bounds``: the sections'
+    ``(first, stop)`` shots, :func:`lidar_mitsuba.granule.section_bounds`): the raster's median
+    over the beam's points in the section, snapped to ``levels``; ``fallback`` (the granule's
+    level) where a section has no finite value."""
+    v = raster.at(lat, lon)
+    sec = np.searchsorted([a for a, _ in bounds], shot, side="right") - 1
+    out = {}
+    for j, b in enumerate(beams):
+        row = []
+        for k in range(len(bounds)):
+            x = v[j, sec == k]
+            x = x[np.isfinite(x)]
+            row.append(snap(float(np.median(x)), levels) if x.size else fallback)
+        out[b.name] = row
+    return out
 
 
 def median_along(raster: PropertyRaster, lat, lon) -> float:

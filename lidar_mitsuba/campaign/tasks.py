@@ -32,7 +32,9 @@ class Task:
         ascending: the pass (northward at the first shot).
         dem: the DEM file (absolute); track: :class:`~lidar_mitsuba.geotrack.GeoTrack` fields.
         shots: shots per beam; seed: the photon seed; roughness_seed: the roughness tile's.
-        grain_um, density_kg_m3, roughness_relief_m: the values simulated (None: none).
+        grain_um, density_kg_m3, roughness_relief_m: the granule's values (None: none).
+        grain_sections: with a grain-size raster, each beam's level per granule section
+            (``{beam: [level, ...]}``: what its photons see; ``grain_um`` is the granule's).
         medians: each raster property's median along the granule before binning.
         invalid: why the task cannot run ('' when it can): recorded, not run.
     """
@@ -53,6 +55,7 @@ class Task:
     roughness_relief_m: float | None
     medians: dict
     invalid: str = ""
+    grain_sections: dict | None = None
 
 
 def _instrument(spec: CampaignSpec):
@@ -150,7 +153,8 @@ def _properties(spec: CampaignSpec, g, beams, shots, inst, opened: dict) -> tupl
     need = {k: p for k, p in props.items() if p is not None and p.raster is not None}
     lat = lon = None
     if need:
-        lat, lon = rs.track_points(g, beams, n_shots=shots, spacing_m=inst.shot_spacing_m)
+        lat, lon, shot = rs.track_points(g, beams, n_shots=shots,
+                                         spacing_m=inst.shot_spacing_m)
     used, medians, why = {}, {}, ""
     for k, p in props.items():
         raster = None
@@ -162,7 +166,15 @@ def _properties(spec: CampaignSpec, g, beams, shots, inst, opened: dict) -> tupl
             medians[k] = m
         if used[k] is not None and not math.isfinite(used[k]) and not why:
             why = f"the {k} raster has no value along the track ({p.raster})"
-    return {**used, "medians": medians}, why
+    sections = None
+    if "grain_um" in need and not why:    # what each beam's photons see, section by section
+        from ..granule import section_bounds
+        bounds = section_bounds(shots, spacing_m=inst.shot_spacing_m,
+                                section_shots=spec.run["section_shots"])
+        sections = rs.section_levels(opened[spec.grain.raster], lat, lon, shot, beams=beams,
+                                     levels=spec.grain.levels, bounds=bounds,
+                                     fallback=used["grain_um"])
+    return {**used, "medians": medians, "grain_sections": sections}, why
 
 
 def task_id(doc: dict) -> str:
@@ -207,18 +219,19 @@ def _task(spec, index, dem_path, base, track, rgt, asc, shots, t_s, cycle, regio
     track = {**track, "epoch_utc": tk.utc_text(t_s)}
     name = tk.product_name("ATLxx", t_s=t_s, rgt=rgt, cycle=cycle, region=region,
                            version=spec.version, revision=spec.revision)[6:-3]
-    used = {k: v for k, v in props.items() if k != "medians"}
+    used = {k: v for k, v in props.items() if k not in ("medians", "grain_sections")}
     doc = {"seed": spec.seed, "dem": os.path.relpath(dem_path, base), "track": track,
            "rgt": rgt, "cycle": cycle, "shots": shots, "beams": spec.beams,
            "sc_orient": spec.sc_orient, "instrument": spec.instrument,
            "options": spec.instrument_options, "run": spec.run, "snow_model": spec.snow_model,
-           "roughness_p": spec.roughness_p, "name": name, **used}
+           "roughness_p": spec.roughness_p, "name": name, **used,
+           "grain_sections": props["grain_sections"]}
     tid = task_id(doc)
     seed, rough = _seeds(spec.seed, tid)
     return Task(task_id=tid, task_index=index, granule=name, rgt=int(rgt), cycle=int(cycle),
                 region=int(region), ascending=bool(asc), dem=dem_path, track=track,
                 shots=int(shots), seed=seed, roughness_seed=rough, medians=props["medians"],
-                invalid=why, **used)
+                invalid=why, grain_sections=props["grain_sections"], **used)
 
 
 def _unique(names: dict, t: Task) -> None:
