@@ -23,6 +23,7 @@ import pytest
 from lidar_mitsuba import campaign
 from lidar_mitsuba.campaign import rasters, tracks as tk
 from lidar_mitsuba.cli import main
+from cli_checks import bad_call
 from lidar_mitsuba.ground import dem as dems
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -302,16 +303,6 @@ def _replace(text: str, section_text: str) -> str:
         j += 1
     lines[j:j] = list(keys.values())
     return "\n".join(lines)
-
-
-def bad_call(argv, capsys):
-    try:
-        code = main(argv)
-    except SystemExit as e:
-        code = e.code
-    err = capsys.readouterr().err.strip()
-    assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
-    return err
 
 
 @pytest.mark.parametrize("text,key", BAD, ids=[k for _, k in BAD])

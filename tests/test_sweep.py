@@ -10,6 +10,7 @@ import pytest
 
 from lidar_mitsuba import sweep
 from lidar_mitsuba.cli import main
+from cli_checks import bad_call
 from lidar_mitsuba.sweep import plot as sweep_plot
 
 SCENES = pathlib.Path(__file__).resolve().parents[1] / "scenes"
@@ -151,16 +152,6 @@ BAD_SPECS = [
     ("[grid\np = [1.5]\n", "not valid TOML"),
     ("", "no parameters"),
 ]
-
-
-def bad_call(argv, capsys):
-    try:
-        code = main(argv)
-    except SystemExit as e:
-        code = e.code
-    err = capsys.readouterr().err.strip()
-    assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
-    return err
 
 
 @pytest.mark.parametrize("text,key", BAD_SPECS, ids=[k for _, k in BAD_SPECS])

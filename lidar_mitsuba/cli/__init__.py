@@ -20,8 +20,9 @@ import sys
 import time
 
 from . import campaign as cli_campaign, options as opts, simulate as cli_simulate
-from .args import (PROG, Parser, UsageError, finite, nonnegative_int, out_dir, out_path,
-                   positive_int, rates_line, read_input, variant_list, version_text)
+from .args import (PROG, Parser, UsageError, connect_scheduler, finite, nonnegative_int,
+                   out_dir, out_path, positive_int, rates_line, read_input, spec_error,
+                   variant_list, version_text)
 from ..constants import ParameterError
 
 
@@ -299,13 +300,10 @@ def _cmd_sweep(a) -> int:
     if not pathlib.Path(a.spec).is_file():
         raise UsageError("SPEC", f"{a.spec!r} not found")
 
-    def named(e):        # "SPEC.toml: [grid] p: ..." (the file alone for file-wide errors)
-        whole = e.key in ("spec", str(pathlib.Path(a.spec)))
-        return UsageError(a.spec if whole else f"{a.spec}: {e.key}", e.message)
     try:
         spec = sweep.load_spec(a.spec)
     except sweep.SpecError as e:
-        raise named(e) from None
+        raise spec_error(a.spec, e) from None
     out = out_dir(a.out)
     if a.scheduler is not None and a.workers is not None:
         raise UsageError("--workers", "does not apply to --scheduler (its workers are started "
@@ -314,20 +312,13 @@ def _cmd_sweep(a) -> int:
         if param not in spec.swept:
             raise UsageError("--plot", f"{param!r} is not a swept parameter of {a.spec} "
                              f"(swept: {', '.join(spec.swept) or 'none'})")
-    client = None
-    if a.scheduler is not None:
-        from dask.distributed import Client
-        try:
-            client = Client(a.scheduler, timeout="20s")
-        except (OSError, TimeoutError, ValueError) as e:
-            raise UsageError("--scheduler", f"cannot connect to {a.scheduler!r} ({e})") from None
-        print(f"connected to {a.scheduler}: {len(client.scheduler_info()['workers'])} workers")
+    client = connect_scheduler(a.scheduler) if a.scheduler is not None else None
     try:
         df = sweep.run(spec, client, out=out, workers=a.workers, threads=a.threads,
                        retry_failed=a.retry_failed, progress=not a.no_progress,
                        log=lambda msg: print(msg, flush=True))
     except sweep.SpecError as e:
-        raise named(e) from None
+        raise spec_error(a.spec, e) from None
     except KeyboardInterrupt:
         sys.stderr.write(f"{PROG} sweep: the finished tasks are in {out / 'rows'}; run the same "
                          "command again to resume\n")

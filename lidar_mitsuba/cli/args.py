@@ -23,6 +23,25 @@ class UsageError(Exception):
         super().__init__(f"{option}: {message}")
 
 
+def spec_error(spec: str, e) -> UsageError:
+    """A sweep's or campaign's ``SpecError`` ``e`` as a usage error naming ``spec``: "SPEC.toml:
+    [grid] p: ..." (the file alone for file-wide errors)."""
+    whole = e.key in ("spec", str(pathlib.Path(spec)))
+    return UsageError(spec if whole else f"{spec}: {e.key}", e.message)
+
+
+def connect_scheduler(address: str):
+    """A ``dask.distributed.Client`` on the running scheduler at ``address`` (``--scheduler``),
+    or a usage error saying why not; prints how many workers it has."""
+    from dask.distributed import Client
+    try:
+        client = Client(address, timeout="20s")
+    except (OSError, TimeoutError, ValueError) as e:
+        raise UsageError("--scheduler", f"cannot connect to {address!r} ({e})") from None
+    print(f"connected to {address}: {len(client.scheduler_info()['workers'])} workers")
+    return client
+
+
 class Parser(argparse.ArgumentParser):
     def error(self, message):   # one line, exit 2 (argparse would also print the usage)
         if message.startswith("argument "):      # "argument --shots: ..." -> "--shots: ..."

@@ -7,7 +7,8 @@ import os
 import pathlib
 import sys
 
-from .args import PROG, UsageError, nonnegative_int, out_dir, out_path, positive_int
+from .args import (PROG, UsageError, connect_scheduler, nonnegative_int, out_dir, out_path,
+                   positive_int, spec_error)
 
 
 def add_parsers(sub) -> None:
@@ -19,7 +20,7 @@ def add_parsers(sub) -> None:
                        "a running scheduler), with snow and roughness from rasters; writes "
                        "every ATL06 segment with its truth and error to one table and maps "
                        "bias and precision over the DEM. Rerunning resumes. The spec format is "
-                       "in the README and in `lidar_mitsuba.campaign`.")
+                       "in docs/guide/campaigns.md and in `lidar_mitsuba.campaign`.")
     c.add_argument("spec", metavar="SPEC.toml", help="the campaign: [campaign], [dem], "
                    "[instrument], [run], [epochs], [orbit], [[tracks]], [surface], [snow]")
     c.add_argument("--out", required=True, metavar="DIR", help="folder for granules/, "
@@ -53,26 +54,12 @@ def add_parsers(sub) -> None:
     r.add_argument("--log", action="store_true", help="rise geometrically, not linearly")
 
 
-def _connect(address: str):
-    from dask.distributed import Client
-    try:
-        client = Client(address, timeout="20s")
-    except (OSError, TimeoutError, ValueError) as e:
-        raise UsageError("--scheduler", f"cannot connect to {address!r} ({e})") from None
-    print(f"connected to {address}: {len(client.scheduler_info()['workers'])} workers")
-    return client
-
-
 def cmd_campaign(a) -> int:
     """Checks the spec (its tracks and rasters too: :func:`lidar_mitsuba.campaign.run` expands
     it first) and the options before anything is written."""
     from .. import campaign
     if not pathlib.Path(a.spec).is_file():
         raise UsageError("SPEC", f"{a.spec!r} not found")
-
-    def named(e):
-        whole = e.key in ("spec", str(pathlib.Path(a.spec)))
-        return UsageError(a.spec if whole else f"{a.spec}: {e.key}", e.message)
     if a.scheduler is not None and a.workers is not None:
         raise UsageError("--workers", "does not apply to --scheduler (its workers are started "
                          "there)")
@@ -80,14 +67,14 @@ def cmd_campaign(a) -> int:
     try:
         spec = campaign.load_spec(a.spec)
     except campaign.SpecError as e:
-        raise named(e) from None
-    client = _connect(a.scheduler) if a.scheduler is not None else None
+        raise spec_error(a.spec, e) from None
+    client = connect_scheduler(a.scheduler) if a.scheduler is not None else None
     try:
         res = campaign.run(spec, client, out=out, workers=a.workers, threads=a.threads,
                            retry_failed=a.retry_failed, progress=not a.no_progress,
                            plot=not a.no_map, log=lambda msg: print(msg, flush=True))
     except campaign.SpecError as e:
-        raise named(e) from None
+        raise spec_error(a.spec, e) from None
     except KeyboardInterrupt:
         sys.stderr.write(f"{PROG} campaign: the finished granules are in {out}; run the same "
                          "command again to resume\n")
