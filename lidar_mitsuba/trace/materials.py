@@ -134,8 +134,7 @@ class SceneMaterials(Material):
     notes: tuple[str, ...] = field(default=())
     settings: dict = field(default_factory=dict)
 
-    kind = "scene"
-    mesh_bsdf = None
+    kind = "scene"            # (the shapes carry their own BSDFs: no mesh_bsdf)
 
     @property
     def needs_media_tracer(self) -> bool:
@@ -164,7 +163,7 @@ class SceneMaterials(Material):
     def integrator(self, base: dict, *, max_depth: int) -> dict:
         """``mediapathlength`` for water and air, ``volpathlength`` for snow (with the scene's
         ``<integrator>`` group index, snow depth and base albedo), else ``pathlength``."""
-        d = {**base, "max_depth": int(max_depth)}
+        d = super().integrator(base, max_depth=max_depth)
         if self.needs_media_tracer:
             return {**d, "type": "mediapathlength",
                     **{k: v for k, v in self.settings.items() if k == "group_index"}}
@@ -173,13 +172,6 @@ class SceneMaterials(Material):
                     **{k: v for k, v in self.settings.items()
                        if k in ("group_index", "snow_depth_m", "base_albedo")}}
         return d
-
-    def returns_per_path(self, max_depth: int) -> int:
-        """Records a path can leave: one in snow, one per vertex otherwise."""
-        return 1 if self.volume else int(max_depth)
-
-    def prepared(self, *, progress: bool = False):
-        return self, 0.0
 
     def choices(self, *, max_depth: int, fov_radius_m: float, shots: int, timings_s: dict,
                 facet_m: float | None = None):
