@@ -35,7 +35,8 @@ SEGMENT_COLUMNS: dict[str, str] = {
     "error": "h_li - h_truth [m]",
     "atl06_quality_summary": "0: good, 1: flagged",
     "n_fit_photons": "photons in the final fit",
-    "grain_um": "snow grain radius simulated at the segment: its beam's level in its section [um] (NaN: no snow)",
+    "grain_um": "snow grain radius simulated at the segment: its beam's level in its "
+                "section [um] (NaN: no snow)",
     "grain_um_raster": "the grain-size raster at the segment centre [um] (NaN: no raster)",
     "density_kg_m3": "snow density simulated [kg/m^3] (NaN: no snow)",
     "density_kg_m3_raster": "the density raster at the segment centre",
@@ -49,7 +50,8 @@ ROW_COLUMNS: dict[str, str] = {
     "rgt": "reference ground track (0: a spec track without one)", "cycle": "cycle",
     "region": "granule region (1-14)", "ascending": "the pass: northward at the first shot",
     "dem": "DEM file", "shots": "shots per beam", "seed": "photon seed",
-    "grain_um": "the granule's snow grain radius level (the median over every beam) [um]; each beam's section has its own (the segments' grain_um) [um] (None: no snow)",
+    "grain_um": "the granule's snow grain radius level, its median over every beam [um] "
+                "(None: no snow; each beam's section has its own: the segments' grain_um)",
     "density_kg_m3": "snow density simulated [kg/m^3] (None: snow_from_grains' default)",
     "roughness_relief_m": "roughness relief simulated [m] (None or 0: none)",
     "medians_json": "raster medians along the granule before binning (JSON)",

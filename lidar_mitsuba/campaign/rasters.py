@@ -76,30 +76,31 @@ def track_points(track, beams, *, n_shots: int, spacing_m: float):
     return np.array([p[0] for p in pts]), np.array([p[1] for p in pts]), shot
 
 
-def section_levels(raster: PropertyRaster, lat, lon, shot, *, beams, levels, bounds,
+def section_levels(values: np.ndarray, shot, *, beams, levels, bounds,
                    fallback: float) -> dict[str, list[float]]:
-    """Each beam's level of the property per granule section (``bounds``: the sections'
-    ``(first, stop)`` shots, :func:`lidar_mitsuba.granule.section_bounds`): the raster's median
-    over the beam's points in the section, snapped to ``levels``; ``fallback`` (the granule's
-    level) where a section has no finite value."""
-    v = raster.at(lat, lon)
+    """Each beam's level of the property per granule section, from the raster's ``values``
+    at :func:`track_points` ((n_beams, n_points)) and their ``shot``s (``bounds``: the
+    sections' ``(first, stop)`` shots, :func:`lidar_mitsuba.granule.section_bounds`): the
+    median over the beam's points in the section, snapped to ``levels``; ``fallback`` (the
+    granule's level) where a section has no finite value."""
     sec = np.searchsorted([a for a, _ in bounds], shot, side="right") - 1
     out = {}
     for j, b in enumerate(beams):
-        row = []
-        for k in range(len(bounds)):
-            x = v[j, sec == k]
-            x = x[np.isfinite(x)]
-            row.append(snap(float(np.median(x)), levels) if x.size else fallback)
-        out[b.name] = row
+        medians = [finite_median(values[j, sec == k]) for k in range(len(bounds))]
+        out[b.name] = [snap(m, levels) if math.isfinite(m) else fallback for m in medians]
     return out
+
+
+def finite_median(values) -> float:
+    """The median of the finite ``values`` (NaN when there is none)."""
+    v = np.asarray(values, np.float64)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if v.size else math.nan
 
 
 def median_along(raster: PropertyRaster, lat, lon) -> float:
     """The median of the raster's finite values at the points (NaN when there is none)."""
-    v = raster.at(lat, lon)
-    v = v[np.isfinite(v)]
-    return float(np.median(v)) if v.size else math.nan
+    return finite_median(raster.at(lat, lon))
 
 
 def gradient_raster(path: str | os.PathLike, *, like: str | os.PathLike, start: float,

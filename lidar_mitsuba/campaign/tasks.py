@@ -135,33 +135,33 @@ def _explicit_epochs(spec: CampaignSpec, t: dict, orbit) -> list[tuple[float, in
     return out
 
 
-def _value(prop: Property | None, raster, lat, lon) -> tuple[float | None, float | None]:
-    """``(value used, raster median)`` of a property along a granule's points."""
+def _value(prop: Property | None, values) -> tuple[float | None, float | None]:
+    """``(value used, raster median)`` of a property from the raster's ``values`` along a
+    granule's points (None without a raster)."""
     if prop is None:
         return None, None
     if prop.raster is None:
         return prop.value, None
-    m = rs.median_along(raster, lat, lon)
+    m = rs.finite_median(values)
     return (rs.snap(m, prop.levels) if math.isfinite(m) else math.nan), m
 
 
 def _properties(spec: CampaignSpec, g, beams, shots, inst, opened: dict) -> tuple[dict, str]:
     """The granule's ``{grain_um, density_kg_m3, roughness_relief_m}`` used, their raster
-    medians, and why it cannot run ('' if it can)."""
+    medians, each beam's grain level per section, and why it cannot run ('' if it can)."""
     props = {"grain_um": spec.grain, "density_kg_m3": spec.density,
              "roughness_relief_m": spec.roughness}
     need = {k: p for k, p in props.items() if p is not None and p.raster is not None}
-    lat = lon = None
     if need:
         lat, lon, shot = rs.track_points(g, beams, n_shots=shots,
                                          spacing_m=inst.shot_spacing_m)
-    used, medians, why = {}, {}, ""
+    used, medians, values, why = {}, {}, {}, ""
     for k, p in props.items():
-        raster = None
-        if k in need:
+        if k in need:              # the raster at every beam's points, read once
             raster = opened.get(p.raster) or opened.setdefault(p.raster,
                                                                rs.PropertyRaster(p.raster))
-        used[k], m = _value(p, raster, lat, lon)
+            values[k] = raster.at(lat, lon)
+        used[k], m = _value(p, values.get(k))
         if m is not None:
             medians[k] = m
         if used[k] is not None and not math.isfinite(used[k]) and not why:
@@ -171,7 +171,7 @@ def _properties(spec: CampaignSpec, g, beams, shots, inst, opened: dict) -> tupl
         from ..granule import section_bounds
         bounds = section_bounds(shots, spacing_m=inst.shot_spacing_m,
                                 section_shots=spec.run["section_shots"])
-        sections = rs.section_levels(opened[spec.grain.raster], lat, lon, shot, beams=beams,
+        sections = rs.section_levels(values["grain_um"], shot, beams=beams,
                                      levels=spec.grain.levels, bounds=bounds,
                                      fallback=used["grain_um"])
     return {**used, "medians": medians, "grain_sections": sections}, why
