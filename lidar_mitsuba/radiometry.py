@@ -46,6 +46,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -150,7 +152,7 @@ def solar_angles(lat_deg, lon_deg, delta_time_s, *, every: int = 100):
     shot, on both sides of any jump in time (> 1 s) or position (> 1 km), and on the last,
     and is interpolated linearly in between (the sun moves 0.0004 deg in 10 ms).
     """
-    from pvlib import spa
+    spa = _spa()
     lat = np.atleast_1d(np.asarray(lat_deg, np.float64))
     lon = np.atleast_1d(np.asarray(lon_deg, np.float64))
     t = np.atleast_1d(np.asarray(delta_time_s, np.float64))
@@ -173,6 +175,27 @@ def solar_angles(lat_deg, lon_deg, delta_time_s, *, every: int = 100):
                                            np.interp(i, keys, np.cos(rad)))), 360.0)
     shape = np.shape(delta_time_s)
     return elevation.reshape(shape), azimuth.reshape(shape)
+
+
+_SPA = []
+
+
+def _spa():
+    """pvlib's ``spa`` module. Importing it as ``pvlib.spa`` runs pvlib's package import, which
+    brings pandas and scipy.integrate (about 0.7 s of a granule's start-up); ``spa.py`` itself
+    needs only numpy, so it is loaded from pvlib's folder on its own (the same code: the same
+    numbers), unless pvlib is imported already."""
+    if "pvlib.spa" in sys.modules:
+        return sys.modules["pvlib.spa"]
+    if not _SPA:
+        import importlib.util
+        folder = importlib.util.find_spec("pvlib").submodule_search_locations[0]
+        spec = importlib.util.spec_from_file_location("_lidar_mitsuba_pvlib_spa",
+                                                      os.path.join(folder, "spa.py"))
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        _SPA.append(module)
+    return _SPA[0]
 
 
 def earth_sun_distance_au(delta_time_s):

@@ -110,3 +110,11 @@ def test_background_dead_time_correction_inverts_the_models(paralyzable):
     got = fpb.corrected_background_mhz(obs * channels * 1e3, n_channels=channels,
                                          dead_time_ns=tau, paralyzable=paralyzable)
     assert got == pytest.approx(true_mhz, rel=1e-12)
+
+
+def test_iqr_per_sigma_is_scipy_stats_normal_iqr():
+    """The Gaussian IQR constant (from scipy.special, not scipy.stats, to keep scipy.stats'
+    import out of every run) is scipy.stats' 2 Phi^-1(0.75), to the bit."""
+    from scipy import stats
+    from lidar_mitsuba.products import first_photon_bias
+    assert first_photon_bias.IQR_PER_SIGMA == float(2.0 * stats.norm.ppf(0.75))

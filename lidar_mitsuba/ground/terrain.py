@@ -30,8 +30,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import scipy.fft
-from scipy import ndimage
 
 from ..constants import ParameterError
 from ..machine import check_memory
@@ -177,6 +175,7 @@ class Heightfield:
         mode 'wrap' (periodic) or 'nearest' (non-periodic). sigma_m == 0 returns
         the raw grid.
         """
+        from scipy import ndimage
         s = float(sigma_m)
         if not (math.isfinite(s) and s >= 0.0):
             raise ParameterError("sigma_m", f"must be >= 0 (got {sigma_m})")
@@ -224,6 +223,7 @@ class Heightfield:
         then axis 1, over the same inputs), the other rows zero (what ``_interp`` reads
         there for points it returns as NaN); ``None`` when the rows' filter windows
         would cover more than the grid (filter it all)."""
+        from scipy import ndimage
         y = np.asarray(y_m, dtype=np.float64).ravel()
         y = y[np.isfinite(y)]
         if y.size == 0:
@@ -332,6 +332,7 @@ def fractal(
     Returns:
         Heightfield with z_m of shape (N, N), zero mean, periodic=True.
     """
+    import scipy.fft          # (here: its import is a tenth of a second a DEM run need not pay)
     n = check_fractal_parameters(p=p, size_m=size_m, grid_m=grid_m, relief_m=relief_m)
     check_memory("grid_m", FRACTAL_BYTES_PER_NODE * n * n,
                  f"a {n} x {n} fractal (size_m / grid_m = {n})",

@@ -46,6 +46,7 @@ _lock = threading.Lock()
 _pending: collections.deque = collections.deque()   # (file key, dataset, offset, future, bytes)
 _queued = [0]                                        # bytes of rows in _pending
 _tails: dict = {}           # (file key, dataset name) -> (dataset, first row, rows, level)
+_open: dict = {}            # (HDF5 file number, dataset name) -> _Entry of put(append=True)
 
 
 def put(group, name: str, data, units: str, description: str, *, append: bool = False,
@@ -63,19 +64,24 @@ def put(group, name: str, data, units: str, description: str, *, append: bool = 
     data = np.asarray(data)
     if data.ndim == 0:
         d = group.create_dataset(name, data=data)
-    elif append and name in group:
-        d = group[name]
-        start = d.shape[0]
-        d.resize(start + data.shape[0], axis=0)
-        write_rows(d, start, data)
-        return d
+    elif append:
+        key = (group.id.fileno, f"{group.name}/{name}")
+        entry = _open.get(key)
+        if entry is not None and not entry.dset.id.valid:   # (a file closed without drain)
+            entry = None
+        if entry is None and name in group:         # a dataset this module did not make
+            entry = _open[key] = _Entry(group[name])
+        if entry is not None:
+            start = entry.rows
+            entry.grow(data.shape[0])
+            entry.write(start, data)
+            return entry.dset
+        d = _create(group, name, data, CHUNK_ROWS, fillvalue)
+        entry = _open[key] = _Entry(d)
+        entry.grow(data.shape[0])
+        entry.write(0, data)
     else:
-        rows = CHUNK_ROWS if append else max(1, min(CHUNK_ROWS, data.shape[0]))
-        d = group.create_dataset(name, shape=(0,) + data.shape[1:], dtype=data.dtype,
-                                 maxshape=(None,) + data.shape[1:],
-                                 chunks=(rows,) + data.shape[1:], compression="gzip",
-                                 compression_opts=GZIP_LEVEL, shuffle=True,
-                                 fillvalue=fillvalue)
+        d = _create(group, name, data, max(1, min(CHUNK_ROWS, data.shape[0])), fillvalue)
         d.resize(data.shape[0], axis=0)
         write_rows(d, 0, data)
     d.attrs["units"] = units
@@ -83,13 +89,56 @@ def put(group, name: str, data, units: str, description: str, *, append: bool = 
     return d
 
 
+def _create(group, name, data, rows, fillvalue):
+    return group.create_dataset(name, shape=(0,) + data.shape[1:], dtype=data.dtype,
+                                maxshape=(None,) + data.shape[1:],
+                                chunks=(rows,) + data.shape[1:], compression="gzip",
+                                compression_opts=GZIP_LEVEL, shuffle=True,
+                                fillvalue=fillvalue)
+
+
+class _Entry:
+    """A dataset :func:`put` appends to, with what each append needs: its rows so far, dtype,
+    filters and file. (h5py's lookup of a dataset by name, and of its shape, chunks and
+    filters, cost tens of microseconds each; a granule's ATL03 makes thousands of appends.)"""
+
+    __slots__ = ("dset", "rows", "tail_shape", "dtype", "level", "key")
+
+    def __init__(self, dset):
+        self.dset = dset
+        shape = dset.shape
+        self.rows = shape[0]
+        self.tail_shape = shape[1:]
+        self.dtype = dset.dtype
+        self.level = _level(dset)
+        self.key = (_file_key(dset), dset.name)
+
+    def grow(self, n: int) -> None:
+        self.rows += n
+        self.dset.id.set_extent((self.rows,) + self.tail_shape)
+
+    def write(self, start: int, data) -> None:
+        _write(self.dset, start, data, dtype=self.dtype, level=self.level, key=self.key)
+
+
 def write_rows(dset, start: int, data) -> None:
     """Store ``data`` in rows ``start`` to ``start + len(data)`` of the chunked dataset
     ``dset`` (already that long). When ``dset`` is byte shuffle then deflate and nothing else,
     whole chunks are compressed on the pool and a last partial chunk waits for the next rows
     (or :func:`drain`); otherwise HDF5 writes the rows now."""
-    data = np.ascontiguousarray(data, dtype=dset.dtype)
-    key = (_file_key(dset), dset.name)
+    _write(dset, start, data, dtype=dset.dtype, level=_level(dset),
+           key=(_file_key(dset), dset.name))
+
+
+def _level(dset) -> int | None:
+    """The deflate level of whole chunks :func:`_write` compresses itself (``None``: HDF5
+    writes the rows)."""
+    level = _shuffle_deflate_level(dset)                 # (None: not chunked and filtered)
+    return level if level is not None and dset.chunks[1:] == dset.shape[1:] else None
+
+
+def _write(dset, start: int, data, *, dtype, level, key) -> None:
+    data = np.ascontiguousarray(data, dtype=dtype)
     held = _tails.pop(key, None)
     if held is not None:
         if held[1] + held[2].shape[0] == start:          # continue the waiting rows
@@ -97,8 +146,7 @@ def write_rows(dset, start: int, data) -> None:
         else:                                            # (rows written around us)
             _submit(key[0], *held)
     stop = start + data.shape[0]
-    level = _shuffle_deflate_level(dset)                 # (None: not chunked and filtered)
-    if level is None or dset.chunks[1:] != dset.shape[1:]:
+    if level is None:
         if stop > start:
             dset[start:stop] = data
         return
@@ -121,6 +169,7 @@ def drain(f) -> None:
     for k in [k for k in _tails if k[0] == key]:
         _submit(key, *_tails.pop(k))
     _store(block_above=0)
+    _forget(key)
 
 
 def discard(f) -> None:
@@ -129,6 +178,7 @@ def discard(f) -> None:
     key = _file_key(f)
     for k in [k for k in _tails if k[0] == key]:
         del _tails[k]
+    _forget(key)
     with _lock:
         keep = [e for e in _pending if e[0] != key]
         for e in _pending:
@@ -188,6 +238,12 @@ def _shuffle_deflate_level(dset) -> int | None:
         return None
     values = plist.get_filter(1)[2]
     return int(values[0]) if values else None
+
+
+def _forget(file_key: str) -> None:
+    """Drop the appended datasets of the file ``file_key`` names (it is about to close)."""
+    for k in [k for k, e in _open.items() if e.key[0] == file_key]:
+        del _open[k]
 
 
 def _file_key(dset) -> str:

@@ -24,7 +24,8 @@ scout's largest weight for ``w_max``; the run counts the shots that actually ran
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
+from scipy import special
+from scipy.special import _ufuncs
 
 from ..track import spread_shots
 from .stream import gate_center_ns, in_gate
@@ -103,11 +104,39 @@ def run_out_probability(*, kept_mean: np.ndarray, slots: np.ndarray,
         return out
     lam, n, p = lam[ok], n[ok], p[ok]
     # sum over a of P(A = a) P(K > a); P(K > a) is negligible beyond Poisson's far tail
-    top = int(min(n.max(), stats.poisson.isf(1e-16, lam.max()) + 1))
+    top = int(min(n.max(), poisson_isf(1e-16, float(lam.max())) + 1))
     a = np.arange(top + 1)[None, :]
-    terms = stats.binom.pmf(a, n[:, None], p[:, None]) * stats.poisson.sf(a, lam[:, None])
+    terms = binom_pmf(a, n[:, None], p[:, None]) * poisson_sf(a, lam[:, None])
     out[ok] = terms.sum(axis=1)
     return out
+
+
+# scipy.stats' binomial and Poisson functions, from the scipy.special kernels they call:
+# importing scipy.stats costs about 0.5 s of every run's start, these three functions need
+# none of it. tests/test_path_budget.py checks them against scipy.stats to the bit.
+def binom_pmf(k, n, p) -> np.ndarray:
+    """``scipy.stats.binom.pmf(k, n, p)`` for integer ``k >= 0``, ``n >= 0`` and ``p`` in
+    [0, 1] (broadcast): boost's pmf, 0 beyond ``n``, clipped to [0, 1]."""
+    k, n, p = np.broadcast_arrays(np.asarray(k, np.float64), np.asarray(n, np.float64),
+                                  np.asarray(p, np.float64))
+    out = np.zeros(k.shape)
+    inside = k <= n
+    out[inside] = np.clip(_ufuncs._binom_pmf(k[inside], n[inside], p[inside]), 0.0, 1.0)
+    return out
+
+
+def poisson_sf(k, mu) -> np.ndarray:
+    """``scipy.stats.poisson.sf(k, mu)`` for integer ``k >= 0`` and ``mu > 0``: ``P(K > k)``."""
+    return np.clip(special.pdtrc(np.floor(np.asarray(k, np.float64)), mu), 0.0, 1.0)
+
+
+def poisson_isf(q: float, mu: float) -> float:
+    """``scipy.stats.poisson.isf(q, mu)`` for ``q`` in (0, 1) and ``mu > 0``: the least ``k``
+    with ``P(K > k) <= q``."""
+    p = 1.0 - q
+    k = np.ceil(special.pdtrik(p, mu))
+    k1 = np.maximum(k - 1, 0)
+    return float(np.where(special.pdtr(k1, mu) >= p, k1, k))
 
 
 def choose(*, moments: dict, kept_per_weight: float, ladder=LADDER) -> dict:
