@@ -39,7 +39,7 @@ def _atl06() -> None:
     atl06.fit_segments(photon_along_m=along, h_m=np.zeros(n), shot=np.arange(n),
                        channel=np.zeros(n, np.int16), n_shots=n, shot_along_m=along,
                        n_channels=16, dead_time_ns=3.0, paralyzable=False, pulse_sigma_ns=0.42,
-                       range_gate_m=30.0, engine="compiled")
+                       range_gate_m=30.0, z_ref_m=np.zeros(n), engine="compiled")
 
 
 def _cached(module: str, functions: tuple[str, ...]) -> bool:
@@ -64,7 +64,7 @@ def compile_kernels(*, atl06: bool = False, progress: bool = True) -> float:
     steps = []
     if not _cached("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")):
         steps.append(("the detector", DETECTOR_S, _detector))
-    if atl06 and not _cached("products.atl06.kernel", ("fit_segment",)):
+    if atl06 and not _cached("products.atl06.kernel", ("fit_segment", "reference_heights")):
         steps.append(("the ATL06 fit", ATL06_S, _atl06))
     if not steps:
         return 0.0

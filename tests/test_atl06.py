@@ -241,6 +241,29 @@ def test_compiled_fit_in_blocks_on_threads_is_bit_identical(monkeypatch, fractal
         np.testing.assert_array_equal(getattr(one, name), getattr(split, name), err_msg=name)
 
 
+def test_compiled_reference_heights_are_the_numpy_loop_to_the_bit(rng):
+    """The truth column h_ref_m, compiled (numpy's pairwise sums replayed), equals the numpy
+    loop bit for bit: segments of 0 to 300 shots (both sides of numpy's 8- and 128-element
+    blocks), singular ones (one shot, all shots at one place) and ordinary ones."""
+    from lidar_mitsuba.products.atl06 import kernel
+    lengths = np.concatenate([np.arange(0, 300), [1, 1, 57, 57, 58]])
+    s0 = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+    s1 = s0 + lengths
+    along = np.sort(rng.uniform(0, 1e5, s1[-1]))
+    along[s0[-2]:s1[-2]] = along[s0[-2]]                        # a singular segment
+    z = rng.normal(0, 1e3, along.size) + 2500.0
+    centres = along[np.minimum(s0, along.size - 1)] + rng.uniform(0, 40, lengths.size)
+    loop = np.full(lengths.size, np.nan)
+    atl06._fill_reference_heights(loop, z, along, centres, s0, s1)
+    compiled = np.full(lengths.size, np.nan)
+    kernel.reference_heights(along, z, centres, s0, s1, compiled)
+    assert np.isnan(compiled[0]) and np.isfinite(compiled[1:]).all()
+    np.testing.assert_array_equal(compiled, loop)
+    for n in (0, 7, 8, 127, 128, 129, 255, 1000, 4099):     # and numpy's halving above 128
+        x = rng.normal(0, 1e3, n + 3)
+        assert kernel._pairwise_sum(x, 3, n) == x[3:].sum()
+
+
 def test_auto_engine_compiles_only_for_long_tracks(monkeypatch, fractal_tracks):
     """``engine="auto"``: the reference for a short track (the compile would cost more),
     the kernel from COMPILE_MIN_SEGMENTS segments on, whatever ran before in the process

@@ -161,8 +161,15 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
     fit = _fit_compiled if engine == "compiled" else _fit_reference
     fit(cols, along, h, shot_along, gate, centres, half, shot0, shot1, cfg)
     if z_ref_m is not None:
-        _fill_reference_heights(cols["h_ref_m"], np.asarray(z_ref_m, np.float64), shot_along,
-                                centres, shot0, shot1)
+        z_ref = np.asarray(z_ref_m, np.float64)
+        if engine == "compiled":       # (the same column, without a Python loop)
+            from .kernel import reference_heights
+            reference_heights(np.ascontiguousarray(shot_along, np.float64),
+                              np.ascontiguousarray(z_ref), np.asarray(centres, np.float64),
+                              np.asarray(shot0, np.int64), np.asarray(shot1, np.int64),
+                              cols["h_ref_m"])
+        else:
+            _fill_reference_heights(cols["h_ref_m"], z_ref, shot_along, centres, shot0, shot1)
     cols["atl06_quality_summary"] = (cols["flags"] != 0).astype(np.int64)
     return SegmentTable(**cols)
 
