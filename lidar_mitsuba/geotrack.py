@@ -223,7 +223,16 @@ class GeoTrack:
         """Shots ``first`` .. ``first + n_shots - 1`` of ``beam``: their
         :class:`Geolocation` (the reference track's shots moved across track to the beam,
         fired at ``prf_hz`` from ``epoch_utc``) and their along-track distance [m]."""
-        lat0, lon0, az0, along = self.shots(n_shots, spacing_m=spacing_m, first=first)
+        key = (self, int(n_shots), float(spacing_m), int(first))
+        last = _LAST_SHOTS[0]
+        if last is not None and last[0][0] is self and last[0][1:] == key[1:]:
+            lat0, lon0, az0, along = last[1]       # the beams of one section share them
+        else:
+            lat0, lon0, az0, along = shots = self.shots(n_shots, spacing_m=spacing_m,
+                                                        first=first)
+            for a in shots:
+                a.setflags(write=False)
+            _LAST_SHOTS[0] = (key, shots)
         lat, lon = beam_shots(lat0, lon0, az0, beam)
         times = delta_time_s(self.epoch_utc, n_shots, prf_hz=prf_hz, first=first)
         return Geolocation(lat_deg=np.asarray(lat), lon_deg=np.asarray(lon),
@@ -248,6 +257,11 @@ class GeoTrack:
                 "azimuth_deg": self.azimuth_deg,
                 "polyline": None if self.polyline is None else [list(p) for p in self.polyline],
                 "epoch_utc": self.epoch_utc}
+
+
+#: the reference track's shots of the last :meth:`GeoTrack.beam_geolocation` call (read-only):
+#: a granule asks for the same shots of each of its six beams in turn
+_LAST_SHOTS: list = [None]
 
 
 def beam_shots(lat_deg, lon_deg, azimuth_deg, beam: Beam) -> tuple[np.ndarray, np.ndarray]:
