@@ -470,8 +470,136 @@ def test_grain_size_is_resolved_per_beam_and_section(spec_path, serial):
     for t in tasks:
         bounds = section_bounds(t.shots, spacing_m=0.7,
                                 section_shots=campaign.load_spec(spec_path).run["section_shots"])
+        assert t.section_bounds == tuple(map(tuple, bounds)) and t.shot_spacing_m == 0.7
         assert set(t.grain_sections) == {"gt1l", "gt1r"}
         assert all(len(row) == len(bounds) for row in t.grain_sections.values())
         mine = seg[seg["task_index"] == t.task_index]
         for beam, row in t.grain_sections.items():
             assert set(mine.loc[mine["beam"] == beam, "grain_um"]) <= set(row)
+
+
+def _step_raster(path, like, task, table, posting_m=10.0):
+    """A raster over the DEM ``like`` stepping across ``task``'s track between its two beams
+    and along it at its first section boundary: ``table[across][along]`` (across 0: gt1l's
+    side, along 0: the first section's), constant on each side of the two lines through the
+    beams' midpoint at the boundary shot (along the track's chord and square to it)."""
+    from pyproj import Transformer
+
+    from lidar_mitsuba.geotrack import GeoTrack, beam_shots, select_beams
+    dem = dems.DEM.open(like)
+    to_crs = Transformer.from_crs("EPSG:4326", dem.crs, always_xy=True)
+    g = GeoTrack(**{**task.track, "polyline": tuple(map(tuple, task.track["polyline"]))})
+    lat, lon, az, _ = g.shots(task.shots, spacing_m=task.shot_spacing_m)
+    f = task.section_bounds[1][0]
+    xy = {}
+    for b in select_beams("gt1l,gt1r"):
+        blat, blon = beam_shots(lat, lon, az, b)
+        xy[b.name] = np.array(to_crs.transform(blon, blat))            # (2, shots)
+    p0 = 0.5 * (xy["gt1l"][:, f] + xy["gt1r"][:, f])
+    d = xy["gt1l"][:, -1] - xy["gt1l"][:, 0]
+    d /= np.hypot(*d)
+    n = np.array([-d[1], d[0]])
+    n *= np.sign(np.dot(xy["gt1r"][:, f] - p0, n))          # gt1r on the + side
+    x0, x1, y0, y1 = dem.bounds_m
+    nx, ny = int((x1 - x0) // posting_m), int((y1 - y0) // posting_m)
+    X, Y = np.meshgrid(x0 + (np.arange(nx) + 0.5) * posting_m,
+                       y1 - (np.arange(ny) + 0.5) * posting_m)
+    across = (X - p0[0]) * n[0] + (Y - p0[1]) * n[1] > 0
+    along = (X - p0[0]) * d[0] + (Y - p0[1]) * d[1] > 0
+    z = np.asarray(table, np.float64)[across.astype(int), along.astype(int)]
+    return dems.write_geotiff(path, z, x0_m=x0, y1_m=y1, posting_m=posting_m,
+                              crs=dem.crs.to_string())
+
+
+def test_density_and_roughness_are_resolved_per_beam_and_section(spec_path, monkeypatch,
+                                                                  tmp_path):
+    """A density raster with a step between the two beams and another along the track (four
+    levels, one per beam and section) and a roughness raster stepping along the track: each
+    beam's section is planned with its own snow density and roughness (a plan per section,
+    seen by a spy on the planner), one kernel table per (grain, density) pair is built, and
+    the segment table's density_kg_m3 and roughness_relief_m are each segment's own."""
+    first = campaign.expand(spec_path)[0]
+    d = spec_path.parent
+    dens = _step_raster(d / "density_steps.tif", d / "dem.tif", first, [[200, 300], [400, 500]])
+    rough = _step_raster(d / "rough_steps.tif", d / "dem.tif", first, [[0.0, 2.0], [0.0, 2.0]])
+    poly = json.dumps([list(p) for p in first.track["polyline"]])
+    spec = d / "steps.toml"
+    spec.write_text(SPEC.replace('name = "tiny"', 'name = "steps"')
+                    .replace("[orbit]\npasses = \"both\"\n",
+                             f"[[tracks]]\npolyline = {poly}\nrgt = {first.rgt}\n")
+                    .replace('grain_um = "grain.tif"\ngrain_levels_um = [150, 1000]',
+                             f'grain_um = 150\ndensity_kg_m3 = "{dens.name}"\n'
+                             'density_levels_kg_m3 = [200, 300, 400, 500]')
+                    + f'\n[surface]\nroughness_relief_m = "{rough.name}"\n'
+                      'roughness_levels_m = [0, 2]\n')
+    (task,) = campaign.expand(spec)
+    assert task.section_bounds == first.section_bounds and len(task.section_bounds) == 2
+    assert task.density_sections == {"gt1l": [200.0, 300.0], "gt1r": [400.0, 500.0]}
+    assert task.roughness_sections == {"gt1l": [0.0, 2.0], "gt1r": [0.0, 2.0]}
+    assert task.grain_sections is None and task.grain_um == 150.0
+    # one kernel table per (grain, density) pair (the parent's; counted, not built: the run
+    # below walks the snow, as four tables would take a minute)
+    built = []
+    from lidar_mitsuba.ground.snow import kernel
+    with monkeypatch.context() as m:
+        m.setattr(kernel, "table", lambda snow, **kw: built.append(
+            (snow.grain_radius_um, snow.density_kg_m3)))
+        assert campaign.build_kernels([task], campaign.load_spec(spec)) == 4
+    assert built == [(150.0, 200.0), (150.0, 300.0), (150.0, 400.0), (150.0, 500.0)]
+    spec.write_text(spec.read_text().replace("[snow]\n", '[snow]\nmodel = "walk"\n'))
+    (walked,) = campaign.expand(spec)
+    assert walked.density_sections == task.density_sections
+    from lidar_mitsuba import planning
+    planned, real_plan = [], planning.plan
+
+    def spy(**kw):
+        r = kw["surface"].roughness
+        planned.append((kw["track"].info["beam"], kw["track"].info["first_shot"],
+                        kw["snow"].density_kg_m3, 0.0 if r is None else r.relief_m))
+        return real_plan(**kw)
+    monkeypatch.setattr(planning, "plan", spy)
+    res = campaign.run(spec, out=tmp_path / "out", workers=0, plot=False)
+    assert res.failed == 0
+    f = task.section_bounds[1][0]
+    assert sorted(planned) == [("gt1l", 0, 200.0, 0.0), ("gt1l", f, 300.0, 2.0),
+                               ("gt1r", 0, 400.0, 0.0), ("gt1r", f, 500.0, 2.0)]
+    seg = res.segments
+    sec = (seg["x_atc"] / task.shot_spacing_m).astype(int) >= f
+    for beam in ("gt1l", "gt1r"):
+        for k in (0, 1):
+            mine = seg[(seg["beam"] == beam) & (sec == bool(k))]
+            assert len(mine) >= 4
+            assert set(mine["density_kg_m3"]) == {task.density_sections[beam][k]}
+            assert set(mine["roughness_relief_m"]) == {task.roughness_sections[beam][k]}
+    assert np.isfinite(seg["density_kg_m3_raster"]).all()
+
+
+def test_uniform_sections_keep_one_value_per_granule(spec_path):
+    """A density or roughness raster whose level is the same in every beam's section leaves
+    the task as with one value (no sections, the same task id and seeds): a constant raster
+    gives the table of its number."""
+    d = spec_path.parent
+    const = rasters.gradient_raster(d / "density_const.tif", like=d / "dem.tif", start=300,
+                                    stop=300, posting_m=400)
+    number = spec_path.with_name("number.toml")
+    number.write_text(SPEC.replace("grain_levels_um = [150, 1000]",
+                                   "grain_levels_um = [150, 1000]\ndensity_kg_m3 = 300"))
+    raster = spec_path.with_name("raster.toml")
+    raster.write_text(SPEC.replace("grain_levels_um = [150, 1000]",
+                                   f'grain_levels_um = [150, 1000]\ndensity_kg_m3 = '
+                                   f'"{const.name}"\ndensity_levels_kg_m3 = [200, 300]'))
+    a, b = campaign.expand(number), campaign.expand(raster)
+    assert [t.task_id for t in a] == [t.task_id for t in b]
+    assert all(t.density_sections is None and t.density_kg_m3 == 300.0 for t in b)
+
+
+def test_segments_are_labelled_by_the_task_s_section_bounds():
+    """The worker labels each segment with the section the task says the granule streamed
+    (its bounds and shot spacing), not with bounds of its own: here shots 0.5 m apart and a
+    second section from shot 100 (50 m)."""
+    from lidar_mitsuba.campaign.granules import _section_values
+    p = {"section_bounds": ((0, 100), (100, 250)), "shot_spacing_m": 0.5}
+    seg = {"x_atc": np.array([20.0, 49.9, 50.0, 60.0, 120.0, np.nan]),
+           "beam": np.array(["gt1l", "gt1r", "gt1l", "gt1r", "gt1l", "gt1r"], object)}
+    got = _section_values(seg, p, {"gt1l": [1.0, 2.0], "gt1r": [3.0, 4.0]})
+    np.testing.assert_array_equal(got, [1.0, 3.0, 2.0, 4.0, 2.0, 3.0])
