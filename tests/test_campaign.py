@@ -244,7 +244,7 @@ def test_failing_granules_are_recorded_and_the_rest_go_on(spec_path, serial, tmp
                                   check_exact=True)
 
 
-def test_the_demo_spec_flies_eight_tracks_of_six_beams_over_a_grain_gradient(tmp_path):
+def test_the_demo_spec_flies_seven_tracks_of_six_beams_over_a_grain_gradient(tmp_path):
     demo = tmp_path / "demo.toml"
     demo.write_text((ROOT / "campaigns" / "demo.toml").read_text())
     assert main(["make-dem", "--out", str(tmp_path / "demo_dem.tif"), "--width-m", "40000",
@@ -253,12 +253,12 @@ def test_the_demo_spec_flies_eight_tracks_of_six_beams_over_a_grain_gradient(tmp
                  str(tmp_path / "demo_grain_um.tif"), "--start", "100", "--stop", "1000"]) == 0
     spec = campaign.load_spec(demo)
     tasks = campaign.expand(spec)
-    assert spec.beams == "all" and spec.grain.raster and len(tasks) == 8
-    assert sum(t.ascending for t in tasks) == 4 and len({t.rgt for t in tasks}) == 8
+    assert spec.beams == "all" and spec.grain.raster and len(tasks) == 7
+    assert sum(t.ascending for t in tasks) == 3 and len({t.rgt for t in tasks}) == 7
     assert 2000 * 6 * len(tasks) <= 100000
     assert len({t.grain_um for t in tasks}) >= 4 and all(not t.invalid for t in tasks)
     # each beam pair sees its own level: the granules' 6.6 km of beams span the gradient
-    assert any(len({g for row in t.grain_sections.values() for g in row}) >= 3 for t in tasks)
+    assert any(len({g for row in t.grain_sections.values() for g in row}) >= 2 for t in tasks)
     west_east = sorted(tasks, key=lambda t: json.loads(json.dumps(t.track))["polyline"][0][1])
     assert west_east[0].grain_um < west_east[-1].grain_um
 
@@ -277,6 +277,7 @@ BAD = [
     ("[epochs]\ncycles = []\n", "[epochs] cycles"),
     ("[orbit]\npasses = \"up\"\n", "[orbit] passes"),
     ("[orbit]\ninclination_deg = 200\n", "[orbit] inclination_deg"),
+    ("[orbit]\nnodal_day_s = 86400000\n", "[orbit] nodal_day_s"),
     ("[snow]\ngrain_levels_um = []\n", "[snow] grain_levels_um"),
     ("[snow]\ngrain_levels_um = [1, 2]\n", "[snow] grain_levels_um"),
     ("[snow]\ngrain_um = \"none.tif\"\n", "[snow] grain_um"),
@@ -378,15 +379,104 @@ def test_repeat_orbit_heading_spacing_and_times():
     np.testing.assert_allclose(np.diff(nodes), 360 / 1387, atol=1e-9)
     shift = (o.rgt_node_lon_deg(2) - o.rgt_node_lon_deg(1)) % 360
     assert shift == pytest.approx(360 - 360 * 91 / 1387)
-    assert o.time_s(2, 4, 0.0) - o.time_s(1, 4, 0.0) == pytest.approx(91 * 86400 / 1387)
+    assert o.time_s(2, 4, 0.0) - o.time_s(1, 4, 0.0) == pytest.approx(91 * 86228.458 / 1387)
     assert o.cycle_of(o.cycle_start_s(4) + 1.0) == 4 and o.cycle_of(0.0) == 0
+
+
+#: NASA's reference ground track KML of cycle 14 (ICESat-2 technical specifications,
+#: icesat-2.gsfc.nasa.gov/science/specs), RGT 1's first points, one a minute from 07:57:49 UTC
+#: on 2021-12-22 (as the IceSat2R R package's RGT_cycle_14 data and its "ICESat-2 Mission
+#: Orbits" vignette print them): (latitude, longitude) [deg]
+RGT1_CYCLE14 = [(0.02795893, -0.1318472), (3.868758, -0.5162124), (7.709809, -0.901809),
+                (11.55065, -1.289879), (15.39082, -1.681755), (19.2299, -2.078916),
+                (23.06748, -2.483051), (26.90316, -2.896146), (30.73662, -3.3206),
+                (34.56754, -3.759374)]
+WGS84_E2 = 6.69437999014e-3
+
+
+def _u(o, lat_deg, ascending=True):
+    """The argument of latitude [rad, in [0, 2 pi)] at which the model's track is at
+    ``lat_deg`` (its sphere's latitude taken as geodetic, as the model does)."""
+    a = math.asin(math.sin(math.radians(lat_deg)) / math.sin(math.radians(o.inclination_deg)))
+    return (a if ascending else math.pi - a) % (2 * math.pi)
+
+
+def _lat_error_deg(lat_deg):
+    """How far the model's latitude may be off a geodetic one [deg]: it is the sphere's (a
+    geocentric latitude), which differs from the geodetic by (e^2 / 2) sin(2 lat) rad to first
+    order in WGS84's e^2 (0.19 deg at 45 deg)."""
+    return math.degrees(WGS84_E2 / 2 * abs(math.sin(2 * math.radians(lat_deg))))
+
+
+def test_the_orbit_phase_is_icesat2s_as_published():
+    """RGT 1 of the default orbit runs through NASA's published points of RGT 1 (cycle 14) and
+    passes them at their times, and the real ATL03 granule this package ships names the times
+    at which RGT 235 of cycle 1 entered its granule regions 3, 4 and 5 (its lineage's ATL02
+    files and its own name): the model's node longitude and times are the mission's.
+
+    Tolerances, from what the model leaves out: (a) longitude at a published latitude: the
+    model's latitude is the sphere's, off the geodetic by up to (e^2 / 2) sin(2 lat), which
+    moves the track by that times its slope |dlon/dlat| (the model's own, here), plus 0.002
+    deg for the node's rounding (to 0.001 deg) and the KML's digits. (b) Time at a published
+    latitude: the same latitude error over the model's dlat/dt, plus 1 s (times given to whole
+    seconds: published and the anchors'), plus 5 s for the real orbit's non-uniform motion
+    along a revolution that a circular orbit at a uniform rate leaves out (the frozen orbit's
+    eccentricity, e ~ -J3 / (2 J2) (R / a) sin(i) = 0.0011, advances the satellite by up to
+    2e rad, 2.0 s; J2's short-period terms by ~1.5 J2 (R / a)^2 rad, 1.3 s; and the nodal day's
+    rounding, 0.5 s by cycle 14: together 3.8 s, taken as 5)."""
+    from lidar_mitsuba.geotrack import parse_utc
+    o = tk.RepeatOrbit()
+    assert (o.node_lon_deg, o.cycle1_utc, o.nodal_day_s) == (-0.129, "2018-09-28T16:20:02Z",
+                                                            86228.458)
+    t0 = (parse_utc("2021-12-22T07:57:49Z") - tk.SDP_EPOCH_UTC).total_seconds()
+    rate = 360.0 / o.period_s          # deg of argument of latitude per second
+    for k, (lat, lon) in enumerate(RGT1_CYCLE14):
+        u = _u(o, lat)
+        _, model_lon = o.ground_track(u, 1)
+        du = 1e-4
+        slope = abs(float(np.diff(o.ground_track(np.array([u - du, u + du]), 1)[1])[0])
+                    / float(np.diff(o.ground_track(np.array([u - du, u + du]), 1)[0])[0]))
+        err = _lat_error_deg(lat)
+        assert abs((float(model_lon) - lon + 180) % 360 - 180) <= slope * err + 0.002, (lat, lon)
+        dlat_du = math.sin(math.radians(92.0)) * math.cos(u) / math.cos(math.radians(lat))
+        tol = err / dlat_du / rate + 1.0 + 5.0
+        assert abs(o.time_s(1, 14, u) - (t0 + 60.0 * k)) <= tol, (lat, o.time_s(1, 14, u) - t0)
+    # the old nominal phase (node at 0 deg) misses the first point by 0.13 deg: the check bites
+    assert abs(float(tk.RepeatOrbit(node_lon_deg=0.0).ground_track(_u(o, 0.028), 1)[1])
+               + 0.1318) > 0.1
+    # the granule regions' start times, cycle 1, from the shipped granule's metadata
+    from lidar_mitsuba.twin import REAL_SUBSET
+    with h5py.File(REAL_SUBSET, "r") as f:
+        lineage = f["METADATA/Lineage/ATL02"].attrs["fileName"]
+        names = [n.decode() for n in lineage] + [
+            f["METADATA/DatasetIdentification"].attrs["fileName"].decode()]
+        begin = f["METADATA/Extent"].attrs["rangeBeginningDateTime"].decode()
+    boundary = {3: (59.5, True), 4: (80.0, True), 5: (80.0, False)}   # ATL03's regions
+    seen = set()
+    for name in names:
+        fields = tk.parse_product_name(name)
+        assert (fields["rgt"], fields["cycle"]) == (235, 1)
+        lat, asc = boundary[fields["region"]]
+        stamp = fields["date"] + fields["time"]
+        t = (parse_utc(f"{stamp[:4]}-{stamp[4:6]}-{stamp[6:8]}T{stamp[8:10]}:{stamp[10:12]}:"
+                       f"{stamp[12:]}Z") - tk.SDP_EPOCH_UTC).total_seconds()
+        if name.startswith("ATL03"):
+            assert begin.startswith(f"{stamp[:4]}-{stamp[4:6]}-{stamp[6:8]}T{stamp[8:10]}")
+        u = _u(o, lat, asc)
+        dlat_du = abs(math.sin(math.radians(92.0)) * math.cos(u) / math.cos(math.radians(lat)))
+        tol = _lat_error_deg(lat) / dlat_du / rate + 1.0 + 5.0
+        assert abs(o.time_s(235, 1, u) - t) <= tol, (name, o.time_s(235, 1, u) - t, tol)
+        seen.add(fields["region"])
+    assert seen == {3, 4, 5}
+    assert o.cycle_of((parse_utc("2018-10-14T00:24:44Z") - tk.SDP_EPOCH_UTC)
+                      .total_seconds()) == 1
 
 
 def test_crossings_keep_every_beam_over_the_dem(spec_path, serial):
     from lidar_mitsuba.geotrack import beam_layout, select_beams
     dem = dems.DEM.open(spec_path.with_name("dem.tif"))
     cs = tk.crossings(dem, tk.RepeatOrbit(), beams=select_beams("gt1l,gt1r"), margin_m=130)
-    assert [(c.rgt, c.ascending) for c in cs] == [(414, True), (1359, True), (864, False),
+    assert [(c.rgt, c.ascending) for c in cs] == [(414, True), (856, True), (864, False),
                                                   (1306, False)]
     for c in cs:
         h = tk.RepeatOrbit().heading_at_u_deg(c.u_rad)

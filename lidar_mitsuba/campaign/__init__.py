@@ -37,8 +37,9 @@ lidar_mitsuba and the spec's files at the same paths, and ``DIR`` on a shared fi
 
     [orbit]                   # the repeat-orbit tracks crossing each DEM
     passes = "both"           # ascending, descending
-    # inclination_deg = 92, rgts = 1387, days = 91, node_lon_deg = 0,
-    # cycle1_utc = "2018-10-13T00:00:00Z", min_length_km = 1
+    # inclination_deg = 92, rgts = 1387, days = 91, node_lon_deg = -0.129,
+    # cycle1_utc = "2018-09-28T16:20:02Z", nodal_day_s = 86228.458 (ICESat-2's, as published:
+    # campaign/tracks.py), min_length_km = 1
 
     [[tracks]]                # tracks of your own (any number), each one of:
     start = [69.97, -45.0]    #   a start [lat, lon] and azimuth_deg (a geodesic),
