@@ -145,12 +145,13 @@ class _Context:
                                  "across_m": beam.across_m, "first_shot": int(first)},
             geolocation=geo)
 
-    def plan(self, beam: Beam, n: int, *, seed: int, first: int = 0, **plan_kw):
+    def plan(self, beam: Beam, n: int, *, seed: int, first: int = 0, surface=None, **plan_kw):
         """The plan of ``beam``'s shots ``first`` .. ``first + n - 1``
-        (:func:`lidar_mitsuba.planning.plan`)."""
+        (:func:`lidar_mitsuba.planning.plan`) on ``surface`` (default the granule's)."""
         from .planning import plan
         try:
-            return plan(instrument=self.instrument(beam), surface=self.surface,
+            return plan(instrument=self.instrument(beam),
+                        surface=self.surface if surface is None else surface,
                         track=self.projected(beam, first, n), shots=n, seed=seed, **plan_kw)
         except ParameterError as e:
             raise ParameterError(e.name, f"{beam.name}: {e.message}") from None
@@ -422,7 +423,9 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     the :class:`~lidar_mitsuba.ground.snow.SnowVolume` (or None) of section ``k`` of ``beam``
     (``section_bounds`` gives the sections): snow that varies along and across the track, a
     section planned anew where its snow differs from the one before (equal snow: the same
-    plan). ``orbit_info``: the files' ``orbit_info`` labels of
+    plan). Likewise ``roughness(beam, k)``: the roughness heightfield (or None) of the
+    section, on ``surface`` (``replace(surface, roughness=...)``), planned anew where it is
+    not the same object as the one before. ``orbit_info``: the files' ``orbit_info`` labels of
     a repeat-orbit track (``rgt``, ``cycle_number``, ``orbit_number``). Returns each beam's
     running statistics.
     """
@@ -512,11 +515,16 @@ class _BeamStream:
             plan_kw["snow"] = snow
         else:
             plan_kw.pop("snow_model", None)
-        if self.plan is None or snow != self.plan.snow:
+        rough = plan_kw.pop("roughness", None)  # the roughness of this beam's section
+        surface = ctx.surface if rough is None else replace(ctx.surface,
+                                                            roughness=rough(self.beam, k))
+        if self.plan is None or snow != self.plan.snow or \
+                surface.roughness is not self.plan.surface.roughness:
             # the first section's plan decides the beam's model, and so does a section whose
-            # snow differs (a new material)
+            # snow (a new material) or roughness (a new surface) differs
             part = self.plan = ctx.plan(self.beam, b - a, first=a, progress=False,
-                                        seed=_beam_seed(seed, self.beam, k), **plan_kw)
+                                        surface=surface, seed=_beam_seed(seed, self.beam, k),
+                                        **plan_kw)
         else:
             part = self.plan.section(ctx.projected(self.beam, a, b - a), shots=b - a,
                                      seed=_beam_seed(seed, self.beam, k))

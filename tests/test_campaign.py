@@ -244,7 +244,7 @@ def test_failing_granules_are_recorded_and_the_rest_go_on(spec_path, serial, tmp
                                   check_exact=True)
 
 
-def test_the_demo_spec_flies_eight_tracks_of_six_beams_over_a_grain_gradient(tmp_path):
+def test_the_demo_spec_flies_seven_tracks_of_six_beams_over_a_grain_gradient(tmp_path):
     demo = tmp_path / "demo.toml"
     demo.write_text((ROOT / "campaigns" / "demo.toml").read_text())
     assert main(["make-dem", "--out", str(tmp_path / "demo_dem.tif"), "--width-m", "40000",
@@ -253,12 +253,12 @@ def test_the_demo_spec_flies_eight_tracks_of_six_beams_over_a_grain_gradient(tmp
                  str(tmp_path / "demo_grain_um.tif"), "--start", "100", "--stop", "1000"]) == 0
     spec = campaign.load_spec(demo)
     tasks = campaign.expand(spec)
-    assert spec.beams == "all" and spec.grain.raster and len(tasks) == 8
-    assert sum(t.ascending for t in tasks) == 4 and len({t.rgt for t in tasks}) == 8
+    assert spec.beams == "all" and spec.grain.raster and len(tasks) == 7
+    assert sum(t.ascending for t in tasks) == 3 and len({t.rgt for t in tasks}) == 7
     assert 2000 * 6 * len(tasks) <= 100000
     assert len({t.grain_um for t in tasks}) >= 4 and all(not t.invalid for t in tasks)
     # each beam pair sees its own level: the granules' 6.6 km of beams span the gradient
-    assert any(len({g for row in t.grain_sections.values() for g in row}) >= 3 for t in tasks)
+    assert any(len({g for row in t.grain_sections.values() for g in row}) >= 2 for t in tasks)
     west_east = sorted(tasks, key=lambda t: json.loads(json.dumps(t.track))["polyline"][0][1])
     assert west_east[0].grain_um < west_east[-1].grain_um
 
@@ -277,6 +277,7 @@ BAD = [
     ("[epochs]\ncycles = []\n", "[epochs] cycles"),
     ("[orbit]\npasses = \"up\"\n", "[orbit] passes"),
     ("[orbit]\ninclination_deg = 200\n", "[orbit] inclination_deg"),
+    ("[orbit]\nnodal_day_s = 86400000\n", "[orbit] nodal_day_s"),
     ("[snow]\ngrain_levels_um = []\n", "[snow] grain_levels_um"),
     ("[snow]\ngrain_levels_um = [1, 2]\n", "[snow] grain_levels_um"),
     ("[snow]\ngrain_um = \"none.tif\"\n", "[snow] grain_um"),
@@ -378,15 +379,104 @@ def test_repeat_orbit_heading_spacing_and_times():
     np.testing.assert_allclose(np.diff(nodes), 360 / 1387, atol=1e-9)
     shift = (o.rgt_node_lon_deg(2) - o.rgt_node_lon_deg(1)) % 360
     assert shift == pytest.approx(360 - 360 * 91 / 1387)
-    assert o.time_s(2, 4, 0.0) - o.time_s(1, 4, 0.0) == pytest.approx(91 * 86400 / 1387)
+    assert o.time_s(2, 4, 0.0) - o.time_s(1, 4, 0.0) == pytest.approx(91 * 86228.458 / 1387)
     assert o.cycle_of(o.cycle_start_s(4) + 1.0) == 4 and o.cycle_of(0.0) == 0
+
+
+#: NASA's reference ground track KML of cycle 14 (ICESat-2 technical specifications,
+#: icesat-2.gsfc.nasa.gov/science/specs), RGT 1's first points, one a minute from 07:57:49 UTC
+#: on 2021-12-22 (as the IceSat2R R package's RGT_cycle_14 data and its "ICESat-2 Mission
+#: Orbits" vignette print them): (latitude, longitude) [deg]
+RGT1_CYCLE14 = [(0.02795893, -0.1318472), (3.868758, -0.5162124), (7.709809, -0.901809),
+                (11.55065, -1.289879), (15.39082, -1.681755), (19.2299, -2.078916),
+                (23.06748, -2.483051), (26.90316, -2.896146), (30.73662, -3.3206),
+                (34.56754, -3.759374)]
+WGS84_E2 = 6.69437999014e-3
+
+
+def _u(o, lat_deg, ascending=True):
+    """The argument of latitude [rad, in [0, 2 pi)] at which the model's track is at
+    ``lat_deg`` (its sphere's latitude taken as geodetic, as the model does)."""
+    a = math.asin(math.sin(math.radians(lat_deg)) / math.sin(math.radians(o.inclination_deg)))
+    return (a if ascending else math.pi - a) % (2 * math.pi)
+
+
+def _lat_error_deg(lat_deg):
+    """How far the model's latitude may be off a geodetic one [deg]: it is the sphere's (a
+    geocentric latitude), which differs from the geodetic by (e^2 / 2) sin(2 lat) rad to first
+    order in WGS84's e^2 (0.19 deg at 45 deg)."""
+    return math.degrees(WGS84_E2 / 2 * abs(math.sin(2 * math.radians(lat_deg))))
+
+
+def test_the_orbit_phase_is_icesat2s_as_published():
+    """RGT 1 of the default orbit runs through NASA's published points of RGT 1 (cycle 14) and
+    passes them at their times, and the real ATL03 granule this package ships names the times
+    at which RGT 235 of cycle 1 entered its granule regions 3, 4 and 5 (its lineage's ATL02
+    files and its own name): the model's node longitude and times are the mission's.
+
+    Tolerances, from what the model leaves out: (a) longitude at a published latitude: the
+    model's latitude is the sphere's, off the geodetic by up to (e^2 / 2) sin(2 lat), which
+    moves the track by that times its slope |dlon/dlat| (the model's own, here), plus 0.002
+    deg for the node's rounding (to 0.001 deg) and the KML's digits. (b) Time at a published
+    latitude: the same latitude error over the model's dlat/dt, plus 1 s (times given to whole
+    seconds: published and the anchors'), plus 5 s for the real orbit's non-uniform motion
+    along a revolution that a circular orbit at a uniform rate leaves out (the frozen orbit's
+    eccentricity, e ~ -J3 / (2 J2) (R / a) sin(i) = 0.0011, advances the satellite by up to
+    2e rad, 2.0 s; J2's short-period terms by ~1.5 J2 (R / a)^2 rad, 1.3 s; and the nodal day's
+    rounding, 0.5 s by cycle 14: together 3.8 s, taken as 5)."""
+    from lidar_mitsuba.geotrack import parse_utc
+    o = tk.RepeatOrbit()
+    assert (o.node_lon_deg, o.cycle1_utc, o.nodal_day_s) == (-0.129, "2018-09-28T16:20:02Z",
+                                                            86228.458)
+    t0 = (parse_utc("2021-12-22T07:57:49Z") - tk.SDP_EPOCH_UTC).total_seconds()
+    rate = 360.0 / o.period_s          # deg of argument of latitude per second
+    for k, (lat, lon) in enumerate(RGT1_CYCLE14):
+        u = _u(o, lat)
+        _, model_lon = o.ground_track(u, 1)
+        du = 1e-4
+        slope = abs(float(np.diff(o.ground_track(np.array([u - du, u + du]), 1)[1])[0])
+                    / float(np.diff(o.ground_track(np.array([u - du, u + du]), 1)[0])[0]))
+        err = _lat_error_deg(lat)
+        assert abs((float(model_lon) - lon + 180) % 360 - 180) <= slope * err + 0.002, (lat, lon)
+        dlat_du = math.sin(math.radians(92.0)) * math.cos(u) / math.cos(math.radians(lat))
+        tol = err / dlat_du / rate + 1.0 + 5.0
+        assert abs(o.time_s(1, 14, u) - (t0 + 60.0 * k)) <= tol, (lat, o.time_s(1, 14, u) - t0)
+    # the old nominal phase (node at 0 deg) misses the first point by 0.13 deg: the check bites
+    assert abs(float(tk.RepeatOrbit(node_lon_deg=0.0).ground_track(_u(o, 0.028), 1)[1])
+               + 0.1318) > 0.1
+    # the granule regions' start times, cycle 1, from the shipped granule's metadata
+    from lidar_mitsuba.twin import REAL_SUBSET
+    with h5py.File(REAL_SUBSET, "r") as f:
+        lineage = f["METADATA/Lineage/ATL02"].attrs["fileName"]
+        names = [n.decode() for n in lineage] + [
+            f["METADATA/DatasetIdentification"].attrs["fileName"].decode()]
+        begin = f["METADATA/Extent"].attrs["rangeBeginningDateTime"].decode()
+    boundary = {3: (59.5, True), 4: (80.0, True), 5: (80.0, False)}   # ATL03's regions
+    seen = set()
+    for name in names:
+        fields = tk.parse_product_name(name)
+        assert (fields["rgt"], fields["cycle"]) == (235, 1)
+        lat, asc = boundary[fields["region"]]
+        stamp = fields["date"] + fields["time"]
+        t = (parse_utc(f"{stamp[:4]}-{stamp[4:6]}-{stamp[6:8]}T{stamp[8:10]}:{stamp[10:12]}:"
+                       f"{stamp[12:]}Z") - tk.SDP_EPOCH_UTC).total_seconds()
+        if name.startswith("ATL03"):
+            assert begin.startswith(f"{stamp[:4]}-{stamp[4:6]}-{stamp[6:8]}T{stamp[8:10]}")
+        u = _u(o, lat, asc)
+        dlat_du = abs(math.sin(math.radians(92.0)) * math.cos(u) / math.cos(math.radians(lat)))
+        tol = _lat_error_deg(lat) / dlat_du / rate + 1.0 + 5.0
+        assert abs(o.time_s(235, 1, u) - t) <= tol, (name, o.time_s(235, 1, u) - t, tol)
+        seen.add(fields["region"])
+    assert seen == {3, 4, 5}
+    assert o.cycle_of((parse_utc("2018-10-14T00:24:44Z") - tk.SDP_EPOCH_UTC)
+                      .total_seconds()) == 1
 
 
 def test_crossings_keep_every_beam_over_the_dem(spec_path, serial):
     from lidar_mitsuba.geotrack import beam_layout, select_beams
     dem = dems.DEM.open(spec_path.with_name("dem.tif"))
     cs = tk.crossings(dem, tk.RepeatOrbit(), beams=select_beams("gt1l,gt1r"), margin_m=130)
-    assert [(c.rgt, c.ascending) for c in cs] == [(414, True), (1359, True), (864, False),
+    assert [(c.rgt, c.ascending) for c in cs] == [(414, True), (856, True), (864, False),
                                                   (1306, False)]
     for c in cs:
         h = tk.RepeatOrbit().heading_at_u_deg(c.u_rad)
@@ -470,8 +560,136 @@ def test_grain_size_is_resolved_per_beam_and_section(spec_path, serial):
     for t in tasks:
         bounds = section_bounds(t.shots, spacing_m=0.7,
                                 section_shots=campaign.load_spec(spec_path).run["section_shots"])
+        assert t.section_bounds == tuple(map(tuple, bounds)) and t.shot_spacing_m == 0.7
         assert set(t.grain_sections) == {"gt1l", "gt1r"}
         assert all(len(row) == len(bounds) for row in t.grain_sections.values())
         mine = seg[seg["task_index"] == t.task_index]
         for beam, row in t.grain_sections.items():
             assert set(mine.loc[mine["beam"] == beam, "grain_um"]) <= set(row)
+
+
+def _step_raster(path, like, task, table, posting_m=10.0):
+    """A raster over the DEM ``like`` stepping across ``task``'s track between its two beams
+    and along it at its first section boundary: ``table[across][along]`` (across 0: gt1l's
+    side, along 0: the first section's), constant on each side of the two lines through the
+    beams' midpoint at the boundary shot (along the track's chord and square to it)."""
+    from pyproj import Transformer
+
+    from lidar_mitsuba.geotrack import GeoTrack, beam_shots, select_beams
+    dem = dems.DEM.open(like)
+    to_crs = Transformer.from_crs("EPSG:4326", dem.crs, always_xy=True)
+    g = GeoTrack(**{**task.track, "polyline": tuple(map(tuple, task.track["polyline"]))})
+    lat, lon, az, _ = g.shots(task.shots, spacing_m=task.shot_spacing_m)
+    f = task.section_bounds[1][0]
+    xy = {}
+    for b in select_beams("gt1l,gt1r"):
+        blat, blon = beam_shots(lat, lon, az, b)
+        xy[b.name] = np.array(to_crs.transform(blon, blat))            # (2, shots)
+    p0 = 0.5 * (xy["gt1l"][:, f] + xy["gt1r"][:, f])
+    d = xy["gt1l"][:, -1] - xy["gt1l"][:, 0]
+    d /= np.hypot(*d)
+    n = np.array([-d[1], d[0]])
+    n *= np.sign(np.dot(xy["gt1r"][:, f] - p0, n))          # gt1r on the + side
+    x0, x1, y0, y1 = dem.bounds_m
+    nx, ny = int((x1 - x0) // posting_m), int((y1 - y0) // posting_m)
+    X, Y = np.meshgrid(x0 + (np.arange(nx) + 0.5) * posting_m,
+                       y1 - (np.arange(ny) + 0.5) * posting_m)
+    across = (X - p0[0]) * n[0] + (Y - p0[1]) * n[1] > 0
+    along = (X - p0[0]) * d[0] + (Y - p0[1]) * d[1] > 0
+    z = np.asarray(table, np.float64)[across.astype(int), along.astype(int)]
+    return dems.write_geotiff(path, z, x0_m=x0, y1_m=y1, posting_m=posting_m,
+                              crs=dem.crs.to_string())
+
+
+def test_density_and_roughness_are_resolved_per_beam_and_section(spec_path, monkeypatch,
+                                                                  tmp_path):
+    """A density raster with a step between the two beams and another along the track (four
+    levels, one per beam and section) and a roughness raster stepping along the track: each
+    beam's section is planned with its own snow density and roughness (a plan per section,
+    seen by a spy on the planner), one kernel table per (grain, density) pair is built, and
+    the segment table's density_kg_m3 and roughness_relief_m are each segment's own."""
+    first = campaign.expand(spec_path)[0]
+    d = spec_path.parent
+    dens = _step_raster(d / "density_steps.tif", d / "dem.tif", first, [[200, 300], [400, 500]])
+    rough = _step_raster(d / "rough_steps.tif", d / "dem.tif", first, [[0.0, 2.0], [0.0, 2.0]])
+    poly = json.dumps([list(p) for p in first.track["polyline"]])
+    spec = d / "steps.toml"
+    spec.write_text(SPEC.replace('name = "tiny"', 'name = "steps"')
+                    .replace("[orbit]\npasses = \"both\"\n",
+                             f"[[tracks]]\npolyline = {poly}\nrgt = {first.rgt}\n")
+                    .replace('grain_um = "grain.tif"\ngrain_levels_um = [150, 1000]',
+                             f'grain_um = 150\ndensity_kg_m3 = "{dens.name}"\n'
+                             'density_levels_kg_m3 = [200, 300, 400, 500]')
+                    + f'\n[surface]\nroughness_relief_m = "{rough.name}"\n'
+                      'roughness_levels_m = [0, 2]\n')
+    (task,) = campaign.expand(spec)
+    assert task.section_bounds == first.section_bounds and len(task.section_bounds) == 2
+    assert task.density_sections == {"gt1l": [200.0, 300.0], "gt1r": [400.0, 500.0]}
+    assert task.roughness_sections == {"gt1l": [0.0, 2.0], "gt1r": [0.0, 2.0]}
+    assert task.grain_sections is None and task.grain_um == 150.0
+    # one kernel table per (grain, density) pair (the parent's; counted, not built: the run
+    # below walks the snow, as four tables would take a minute)
+    built = []
+    from lidar_mitsuba.ground.snow import kernel
+    with monkeypatch.context() as m:
+        m.setattr(kernel, "table", lambda snow, **kw: built.append(
+            (snow.grain_radius_um, snow.density_kg_m3)))
+        assert campaign.build_kernels([task], campaign.load_spec(spec)) == 4
+    assert built == [(150.0, 200.0), (150.0, 300.0), (150.0, 400.0), (150.0, 500.0)]
+    spec.write_text(spec.read_text().replace("[snow]\n", '[snow]\nmodel = "walk"\n'))
+    (walked,) = campaign.expand(spec)
+    assert walked.density_sections == task.density_sections
+    from lidar_mitsuba import planning
+    planned, real_plan = [], planning.plan
+
+    def spy(**kw):
+        r = kw["surface"].roughness
+        planned.append((kw["track"].info["beam"], kw["track"].info["first_shot"],
+                        kw["snow"].density_kg_m3, 0.0 if r is None else r.relief_m))
+        return real_plan(**kw)
+    monkeypatch.setattr(planning, "plan", spy)
+    res = campaign.run(spec, out=tmp_path / "out", workers=0, plot=False)
+    assert res.failed == 0
+    f = task.section_bounds[1][0]
+    assert sorted(planned) == [("gt1l", 0, 200.0, 0.0), ("gt1l", f, 300.0, 2.0),
+                               ("gt1r", 0, 400.0, 0.0), ("gt1r", f, 500.0, 2.0)]
+    seg = res.segments
+    sec = (seg["x_atc"] / task.shot_spacing_m).astype(int) >= f
+    for beam in ("gt1l", "gt1r"):
+        for k in (0, 1):
+            mine = seg[(seg["beam"] == beam) & (sec == bool(k))]
+            assert len(mine) >= 4
+            assert set(mine["density_kg_m3"]) == {task.density_sections[beam][k]}
+            assert set(mine["roughness_relief_m"]) == {task.roughness_sections[beam][k]}
+    assert np.isfinite(seg["density_kg_m3_raster"]).all()
+
+
+def test_uniform_sections_keep_one_value_per_granule(spec_path):
+    """A density or roughness raster whose level is the same in every beam's section leaves
+    the task as with one value (no sections, the same task id and seeds): a constant raster
+    gives the table of its number."""
+    d = spec_path.parent
+    const = rasters.gradient_raster(d / "density_const.tif", like=d / "dem.tif", start=300,
+                                    stop=300, posting_m=400)
+    number = spec_path.with_name("number.toml")
+    number.write_text(SPEC.replace("grain_levels_um = [150, 1000]",
+                                   "grain_levels_um = [150, 1000]\ndensity_kg_m3 = 300"))
+    raster = spec_path.with_name("raster.toml")
+    raster.write_text(SPEC.replace("grain_levels_um = [150, 1000]",
+                                   f'grain_levels_um = [150, 1000]\ndensity_kg_m3 = '
+                                   f'"{const.name}"\ndensity_levels_kg_m3 = [200, 300]'))
+    a, b = campaign.expand(number), campaign.expand(raster)
+    assert [t.task_id for t in a] == [t.task_id for t in b]
+    assert all(t.density_sections is None and t.density_kg_m3 == 300.0 for t in b)
+
+
+def test_segments_are_labelled_by_the_task_s_section_bounds():
+    """The worker labels each segment with the section the task says the granule streamed
+    (its bounds and shot spacing), not with bounds of its own: here shots 0.5 m apart and a
+    second section from shot 100 (50 m)."""
+    from lidar_mitsuba.campaign.granules import _section_values
+    p = {"section_bounds": ((0, 100), (100, 250)), "shot_spacing_m": 0.5}
+    seg = {"x_atc": np.array([20.0, 49.9, 50.0, 60.0, 120.0, np.nan]),
+           "beam": np.array(["gt1l", "gt1r", "gt1l", "gt1r", "gt1l", "gt1r"], object)}
+    got = _section_values(seg, p, {"gt1l": [1.0, 2.0], "gt1r": [3.0, 4.0]})
+    np.testing.assert_array_equal(got, [1.0, 3.0, 2.0, 4.0, 2.0, 3.0])

@@ -41,7 +41,7 @@ ELSEWHERE = {
     ("sweep", None): "tests/test_sweep.py::test_cli_runs_resumes_and_plots",
     ("validate", None): "tests/test_docs.py::test_validate_command_runs_the_study",
     ("make-raster", None): "tests/test_campaign.py::"
-                           "test_the_demo_spec_flies_eight_tracks_of_six_beams_over_a_grain_gradient",
+                           "test_the_demo_spec_flies_seven_tracks_of_six_beams_over_a_grain_gradient",
     ("campaign", None): "tests/test_campaign.py::test_a_killed_campaign_resumes_to_the_same_table",
 }
 

@@ -37,8 +37,9 @@ lidar_mitsuba and the spec's files at the same paths, and ``DIR`` on a shared fi
 
     [orbit]                   # the repeat-orbit tracks crossing each DEM
     passes = "both"           # ascending, descending
-    # inclination_deg = 92, rgts = 1387, days = 91, node_lon_deg = 0,
-    # cycle1_utc = "2018-10-13T00:00:00Z", min_length_km = 1
+    # inclination_deg = 92, rgts = 1387, days = 91, node_lon_deg = -0.129,
+    # cycle1_utc = "2018-09-28T16:20:02Z", nodal_day_s = 86228.458 (ICESat-2's, as published:
+    # campaign/tracks.py), min_length_km = 1
 
     [[tracks]]                # tracks of your own (any number), each one of:
     start = [69.97, -45.0]    #   a start [lat, lon] and azimuth_deg (a geodesic),
@@ -64,17 +65,21 @@ seed, task_id])`` and its roughness tile's from a stream of its own: neither dep
 or in what order granules run, so the tables are the same on 0, 1 or many workers, to the bit.
 
 **Surface properties from rasters** (:mod:`.rasters`): a grain-size (density, roughness)
-GeoTIFF is read by window along each granule's footprints (all its beams, every 20 m). Grain
-size is resolved per beam and granule section (``Task.grain_sections``: the median over the
-beam's footprints in the section, snapped to the nearest level of the spec; a section whose
-level changes is planned anew); density and roughness per granule (the median over every
-beam). One snow kernel table per level is built here before any task is sent, into the
-kernel cache the workers read (``kernel_cache``), so a table is built once per campaign
-level, not per granule. *Resolution*: a 40 m ATL06 segment sees its beam's level over its
-section (``[run] section_shots`` shots along track), whatever the raster's pixels; the
-segment table keeps the raster's own value at each segment (``grain_um_raster``) beside the
-one simulated (``grain_um``), so the difference is visible. Shorter sections, or a finer
-grain of levels, resolve the field better.
+GeoTIFF is read by window along each granule's footprints (all its beams, every 20 m). Each is
+resolved per beam and granule section (``Task.grain_sections``, ``density_sections``,
+``roughness_sections``: the median over the beam's footprints in the section, snapped to the
+nearest level of the spec); a section's snow is its (grain, density) pair's, its roughness the
+granule's tile at its level's relief, and a section whose snow or roughness changes is planned
+anew. A density or roughness raster with the granule's level in every section leaves the task
+as that one number would (no sections; the same task id and seeds). One snow kernel table per
+(grain, density) pair is built here before any task is sent, into the kernel cache the workers
+read (``kernel_cache``), so a table is built once per campaign pair, not per granule. The
+section bounds go to the worker with the task (``Task.section_bounds``), which labels each
+segment with its section's levels. *Resolution*: a 40 m ATL06 segment sees its beam's levels
+over its section (``[run] section_shots`` shots along track), whatever the raster's pixels; the
+segment table keeps the raster's own value at each segment (``*_raster``) beside the one
+simulated, so the difference is visible. Shorter sections, or a finer grain of levels, resolve
+the field better.
 
 **Outputs** (``out``): ``granules/ATL03_[yyyymmdd][hhmmss]_[ttttccss]_[vvv]_[rr].h5`` and
 ``ATL06_...``, as ICESat-2 names them (:func:`.tracks.product_name`; ``orbit_info/rgt`` and
@@ -171,16 +176,19 @@ def _kernel_root(spec: CampaignSpec) -> str:
 
 def build_kernels(tasks: list[Task], spec: CampaignSpec, *, progress: bool = False,
                   log=None) -> int:
-    """Build (or find) the snow kernel table of every snow level the tasks use, in the kernel
-    cache the workers read; returns how many levels."""
+    """Build (or find) the snow kernel table of every (grain, density) pair the tasks'
+    sections use, in the kernel cache the workers read; returns how many pairs."""
     if spec.snow_model == "walk":
         return 0
     from ..ground.snow import kernel
-    from .granules import _kernel_cache
-    levels = sorted({(g, t.density_kg_m3) for t in tasks
-                     if not t.invalid and t.grain_um is not None
-                     for g in ([t.grain_um] if not t.grain_sections else
-                               [g for row in t.grain_sections.values() for g in row])})
+    from .granules import _kernel_cache, snow_pairs
+    levels = set()
+    for t in tasks:
+        if t.invalid or t.grain_um is None:
+            continue
+        pairs = snow_pairs(t.grain_um, t.density_kg_m3, t.grain_sections, t.density_sections)
+        levels |= set(pairs.values()) if pairs else {(t.grain_um, t.density_kg_m3)}
+    levels = sorted(levels, key=lambda gd: (gd[0], -1.0 if gd[1] is None else gd[1]))
     with _kernel_cache(_kernel_root(spec)):
         for g, d in levels:
             (log or (lambda m: None))(f"snow kernel table: grains {g:g} um"

@@ -38,9 +38,11 @@ SEGMENT_COLUMNS: dict[str, str] = {
     "grain_um": "snow grain radius simulated at the segment: its beam's level in its "
                 "section [um] (NaN: no snow)",
     "grain_um_raster": "the grain-size raster at the segment centre [um] (NaN: no raster)",
-    "density_kg_m3": "snow density simulated [kg/m^3] (NaN: no snow)",
+    "density_kg_m3": "snow density simulated at the segment: its beam's level in its section "
+                     "with a raster [kg/m^3] (NaN: snow_from_grains' default, or no snow)",
     "density_kg_m3_raster": "the density raster at the segment centre",
-    "roughness_relief_m": "roughness relief simulated [m] (NaN: none)",
+    "roughness_relief_m": "roughness relief simulated at the segment: its beam's level in its "
+                          "section with a raster [m] (NaN: none)",
     "roughness_relief_m_raster": "the roughness raster at the segment centre [m]",
 }
 #: task rows' columns
@@ -52,8 +54,11 @@ ROW_COLUMNS: dict[str, str] = {
     "dem": "DEM file", "shots": "shots per beam", "seed": "photon seed",
     "grain_um": "the granule's snow grain radius level, its median over every beam [um] "
                 "(None: no snow; each beam's section has its own: the segments' grain_um)",
-    "density_kg_m3": "snow density simulated [kg/m^3] (None: snow_from_grains' default)",
-    "roughness_relief_m": "roughness relief simulated [m] (None or 0: none)",
+    "density_kg_m3": "the granule's snow density level, its median over every beam [kg/m^3] "
+                     "(None: snow_from_grains' default; with a raster each beam's section may "
+                     "have its own: the segments' density_kg_m3)",
+    "roughness_relief_m": "the granule's roughness relief level, its median over every beam "
+                          "[m] (None or 0: none; likewise per section: the segments')",
     "medians_json": "raster medians along the granule before binning (JSON)",
     "status": "'ok' or 'failed'", "error": "one-line error of a failed task",
     "photons": "signal photons, all beams", "n_segments": "ATL06 segments, all beams",
@@ -67,6 +72,10 @@ ROW_COLUMNS: dict[str, str] = {
     "lidar_mitsuba_version": "versions of the worker's packages", "mitsuba_version": "",
     "drjit_version": "", "track_json": "the track (GeoTrack fields, JSON)",
 }
+#: the properties a raster resolves per beam and granule section, and the task's field of
+#: their levels (``{beam: [level per section]}``, :class:`.tasks.Task`)
+SECTIONED = {"grain_um": "grain_sections", "density_kg_m3": "density_sections",
+             "roughness_relief_m": "roughness_sections"}
 RUN_DEPENDENT = ("task_s", "started_at", "finished_at", "worker")
 _FLOAT32_FILL = float(np.finfo(np.float32).max)
 
@@ -147,15 +156,28 @@ def snow_volume(grain_um, density_kg_m3):
     return snow_from_grains(grain_radius_um=float(grain_um), **kw)
 
 
-def _surface(p: dict):
-    from ..ground.dem import DEM, DEMSurface, roughness
+def _roughness_tile(p: dict, dem, relief):
+    """The granule's roughness heightfield of ``relief`` [m] (None or 0: none), from the
+    task's roughness seed: each relief the same tile, scaled."""
+    from ..ground.dem import roughness
+    if not relief:
+        return None
+    return roughness(p=p["roughness_p"], relief_m=float(relief), posting_m=dem.posting_m,
+                     seed=p["roughness_seed"])
+
+
+def _surface(p: dict) -> tuple[object, dict]:
+    """The granule's :class:`~lidar_mitsuba.ground.dem.DEMSurface` and ``stream_granule``'s
+    roughness option: none (the granule's roughness on the surface), or with
+    ``roughness_sections`` the DEM alone and ``roughness(beam, k)`` giving each beam's
+    section its level's heightfield (one per level)."""
+    from ..ground.dem import DEM, DEMSurface
     dem = DEM.open(p["dem"])
-    relief = p.get("roughness_relief_m")
-    rough = None
-    if relief:                                        # None or 0: the DEM alone
-        rough = roughness(p=p["roughness_p"], relief_m=float(relief), posting_m=dem.posting_m,
-                          seed=p["roughness_seed"])
-    return DEMSurface(dem, roughness=rough)
+    levels = p.get("roughness_sections")
+    if not levels:
+        return DEMSurface(dem, roughness=_roughness_tile(p, dem, p.get("roughness_relief_m"))), {}
+    tiles = {r: _roughness_tile(p, dem, r) for row in levels.values() for r in row}
+    return DEMSurface(dem), {"roughness": lambda beam, k: tiles[levels[beam.name][k]]}
 
 
 def simulate(p: dict) -> tuple[dict, int, pathlib.Path, pathlib.Path]:
@@ -170,11 +192,12 @@ def simulate(p: dict) -> tuple[dict, int, pathlib.Path, pathlib.Path]:
     track = dict(p["track"])
     if track.get("polyline") is not None:
         track["polyline"] = tuple(map(tuple, track["polyline"]))
-    kw = _snow(p)
+    surface, kw = _surface(p)
+    kw.update(_snow(p))
     run = p["run"]
     try:
         summaries = stream_granule(
-            surface=_surface(p), track=GeoTrack(**track), shots=p["shots"],
+            surface=surface, track=GeoTrack(**track), shots=p["shots"],
             atl03_path=tmp[0], atl06_path=tmp[1], beams=p["beams"], sc_orient=p["sc_orient"],
             instrument_options=p["instrument_options"], instrument=p["instrument"],
             seed=p["seed"], paths_per_shot=run["paths_per_shot"], max_depth=run["max_depth"],
@@ -203,37 +226,48 @@ def _with_properties(seg: dict, p: dict) -> dict:
     for k in ("grain_um", "density_kg_m3", "roughness_relief_m"):
         v = p.get(k)
         out[k] = np.full(n, math.nan if v is None else float(v))
-        if k == "grain_um" and p.get("grain_sections") and n:    # the segment's section's
-            out[k] = _section_values(seg, p)
+        levels = p.get(SECTIONED[k])
+        if levels and n:                   # each segment's: its beam's level in its section
+            out[k] = _section_values(seg, p, levels)
         raster = p["rasters"].get(k)
         out[f"{k}_raster"] = (PropertyRaster(raster).at(seg["latitude"], seg["longitude"])
                               if raster and n else np.full(n, math.nan))
     return out
 
 
-def _section_values(seg: dict, p: dict) -> np.ndarray:
-    """(n,) the grain size each segment's photons were simulated with: its beam's level in
-    the section holding the segment's centre (the sections of ``p["run"]["section_shots"]``
-    shots, :func:`lidar_mitsuba.granule.section_bounds`)."""
-    from ..granule import section_bounds
-    from ..instrument import Instrument
-    spacing = p["instrument_options"].get("shot_spacing_m", Instrument().shot_spacing_m)
-    bounds = section_bounds(p["shots"], spacing_m=spacing,
-                            section_shots=p["run"]["section_shots"])
-    shot = np.nan_to_num(seg["x_atc"] / spacing).astype(np.int64)
-    k = np.clip(np.searchsorted([a for a, _ in bounds], shot, side="right") - 1, 0,
-                len(bounds) - 1)
-    levels = p["grain_sections"]
+def _section_values(seg: dict, p: dict, levels: dict) -> np.ndarray:
+    """(n,) a property's value each segment's photons were simulated with: its beam's level
+    (``levels``: ``{beam: [level per section]}``) in the section holding the segment's
+    centre (the task's ``section_bounds``, shots ``shot_spacing_m`` apart: those the granule
+    streamed)."""
+    firsts = [a for a, _ in p["section_bounds"]]
+    shot = np.nan_to_num(seg["x_atc"] / p["shot_spacing_m"]).astype(np.int64)
+    k = np.clip(np.searchsorted(firsts, shot, side="right") - 1, 0, len(firsts) - 1)
     return np.array([levels[b][j] for b, j in zip(seg["beam"], k)], np.float64)
+
+
+def snow_pairs(grain_um, density_kg_m3, grain_sections=None,
+               density_sections=None) -> dict[tuple[str, int], tuple]:
+    """``{(beam, section): (grain level, density level)}`` of a task with per-section levels
+    (the granule's value where a property has none), ``{}`` without: each distinct pair is one
+    :class:`~lidar_mitsuba.ground.snow.SnowVolume` and one kernel table."""
+    if grain_um is None or not (grain_sections or density_sections):
+        return {}
+    rows = grain_sections or density_sections
+    return {(b, j): (grain_sections[b][j] if grain_sections else grain_um,
+                     density_sections[b][j] if density_sections else density_kg_m3)
+            for b, row in rows.items() for j in range(len(row))}
 
 
 def _snow(p: dict) -> dict:
     """``stream_granule``'s snow options: one snow for the granule, or each beam's per
-    section (``grain_sections``), one :class:`SnowVolume` per level."""
-    if p.get("grain_sections"):
-        volumes = {g: snow_volume(g, p.get("density_kg_m3"))
-                   for row in p["grain_sections"].values() for g in row}
-        return {"snow": lambda beam, k: volumes[p["grain_sections"][beam.name][k]],
+    section (``grain_sections``, ``density_sections``), one :class:`SnowVolume` per
+    (grain, density) pair."""
+    pairs = snow_pairs(p.get("grain_um"), p.get("density_kg_m3"), p.get("grain_sections"),
+                       p.get("density_sections"))
+    if pairs:
+        volumes = {gd: snow_volume(*gd) for gd in set(pairs.values())}
+        return {"snow": lambda beam, k: volumes[pairs[beam.name, k]],
                 "snow_model": p["snow_model"]}
     snow = snow_volume(p.get("grain_um"), p.get("density_kg_m3"))
     return {} if snow is None else {"snow": snow, "snow_model": p["snow_model"]}

@@ -7,10 +7,12 @@ reads it: the same windowed reads as a DEM's heights, one window per block of po
 task reads only the window under its own track). Values are bilinear between pixel centres;
 nodata and points off the raster are NaN.
 
-**Binning** (:func:`snap`): a granule is simulated with one value of each property, the median
-of the raster over the granule's footprints (every beam, every :data:`SAMPLE_M` along track)
-snapped to the nearest of the spec's levels. The snow's subsurface kernel is tabulated once
-per level (:mod:`lidar_mitsuba.ground.snow.kernel`), not once per granule.
+**Binning** (:func:`snap`, :func:`section_levels`): each beam's granule section is simulated
+with one value of each property, the median of the raster over the section's footprints of
+that beam (every :data:`SAMPLE_M` along track) snapped to the nearest of the spec's levels; the
+granule's value is the median over every beam's footprints. The snow's subsurface kernel is
+tabulated once per (grain, density) pair of levels (:mod:`lidar_mitsuba.ground.snow.kernel`),
+not once per granule.
 """
 from __future__ import annotations
 

@@ -20,7 +20,7 @@ _KEYS = {
     "run": ("shots", "max_depth", "paths_per_shot", "section_shots"),
     "epochs": ("cycles", "dates"),
     "orbit": ("passes", "inclination_deg", "rgts", "days", "node_lon_deg", "cycle1_utc",
-              "min_length_km"),
+              "nodal_day_s", "min_length_km"),
     "tracks": ("start", "azimuth_deg", "polyline", "file", "rgt", "epoch_utc", "dem"),
     "surface": ("roughness_relief_m", "roughness_levels_m", "roughness_p"),
     "snow": ("grain_um", "grain_levels_um", "density_kg_m3", "density_levels_kg_m3", "model"),
@@ -239,8 +239,8 @@ def _orbit(doc: dict) -> dict:
     passes = t.get("passes", "both")
     if passes not in PASSES:
         raise SpecError("[orbit] passes", f"must be one of {', '.join(PASSES)} (got {passes!r})")
-    kw = {k: t[k] for k in ("inclination_deg", "rgts", "days", "node_lon_deg", "cycle1_utc")
-          if k in t}
+    kw = {k: t[k] for k in ("inclination_deg", "rgts", "days", "node_lon_deg", "cycle1_utc",
+                            "nodal_day_s") if k in t}
     try:
         orbit = RepeatOrbit(**kw)
     except (ParameterError, TypeError) as e:

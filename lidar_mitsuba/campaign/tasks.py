@@ -13,6 +13,7 @@ import numpy as np
 
 from ..sweep.spec import SpecError
 from . import rasters as rs, tracks as tk
+from .granules import SECTIONED
 from .spec import CampaignSpec, Property, load_spec
 
 _TERRAIN_STREAM = 0x54455252        # 'TERR': roughness seeds apart from photon seeds
@@ -35,6 +36,13 @@ class Task:
         grain_um, density_kg_m3, roughness_relief_m: the granule's values (None: none).
         grain_sections: with a grain-size raster, each beam's level per granule section
             (``{beam: [level, ...]}``: what its photons see; ``grain_um`` is the granule's).
+        density_sections, roughness_sections: likewise with a density (roughness) raster,
+            where some beam's section has a level other than the granule's (None where every
+            one has the granule's: the granule is then run, and named, as with one value).
+        section_bounds: the granule sections' ``[(first, stop), ...]`` shots (every beam's:
+            :func:`lidar_mitsuba.granule.section_bounds`, as the granule streams them);
+            shot_spacing_m: the shots' spacing along track [m]. A segment at ``x_atc`` is in
+            the section holding shot ``floor(x_atc / shot_spacing_m)``.
         medians: each raster property's median along the granule before binning.
         invalid: why the task cannot run ('' when it can): recorded, not run.
     """
@@ -56,6 +64,10 @@ class Task:
     medians: dict
     invalid: str = ""
     grain_sections: dict | None = None
+    density_sections: dict | None = None
+    roughness_sections: dict | None = None
+    section_bounds: tuple = ()
+    shot_spacing_m: float = 0.7
 
 
 def _instrument(spec: CampaignSpec):
@@ -148,7 +160,9 @@ def _value(prop: Property | None, values) -> tuple[float | None, float | None]:
 
 def _properties(spec: CampaignSpec, g, beams, shots, inst, opened: dict) -> tuple[dict, str]:
     """The granule's ``{grain_um, density_kg_m3, roughness_relief_m}`` used, their raster
-    medians, each beam's grain level per section, and why it cannot run ('' if it can)."""
+    medians, each beam's level of each raster property per section (``*_sections``; density
+    and roughness only where some section's level is not the granule's), the sections' shots
+    (``section_bounds``), and why the task cannot run ('' if it can)."""
     props = {"grain_um": spec.grain, "density_kg_m3": spec.density,
              "roughness_relief_m": spec.roughness}
     need = {k: p for k, p in props.items() if p is not None and p.raster is not None}
@@ -166,15 +180,20 @@ def _properties(spec: CampaignSpec, g, beams, shots, inst, opened: dict) -> tupl
             medians[k] = m
         if used[k] is not None and not math.isfinite(used[k]) and not why:
             why = f"the {k} raster has no value along the track ({p.raster})"
-    sections = None
-    if "grain_um" in need and not why:    # what each beam's photons see, section by section
-        from ..granule import section_bounds
-        bounds = section_bounds(shots, spacing_m=inst.shot_spacing_m,
-                                section_shots=spec.run["section_shots"])
-        sections = rs.section_levels(values["grain_um"], shot, beams=beams,
-                                     levels=spec.grain.levels, bounds=bounds,
-                                     fallback=used["grain_um"])
-    return {**used, "medians": medians, "grain_sections": sections}, why
+    from ..granule import section_bounds
+    bounds = section_bounds(shots, spacing_m=inst.shot_spacing_m,
+                            section_shots=spec.run["section_shots"])
+    sections = dict.fromkeys(SECTIONED.values())
+    for k, p in need.items():       # what each beam's photons see, section by section
+        if why:
+            break
+        levels = rs.section_levels(values[k], shot, beams=beams, levels=p.levels,
+                                   bounds=bounds, fallback=used[k])
+        if k == "grain_um" or any(v != used[k] for row in levels.values() for v in row):
+            sections[SECTIONED[k]] = levels
+    return {**used, "medians": medians, **sections,
+            "section_bounds": tuple(map(tuple, bounds)),
+            "shot_spacing_m": float(inst.shot_spacing_m)}, why
 
 
 def task_id(doc: dict) -> str:
@@ -219,19 +238,23 @@ def _task(spec, index, dem_path, base, track, rgt, asc, shots, t_s, cycle, regio
     track = {**track, "epoch_utc": tk.utc_text(t_s)}
     name = tk.product_name("ATLxx", t_s=t_s, rgt=rgt, cycle=cycle, region=region,
                            version=spec.version, revision=spec.revision)[6:-3]
-    used = {k: v for k, v in props.items() if k not in ("medians", "grain_sections")}
+    used = {k: props[k] for k in SECTIONED}
+    sections = {f: props[f] for f in SECTIONED.values()}
+    # (density's and roughness's sections name the task only where they vary: a campaign of
+    # one value per granule keeps its task ids, and so its seeds)
     doc = {"seed": spec.seed, "dem": os.path.relpath(dem_path, base), "track": track,
            "rgt": rgt, "cycle": cycle, "shots": shots, "beams": spec.beams,
            "sc_orient": spec.sc_orient, "instrument": spec.instrument,
            "options": spec.instrument_options, "run": spec.run, "snow_model": spec.snow_model,
            "roughness_p": spec.roughness_p, "name": name, **used,
-           "grain_sections": props["grain_sections"]}
+           **{f: v for f, v in sections.items() if v is not None or f == "grain_sections"}}
     tid = task_id(doc)
     seed, rough = _seeds(spec.seed, tid)
     return Task(task_id=tid, task_index=index, granule=name, rgt=int(rgt), cycle=int(cycle),
                 region=int(region), ascending=bool(asc), dem=dem_path, track=track,
                 shots=int(shots), seed=seed, roughness_seed=rough, medians=props["medians"],
-                invalid=why, grain_sections=props["grain_sections"], **used)
+                invalid=why, section_bounds=props["section_bounds"],
+                shot_spacing_m=props["shot_spacing_m"], **sections, **used)
 
 
 def _unique(names: dict, t: Task) -> None:

@@ -25,13 +25,33 @@ Clairaut's relation for the great circle, ``sin(heading) = cos(i) / cos(lat)``. 
 equator ``360 q`` deg = 23.6 deg apart, and the 1387 RGTs' ascending nodes fill a grid of
 ``360 / 1387`` deg (0.26 deg, 28.9 km at the equator, 9.9 km at 70 N): RGT ``k`` has its node at
 ``node_lon_deg - (k - 1) 360 q`` and passes it ``(k - 1) * period`` after its cycle began; cycle
-``c`` begins ``(c - 1) * days`` after ``cycle1_utc``.
+``c`` begins ``(c - 1) * days`` nodal days after ``cycle1_utc``. A nodal day is the Earth's turn
+relative to the orbit's node, which precesses (J2; +0.27 deg/day at 92 deg): 86 228.46 s, so a
+cycle is 90.819 days and a revolution (the period) 5 657.38 s.
 
 The sphere's latitudes are used as geodetic ones and the orbit's nodal precession is folded
 into ``q``: the geometry (headings, spacing, which tracks cross an area) is right to about a
-tenth of a degree of heading; the phase (which longitude RGT 1 crosses the equator at, when
-cycle 1 began) is a parameter, nominal by default, so RGT numbers are the mission's only when
-``node_lon_deg`` and ``cycle1_utc`` are set to its own.
+tenth of a degree of heading, and a track's longitude at a latitude to 0.02 deg at 35 deg (the
+sphere's latitude is off the ellipsoid's by up to 0.19 deg; ``tests/test_campaign.py``).
+
+**The phase** is ICESat-2's by default, from what NASA publishes:
+
+- ``node_lon_deg`` = -0.129 deg, RGT 1's ascending node: NASA's reference ground track KML of
+  cycle 14 (ICESat-2 technical specifications, https://icesat-2.gsfc.nasa.gov/science/specs;
+  tabulated as the ``RGT_cycle_14`` data of the IceSat2R R package, whose "ICESat-2 Mission
+  Orbits" vignette prints RGT 1's first points) puts RGT 1 at 0.02796 N, 0.13185 W on
+  2021-12-22 07:57:49 UTC, going north; back along the track to the equator, 0.129 W, 0.44 s
+  earlier.
+- ``nodal_day_s`` = 86 228.46 s and ``cycle1_utc`` = 2018-09-28T16:20:02Z: the time between
+  that node passage (RGT 1, cycle 14) and RGT 225's of cycle 1, 2018-10-13T08:20:56Z (the start
+  of its granule region 1, the ascending node: ``ANC41_20181013082056_02250101`` in the
+  lineage of the real ATL03 granule this package ships, ``lidar_mitsuba/data``), is 13 cycles
+  less 224 revolutions: a cycle of 91 nodal days of 86 228.46 s; cycle 1 began with RGT 1's
+  node passage 224 revolutions before RGT 225's. The model runs through the KML's points of
+  RGT 1 to 0.018 deg of longitude (up to 35 N) and one minute apart to 2.4 s; the granule's
+  own name (``ATL03_20181014002445_02350104``: RGT 235, region 4 from 00:24:44.6) and its ATL02
+  inputs' (regions 3 and 5) begin within 6 s of when the model enters those regions
+  (``tests/test_campaign.py``, with the tolerances the model's simplifications allow).
 
 **Names** (:func:`product_name`): ``ATL03_[yyyymmdd][hhmmss]_[tttt][cc][ss]_[vvv]_[rr].h5`` as
 ICESat-2 names its granules: the first shot's UTC time, the RGT (4 digits), the cycle (2), the
@@ -53,12 +73,15 @@ import numpy as np
 from ..constants import check
 from ..geotrack import SDP_EPOCH_UTC, Beam, beam_shots, parse_utc
 
-#: ICESat-2's orbit: inclination [deg], reference ground tracks per repeat, repeat [days]
+#: ICESat-2's orbit: inclination [deg], reference ground tracks per repeat, repeat [nodal days]
 ICESAT2_INCLINATION_DEG = 92.0
 ICESAT2_RGTS = 1387
 ICESAT2_REPEAT_DAYS = 91
-#: nominal start of cycle 1 (ICESat-2's first 91-day cycle began in mid-October 2018)
-CYCLE1_UTC = "2018-10-13T00:00:00Z"
+#: ICESat-2's phase and nodal day, from NASA's RGT KML and granule names (module docstring):
+#: RGT 1's ascending node [deg], the start of cycle 1 (RGT 1's node passage), a nodal day [s]
+ICESAT2_NODE_LON_DEG = -0.129
+CYCLE1_UTC = "2018-09-28T16:20:02Z"
+ICESAT2_NODAL_DAY_S = 86228.458
 EARTH_RADIUS_M = 6371008.8
 #: north latitude bounds of the 7 northern granule regions (ATL03's: 0-27, 27-59.5, 59.5-80)
 _REGION_LATS = (27.0, 59.5, 80.0)
@@ -74,14 +97,18 @@ class RepeatOrbit:
         inclination_deg: orbital inclination [deg] (ICESat-2: 92).
         rgts: revolutions (reference ground tracks) per repeat cycle (1387).
         days: nodal days per repeat cycle (91); 0: a non-rotating Earth (great circles).
-        node_lon_deg: longitude of RGT 1's ascending node [deg].
-        cycle1_utc: start of cycle 1 (ISO 8601 UTC): RGT 1's ascending node passage.
+        node_lon_deg: longitude of RGT 1's ascending node [deg] (ICESat-2's: -0.129).
+        cycle1_utc: start of cycle 1 (ISO 8601 UTC): RGT 1's ascending node passage
+            (ICESat-2's: 2018-09-28T16:20:02Z).
+        nodal_day_s: a nodal day [s]: the Earth's turn relative to the orbit's precessing
+            node (ICESat-2's: 86 228.46 s).
     """
     inclination_deg: float = ICESAT2_INCLINATION_DEG
     rgts: int = ICESAT2_RGTS
     days: float = ICESAT2_REPEAT_DAYS
-    node_lon_deg: float = 0.0
+    node_lon_deg: float = ICESAT2_NODE_LON_DEG
     cycle1_utc: str = CYCLE1_UTC
+    nodal_day_s: float = ICESAT2_NODAL_DAY_S
 
     def __post_init__(self):
         check("inclination_deg", self.inclination_deg, 0 < self.inclination_deg < 180
@@ -89,6 +116,8 @@ class RepeatOrbit:
         check("rgts", self.rgts, isinstance(self.rgts, int) and self.rgts >= 1,
               "must be an integer >= 1")
         check("days", self.days, 0 <= self.days < self.rgts, "must be in [0, rgts)")
+        check("nodal_day_s", self.nodal_day_s, math.isfinite(self.nodal_day_s)
+              and 8e4 <= self.nodal_day_s <= 9e4, "must be in [80000, 90000] s")
         parse_utc(self.cycle1_utc)
 
     @property
@@ -97,9 +126,14 @@ class RepeatOrbit:
         return float(self.days) / self.rgts
 
     @property
+    def cycle_s(self) -> float:
+        """Time of one repeat cycle [s]: ``days`` nodal days."""
+        return float(self.days or 1.0) * float(self.nodal_day_s)
+
+    @property
     def period_s(self) -> float:
-        """Time of one revolution [s] (nodal days of 86400 s)."""
-        return float(self.days or 1.0) * 86400.0 / self.rgts
+        """Time of one revolution [s]: a cycle over ``rgts``."""
+        return self.cycle_s / self.rgts
 
     def rgt_node_lon_deg(self, rgt) -> np.ndarray:
         """Longitude [deg] in [-180, 180) of RGT ``rgt``'s ascending node (1-based)."""
@@ -137,12 +171,12 @@ class RepeatOrbit:
     def cycle_start_s(self, cycle: int) -> float:
         """Start of ``cycle`` [s since the ATLAS SDP epoch 2018-01-01]."""
         t1 = (parse_utc(self.cycle1_utc) - SDP_EPOCH_UTC).total_seconds()
-        return t1 + (int(cycle) - 1) * float(self.days or 1.0) * 86400.0
+        return t1 + (int(cycle) - 1) * self.cycle_s
 
     def cycle_of(self, t_s: float) -> int:
         """The cycle (>= 0; 0 before cycle 1) a time [s since the SDP epoch] falls in."""
         t1 = self.cycle_start_s(1)
-        return max(0, int(math.floor((t_s - t1) / (float(self.days or 1.0) * 86400.0))) + 1)
+        return max(0, int(math.floor((t_s - t1) / self.cycle_s)) + 1)
 
     def time_s(self, rgt: int, cycle: int, u_rad: float) -> float:
         """Time [s since the SDP epoch] RGT ``rgt`` of ``cycle`` is at ``u_rad`` (in [0, 2 pi))."""
