@@ -245,6 +245,7 @@ def test_compiled_reference_heights_are_the_numpy_loop_to_the_bit(rng):
     """The truth column h_ref_m, compiled (numpy's pairwise sums replayed), equals the numpy
     loop bit for bit: segments of 0 to 300 shots (both sides of numpy's 8- and 128-element
     blocks), singular ones (one shot, all shots at one place) and ordinary ones."""
+    from lidar_mitsuba import numeric
     from lidar_mitsuba.products.atl06 import kernel
     lengths = np.concatenate([np.arange(0, 300), [1, 1, 57, 57, 58]])
     s0 = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
@@ -261,7 +262,7 @@ def test_compiled_reference_heights_are_the_numpy_loop_to_the_bit(rng):
     np.testing.assert_array_equal(compiled, loop)
     for n in (0, 7, 8, 127, 128, 129, 255, 1000, 4099):     # and numpy's halving above 128
         x = rng.normal(0, 1e3, n + 3)
-        assert kernel._pairwise_sum(x, 3, n) == x[3:].sum()
+        assert numeric.pairwise_sum(x, 3, n) == x[3:].sum()
 
 
 def test_auto_engine_compiles_only_for_long_tracks(monkeypatch, fractal_tracks):

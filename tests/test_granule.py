@@ -140,6 +140,46 @@ def test_reference_elevation_is_the_exact_footprint_mean(tmp_path):
                                                sigma_m=sigma)).all()
 
 
+def test_compiled_footprint_sums_and_finite_probes_are_the_numpy_expressions(tmp_path):
+    """footprint_mean's stencil sums (a numba kernel) equal the numpy expression they replace
+    bit for bit: the (m, n, n) weights and weighted heights, masked where a pixel is off the
+    window or nodata, summed over axes (1, 2); stencils of 8 x 8 (the default footprint) and
+    20 x 20 (above numpy's 128-value block) pixels, over the DEM's nodata hole and edges.
+    And finite_at, fold's test, is heights_at's finiteness without its look-ups."""
+    from lidar_mitsuba.ground.dem import heights
+    path = dems.synthetic_ice_sheet(tmp_path / "d.tif", width_m=6000.0, length_m=6000.0)
+    dem = dems.DEM.open(path)
+    x0, x1, y0, y1 = dem.bounds_m
+    g = np.linspace(0.0, 1.0, 90)
+    x = (x0 - 30 + (x1 - x0 + 60) * g[:, None] + 0 * g[None, :]).ravel()
+    y = (y0 - 30 + (y1 - y0 + 60) * g[None, :] + 0 * g[:, None]).ravel()
+    for sigma in (2.5, 30.0):
+        for s, z, (ox, oy) in dem.windows(x, y, pad_m=heights._stencil(dem.posting_m, sigma)[0],
+                                          block=1000):
+            if z is None:
+                continue
+            xs, ys = x[s], y[s]
+            j0, a = heights._axis_weights(xs - ox, posting_m=dem.posting_m, sigma_m=sigma)
+            i0, b = heights._axis_weights(ys - oy, posting_m=dem.posting_m, sigma_m=sigma)
+            n = a.shape[1]
+            ny, nx = z.shape
+            ii, jj = i0[:, None] + np.arange(n), j0[:, None] + np.arange(n)
+            on = ((ii >= 0) & (ii < ny))[:, :, None] & ((jj >= 0) & (jj < nx))[:, None, :]
+            zz = z[np.clip(ii, 0, ny - 1)[:, :, None], np.clip(jj, 0, nx - 1)[:, None, :]]
+            w = b[:, :, None] * a[:, None, :]
+            good = on & np.isfinite(zz)
+            present, total = np.empty(xs.size), np.empty(xs.size)
+            heights._stencil_sums(z.astype(np.float64), i0, j0, a, b, present, total)
+            np.testing.assert_array_equal(present, np.sum(np.where(good, w, 0.0), axis=(1, 2)))
+            np.testing.assert_array_equal(
+                total, np.sum(np.where(good, w * np.where(good, zz, 0.0), 0.0), axis=(1, 2)))
+    probes = [(0, 0), (10, 0), (-10, 0), (0, 10), (0, -10)]
+    ok = heights.finite_at(dem, x, y, probes, 1000)
+    assert 0 < ok.sum() < ok.size
+    np.testing.assert_array_equal(
+        ok, np.isfinite(heights.heights_at(dem, x, y, probes, 1000)).all(axis=0))
+
+
 def test_a_rewritten_dem_is_read_anew(tmp_path):
     """Window reads keep the GeoTIFF open (per thread and file version): writing another DEM
     to the same path gives the new heights, not the open file's."""

@@ -36,7 +36,7 @@ import numpy as np
 
 from . import tiles
 from .. import terrain
-from .heights import footprint_mean, heights_at
+from .heights import finite_at, footprint_mean, heights_at
 from ...constants import ParameterError, check
 from ...machine import check_memory
 from ..surface import Surface, Tiling
@@ -274,7 +274,7 @@ class DEMSurface(Surface):
         x = np.asarray(x_m, np.float64)
         y = np.asarray(y_m, np.float64)
         probes = [(0, 0), (margin_m, 0), (-margin_m, 0), (0, margin_m), (0, -margin_m)]
-        bad = ~np.isfinite(self._dem_at(x, y, probes)).all(axis=0)
+        bad = ~finite_at(self.dem, *self._crs(x, y), probes, self.tile_shots)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             raise ParameterError(

@@ -1,5 +1,6 @@
 """Heights of a DEM at points, from its windows: bilinear look-ups (:func:`heights_at`) and the
-exact Gaussian-footprint mean of the bilinear surface (:func:`footprint_mean`). Pure numpy/scipy.
+exact Gaussian-footprint mean of the bilinear surface (:func:`footprint_mean`). numpy and scipy,
+and one numba kernel that sums the footprint stencils as numpy would (:func:`_stencil_sums`).
 
 In the data flow of :mod:`lidar_mitsuba.ground.dem`: :meth:`~lidar_mitsuba.ground.dem.DEM.windows` reads one
 DEM window per block of points, these functions turn each window into the heights
@@ -11,10 +12,12 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 from scipy.special import ndtr
 
 from ...machine import host_pool
+from ...numeric import pairwise_sum
 
 #: the largest footprint weight of missing DEM pixels a reference elevation spreads over the rest
 MISSING_WEIGHT_MAX = 1e-4
@@ -57,6 +60,32 @@ def heights_at(dem, x_crs: np.ndarray, y_crs: np.ndarray, offsets_m, block: int
         for k, (dx, dy) in enumerate(offs):
             out[k, s] = bilinear_nan(z, g, px + dx, py + dy)
     return out.reshape((len(offs),) + x_crs.shape)
+
+
+def finite_at(dem, x_crs: np.ndarray, y_crs: np.ndarray, offsets_m, block: int) -> np.ndarray:
+    """Whether :func:`heights_at` would give a finite height at every shift: (n,) bool for the
+    (n,) points. A window without nodata needs no look-up: a bilinear height there is finite
+    exactly where the shifted point is on the window's grid."""
+    offs = np.asarray(offsets_m, np.float64).reshape(-1, 2)
+    pad = float(np.abs(offs).max(initial=0.0))
+    xf, yf = x_crs.ravel(), y_crs.ravel()
+    ok = np.zeros(xf.size, bool)
+    g = dem.posting_m
+    for s, z, (ox, oy) in dem.windows(xf, yf, pad_m=pad, block=block):
+        if z is None:
+            continue
+        px, py = xf[s] - ox, yf[s] - oy
+        ny, nx = z.shape
+        full = bool(np.isfinite(z).all())
+        good = np.ones(px.size, bool)
+        for dx, dy in offs:
+            if full:        # bilinear_nan's test of the grid, alone
+                fx, fy = (px + dx) / g, (py + dy) / g
+                good &= (fx >= 0) & (fy >= 0) & (fx <= nx - 1) & (fy <= ny - 1)
+            else:
+                good &= np.isfinite(bilinear_nan(z, g, px + dx, py + dy))
+        ok[s] = good
+    return ok
 
 
 def footprint_mean(dem, x_crs: np.ndarray, y_crs: np.ndarray, *, sigma_m: float, block: int
@@ -117,17 +146,43 @@ def _axis_weights(p: np.ndarray, *, posting_m: float, sigma_m: float
 def _window_mean(out: np.ndarray, s: slice, xs: np.ndarray, ys: np.ndarray, z: np.ndarray,
                  ox: float, oy: float, *, posting_m: float, sigma_m: float) -> None:
     """The footprint means of the points ``xs``, ``ys`` (CRS [m]) from the DEM window ``z``
-    whose first pixel is centred at (``ox``, ``oy``), into ``out[s]``."""
-    ny, nx = z.shape
-    step = np.arange(_stencil(posting_m, sigma_m)[1])
+    whose first pixel is centred at (``ox``, ``oy``), into ``out[s]``: per point, the sums of
+    its stencil's weights over the pixels present, and of those weights times the heights
+    (:func:`_stencil_sums`), then their ratio."""
     j0, a = _axis_weights(xs - ox, posting_m=posting_m, sigma_m=sigma_m)
     i0, b = _axis_weights(ys - oy, posting_m=posting_m, sigma_m=sigma_m)
-    jj, ii = j0[:, None] + step, i0[:, None] + step
-    on = ((ii >= 0) & (ii < ny))[:, :, None] & ((jj >= 0) & (jj < nx))[:, None, :]
-    zz = z[np.clip(ii, 0, ny - 1)[:, :, None], np.clip(jj, 0, nx - 1)[:, None, :]]
-    w = b[:, :, None] * a[:, None, :]
-    good = on & np.isfinite(zz)
-    present = np.sum(np.where(good, w, 0.0), axis=(1, 2))
-    total = np.sum(np.where(good, w * np.where(good, zz, 0.0), 0.0), axis=(1, 2))
+    present, total = np.empty(xs.size), np.empty(xs.size)
+    _stencil_sums(np.ascontiguousarray(z, np.float64), i0, j0, np.ascontiguousarray(a),
+                  np.ascontiguousarray(b), present, total)
     bad = (1.0 - present > MISSING_WEIGHT_MAX) | ~(np.isfinite(xs) & np.isfinite(ys))
     out[s] = np.where(bad, np.nan, total / np.where(bad, 1.0, present))
+
+
+@numba.njit(cache=True, nogil=True)
+def _stencil_sums(z, i0, j0, a, b, present, total):
+    """For each point ``k`` of (m,) first stencil rows ``i0`` and columns ``j0`` and (m, n)
+    axis weights ``b`` (rows) and ``a`` (columns): ``present[k]``, the sum over its n x n
+    pixels ``(i0[k] + i, j0[k] + j)`` on the window ``z`` with a finite height of the weights
+    ``b[k, i] a[k, j]``, and ``total[k]``, of those weights times the heights (0 for the
+    others). Each sum runs over the (n, n) array in row-major order as numpy's
+    ``np.sum(..., axis=(1, 2))`` does (:func:`lidar_mitsuba.numeric.pairwise_sum`): the numpy
+    expression's bits, in one pass and no (m, n, n) temporaries."""
+    ny, nx = z.shape
+    m, n = a.shape
+    wv = np.empty(n * n)
+    tv = np.empty(n * n)
+    for k in range(m):
+        for i in range(n):
+            ii = i0[k] + i
+            for j in range(n):
+                jj = j0[k] + j
+                q = i * n + j
+                w = b[k, i] * a[k, j]
+                if 0 <= ii < ny and 0 <= jj < nx and np.isfinite(z[ii, jj]):
+                    wv[q] = w
+                    tv[q] = w * z[ii, jj]
+                else:
+                    wv[q] = 0.0
+                    tv[q] = 0.0
+        present[k] = pairwise_sum(wv, 0, n * n)
+        total[k] = pairwise_sum(tv, 0, n * n)

@@ -10,7 +10,7 @@ Each step of the reference has its twin here under the same name (``_densest_win
 :func:`fit_all` runs its segments one after the other (``parallel=True`` made the compile twice
 as long) without the GIL: :func:`lidar_mitsuba.products.atl06._fit_compiled` gives contiguous blocks of
 segments to the host's threads (a sweep task's thread count included).
-Sums run in a different order than numpy's pairwise ones, so results agree to rounding
+In the fit, sums run in a different order than numpy's pairwise ones, so results agree to rounding
 (~1e-15 relative), except where a photon sits on a window edge within that rounding.
 Python's ``min``/``max`` keep the first argument on NaN; :func:`_pmax` and :func:`_pmin` do
 the same, so NaNs propagate as in the reference. ``cache=True`` keeps the compiled code.
@@ -21,6 +21,8 @@ import math
 
 import numba
 import numpy as np
+
+from ...numeric import pairwise_sum
 
 #: output columns, in order (ints travel as floats and are converted by the caller)
 OUT_FIELDS = ("n_seg_pulses", "flags", "n_fit_photons", "h_li", "h_li_sigma", "h_mean",
@@ -571,76 +573,12 @@ def fit_all(along, h, shot_along, gate, has_gate, centres, p0, p1, s0, s1, cfg, 
 
 
 @numba.njit(cache=True, nogil=True)
-def _block_sum(a, lo, n):
-    """numpy's sum of ``a[lo:lo + n]`` for ``n <= 128``: eight running sums, then the rest."""
-    if n < 8:
-        res = 0.0
-        for i in range(lo, lo + n):
-            res += a[i]
-        return res
-    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-    i = 8
-    m = n - n % 8
-    while i < m:
-        j = lo + i
-        r0 += a[j]
-        r1 += a[j + 1]
-        r2 += a[j + 2]
-        r3 += a[j + 3]
-        r4 += a[j + 4]
-        r5 += a[j + 5]
-        r6 += a[j + 6]
-        r7 += a[j + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[lo + i]
-        i += 1
-    return res
-
-
-@numba.njit(cache=True, nogil=True)
-def _pairwise_sum(a, lo, n):
-    """``a[lo:lo + n].sum()`` as numpy sums a contiguous float64 array, so the bits are
-    numpy's: blocks of up to 128 (:func:`_block_sum`), above that the sum of the two halves
-    (the first a multiple of 8 long). The halving is walked with a stack of its own (numba's
-    cache does not keep recursive functions safely)."""
-    if n <= 128:
-        return _block_sum(a, lo, n)
-    todo_lo = np.empty(64, np.int64)       # spans to split or sum (depth < 64 for any n)
-    todo_n = np.empty(64, np.int64)
-    todo_done = np.zeros(64, np.bool_)     # both halves summed: add them
-    vals = np.empty(64)
-    k = 0
-    v = 0
-    todo_lo[0], todo_n[0], todo_done[0] = lo, n, False
-    k = 1
-    while k > 0:
-        k -= 1
-        lo_k, n_k, done = todo_lo[k], todo_n[k], todo_done[k]
-        if done:
-            v -= 1
-            vals[v - 1] = vals[v - 1] + vals[v]
-        elif n_k <= 128:
-            vals[v] = _block_sum(a, lo_k, n_k)
-            v += 1
-        else:
-            n2 = n_k // 2
-            n2 -= n2 % 8
-            todo_lo[k], todo_n[k], todo_done[k] = lo_k, n_k, True
-            todo_lo[k + 1], todo_n[k + 1], todo_done[k + 1] = lo_k + n2, n_k - n2, False
-            todo_lo[k + 2], todo_n[k + 2], todo_done[k + 2] = lo_k, n2, False
-            k += 3
-    return vals[0]
-
-
-@numba.njit(cache=True, nogil=True)
 def reference_heights(shot_along, z_ref, centres, s0, s1, out):
     """:func:`lidar_mitsuba.products.atl06._fill_reference_heights` compiled: per segment ``k``
     (shots ``s0[k]:s1[k]``), the least-squares line through ``z_ref`` [m] at ``centres[k]``
     [m] (their mean when singular), into ``out[k]``; segments without shots are left alone.
-    The sums are :func:`_pairwise_sum`'s, so the column is the numpy loop's to the bit."""
+    The sums are numpy's (:func:`lidar_mitsuba.numeric.pairwise_sum`), so the column is the
+    numpy loop's to the bit."""
     for k in range(centres.size):
         a = s0[k]
         n = s1[k] - a
@@ -654,11 +592,11 @@ def reference_heights(shot_along, z_ref, centres, s0, s1, out):
             x[i] = shot_along[a + i] - c
             xx[i] = x[i] * x[i]
             xh[i] = x[i] * z_ref[a + i]
-        sx = _pairwise_sum(x, 0, n)
-        sxx = _pairwise_sum(xx, 0, n)
-        sh = _pairwise_sum(z_ref, a, n)
+        sx = pairwise_sum(x, 0, n)
+        sxx = pairwise_sum(xx, 0, n)
+        sh = pairwise_sum(z_ref, a, n)
         det = n * sxx - sx * sx
         if n < 2 or not det > 1e-12 * _pmax(1.0, n * sxx):
             out[k] = sh / n
         else:
-            out[k] = (sxx * sh - sx * _pairwise_sum(xh, 0, n)) / det
+            out[k] = (sxx * sh - sx * pairwise_sum(xh, 0, n)) / det
