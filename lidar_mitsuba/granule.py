@@ -469,11 +469,9 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
             if atl06_path is not None:
                 f6 = stack.enter_context(atomic_h5file(atl06_path))
                 _atl06_header(f6, meta, instruments, t_first, t_last)
-            writer = _Writer()                    # (closed first: before the files)
-            stack.callback(writer.close)
             for k in range(n_sections):
                 for st in streams:
-                    done = st.section(k, ctx, f3, f6, writer, seed=seed, sc_orient=sc_orient,
+                    done = st.section(k, ctx, f3, f6, seed=seed, sc_orient=sc_orient,
                                       paths_per_shot=paths_per_shot, max_depth=max_depth,
                                       **simulate_options)
                     if bar is not None:
@@ -500,10 +498,9 @@ class _BeamStream:
         self.segments: _SegmentStream | None = None
         self.summary = BeamSummary(beam=beam)
 
-    def section(self, k: int, ctx: _Context, f3, f6, writer: "_Writer", *, seed: int,
-                sc_orient: int, **plan_kw) -> int:
-        """Simulate section ``k`` (if the beam has it) and hand it to ``writer`` for the
-        files; returns its shots."""
+    def section(self, k: int, ctx: _Context, f3, f6, *, seed: int, sc_orient: int,
+                **plan_kw) -> int:
+        """Simulate section ``k`` (if the beam has it) into the files; returns its shots."""
         from .run import assemble, stream
         if k >= len(self.bounds):
             return 0
@@ -530,45 +527,10 @@ class _BeamStream:
                                      seed=_beam_seed(seed, self.beam, k))
         run = BeamRun(beam=self.beam, result=assemble(part, stream(part, keep_returns=False)),
                       first_shot=a)
-        self.summary.add(run.result)
-        last = k == len(self.bounds) - 1
-        writer.submit(lambda: self._write(run, f3, f6, sc_orient=sc_orient, last=last))
-        return b - a
-
-    def _write(self, run: BeamRun, f3, f6, *, sc_orient: int, last: bool) -> None:
-        """Write a simulated section into the files: its ATL03 rows, and the ATL06 segments it
-        completes (fitted here)."""
         _beam_atl03(f3, run, sc_orient)
         if f6 is not None:
-            table, along, lat, lon, t = self.segments.fit(run, last=last)
+            table, along, lat, lon, t = self.segments.fit(run, last=k == len(self.bounds) - 1)
             _beam_atl06(f6, self.beam, sc_orient, table, along_m=along, lat_deg=lat,
                         lon_deg=lon, delta_time_s=t)
-
-
-class _Writer:
-    """Writes a granule's sections on a thread of its own, in the order they are simulated,
-    while the next section is laid out and traced: h5py and the ATL06 fit on one core while
-    the tracer holds the other (the GIL is let go by the tracer's kernels, zlib, and the
-    compiled fit). At most one section waits; the files are touched by this thread alone
-    (their headers were written before it started). A failed write is raised by the next
-    :meth:`submit` or by :meth:`close`."""
-
-    def __init__(self):
-        from concurrent.futures import ThreadPoolExecutor
-        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lidar-granule-writer")
-        self.job = None
-
-    def submit(self, write) -> None:
-        self.wait()
-        self.job = self.pool.submit(write)
-
-    def wait(self) -> None:
-        job, self.job = self.job, None
-        if job is not None:
-            job.result()
-
-    def close(self) -> None:
-        try:
-            self.wait()
-        finally:
-            self.pool.shutdown(wait=True)
+        self.summary.add(run.result)
+        return b - a
