@@ -161,15 +161,8 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
     fit = _fit_compiled if engine == "compiled" else _fit_reference
     fit(cols, along, h, shot_along, gate, centres, half, shot0, shot1, cfg)
     if z_ref_m is not None:
-        z_ref = np.asarray(z_ref_m, np.float64)
-        if engine == "compiled":       # (the same column, without a Python loop)
-            from .kernel import reference_heights
-            reference_heights(np.ascontiguousarray(shot_along, np.float64),
-                              np.ascontiguousarray(z_ref), np.asarray(centres, np.float64),
-                              np.asarray(shot0, np.int64), np.asarray(shot1, np.int64),
-                              cols["h_ref_m"])
-        else:
-            _fill_reference_heights(cols["h_ref_m"], z_ref, shot_along, centres, shot0, shot1)
+        _fill_reference_heights(cols["h_ref_m"], np.asarray(z_ref_m, np.float64), shot_along,
+                                centres, shot0, shot1, compiled=engine == "compiled")
     cols["atl06_quality_summary"] = (cols["flags"] != 0).astype(np.int64)
     return SegmentTable(**cols)
 
@@ -247,10 +240,17 @@ def _fit_compiled(cols: dict, along, h, shot_along, gate, centres, half: float, 
 
 
 def _fill_reference_heights(h_ref: np.ndarray, z_ref: np.ndarray, shot_along, centres, s0,
-                            s1) -> None:
+                            s1, *, compiled: bool = False) -> None:
     """The truth column ``h_ref_m`` [m], in place: each segment's least-squares line through
     its shots' ``z_ref`` [m] at the centre (their mean when the line is singular); segments
-    without shots keep NaN."""
+    without shots keep NaN. ``compiled``: the same column, to the bit, without a Python loop
+    (:func:`lidar_mitsuba.products.atl06.kernel.reference_heights`)."""
+    if compiled:
+        from .kernel import reference_heights
+        reference_heights(np.ascontiguousarray(shot_along, np.float64),
+                          np.ascontiguousarray(z_ref), np.asarray(centres, np.float64),
+                          np.asarray(s0, np.int64), np.asarray(s1, np.int64), h_ref)
+        return
     for k, (c, a, b) in enumerate(zip(centres, s0, s1)):
         if b - a >= 1:
             fit = line_fit(shot_along[a:b] - c, z_ref[a:b])

@@ -585,9 +585,7 @@ def reference_heights(shot_along, z_ref, centres, s0, s1, out):
         if n < 1:
             continue
         c = centres[k]
-        x = np.empty(n)
-        xx = np.empty(n)
-        xh = np.empty(n)
+        x, xx, xh = np.empty(n), np.empty(n), np.empty(n)
         for i in range(n):
             x[i] = shot_along[a + i] - c
             xx[i] = x[i] * x[i]
