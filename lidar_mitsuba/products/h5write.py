@@ -254,7 +254,7 @@ def _shuffle_deflate_level(dset) -> int | None:
 
 def _forget(file_key: str) -> None:
     """Drop the appended datasets of the file ``file_key`` names (it is about to close)."""
-    for k in [k for k, e in _open.items() if e.key[0] == file_key]:
+    for k in [k for k, e in list(_open.items()) if e.key[0] == file_key]:
         del _open[k]
 
 
