@@ -6,8 +6,8 @@ fewer than 8 values one after another from 0; up to 128 in eight running sums ov
 values' positions mod 8, combined as ``((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))``,
 then the last ``n % 8`` added one by one; above 128 the two halves (the first a multiple of
 8 long) summed so and added. ``np.sum`` over the trailing axes of a C-contiguous array sums
-each row of those axes as one run. ``tests/test_atl06.py`` and ``tests/test_dem.py`` check
-these functions against numpy on this machine's numpy, bit for bit.
+each row of those axes as one run. ``tests/test_atl06.py`` and ``tests/test_granule.py``
+check these functions against numpy on this machine's numpy, bit for bit.
 """
 from __future__ import annotations
 

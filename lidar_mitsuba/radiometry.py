@@ -45,6 +45,7 @@ Every constant carries its source; those estimated are marked ESTIMATE.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import sys
@@ -177,9 +178,7 @@ def solar_angles(lat_deg, lon_deg, delta_time_s, *, every: int = 100):
     return elevation.reshape(shape), azimuth.reshape(shape)
 
 
-_SPA = []
-
-
+@functools.cache
 def _spa():
     """pvlib's ``spa`` module. Importing it as ``pvlib.spa`` runs pvlib's package import, which
     brings pandas and scipy.integrate (about 0.7 s of a granule's start-up); ``spa.py`` itself
@@ -187,15 +186,13 @@ def _spa():
     numbers), unless pvlib is imported already."""
     if "pvlib.spa" in sys.modules:
         return sys.modules["pvlib.spa"]
-    if not _SPA:
-        import importlib.util
-        folder = importlib.util.find_spec("pvlib").submodule_search_locations[0]
-        spec = importlib.util.spec_from_file_location("_lidar_mitsuba_pvlib_spa",
-                                                      os.path.join(folder, "spa.py"))
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        _SPA.append(module)
-    return _SPA[0]
+    import importlib.util
+    folder = importlib.util.find_spec("pvlib").submodule_search_locations[0]
+    spec = importlib.util.spec_from_file_location("_lidar_mitsuba_pvlib_spa",
+                                                  os.path.join(folder, "spa.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def earth_sun_distance_au(delta_time_s):

@@ -49,14 +49,9 @@ def heights_at(dem, x_crs: np.ndarray, y_crs: np.ndarray, offsets_m, block: int
     x_crs.shape``; NaN over nodata or off the DEM. One window read per ``block`` points
     covers all the shifts."""
     offs = np.asarray(offsets_m, np.float64).reshape(-1, 2)
-    pad = float(np.abs(offs).max(initial=0.0))
-    xf, yf = x_crs.ravel(), y_crs.ravel()
-    out = np.full((len(offs), xf.size), np.nan)
+    out = np.full((len(offs), x_crs.size), np.nan)
     g = dem.posting_m
-    for s, z, (ox, oy) in dem.windows(xf, yf, pad_m=pad, block=block):
-        if z is None:
-            continue
-        px, py = xf[s] - ox, yf[s] - oy
+    for s, z, px, py in _shifted_windows(dem, x_crs, y_crs, offs, block):
         for k, (dx, dy) in enumerate(offs):
             out[k, s] = bilinear_nan(z, g, px + dx, py + dy)
     return out.reshape((len(offs),) + x_crs.shape)
@@ -67,14 +62,9 @@ def finite_at(dem, x_crs: np.ndarray, y_crs: np.ndarray, offsets_m, block: int) 
     (n,) points. A window without nodata needs no look-up: a bilinear height there is finite
     exactly where the shifted point is on the window's grid."""
     offs = np.asarray(offsets_m, np.float64).reshape(-1, 2)
-    pad = float(np.abs(offs).max(initial=0.0))
-    xf, yf = x_crs.ravel(), y_crs.ravel()
-    ok = np.zeros(xf.size, bool)
+    ok = np.zeros(x_crs.size, bool)
     g = dem.posting_m
-    for s, z, (ox, oy) in dem.windows(xf, yf, pad_m=pad, block=block):
-        if z is None:
-            continue
-        px, py = xf[s] - ox, yf[s] - oy
+    for s, z, px, py in _shifted_windows(dem, x_crs, y_crs, offs, block):
         ny, nx = z.shape
         full = bool(np.isfinite(z).all())
         good = np.ones(px.size, bool)
@@ -86,6 +76,17 @@ def finite_at(dem, x_crs: np.ndarray, y_crs: np.ndarray, offsets_m, block: int) 
                 good &= np.isfinite(bilinear_nan(z, g, px + dx, py + dy))
         ok[s] = good
     return ok
+
+
+def _shifted_windows(dem, x_crs, y_crs, offs: np.ndarray, block: int):
+    """Yield ``(slice, z, px, py)`` per block of ``block`` points (flattened): the DEM window
+    read once for every shift of ``offs`` ((k, 2) [m]), and the block's points relative to
+    its first pixel centre [m]; blocks without a finite point are skipped."""
+    pad = float(np.abs(offs).max(initial=0.0))
+    xf, yf = x_crs.ravel(), y_crs.ravel()
+    for s, z, (ox, oy) in dem.windows(xf, yf, pad_m=pad, block=block):
+        if z is not None:
+            yield s, z, xf[s] - ox, yf[s] - oy
 
 
 def footprint_mean(dem, x_crs: np.ndarray, y_crs: np.ndarray, *, sigma_m: float, block: int
