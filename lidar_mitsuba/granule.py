@@ -515,8 +515,9 @@ class _BeamStream:
         rough = plan_kw.pop("roughness", None)  # the roughness of this beam's section
         surface = ctx.surface if rough is None else replace(ctx.surface,
                                                             roughness=rough(self.beam, k))
-        if self.plan is None or snow != self.plan.snow or \
-                surface.roughness is not self.plan.surface.roughness:
+        replanned = self.plan is not None and (
+            snow != self.plan.snow or surface.roughness is not self.plan.surface.roughness)
+        if self.plan is None or replanned:
             # the first section's plan decides the beam's model, and so does a section whose
             # snow (a new material) or roughness (a new surface) differs
             part = self.plan = ctx.plan(self.beam, b - a, first=a, progress=False,
@@ -527,7 +528,7 @@ class _BeamStream:
                                      seed=_beam_seed(seed, self.beam, k))
         run = BeamRun(beam=self.beam, result=assemble(part, stream(part, keep_returns=False)),
                       first_shot=a)
-        _beam_atl03(f3, run, sc_orient)
+        _beam_atl03(f3, run, sc_orient, replanned=replanned)
         if f6 is not None:
             table, along, lat, lon, t = self.segments.fit(run, last=k == len(self.bounds) - 1)
             _beam_atl06(f6, self.beam, sc_orient, table, along_m=along, lat_deg=lat,

@@ -662,6 +662,19 @@ def test_density_and_roughness_are_resolved_per_beam_and_section(spec_path, monk
             assert set(mine["density_kg_m3"]) == {task.density_sections[beam][k]}
             assert set(mine["roughness_relief_m"]) == {task.roughness_sections[beam][k]}
     assert np.isfinite(seg["density_kg_m3_raster"]).all()
+    # the ATL03 file records each section's own model: the first in config, the second
+    # (planned anew) in section_configs
+    (a3,) = (tmp_path / "out" / "granules").glob("ATL03_*.h5")
+    with h5py.File(a3) as h5:
+        for beam in ("gt1l", "gt1r"):
+            attrs = h5["truth"][beam].attrs
+            first = json.loads(attrs["config"])
+            (later,) = json.loads(attrs["section_configs"])
+            assert later["first_shot"] == f
+            got = [(c["snow"]["density_kg_m3"], c["surface"].get("roughness", {}).get(
+                "relief_m", 0.0)) for c in (first, later["config"])]
+            assert got == [(task.density_sections[beam][k], task.roughness_sections[beam][k])
+                           for k in (0, 1)]
 
 
 def test_uniform_sections_keep_one_value_per_granule(spec_path):

@@ -17,6 +17,10 @@ granule (:mod:`lidar_mitsuba.granule`; the writer is :mod:`lidar_mitsuba.product
     /truth/<beam>/shots/      per shot (n_shots,): along_track_m, x_m, y_m [m], z_ref_m [m]
                               (Gaussian-footprint mean height), surface_z_m [m], arrivals,
                               mean_photons
+    /truth/<beam>             attrs: config (JSON: the run's model and choices); in a granule
+                              whose later sections were planned anew (snow or roughness
+                              varying along the track), section_configs (JSON list of each
+                              such section's first_shot and config)
 
 The shots are placed on the Earth by the run's geolocation (``result.geolocation``: the scene
 origin at ``--lat``/``--lon``, the first shot at ``--epoch``; by default the paper's site in

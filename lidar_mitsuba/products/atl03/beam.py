@@ -361,12 +361,17 @@ def _field_attrs(ds, fld, note: str, coordinates: str, name: str) -> None:
         ds.attrs["model_note"] = note
 
 
-def write_beam(f, run, sc_orient: int) -> None:
+def write_beam(f, run, sc_orient: int, *, replanned: bool = False) -> None:
     """Append one run (a :class:`~lidar_mitsuba.products.record.BeamRun`: the beam, its result and
     each shot's latitude, longitude, direction and time) to the beam's groups of ATL03 file
     ``f``, and its truth to ``/truth/<beam>``. The file's header
     (:func:`lidar_mitsuba.products.atl03.file.header`) comes first; a file not opened with
-    :func:`lidar_mitsuba.products.atl03.atomic_h5file` needs :func:`flush` before it closes."""
+    :func:`lidar_mitsuba.products.atl03.atomic_h5file` needs :func:`flush` before it closes.
+
+    The beam's first run gives ``/truth/<beam>`` its ``config`` attribute (JSON). A later
+    section of a streamed granule that was planned anew (``replanned``: its snow or roughness
+    differs from the section before) adds ``{"first_shot", "config"}`` of its own to the JSON
+    list ``section_configs``, so the file says what every section was simulated with."""
     beam = run.beam
     gt = f.require_group(beam.name)
     done = gt["heights/h_ph"].shape[0] if "heights/h_ph" in gt else 0   # earlier sections
@@ -388,6 +393,10 @@ def write_beam(f, run, sc_orient: int) -> None:
         _put(truth.require_group(group), name, data, units, desc)
     if "config" not in truth.attrs:                       # (the first section's)
         truth.attrs["config"] = json.dumps(s.res.config)
+    elif replanned:                                       # a section with a model of its own
+        past = json.loads(truth.attrs.get("section_configs", "[]"))
+        past.append({"first_shot": int(run.first_shot), "config": s.res.config})
+        truth.attrs["section_configs"] = json.dumps(past)
     atl03_file.extend_extent(f, run.lat_deg, run.lon_deg)
 
 
