@@ -246,9 +246,10 @@ def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_d
     are those of the shot nearest each segment centre among ``along_m`` [m] (with their
     ``lat_deg``, ``lon_deg``, ``delta_time_s``)."""
     gt = f.require_group(beam.name)
-    gt.attrs.update({"atlas_beam_type": beam.strength, "atlas_spot_number": str(beam.spot),
-                     "atlas_pce": f"pce{beam.pce}", "groundtrack_id": beam.name,
-                     "sc_orientation": "Backward" if sc_orient == 0 else "Forward"})
+    h5chunks.set_attrs(gt, {"atlas_beam_type": beam.strength,
+                            "atlas_spot_number": str(beam.spot), "atlas_pce": f"pce{beam.pce}",
+                            "groundtrack_id": beam.name,
+                            "sc_orientation": "Backward" if sc_orient == 0 else "Forward"})
     li = gt.require_group("land_ice_segments")
     for sub in ("fit_statistics", "bias_correction", "geophysical", "ground_track", "dem"):
         li.require_group(sub)
@@ -268,7 +269,7 @@ def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_d
             v = np.where(np.isfinite(v), v, np.finfo(dtype).max)   # ATL06's fill value
         ds = _put(li[sub] if sub else li, name, v.astype(dtype), units, desc)
         if np.issubdtype(dtype, np.floating):
-            ds.attrs["_FillValue"] = np.finfo(dtype).max.astype(dtype)
+            h5chunks.set_attrs(ds, {"_FillValue": np.finfo(dtype).max.astype(dtype)})
     _put(li["ground_track"], "y_atc", np.full(len(table), beam.across_m, np.float32),
          "meters", "across-track offset of the beam from the reference ground track")
 

@@ -75,6 +75,37 @@ def test_dem_heights_are_bilinear_in_the_file_pixels(tmp_path):
     assert np.isnan(surf.height_m(xc[0] - surf.origin_m[0], yc[0] - surf.origin_m[1]))
 
 
+def test_split_cells_numbers_nodes_as_np_unique():
+    """The corridor mesh numbers its sub-grid nodes ascending, each used node once, with a
+    mask over the window's sub-grid where the corridor fills much of the window and with
+    np.unique where it does not: both give the faces and node positions of the np.unique
+    construction exactly, on random windows (either branch taken, k = 1..4)."""
+    from lidar_mitsuba.ground.dem.tiles import _split_cells
+    rng = np.random.default_rng(7)
+    branches = set()
+    for _ in range(300):
+        ny, nx = (int(v) for v in rng.integers(2, 40, 2))
+        k = int(rng.integers(1, 5))
+        cells = rng.choice((ny - 1) * (nx - 1), int(rng.integers(1, (ny - 1) * (nx - 1) + 1)),
+                           replace=False)
+        i, j = np.divmod(cells, nx - 1)
+        px, py, faces = _split_cells(i, j, k, (ny, nx), 20.0)
+        s = np.arange(k + 1)
+        row = (i[:, None, None] * k + s[None, :, None]) * ((nx - 1) * k + 1)
+        key = (row + j[:, None, None] * k + s[None, None, :]).reshape(i.size, -1)
+        branches.add(((ny - 1) * k + 1) * ((nx - 1) * k + 1) <= 8 * key.size)
+        nodes, inv = np.unique(key, return_inverse=True)
+        inv = inv.reshape(i.size, k + 1, k + 1)
+        a, b, c, d = (inv[:, :-1, :-1].ravel(), inv[:, :-1, 1:].ravel(),
+                      inv[:, 1:, :-1].ravel(), inv[:, 1:, 1:].ravel())
+        want = np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])])
+        assert faces.dtype == want.dtype and np.array_equal(faces, want)
+        gy, gx = np.divmod(nodes, (nx - 1) * k + 1)
+        assert np.array_equal(px, np.minimum(gx * (20.0 / k), (nx - 1) * 20.0))
+        assert np.array_equal(py, np.minimum(gy * (20.0 / k), (ny - 1) * 20.0))
+    assert branches == {True, False}
+
+
 @pytest.mark.parametrize("posting_m", [20.0, 100.0])
 def test_pixel_mesh_is_the_dem_within_its_tolerance(tmp_path, monkeypatch, posting_m):
     """Without roughness a corridor tile is the DEM's own pixels, split until each cell's

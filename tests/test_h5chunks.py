@@ -90,7 +90,7 @@ def test_a_failed_write_leaves_no_file_and_spares_another(tmp_path, rng):
             with atl03.atomic_h5file(tmp_path / "failed.h5") as failed:
                 h5chunks.put(failed, "a", data, "m", "failed", append=True)
                 raise RuntimeError("boom")
-        assert all(e[0] == str(kept.filename) for e in h5chunks._pending)
+        assert all(e[0] == h5chunks._file_key(kept) for e in h5chunks._pending)
     assert not h5chunks._pending
     assert sorted(p.name for p in tmp_path.iterdir()) == ["kept.h5"]
     with h5py.File(tmp_path / "kept.h5") as f:
@@ -113,3 +113,60 @@ def test_rows_begun_elsewhere_and_another_fill_value(tmp_path, rng):
         np.testing.assert_array_equal(f["a"][:], data[:C + 300])
         f["a"].resize(2 * C, axis=0)
         np.testing.assert_array_equal(f["a"][C + 300:], -9.0)
+
+
+def _described(obj):
+    """Every attribute of ``obj`` as (HDF5 type class, size, variable-length, charset, shape,
+    value bytes)."""
+    out = {}
+    for k in obj.attrs:
+        a = obj.attrs.get_id(k)
+        t = a.get_type()
+        s = t.get_class() == h5py.h5t.STRING
+        v = obj.attrs[k]
+        out[k] = (t.get_class(), t.get_size(), s and t.is_variable_str(),
+                  t.get_cset() if s else None, a.shape,
+                  v.encode() if isinstance(v, str) else np.asarray(v).tolist()
+                  if np.asarray(v).dtype == object else np.asarray(v).tobytes())
+    return out
+
+
+def test_set_attrs_and_new_datasets_are_what_h5py_makes(tmp_path):
+    """``set_attrs`` writes each value as ``obj.attrs[name] = value`` would (type, size,
+    charset, shape, value; an existing one replaced; other kinds of value through h5py), and
+    a dataset ``put`` makes from the first one's creation properties (the second of a kind)
+    has h5py's type, chunks, filters, fill value and extent."""
+    values = {"units": "meters", "long_name": "hauteur é", "_FillValue": np.float32(3.4e38),
+              "valid_max": np.asarray(120, np.int8), "flag_values": np.asarray([0, 1, 2],
+                                                                              np.int16),
+              "frame": np.asarray([1.5, -2.0]), "n": 3, "x": 0.5, "words": ["a", "bc"]}
+    with h5py.File(tmp_path / "a.h5", "w") as f:
+        ours, theirs = f.create_group("ours"), f.create_group("theirs")
+        ours.attrs["units"] = np.int64(7)              # replaced
+        h5chunks.set_attrs(ours, values)
+        for k, v in values.items():
+            theirs.attrs[k] = v
+        assert _described(ours) == _described(theirs)
+        fill = np.float32(3.4e38)
+        first = h5chunks.put(ours, "a", np.ones(5, np.float32), "m", "d", append=True,
+                             fillvalue=fill)
+        second = h5chunks.put(ours, "b", np.ones(7, np.float32), "m", "d", append=True,
+                              fillvalue=fill)
+        ref = theirs.create_dataset("b", shape=(0,), dtype=np.float32, maxshape=(None,),
+                                    chunks=(C,), compression="gzip",
+                                    compression_opts=h5chunks.GZIP_LEVEL, shuffle=True,
+                                    fillvalue=fill)
+        for d in (first, second):
+            p, q = d.id.get_create_plist(), ref.id.get_create_plist()
+            assert d.id.get_type().equal(ref.id.get_type())
+            assert (d.chunks, d.maxshape, d.compression, d.compression_opts, d.shuffle,
+                    d.fillvalue) == (ref.chunks, ref.maxshape, ref.compression,
+                                     ref.compression_opts, ref.shuffle, ref.fillvalue)
+            assert [p.get_filter(i) for i in range(p.get_nfilters())] == \
+                [q.get_filter(i) for i in range(q.get_nfilters())]
+            assert (p.get_fill_time(), p.get_alloc_time(), p.get_obj_track_times()) == \
+                (q.get_fill_time(), q.get_alloc_time(), q.get_obj_track_times())
+        assert _described(second) == _described(first)
+        h5chunks.drain(f)
+    with h5py.File(tmp_path / "a.h5") as f:
+        np.testing.assert_array_equal(f["ours/b"][:], np.ones(7, np.float32))

@@ -349,16 +349,17 @@ def _write_group(gt, name: str, values: dict) -> None:
 
 
 def _field_attrs(ds, fld, note: str, coordinates: str, name: str) -> None:
-    ds.attrs["long_name"] = fld.long_name
+    attrs = {"long_name": fld.long_name}
     if fld.fill is not None:
-        ds.attrs["_FillValue"] = np.asarray(fld.fill, fld.dtype)
+        attrs["_FillValue"] = np.asarray(fld.fill, fld.dtype)
     for k, v in fld.attrs.items():
-        ds.attrs[k] = np.asarray(v, fld.dtype) if not isinstance(v, str) else v
+        attrs[k] = np.asarray(v, fld.dtype) if not isinstance(v, str) else v
     coords = " ".join(c for c in coordinates.split() if c != name)
     if coords:
-        ds.attrs["coordinates"] = coords
+        attrs["coordinates"] = coords
     if note:
-        ds.attrs["model_note"] = note
+        attrs["model_note"] = note
+    h5chunks.set_attrs(ds, attrs)
 
 
 def write_beam(f, run, sc_orient: int, *, replanned: bool = False) -> None:
@@ -375,10 +376,11 @@ def write_beam(f, run, sc_orient: int, *, replanned: bool = False) -> None:
     beam = run.beam
     gt = f.require_group(beam.name)
     done = gt["heights/h_ph"].shape[0] if "heights/h_ph" in gt else 0   # earlier sections
-    gt.attrs.update({"atlas_beam_type": beam.strength, "atlas_spot_number": str(beam.spot),
-                     "atlas_pce": f"pce{beam.pce}", "groundtrack_id": beam.name,
-                     "sc_orientation": "Backward" if sc_orient == 0 else "Forward",
-                     "description": "one ATLAS beam: photons, geolocation, background"})
+    h5chunks.set_attrs(gt, {"atlas_beam_type": beam.strength,
+                            "atlas_spot_number": str(beam.spot), "atlas_pce": f"pce{beam.pce}",
+                            "groundtrack_id": beam.name,
+                            "sc_orientation": "Backward" if sc_orient == 0 else "Forward",
+                            "description": "one ATLAS beam: photons, geolocation, background"})
     s = _Section(run, done)
     _write_group(gt, "heights", _heights(s))
     _write_group(gt, "geolocation", _geolocation(s, sc_orient))
