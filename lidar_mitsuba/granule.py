@@ -350,6 +350,36 @@ def _along_of(track, beam: Beam, n_shots: int, spacing_m: float) -> np.ndarray |
     return track.beam_geolocation(beam, 0, n_shots)[1]
 
 
+class _Fits:
+    """A granule's ATL06 fits on a thread of their own: a section's segments are fitted (the
+    compiled fit runs without the GIL) while the simulating thread lays out and traces the
+    next one, and are written to ``f6`` by the simulating thread (:meth:`write`), in the
+    order they were submitted: each beam's sections in order, each fit after the one before
+    (one thread: a beam's fit continues from the previous one's tail)."""
+
+    def __init__(self, f6, sc_orient: int):
+        from concurrent.futures import ThreadPoolExecutor
+        self.f6, self.sc_orient, self.jobs = f6, sc_orient, []
+        self.pool = ThreadPoolExecutor(1, thread_name_prefix="lidar-atl06")
+
+    def submit(self, beam: Beam, segments: "_SegmentStream", run: BeamRun, *, last: bool):
+        self.jobs.append((beam, self.pool.submit(segments.fit, run, last=last)))
+
+    def write(self, *, wait: bool = False) -> None:
+        """Write the finished fits (``wait``: all of them) to the ATL06 file."""
+        while self.jobs and (wait or self.jobs[0][1].done()):
+            beam, job = self.jobs.pop(0)
+            table, along, lat, lon, t = job.result()
+            _beam_atl06(self.f6, beam, self.sc_orient, table, along_m=along, lat_deg=lat,
+                        lon_deg=lon, delta_time_s=t)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.pool.shutdown(wait=True, cancel_futures=True)
+
+
 class _SegmentStream:
     """ATL06 segments of one beam, fitted section by section. Each fit sees the previous
     section's last 20 m (the tail), so a 40 m segment across a section boundary holds all
@@ -466,17 +496,22 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
         with contextlib.ExitStack() as stack:
             f3 = stack.enter_context(atomic_h5file(atl03_path))
             _atl03_header(f3, meta, instruments, t_first, t_last)
-            f6 = None
+            fits = None
             if atl06_path is not None:
                 f6 = stack.enter_context(atomic_h5file(atl06_path))
                 _atl06_header(f6, meta, instruments, t_first, t_last)
+                fits = stack.enter_context(_Fits(f6, sc_orient))
             for k in range(n_sections):
                 for st in streams:
-                    done = st.section(k, ctx, f3, f6, seed=seed, sc_orient=sc_orient,
+                    done = st.section(k, ctx, f3, fits, seed=seed, sc_orient=sc_orient,
                                       paths_per_shot=paths_per_shot, max_depth=max_depth,
                                       **simulate_options)
+                    if fits is not None:
+                        fits.write()
                     if bar is not None:
                         bar.update(done)
+            if fits is not None:
+                fits.write(wait=True)
     finally:
         if bar is not None:
             bar.close()
@@ -499,9 +534,10 @@ class _BeamStream:
         self.segments: _SegmentStream | None = None
         self.summary = BeamSummary(beam=beam)
 
-    def section(self, k: int, ctx: _Context, f3, f6, *, seed: int, sc_orient: int,
+    def section(self, k: int, ctx: _Context, f3, fits, *, seed: int, sc_orient: int,
                 **plan_kw) -> int:
-        """Simulate section ``k`` (if the beam has it) into the files; returns its shots."""
+        """Simulate section ``k`` (if the beam has it) into the ATL03 file ``f3`` and hand it
+        to the ATL06 fits (a :class:`_Fits`, or None); returns its shots."""
         from .run import assemble, stream
         if k >= len(self.bounds):
             return 0
@@ -530,9 +566,7 @@ class _BeamStream:
         run = BeamRun(beam=self.beam, result=assemble(part, stream(part, keep_returns=False)),
                       first_shot=a)
         _beam_atl03(f3, run, sc_orient, replanned=replanned)
-        if f6 is not None:
-            table, along, lat, lon, t = self.segments.fit(run, last=k == len(self.bounds) - 1)
-            _beam_atl06(f6, self.beam, sc_orient, table, along_m=along, lat_deg=lat,
-                        lon_deg=lon, delta_time_s=t)
+        if fits is not None:
+            fits.submit(self.beam, self.segments, run, last=k == len(self.bounds) - 1)
         self.summary.add(run.result)
         return b - a

@@ -498,6 +498,28 @@ def test_streamed_granule_sections_join_exactly(dem_path, tmp_path):
                                           whole.n_fit_photons)
 
 
+def test_a_failed_fit_leaves_neither_file(dem_path, tmp_path, monkeypatch):
+    """The ATL06 fits run on a thread of their own beside the simulation: a fit that fails
+    (here the third) stops the granule with its error, and neither file is left."""
+    calls = []
+    real = granule._SegmentStream.fit
+
+    def failing(self, run, *, last):
+        calls.append(run.beam.name)
+        if len(calls) == 3:
+            raise RuntimeError("fit failed")
+        return real(self, run, last=last)
+    monkeypatch.setattr(granule._SegmentStream, "fit", failing)
+    surf = dems.DEMSurface(dems.DEM.open(dem_path), tile_shots=512)
+    a3, a6 = tmp_path / "f3.h5", tmp_path / "f6.h5"
+    with pytest.raises(RuntimeError, match="fit failed"):
+        granule.stream_granule(surface=surf, track=TRACK, shots=2400, beams="gt2l,gt2r",
+                               atl03_path=a3, atl06_path=a6, seed=5, progress=False,
+                               max_depth=1, section_shots=700)
+    assert len(calls) >= 3        # (a fit already under way may finish first)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
 def test_make_dem_writes_a_dem_that_opens_and_refuses_bad_sizes(tmp_path):
     exe = [sys.executable, "-m", "lidar_mitsuba_cli", "make-dem"]
     out = tmp_path / "d.tif"
