@@ -501,21 +501,27 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                 f6 = stack.enter_context(atomic_h5file(atl06_path))
                 _atl06_header(f6, meta, instruments, t_first, t_last)
                 fits = stack.enter_context(_Fits(f6, sc_orient))
-            for k in range(n_sections):
-                for st in streams:
-                    done = st.section(k, ctx, f3, fits, seed=seed, sc_orient=sc_orient,
-                                      paths_per_shot=paths_per_shot, max_depth=max_depth,
-                                      **simulate_options)
-                    if fits is not None:
-                        fits.write()
-                    if bar is not None:
-                        bar.update(done)
-            if fits is not None:
-                fits.write(wait=True)
+            _sections(streams, n_sections, ctx, f3, fits, bar, seed=seed, sc_orient=sc_orient,
+                      paths_per_shot=paths_per_shot, max_depth=max_depth, **simulate_options)
     finally:
         if bar is not None:
             bar.close()
     return [st.summary for st in streams]
+
+
+def _sections(streams, n_sections: int, ctx, f3, fits, bar, **kw) -> None:
+    """Simulate every beam's sections, section by section (a section's beams in turn), into
+    the ATL03 file ``f3`` and the ATL06 fits ``fits`` (written as they finish, all at the
+    end), the progress ``bar`` following."""
+    for k in range(n_sections):
+        for st in streams:
+            done = st.section(k, ctx, f3, fits, **kw)
+            if fits is not None:
+                fits.write()
+            if bar is not None:
+                bar.update(done)
+    if fits is not None:
+        fits.write(wait=True)
 
 
 class _BeamStream:
