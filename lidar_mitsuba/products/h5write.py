@@ -89,7 +89,7 @@ def put(group, name: str, data, units: str, description: str, *, append: bool = 
             entry.write(start, data)
             return entry.dset
         d, level = _create(group, name, data, CHUNK_ROWS, fillvalue)
-        entry = _open[key] = _Entry(d, level=level, key=(_file_key(group), key[1]))
+        entry = _open[key] = _Entry(d, level=level, key=(_file_key(group), d.name))
         entry.grow(data.shape[0])
         entry.write(0, data)
     else:
@@ -256,7 +256,7 @@ def discard(f) -> None:
         _queued[0] = sum(e[4] for e in keep)
 
 
-def _submit(file_key: str, dset, first_row: int, rows: np.ndarray, level: int) -> None:
+def _submit(file_key: bytes, dset, first_row: int, rows: np.ndarray, level: int) -> None:
     """Queue the chunk of ``dset`` (in the file ``file_key`` names) that starts at
     ``first_row`` (``rows``: all of it, or its first rows, then padded with the dataset's fill
     value) for compression."""
@@ -309,7 +309,7 @@ def _shuffle_deflate_level(dset) -> int | None:
     return int(values[0]) if values else None
 
 
-def _forget(file_key: str) -> None:
+def _forget(file_key: bytes) -> None:
     """Drop the appended datasets of the file ``file_key`` names (it is about to close)."""
     for k in [k for k, e in list(_open.items()) if e.key[0] == file_key]:
         del _open[k]
