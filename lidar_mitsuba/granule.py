@@ -39,7 +39,7 @@ from .products import atl06, h5write as h5chunks
 from .ground.snow import kernel as snow_kernel
 from .products.atl03 import _ds, atomic_h5file
 from .products.atl03.beam import (BCKGRD_SHOTS, PULSES_PER_MAJOR_FRAME, SEGMENT_M,
-                                  write_beam as _beam_atl03)  # noqa: F401
+                                  beam_attrs, write_beam as _beam_atl03)  # noqa: F401
 from .products.atl03.file import (ancillary as _ancillary, header as _atl03_header,
                                   orbit_info as _orbit_info)
 from .constants import ParameterError, check
@@ -245,12 +245,9 @@ def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_d
     """Append ``table``'s segments to the beam's ``land_ice_segments``; positions and times
     are those of the shot nearest each segment centre among ``along_m`` [m] (with their
     ``lat_deg``, ``lon_deg``, ``delta_time_s``)."""
-    gt = f.require_group(beam.name)
-    h5chunks.set_attrs(gt, {"atlas_beam_type": beam.strength,
-                            "atlas_spot_number": str(beam.spot), "atlas_pce": f"pce{beam.pce}",
-                            "groundtrack_id": beam.name,
-                            "sc_orientation": "Backward" if sc_orient == 0 else "Forward"})
-    li = gt.require_group("land_ice_segments")
+    if beam.name not in f:                                # (the first section's)
+        h5chunks.set_attrs(f.create_group(beam.name), beam_attrs(beam, sc_orient))
+    li = f[beam.name].require_group("land_ice_segments")
     for sub in ("fit_statistics", "bias_correction", "geophysical", "ground_track", "dem"):
         li.require_group(sub)
     i = np.clip(np.searchsorted(along_m, table.x_atc), 0, max(along_m.size - 1, 0))

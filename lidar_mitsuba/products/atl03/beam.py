@@ -362,6 +362,14 @@ def _field_attrs(ds, fld, note: str, coordinates: str, name: str) -> None:
     h5chunks.set_attrs(ds, attrs)
 
 
+def beam_attrs(beam, sc_orient: int) -> dict:
+    """The attributes of a beam's group, ATL03's and ATL06's alike: strength, spot, PCE,
+    ground track and the spacecraft's orientation."""
+    return {"atlas_beam_type": beam.strength, "atlas_spot_number": str(beam.spot),
+            "atlas_pce": f"pce{beam.pce}", "groundtrack_id": beam.name,
+            "sc_orientation": "Backward" if sc_orient == 0 else "Forward"}
+
+
 def write_beam(f, run, sc_orient: int, *, replanned: bool = False) -> None:
     """Append one run (a :class:`~lidar_mitsuba.products.record.BeamRun`: the beam, its result and
     each shot's latitude, longitude, direction and time) to the beam's groups of ATL03 file
@@ -374,13 +382,12 @@ def write_beam(f, run, sc_orient: int, *, replanned: bool = False) -> None:
     differs from the section before) adds ``{"first_shot", "config"}`` of its own to the JSON
     list ``section_configs``, so the file says what every section was simulated with."""
     beam = run.beam
-    gt = f.require_group(beam.name)
+    if beam.name not in f:                                # (the first section's)
+        h5chunks.set_attrs(f.create_group(beam.name), {
+            **beam_attrs(beam, sc_orient),
+            "description": "one ATLAS beam: photons, geolocation, background"})
+    gt = f[beam.name]
     done = gt["heights/h_ph"].shape[0] if "heights/h_ph" in gt else 0   # earlier sections
-    h5chunks.set_attrs(gt, {"atlas_beam_type": beam.strength,
-                            "atlas_spot_number": str(beam.spot), "atlas_pce": f"pce{beam.pce}",
-                            "groundtrack_id": beam.name,
-                            "sc_orientation": "Backward" if sc_orient == 0 else "Forward",
-                            "description": "one ATLAS beam: photons, geolocation, background"})
     s = _Section(run, done)
     _write_group(gt, "heights", _heights(s))
     _write_group(gt, "geolocation", _geolocation(s, sc_orient))
