@@ -405,6 +405,8 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False,
         doc["snow_optics"] = snow_optics.run(quick=quick)
         doc["media"] = media_accuracy.run(quick=quick)
         doc["accuracy_vs_time"].update(doc["media"])
+        from . import sky_table
+        doc["sky"] = sky_table.bench(quick=quick)
     charts = {"throughput.png": lambda p: _chart(doc, p)}
     if not throughput_only:
         charts.update({
@@ -497,6 +499,9 @@ def format_summary(doc: dict) -> str:
     if "media" in doc:
         from . import media_accuracy
         lines += media_accuracy.format_summary(doc["media"])
+    if "sky" in doc:
+        from . import sky_table
+        lines.append(sky_table.format_bench(doc["sky"]))
     for name, rows in doc.get("stability", {}).items():
         bad = [f"{r['value']:g}: {r['status']}" for r in rows
                if not str(r.get("status", "ok")).startswith("ok")]
