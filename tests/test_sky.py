@@ -145,6 +145,26 @@ def test_table_of_renders_against_closed_form():
             assert np.all(np.abs(cf - ren) < 3 * se + tol * ren), (aod, alb, cf / ren)
 
 
+def test_rendered_diffuse_irradiance_against_closed_form():
+    """The diffuse irradiance at the surface, rendered (an irradiancemeter at the surface
+    point; albedo 0 and 0.9) against the closed form: within 3 standard errors plus 20 % from
+    -4 to +30 deg (found: 0.83-1.17; the isotropic higher orders too strong over snow in hazy
+    air at a high sun, +17 %, as SPECTRL2 also finds +9-12 %; the twilight's onset, -4 to
+    -3 deg, 10-17 % low). The nadir radiance ATLAS sees is held to 10 % (the test above)."""
+    from lidar_mitsuba.studies import sky_table
+    doc = sky_table.load()
+    e = np.asarray(doc["elevations_deg"])
+    keep = e >= -4.0
+    for i, aod in enumerate(doc["aerosol_optical_depths"]):
+        for j, alb in enumerate(doc["irradiance_albedos"]):
+            cf = sky.sky(solar_elevation_deg=e[keep], z_m=0.0, albedo=alb,
+                         tau_rayleigh=doc["tau_rayleigh"], aerosol_optical_depth=aod,
+                         refraction=False).diffuse
+            ren = doc["diffuse_irradiance"][i, j][keep]
+            se = doc["diffuse_irradiance_standard_error"][i, j][keep]
+            assert np.all(np.abs(cf - ren) < 3 * se + 0.20 * ren), (aod, alb, cf / ren)
+
+
 def test_grid_interpolation_matches_direct_evaluation():
     """``nadir_radiance`` interpolates on a 0.25 deg x 250 m grid: within 1 % of a direct
     evaluation (with the renders' correction below -4 deg) at off-node points from twilight
