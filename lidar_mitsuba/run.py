@@ -121,8 +121,8 @@ def simulate(*, instrument: Instrument | None = None,
              track: Track | None = None, variant: str | None = None, progress: bool = True,
              chunk_shots: int = chunks.CHUNK_SHOTS, keep_returns: bool | None = None,
              crop_to_track: bool = True, snow: SnowVolume | None = None,
-             snow_model: str = "auto", site: Site | None = None,
-             cloud=None) -> SimulationResult:
+             snow_model: str = "auto", site: Site | None = None, cloud=None
+             ) -> SimulationResult:
     """Simulate ``shots`` laser shots along a ground track and detect their photons.
 
     >>> lm.simulate(scene="scenes/fog.xml", params={"tau": 0.5}).report()  # doctest: +SKIP
@@ -178,12 +178,8 @@ def simulate(*, instrument: Instrument | None = None,
             longitudes and times, and the sun and air of an instrument with a link budget. A
             track with its own geolocation (a DEM granule's) keeps its own places and times
             (only the site's height applies).
-        cloud: a cloud layer over the track (:class:`~lidar_mitsuba.atmosphere.cloud.Cloud`
-            or a dict of its fields; default None: clear sky): the ground's light attenuated
-            exp(-2 tau) both ways plus its forward-scattered, delayed part (tabulated once
-            from the media integrator, :mod:`lidar_mitsuba.atmosphere.cloud_kernel`), the
-            cloud's own backscatter inside the range gate, and the sun dimmed or brightened
-            by it (docs/physics/clouds.md).
+        cloud: a cloud over the track (:class:`~lidar_mitsuba.atmosphere.cloud.Cloud`, or a
+            dict of its fields; None: clear sky): :mod:`lidar_mitsuba.atmosphere.cloud_kernel`.
 
     Raises:
         ParameterError: a bad value, named (``.name``), before anything is traced.
