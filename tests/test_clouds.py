@@ -5,6 +5,7 @@ trace within four standard errors (the SE from the spread of the per-shot values
 binomial formula where a count is binomial). Fixed seeds.
 """
 import math
+import pathlib
 
 import h5py
 import numpy as np
@@ -246,3 +247,23 @@ def test_bad_cloud_options_one_line(tmp_path, capsys, args, option):
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and option in err, err
     assert not (tmp_path / "o.h5").exists()
+
+
+def test_cli_cloud_runs(tmp_path, capsys, small_tables):
+    """The guide's commands (docs/guide/clouds.md) at 100 shots: a built-in surface and a
+    real granule's twin under a cloud, with ATL06's cloud flags written."""
+    from lidar_mitsuba.cli import main
+    out = tmp_path / "cloudy.h5"
+    assert main(["simulate", "--instrument", "atlas", "--surface", "flat", "--cloud-od", "1",
+                 "--cloud-base-m", "1000", "--cloud-top-m", "1500", "--shots", "100",
+                 "--out", str(out), "--explain", "--no-progress"]) == 0
+    assert "cloud: a water cloud 1000-1500 m" in capsys.readouterr().out and out.exists()
+    a6 = tmp_path / "twin_cloud_atl06.h5"
+    real = pathlib.Path(__file__).resolve().parents[1] / "lidar_mitsuba/data/ATL03_gt1l_20181014.h5"
+    assert main(["simulate", "--like", str(real),
+                 "--cloud-od", "0.5", "--cloud-base-m", "800", "--cloud-top-m", "1200",
+                 "--shots", "100", "--out", str(tmp_path / "twin_cloud.h5"), "--atl06",
+                 str(a6), "--no-progress"]) == 0
+    with h5py.File(a6) as f:
+        g = f["gt1l/land_ice_segments/geophysical"]
+        assert np.all(g["cloud_flg_atm"][:] == 1) and g["r_eff"].dtype == np.float32
