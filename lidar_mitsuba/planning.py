@@ -137,7 +137,7 @@ class RunPlan:
         tiling: the scenes the chunks trace (:class:`~lidar_mitsuba.ground.surface.Tiling`:
             one for every chunk, or a DEM's corridor tile per chunk); ``plan.scene`` is the
             first chunk's.
-        cloud: the cloud over the track (:class:`~lidar_mitsuba.atmosphere.cloud.Cloud`), or
+        cloud: the cloud over the track (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`), or
             None (clear sky).
     """
     instrument: Instrument
@@ -275,7 +275,7 @@ def plan(*, instrument: Instrument | None = None, surface=None, scene=None,
 def _cloud(cloud, run: _Run):
     """The run's cloud checked (None or optical depth 0: clear sky), its kernel tabulated
     (:mod:`.atmosphere.cloud_kernel`, cached: a later section or beam reuses it)."""
-    from .atmosphere import cloud as clouds
+    from .atmosphere import cloud_layer as clouds
     cloud = clouds.as_cloud(cloud)
     if cloud is None or cloud.clear:
         return None
@@ -459,8 +459,8 @@ def _place_on_earth(run: _Run, site: Site) -> None:
         run.radiometry = radiometry.run_radiometry(
             run.instrument, run.geolocation, run.gate_z_m + site.height_m, scene=run.scene,
             x_m=run.x_local_m, y_m=run.y_local_m, snow=run.material.snow)
-        if run.cloud is not None:     # the sun under the cloud (atmosphere.cloud)
-            from .atmosphere.cloud import clouded_radiometry
+        if run.cloud is not None:     # the sun under the cloud (atmosphere.cloud_layer)
+            from .atmosphere.cloud_layer import clouded_radiometry
             run.radiometry = clouded_radiometry(
                 run.radiometry, run.cloud, run.instrument,
                 delta_time_s=run.geolocation.delta_time_s, z_m=run.gate_z_m + site.height_m)

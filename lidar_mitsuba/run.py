@@ -178,7 +178,7 @@ def simulate(*, instrument: Instrument | None = None,
             longitudes and times, and the sun and air of an instrument with a link budget. A
             track with its own geolocation (a DEM granule's) keeps its own places and times
             (only the site's height applies).
-        cloud: a cloud over the track (:class:`~lidar_mitsuba.atmosphere.cloud.Cloud`, or a
+        cloud: a cloud over the track (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`, or a
             dict of its fields; None: clear sky): :mod:`lidar_mitsuba.atmosphere.cloud_kernel`.
 
     Raises:

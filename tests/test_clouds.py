@@ -1,4 +1,4 @@
-"""Clouds in every run (lidar_mitsuba.atmosphere.cloud, .cloud_kernel, products.cloud_flags).
+"""Clouds in every run (lidar_mitsuba.atmosphere.cloud_layer, .cloud_kernel, products.cloud_flags).
 
 Monte Carlo checks compare means over iid shots with their closed form or an independent
 trace within four standard errors (the SE from the spread of the per-shot values, or the
@@ -13,7 +13,7 @@ import pytest
 
 import lidar_mitsuba as lm
 from lidar_mitsuba.atmosphere import cloud_kernel as ck
-from lidar_mitsuba.atmosphere.cloud import Cloud, CloudClimatology
+from lidar_mitsuba.atmosphere.cloud_layer import Cloud, CloudClimatology
 from lidar_mitsuba.constants import ParameterError
 from lidar_mitsuba.geotrack import Site
 from lidar_mitsuba.products import atl06, cloud_flags, h5write

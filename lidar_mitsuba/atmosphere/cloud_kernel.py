@@ -12,7 +12,7 @@ plate in clear air is 1):
   up or both, and still reaches the receiver from its field of view: its mean weight and the
   quantile function of its delay (late by ``delay``: the surface appears ``c delay / 2``
   lower). Only light that appears at or below the ground counts (the cloud's own backscatter
-  above it is the closed form's, :meth:`~.cloud.Cloud.backscatter_weight`).
+  above it is the closed form's, :meth:`~.cloud_layer.Cloud.backscatter_weight`).
 
 Tables are kept in memory per cloud and geometry (:func:`table` is cached).
 
@@ -28,8 +28,9 @@ backscatter in the gate (``B`` per path, the closed form), drawn with probabilit
 ``B / (w (D + F) + B)`` at a height drawn from the layer's return profile, with the pulse's
 spread.
 
-Where the cheap kernel is enough is charted by :func:`compare` (lidar_mitsuba.studies.cloud
-``kernel_chart``): the kernel against the full trace of the same cloud over the same plate.
+Where the cheap kernel is enough is charted by
+:func:`lidar_mitsuba.studies.cloud.kernel_vs_full`: the kernel against the full trace of the
+same cloud over the same plate (docs/guide/clouds.md).
 """
 from __future__ import annotations
 
@@ -42,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..constants import C_M_PER_NS
-from .cloud import Cloud
+from .cloud_layer import Cloud
 
 _CLOUD_STREAM = 0x434C4F          # 'CLO': the kernel's draws apart from tracer and detector
 LEVELS = 1025

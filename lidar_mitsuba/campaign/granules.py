@@ -274,10 +274,10 @@ def _snow(p: dict) -> dict:
 
 
 def granule_cloud(p: dict):
-    """The granule's cloud (:class:`~lidar_mitsuba.atmosphere.cloud.Cloud`, or None: clear)
+    """The granule's cloud (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`, or None: clear)
     from the spec's ``[cloud]``: the one cloud, or a draw from its climatology seeded by the
     granule's photon seed (the same task, the same cloud)."""
-    from ..atmosphere.cloud import Cloud, CloudClimatology
+    from ..atmosphere.cloud_layer import Cloud, CloudClimatology
     t = p.get("cloud")
     if not t:
         return None

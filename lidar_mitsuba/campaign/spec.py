@@ -333,10 +333,10 @@ def _cloud(doc: dict) -> dict | None:
     """``[cloud]``: one cloud over every granule (``optical_depth``, ``base_m``, ``top_m``,
     ``phase``) or a climatology each granule draws from with its own seed (``fraction``,
     ``optical_depth_median``, ``optical_depth_log_sigma``, ``base_m``, ``top_m``, ``phase``:
-    :class:`~lidar_mitsuba.atmosphere.cloud.CloudClimatology`); checked, as given."""
+    :class:`~lidar_mitsuba.atmosphere.cloud_layer.CloudClimatology`); checked, as given."""
     if "cloud" not in doc:
         return None
-    from ..atmosphere.cloud import Cloud, CloudClimatology
+    from ..atmosphere.cloud_layer import Cloud, CloudClimatology
     t = dict(_table(doc, "cloud"))
     fixed, clim = "optical_depth" in t, "fraction" in t
     if fixed == clim:

@@ -144,7 +144,7 @@ def _add_snow_options(s) -> None:
 
 
 def _add_cloud_options(s) -> None:
-    """A cloud layer over the track (``lidar_mitsuba.atmosphere.cloud.Cloud``)."""
+    """A cloud layer over the track (``lidar_mitsuba.atmosphere.cloud_layer.Cloud``)."""
     c = s.add_argument_group("cloud (off by default: clear sky; docs/guide/clouds.md)")
     c.add_argument("--cloud-od", type=float, metavar="TAU",
                    help="a cloud of this optical depth at 532 nm over the whole track")
@@ -161,7 +161,7 @@ def _add_cloud_options(s) -> None:
 def _cloud(a):
     """The run's cloud from the ``--cloud-*`` options, or ``None`` (no --cloud-od)."""
     from dataclasses import replace
-    from ..atmosphere.cloud import Cloud
+    from ..atmosphere.cloud_layer import Cloud
     given = [(f, v) for f, v in (("--cloud-base-m", a.cloud_base_m),
                                  ("--cloud-top-m", a.cloud_top_m),
                                  ("--cloud-phase", a.cloud_phase), ("--cloud-g", a.cloud_g))

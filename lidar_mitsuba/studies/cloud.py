@@ -415,7 +415,7 @@ def kernel_vs_full(*, cases=KERNEL_CASES, shots: int = 3000, seed: int = 1,
     dead time: detected signal per shot, mean elevation and its 5/50/95 % quantiles. A row
     passes where the count agrees within 5 % and the mean within 1 cm (beyond 2 SE)."""
     from ..atmosphere import cloud_kernel as ck
-    from ..atmosphere.cloud import Cloud
+    from ..atmosphere.cloud_layer import Cloud
     inst = Instrument.atlas(beam)
     rows = []
     for tau, base, top in cases:

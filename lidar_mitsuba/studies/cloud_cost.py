@@ -34,7 +34,7 @@ def run(*, quick: bool) -> dict:
     run's time over its rays cast alone."""
     from .. import geotrack
     from ..atmosphere import cloud_kernel
-    from ..atmosphere.cloud import Cloud
+    from ..atmosphere.cloud_layer import Cloud
     from ..ground import dem
     from ..instrument import Instrument
     km = 0.5 if quick else 10.0
