@@ -115,7 +115,7 @@ def test_the_kernel_matches_the_full_media_trace(small_tables):
     detector, independent seeds: detected signal per shot and mean elevation agree within
     four combined SEs (the kernel's own table error is added: its forward part's SE)."""
     c = Cloud.water(0.5, 100.0, 200.0)
-    shots = 1000
+    shots = 800
     full = _night(scene=ck.layer_scene_dict(c), shots=shots, seed=11)
     cheap = _night(scene=PLATE, cloud=c, shots=shots, seed=12)
     assert full.config["integrator"] == "mediapathlength"
