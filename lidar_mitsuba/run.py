@@ -255,6 +255,11 @@ def assemble(run: RunPlan, chunked: chunks.ChunkedRun) -> SimulationResult:
                               x_m=run.x_local_m, y_m=run.y_local_m,
                               surface_z=run.surface_z_m[:n_local], n_returns=chunked.n_returns,
                               det=det, instrument=inst)
+    if run.cloud is not None and run.cloud.base_m < inst.range_gate_m / 2:
+        warns.append(f"the cloud's base ({run.cloud.base_m:g} m) is inside the range gate: "
+                     f"its kernel misses the light the layer scatters many times there (the "
+                     f"surface ~10 cm too high under fog of optical depth 0.5, "
+                     f"docs/guide/clouds.md); trace the layer in a scene (scenes/fog.xml)")
     for w in warns:
         warnings.warn(w, SimulationWarning, stacklevel=3)
     config = {"instrument": inst.to_dict(), "surface": cfg,

@@ -267,3 +267,11 @@ def test_cli_cloud_runs(tmp_path, capsys, small_tables):
     with h5py.File(a6) as f:
         g = f["gt1l/land_ice_segments/geophysical"]
         assert np.all(g["cloud_flg_atm"][:] == 1) and g["r_eff"].dtype == np.float32
+
+
+def test_a_cloud_in_the_range_gate_is_flagged(small_tables):
+    """Fog reaching into the gate: the kernel's known limit (the guide's chart) is said."""
+    with pytest.warns(lm.SimulationWarning, match="inside the range gate"):
+        res = _night(surface=lm.SurfaceSpec(kind="flat"), shots=100, seed=2,
+                     cloud=Cloud.water(0.5, 5.0, 60.0))
+    assert any("inside the range gate" in w for w in res.config["warnings"])
