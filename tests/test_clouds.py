@@ -108,6 +108,7 @@ def _stats(res):
             m, math.sqrt(n / (n - 1) * np.sum(r * r)) / counts.sum())
 
 
+@pytest.mark.filterwarnings("ignore:.*too few paths")    # (the full trace's shared paths)
 def test_the_kernel_matches_the_full_media_trace(small_tables):
     """A low cloud (100-200 m, tau 0.5: a quarter of the ground's light arrives scattered,
     late by up to metres) over a Lambertian 0.9 plate: the run with the cloud as a kernel on
