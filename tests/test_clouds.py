@@ -176,6 +176,8 @@ def test_flags_are_written_as_atl06_and_atl07_write_them(tmp_path):
                   "cloud_flg_asr": cloud_flags.asr_flag([0.95, 0.4, np.nan], 1.0),
                   "cloud_flg_atm": np.array([0, 1, 1], np.int8)}
     assert list(table_cols["cloud_flg_asr"]) == [0, 4, 127]
+    tau = cloud_flags.implied_optical_depth([0.9 * math.exp(-1.0), 1.0, np.nan], 0.9)
+    assert tau[0] == pytest.approx(0.5) and tau[1] == 0.0 and np.isnan(tau[2])
     seg = atl07.segments(h_m=np.zeros(300), shot=np.repeat(np.arange(100), 3),
                          along_m=np.repeat(np.arange(100) * 0.7, 3), photons_per_segment=150)
     c7 = cloud_flags.atl07_columns(seg, {"unit_photons": 10.0, "expected_reflectance": 0.9,

@@ -77,6 +77,19 @@ def asr_flag(asr, expected_reflectance: float) -> np.ndarray:
     return flag
 
 
+def implied_optical_depth(asr, clear_reflectance: float) -> np.ndarray:
+    """The cloud optical depth a measured ``asr`` implies over a surface of clear-sky
+    reflectance ``clear_reflectance``, attenuation only: ``tau = -ln(asr / R) / 2`` (0 where
+    asr >= R; NaN where not finite). The forward-scattered light a cloud adds (F, a few % of
+    the ground's under a cloud 1 km up: :mod:`lidar_mitsuba.atmosphere.cloud_kernel`) makes
+    this a slight underestimate. For giving a real granule's twin its cloud
+    (``simulate(cloud=...)``) from the file's own ``r_eff`` or ``asr_25``."""
+    a = np.asarray(asr, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = -0.5 * np.log(a / float(clear_reflectance))
+    return np.where(np.isfinite(tau), np.maximum(tau, 0.0), np.nan)
+
+
 def atl06_columns(table, sky: dict) -> dict:
     """ATL06's ``geophysical`` cloud columns of a segment table
     (:class:`~lidar_mitsuba.products.atl06.SegmentTable`): ``r_eff`` from ``fpb_n_corr /
