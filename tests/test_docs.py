@@ -40,6 +40,7 @@ SHOTS = 200
 #: that selects it or None) -> test
 ELSEWHERE = {
     ("simulate", "--snow-grain-um"): "tests/test_snow.py::test_cli_snow_options",
+    ("simulate", "--cloud-od"): "tests/test_clouds.py::test_cli_cloud_runs",
     ("bench", None): "tests/test_bench.py::bench_run",
     ("sweep", None): "tests/test_sweep.py::test_cli_runs_resumes_and_plots",
     ("validate", None): "tests/test_docs.py::test_validate_command_runs_the_study",
