@@ -41,6 +41,19 @@ def test_sampled_delays_match_closed_form_moments_and_cdf():
         assert abs(k - n * a) < 5 * math.sqrt(n * a * (1 - a))
 
 
+def test_whole_response_cdf_matches_gaussian_plus_sampled_delay():
+    """The whole response's closed-form CDF (Gaussian + ex-Gaussian + shifted Gaussians)
+    against Gaussian draws plus the mixture's delays: KS at alpha 1e-4, n = 200 000."""
+    n, sigma = 200_000, 1.5 / 2.3548
+    rng = np.random.default_rng(11)
+    t = np.sort(sigma * rng.standard_normal(n) + R.sample_delay_ns(n, rng))
+    grid = np.linspace(-3, 30, 2001)
+    emp = np.searchsorted(t, grid, side="right") / n
+    ks = np.max(np.abs(emp - R.cdf(grid, sigma_ns=sigma)))
+    assert ks < math.sqrt(-math.log(1e-4 / 2) / (2 * n))
+    assert R.calibration_ns() == pytest.approx(R.tail_fraction * R.tail_mean_ns)
+
+
 def test_pdf_integrates_to_one_and_has_its_mean():
     """The whole response (Gaussian * delays) is a density whose mean is the delay's mean
     (the Gaussian is centred on 0): trapezoid sums on a fine grid, tolerance 1e-4."""

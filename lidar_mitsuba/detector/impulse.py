@@ -27,7 +27,8 @@ an exponential of mean :attr:`ImpulseResponse.tail_mean_ns`, so the response is
     h(t) = (1 - a_tail - sum_k a_k) g(t) + a_tail (g * Exp(tau))(t) + sum_k a_k g(t - d_k)
 
 with ``g`` the Gaussian transmit pulse. The delays are drawn per photon before the dead-time
-stage (:func:`sample_delay_ns`), a separate step after the tracer: with
+stage (:meth:`ImpulseResponse.sample_delay_ns`), a separate step after the tracer, less the
+range calibration (:meth:`ImpulseResponse.calibration_ns`: the waveform's mean delay); with
 :data:`GAUSSIAN` (the paper's instrument) nothing is drawn and the detector's output is the same
 to the bit.
 
@@ -134,6 +135,28 @@ class ImpulseResponse:
             out = out + self.tail_fraction * _ex_gaussian(t, sigma_ns, self.tail_mean_ns)
         return out
 
+    def cdf(self, t_ns, *, sigma_ns: float) -> np.ndarray:
+        """P(time <= t_ns) of the whole response (Gaussian of ``sigma_ns`` plus the delay)."""
+        from scipy.special import ndtr
+        t = np.asarray(t_ns, np.float64)
+        out = self.direct_fraction * ndtr(t / sigma_ns)
+        for d, a in zip(self.echo_delays_ns, self.echo_fractions):
+            out = out + a * ndtr((t - d) / sigma_ns)
+        if self.tail_fraction > 0:
+            out = out + self.tail_fraction * _ex_gaussian_cdf(t, sigma_ns, self.tail_mean_ns)
+        return out
+
+    def calibration_ns(self) -> float:
+        """The range calibration [ns]: the mean delay of the pulse's waveform (the main lobe
+        and its tail; the receiver echoes 15-28 ns later and the afterpulses are not part of
+        it), ``a_tail * tau``, subtracted from every delay drawn. ATL03 corrects its ranges by
+        a calibrated constant (``geolocation/range_bias_corr``) and ATL06 refers its heights
+        to the full transmit waveform's mean (its ``tx_mean_corr`` takes a truncated window's
+        mean there, from the transmitter echo path); that the calibrated reference is this
+        mean is our ESTIMATE (recalled from the ATL06 ATBD, not re-read here). The Gaussian
+        pulse alone has mean 0: the paper's instrument is unchanged."""
+        return self.tail_fraction * self.tail_mean_ns
+
     def sample_delay_ns(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """(n,) delays [ns] drawn from the mixture: one uniform ``u`` per photon picks the
         component; inside the tail's interval ``[e, e + a)`` the rescaled ``(u - e) / a`` is
@@ -152,6 +175,13 @@ class ImpulseResponse:
             out[(u >= edge) & (u < edge + a)] = d
             edge += a
         return out
+
+
+def _ex_gaussian_cdf(t, sigma, tau):
+    """CDF of N(0, sigma^2) + Exp(mean tau): Phi(t / sigma) - tau pdf(t) (the standard
+    identity F = Phi - tau f for the exponentially modified Gaussian)."""
+    from scipy.special import ndtr
+    return ndtr(np.asarray(t, np.float64) / sigma) - tau * _ex_gaussian(t, sigma, tau)
 
 
 def _ex_gaussian(t, sigma, tau):

@@ -168,8 +168,9 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
     anode = rng.integers(0, instrument.anodes, idx.size)
     response = _impulse.response_of(instrument)
     sig_time = np.asarray(returns.time_ns, np.float64)[idx]
-    if response.adds_delay:            # the receiver's tail and echoes (none: the paper's)
-        sig_time = sig_time + response.sample_delay_ns(idx.size, rng)
+    if response.adds_delay:            # the receiver's tail and echoes (none: the paper's),
+        sig_time = sig_time + (response.sample_delay_ns(idx.size, rng)      # calibrated
+                               - response.calibration_ns())
     if gate_center_ns is not None:
         gate_start = np.asarray(gate_center_ns, np.float64) - instrument.range_gate_ns / 2.0
         gate_ns = instrument.range_gate_ns
