@@ -78,6 +78,10 @@ def bench_detector(*, quick: bool) -> list[dict]:
                                                      range_gate_m=100.0)),
         ("paralyzable, 300 MHz", 64, Instrument(beam="strong", background_mhz=300.0,
                                                 range_gate_m=100.0, paralyzable=True)),
+        # ATLAS's receiver response (detector/impulse.py: per-photon delays, afterpulses and
+        # a second dead-time pass): its cost against the row above it
+        ("strong, 10 MHz, ATLAS response", 64, Instrument(beam="strong", background_mhz=10.0,
+                                                          pulse_shape="atlas")),
     ]
     rows = []
     for name, k, inst in cases:
