@@ -106,6 +106,15 @@ def _add_study_parsers(sub) -> None:
                     help="folder for report.md, report.json and the PNGs (created if missing)")
     va.add_argument("--quick", action="store_true",
                     help="fewer interior shots (what the tests run)")
+    va.add_argument("--real", nargs="*", metavar="FILE_OR_DIR",
+                    help="instead, the realism matrix: every beam of these real ATL03, ATL06, "
+                    "ATL07 or ATL08 files (a folder: its *.h5; none: the files the package "
+                    "ships) against the model's background, signal, strong:weak, spread, tails "
+                    "and saturation, with verdicts; writes realism.md, realism.json and "
+                    "realism_background.png")
+    va.add_argument("--signal-shots", type=nonnegative_int, default=200, metavar="N",
+                    help="with --real: shots simulated per beam for its signal through dead "
+                    "time (200; 0: the lidar equation alone, no rendering)")
 
 
 def _add_terrain_parsers(sub) -> None:
@@ -240,6 +249,14 @@ def _cmd_terrain(a) -> int:
 
 def _cmd_validate(a) -> int:
     out = out_dir(a.out)
+    if a.real is not None:
+        from ..studies import realism
+        realism.run(a.real, out, signal_shots=a.signal_shots, progress=print)
+        print(f"wrote {out / 'realism.md'}, {out / 'realism.json'} and "
+              f"{out / 'realism_background.png'}")
+        return 0
+    if a.signal_shots != 200:
+        raise UsageError("--signal-shots", "only applies with --real")
     from ..studies import validate
     doc = validate.run(out, quick=a.quick)
     print(validate.format_summary(doc))
