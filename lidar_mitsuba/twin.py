@@ -295,10 +295,10 @@ def simulate_over_surface(twin: TwinGranule, *, surface=None, beams: str = "all"
         water_wind_mps: open water (ocean, leads) instead of the surface's Ward snow: the
             ``water`` BSDF (:func:`~lidar_mitsuba.ground.water.water_bsdf`) roughened by
             this wind speed [m/s] (Cox & Munk), on the (flat by default) surface.
+        seed, progress, simulate_options: as :func:`~lidar_mitsuba.run.simulate`.
 
     With ATLAS (``instrument="atlas"``) each beam fires the energy its file recorded
     (:meth:`TwinBeam.energy_uj`) unless ``instrument_options`` sets ``pulse_energy_uj``.
-        seed, progress, simulate_options: as :func:`~lidar_mitsuba.run.simulate`.
     """
     from pyproj import Transformer
     from .geotrack import GeoTrack, ProjectedTrack, Site

@@ -158,7 +158,7 @@ def test_a_twin_of_an_atl06_file(tmp_path):
     assert "ESTIMATE" in where and 4 * 22.8 < e < 4 * 27.5
 
 
-def test_the_real_files_every_product(tmp_path):
+def test_the_real_files_every_product_and_their_trimmed_copies(tmp_path):
     if not SHARED.is_dir():
         pytest.skip(f"no real files at {SHARED} (the shared data folder beside the repo)")
     seen = {}
@@ -167,6 +167,13 @@ def test_the_real_files_every_product(tmp_path):
         seen.setdefault(f.product, []).append(p.name)
         assert all(b.strength_from == "atlas_beam_type" for b in f.beams)
         assert "\n" not in f.missing_line()
+        if f.product != "ATL03":                     # trimmed: the same numbers
+            t = real.read_product(real.trim(p, tmp_path / p.name))
+            assert t.missing == f.missing and len(t.beams) == len(f.beams)
+            for a, b in zip(f.beams, t.beams):
+                for k in ("surface_h_m", "background_hz", "signal_per_shot", "clear"):
+                    u, v = getattr(a, k), getattr(b, k)
+                    assert (u is None and v is None) or np.array_equal(u, v, equal_nan=True)
     assert set(seen) == {"ATL03", "ATL06", "ATL07", "ATL08"}
 
 
@@ -201,9 +208,14 @@ def test_validate_real_over_every_real_file(tmp_path, capsys):
     assert "ATL06_20190420093051" in out and "wrote" in out
 
 
-def test_validate_real_simulates_the_shipped_file(tmp_path):
-    """With no file: the package's own real subset; its signal through a short simulation."""
-    doc = realism.run(None, tmp_path, signal_shots=60)
+def test_validate_real_runs_over_the_shipped_files_and_simulates_a_beam(tmp_path):
+    """With no file: the package's own real files (every product); a beam's signal through a
+    short simulation."""
+    shipped = realism.real_files(None)
+    assert shipped == sorted(realism.PACKAGE_DATA.glob("*.h5")) and len(shipped) == 7
+    assert {real.read_product(p).product for p in shipped} == {"ATL03", "ATL06", "ATL07",
+                                                                "ATL08"}
+    doc = realism.run([twin.REAL_SUBSET], tmp_path, signal_shots=60)
     (row,) = doc["rows"]
     assert row["file"] == twin.REAL_SUBSET.name and row["strength"] == "weak"
     p = row["predicted"]

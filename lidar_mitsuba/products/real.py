@@ -442,3 +442,60 @@ def _atl08(g, **beam) -> RealBeam | None:
 
 
 READERS = {"ATL03": _atl03, "ATL06": _atl06, "ATL07": _atl07, "ATL08": _atl08}
+
+
+# ------------------------------------------------------------------------------ trimming
+READ_DATASETS = {
+    "ATL06": tuple("land_ice_segments/" + k for k in (
+        "delta_time", "latitude", "longitude", "h_li", "atl06_quality_summary",
+        "geophysical/bckgrd", "geophysical/r_eff", "geophysical/cloud_flg_asr",
+        "geophysical/cloud_flg_atm", "geophysical/solar_elevation", "geophysical/solar_azimuth",
+        "fit_statistics/n_fit_photons", "fit_statistics/n_seg_pulses",
+        "fit_statistics/w_surface_window_final")),
+    "ATL07": tuple("sea_ice_segments/" + k for k in (
+        "delta_time", "latitude", "longitude", "heights/height_segment_height",
+        "heights/height_segment_type", "geophysical/height_segment_mss",
+        "geolocation/solar_elevation", "geolocation/solar_azimuth", "stats/photon_rate",
+        "stats/asr_25", "stats/cloud_flag_asr", "stats/cloud_flag_atm", "stats/backgr_r_200",
+        "stats/background_int_height")),
+    "ATL08": tuple("land_segments/" + k for k in (
+        "delta_time", "latitude", "longitude", "terrain/h_te_best_fit",
+        "terrain/photon_rate_te", "canopy/photon_rate_can", "solar_elevation",
+        "solar_azimuth", "cloud_flag_atm")),
+}
+"""Per beam, the datasets :func:`read_product` reads of each segment product (what
+:func:`trim` keeps); ATL03 is kept whole (its photons are what it is read for)."""
+KEPT_GLOBAL = ("orbit_info/sc_orient", "ancillary_data/release", "ancillary_data/version",
+               "ancillary_data/atlas_sdp_gps_epoch")
+
+
+def trim(path, out) -> pathlib.Path:
+    """A copy of a real ATL06, ATL07 or ATL08 file with only what :func:`read_product` reads
+    (:data:`READ_DATASETS`, the beam groups' attributes, :data:`KEPT_GLOBAL`), compressed: a
+    file small enough to ship, read to the same numbers."""
+    import h5py
+    path, out = pathlib.Path(path), pathlib.Path(out)
+    with h5py.File(path, "r") as f, h5py.File(out, "w") as g:
+        product = product_of(f, path)
+        if product not in READ_DATASETS:
+            raise ParameterError("real", f"{path.name}: only ATL06, ATL07 and ATL08 are trimmed "
+                                 f"(it is {product})")
+        for key in KEPT_GLOBAL:
+            if key in f:
+                g.create_dataset(key, data=f[key][()])
+        for name in BEAM_NAMES:
+            if name not in f:
+                continue
+            grp = g.create_group(name)
+            for k, v in f[name].attrs.items():
+                grp.attrs[k] = v
+            for key in READ_DATASETS[product]:
+                if key in f[name]:
+                    src = f[name][key]
+                    big = src.size > 4096          # small ones: contiguous, no chunk overhead
+                    grp.create_dataset(key, data=src[()], **({"compression": "gzip",
+                                       "compression_opts": 9, "shuffle": True} if big else {}))
+                    for k, v in src.attrs.items():
+                        if k not in ("DIMENSION_LIST", "REFERENCE_LIST", "CLASS", "NAME"):
+                            grp[key].attrs[k] = v
+    return out
