@@ -11,7 +11,7 @@ that span, ``bckgrd_counts_reduced`` the counts left) and divides::
 
     bckgrd_rate = bckgrd_counts_reduced / (50 * 2 * bckgrd_int_height_reduced / c)
 
-(the real files agree to 0.1 %). So the rate holds, averaged over the whole band:
+(the real ATL03 files agree to 2e-7). So the rate holds, averaged over the whole band:
 
 1. **dark counts** of every anode of the beam's detector (:data:`DARK_COUNT_PER_ANODE_HZ`);
    both beams' detectors have 16 anodes, so both count the same dark rate;

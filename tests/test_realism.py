@@ -167,7 +167,15 @@ def test_the_real_files_every_product_and_their_trimmed_copies(tmp_path):
         seen.setdefault(f.product, []).append(p.name)
         assert all(b.strength_from == "atlas_beam_type" for b in f.beams)
         assert "\n" not in f.missing_line()
-        if f.product != "ATL03":                     # trimmed: the same numbers
+        if f.product == "ATL03":     # the product's rate: reduced counts over 50 shots' band
+            import h5py
+            for b in f.beams:
+                with h5py.File(p) as h:
+                    g = h[b.name]["bckgrd_atlas"]
+                    rate = g["bckgrd_counts_reduced"][()] / (
+                        50 * 2 * g["bckgrd_int_height_reduced"][()] / 299792458.0)
+                    assert np.allclose(rate, g["bckgrd_rate"][()], rtol=1e-6)
+        else:                                        # trimmed: the same numbers
             t = real.read_product(real.trim(p, tmp_path / p.name))
             assert t.missing == f.missing and len(t.beams) == len(f.beams)
             for a, b in zip(f.beams, t.beams):
@@ -238,3 +246,18 @@ def test_open_water_twin_and_option_refusals(tmp_path, capsys):
     assert main(["simulate", "--dem", "x.tif", "--water-wind-mps", "5",
                  "--out", str(tmp_path / "o.h5")]) == 2
     assert "--water-wind-mps" in capsys.readouterr().err
+
+
+def test_a_subset_without_photons_or_attributes_is_still_read(tmp_path):
+    """A subsetter that drops the photons and rewrites sc_orient: the twin still has its
+    shots (at the ellipsoid), its strength from atlas_beam_type, and the line says so."""
+    import shutil
+    import h5py
+    p = shutil.copy(twin.REAL_SUBSET, tmp_path / "cut.h5")
+    with h5py.File(p, "a") as f:
+        del f["gt1l/heights"]
+        f["gt1l"].attrs["sc_orientation"] = "Backward"   # gt1l strong; atlas_beam_type: weak
+    g = twin.read(p)
+    assert g.beams[0].beam.strength == "weak" and g.beams[0].n_shots > 1000
+    assert "surface heights" in g.missing_line()
+    assert g.beams[0].pulse_energy_uj == pytest.approx(27.65, abs=0.01)

@@ -149,7 +149,7 @@ def product_of(f, path: pathlib.Path) -> str:
     for name in BEAM_NAMES:
         if name not in f:
             continue
-        if "heights" in f[name] and "geolocation" in f[name]:
+        if "heights" in f[name] or f"{name}/geolocation/reference_photon_lat" in f:
             return "ATL03"
         for product, group in PRODUCT_GROUPS.items():
             if product != "ATL03" and group in f[name]:
@@ -222,6 +222,8 @@ def read_product(path, *, beams: str = "all") -> RealFile:
     except OSError as e:
         raise ParameterError("like", f"{path}: not an HDF5 file we can read "
                              f"({str(e).splitlines()[0]})") from None
+    except ParameterError:
+        raise
     except (KeyError, ValueError) as e:
         raise ParameterError("like", f"{path}: not an ICESat-2 product we can read "
                              f"({str(e).splitlines()[0]})") from None
@@ -303,11 +305,11 @@ def segment_photons(g, geo) -> tuple[np.ndarray, np.ndarray | None]:
     """Each ATL03 segment's median height of its photons of the file's highest confidence
     (4; 3 or 2 in a file that has none higher) [m] (NaN when none) and its signal photons (``signal_conf_ph >= 3``) per pulse (NaN for segments of
     fewer than 10 pulses; None without photon ids)."""
+    if "segment_ph_cnt" not in geo or "ph_index_beg" not in geo or "heights/h_ph" not in g:
+        return np.full(geo["delta_time"].shape[0], np.nan), None     # photons dropped
     cnt = geo["segment_ph_cnt"][()].astype(np.int64)
     beg = geo["ph_index_beg"][()].astype(np.int64) - 1
     h_out = np.full(cnt.size, np.nan)
-    if "heights/h_ph" not in g:
-        return h_out, None
     h = g["heights/h_ph"][()]
     conf = g["heights/signal_conf_ph"][()].max(axis=1) if "heights/signal_conf_ph" in g \
         else np.full(h.size, 4)
