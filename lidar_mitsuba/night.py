@@ -208,10 +208,12 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
         t_cloud = cloud.two_way_transmission
         air_above = float(link.atmosphere.transmission(z0 + cloud.top_m, wavelength_nm=lam)
                           ** 2)
+        # the part of the layer inside the band (ESTIMATE: its backscatter taken uniform
+        # in height; exact for a layer wholly inside or outside the band)
         in_band = max(0.0, min(cloud.top_m, top) - cloud.base_m) / (cloud.top_m - cloud.base_m)
         cloud_hz = per_sr * cloud.integrated_backscatter_sr() * air_above * in_band / band_s
     lo, hi = z0, z0 + max(top, 0.0)
-    if cloud is not None and cloud.base_m < top:     # below the cloud, dimmed by it
+    if cloud is not None:             # the air below the cloud dimmed by it, above it not
         below = air_backscatter_integral_sr(link.atmosphere, z_lo_m=lo,
                                             z_hi_m=min(hi, z0 + cloud.base_m), wavelength_nm=lam)
         above = air_backscatter_integral_sr(link.atmosphere, z_lo_m=z0 + cloud.top_m,

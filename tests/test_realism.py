@@ -261,3 +261,21 @@ def test_a_subset_without_photons_or_attributes_is_still_read(tmp_path):
     assert g.beams[0].beam.strength == "weak" and g.beams[0].n_shots > 1000
     assert "surface heights" in g.missing_line()
     assert g.beams[0].pulse_energy_uj == pytest.approx(27.65, abs=0.01)
+
+
+def test_a_cloud_given_predicts_the_cloudy_segments(tmp_path, capsys):
+    night_file = realism.PACKAGE_DATA / "ATL06_20181226035130_13520105_001_01_greenland_night.h5"
+    bare = realism.run([night_file], None, signal_shots=0)
+    assert {r["verdict"] for r in bare["rows"]} == {"cloud missing"}
+    layer = night.CloudLayer(optical_depth=1.0, base_m=500.0, top_m=1500.0)
+    doc = realism.run([night_file], None, signal_shots=0, cloud=layer)
+    for r, b in zip(doc["rows"], bare["rows"]):
+        assert r["verdict"] in ("agrees", "disagrees") and "cloud given" in r["reason"]
+        p = r["predicted"]
+        assert p["background_cloudy_terms_hz"]["cloud"] > 0
+        assert p["signal_cloudy"] == pytest.approx(p["signal_per_shot"] * math.exp(-2.0))
+        # the air below the cloud dimmed, the air above it kept: less air than clear sky
+        assert p["background_cloudy_terms_hz"]["air"] < b["predicted"]["background_terms_hz"]["air"]
+    assert main(["validate", "--real", str(night_file), "--cloud", "1,1500,500",
+                 "--out", str(tmp_path)]) == 2
+    assert "--cloud" in capsys.readouterr().err

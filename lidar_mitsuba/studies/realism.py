@@ -19,6 +19,7 @@ improvements to any of them show up here unchanged.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import pathlib
 import time
@@ -214,9 +215,14 @@ def outside_fraction(dh_m, spans_m) -> np.ndarray:
     return 1.0 - np.searchsorted(d, spans / 2.0, side="right") / d.size
 
 
-def predicted(rb, twin_granule, *, signal_shots: int, seed: int) -> dict:
+def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> dict:
     """The model's background (term by term), signal and shape for one beam (``twin_granule``:
-    the file's twin, for ``signal_shots > 0``)."""
+    the file's twin, for ``signal_shots > 0``); with a ``cloud``
+    (:class:`~lidar_mitsuba.night.CloudLayer`), also its cloudy segments' background and
+    signal (ESTIMATE: the clear signal dimmed by the cloud's two-way transmission; through dead
+    time that overstates the loss dead time takes from the dimmer return, without it, with
+    ``signal_shots=0``, it ignores dead time; the cloud's forward scattering is the cloud
+    model's, not here)."""
     from .. import night
     surface = PRODUCT_SURFACES.get(rb.surface, PRODUCT_SURFACES["land"])
     range_m = _range_m(rb)
@@ -249,12 +255,18 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int) -> dict:
     else:
         az = rb.solar_azimuth_deg if rb.solar_azimuth_deg is not None else np.zeros(t.size)
     ok = np.isfinite(sun) & np.isfinite(t)
-    terms = night.background_terms(
-        inst, delta_time_s=t[ok], z_m=np.full(ok.sum(), z), albedo=surface["albedo"],
-        solar_elevation_deg=sun[ok], solar_azimuth_deg=np.nan_to_num(az[ok]), band=band,
-        signal_per_shot=out["signal_per_shot"], outside_fraction=f_out)
+    kw = dict(delta_time_s=t[ok], z_m=np.full(ok.sum(), z), albedo=surface["albedo"],
+              solar_elevation_deg=sun[ok], solar_azimuth_deg=np.nan_to_num(az[ok]), band=band,
+              outside_fraction=f_out)
+    terms = night.background_terms(inst, signal_per_shot=out["signal_per_shot"], **kw)
     out["background_terms_hz"] = terms
     out["background_hz"] = terms["total"]
+    if cloud is not None:
+        out["signal_cloudy"] = out["signal_per_shot"] * cloud.two_way_transmission
+        cloudy = night.background_terms(inst, signal_per_shot=out["signal_cloudy"],
+                                        cloud=cloud, **kw)
+        out["background_cloudy_terms_hz"] = cloudy
+        out["background_cloudy_hz"] = cloudy["total"]
     return out
 
 
@@ -278,6 +290,8 @@ def verdict(row: dict) -> tuple[str, str]:
         return "surface missing", ("the product's surface (land, forest) is not modelled here"
                                    + ("; every segment is cloudy and no cloud is given"
                                       if cloudy else "") + "; beam, energy and sky as given")
+    if cloudy and "background_cloudy_hz" in p:
+        return _cloudy_verdict(row)
     if cloudy:
         return "cloud missing", ("every segment is cloudy by the product's flags: the model is "
                                  "clear-sky and no cloud is given (background x"
@@ -296,6 +310,21 @@ def verdict(row: dict) -> tuple[str, str]:
     if bad:
         return "disagrees", ", ".join(bad) + cloud
     return "agrees", (f"background x{_fmt(bg)}, signal x{_fmt(sig)}" + cloud)
+
+
+def _cloudy_verdict(row: dict) -> tuple[str, str]:
+    """A beam whose segments are all cloudy, against the model with the cloud given."""
+    m, p = row["measured"], row["predicted"]
+    bg = _ratio(p["background_cloudy_hz"], m["background_cloudy_hz"])
+    sig = _ratio(p["signal_cloudy"], m["signal_cloudy"])
+    row["background_cloudy_ratio"], row["signal_cloudy_ratio"] = bg, sig
+    bad = [f"{k} x{v:.2f}" for k, v, (lo, hi) in (("background", bg, BACKGROUND_AGREES),
+                                                  ("signal", sig, SIGNAL_AGREES))
+           if v is not None and not lo <= v <= hi]
+    given = "with the cloud given, on cloudy segments"
+    if bad:
+        return "disagrees", f"{given}: " + ", ".join(bad)
+    return "agrees", f"{given}: background x{_fmt(bg)}, signal x{_fmt(sig)}"
 
 
 def _fmt(v) -> str:
@@ -327,11 +356,13 @@ def pair_ratios(rows: list[dict]) -> list[dict]:
 
 # ------------------------------------------------------------------------------ the run
 def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
-        progress=None) -> dict:
+        progress=None, cloud=None) -> dict:
     """The realism matrix over ``paths`` (files or folders; default the package's real
     files): ``realism.json``, ``realism.md`` and ``realism_background.png`` in ``out_dir``
     (when given). ``signal_shots``: shots simulated per beam for its signal (0: the lidar
-    equation, no rendering). ``progress``: a callable given one line per beam."""
+    equation, no rendering). ``progress``: a callable given one line per beam. ``cloud``: a
+    :class:`~lidar_mitsuba.night.CloudLayer` for the cloudy segments (default: none given,
+    their verdict says the cloud is missing)."""
     from .. import twin
     from ..products.real import read_product
     t0 = time.perf_counter()
@@ -347,12 +378,13 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
             row = {"file": path.name, "product": rf.product, "beam": rb.name,
                    "strength": rb.strength, "measured": measured(rf, rb),
                    "predicted": predicted(rb, tg, signal_shots=signal_shots,
-                                          seed=seed + 7 * k)}
+                                          seed=seed + 7 * k, cloud=cloud)}
             row["verdict"], row["reason"] = verdict(row)
             rows.append(row)
             if progress is not None:
                 progress(format_row(row))
     doc = {"signal_shots": int(signal_shots), "files": files, "rows": rows,
+           "cloud": None if cloud is None else dataclasses.asdict(cloud),
            "pairs": pair_ratios(rows), "seconds": time.perf_counter() - t0,
            "curve": background_curve()}
     if out_dir is not None:
