@@ -6,8 +6,9 @@ Build (offline, warnings as errors), from the repository root::
 
 Nothing is fetched and nothing is rendered: the notebooks are shown with their stored outputs
 (``nb_execution_mode = "off"``), the gallery's images are committed PNGs
-(``docs/gallery/make_gallery.py`` makes them) and there is no intersphinx. (A browser
-showing the pages loads MathJax, which typesets the equations, from its CDN.)
+(``docs/gallery/make_gallery.py`` makes them) and there is no intersphinx. The built site needs
+no network either: MathJax (the equations) and Mermaid (the diagrams) are copied into its
+``_static/`` from the copies ``scripts/setup.sh --test`` fetched once (``_ext/offline_assets.py``).
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 import lidar_mitsuba                    # noqa: E402  (cheap: loads no renderer)
 from lidar_docs import RST_PROLOG       # noqa: E402
+from offline_assets import ASSET_DIR, MATHJAX_JS  # noqa: E402
 
 project = "lidar_mitsuba"
 author = "the lidar_mitsuba authors"
@@ -36,6 +38,7 @@ extensions = [
     "sphinx.ext.mathjax",
     "myst_nb",
     "lidar_docs",
+    "offline_assets",
 ]
 
 exclude_patterns = ["_build", "Thumbs.db", ".DS_Store", "**.ipynb_checkpoints", "_templates",
@@ -68,7 +71,9 @@ napoleon_custom_sections = [("Attributes", "params_style")]
 
 html_theme = "pydata_sphinx_theme"
 html_title = "lidar_mitsuba"
-html_static_path: list[str] = []
+# the site's own MathJax and Mermaid (no CDN): copied into _static/, MathJax loaded from there
+html_static_path = [str(ASSET_DIR)]
+mathjax_path = MATHJAX_JS
 html_theme_options = {
     "navigation_with_keys": False,
     "show_toc_level": 2,

@@ -35,7 +35,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import __version__, geotrack, precompile as warmup
-from .products import atl06, h5write as h5chunks
+from .products import atl06, cloud_flags, h5write as h5chunks
 from .ground.snow import kernel as snow_kernel
 from .products.atl03 import _ds, atomic_h5file
 from .products.atl03.beam import (BCKGRD_SHOTS, PULSES_PER_MAJOR_FRAME, SEGMENT_M,
@@ -221,7 +221,8 @@ def write_atl06(granule: Granule, path: str | os.PathLike, **options) -> pathlib
         for r in granule.beams:
             table = atl06.segments_from_result(r.result, **options)
             _beam_atl06(f, r.beam, granule.sc_orient, table, along_m=r.result.along_track_m,
-                        lat_deg=r.lat_deg, lon_deg=r.lon_deg, delta_time_s=r.delta_time_s)
+                        lat_deg=r.lat_deg, lon_deg=r.lon_deg, delta_time_s=r.delta_time_s,
+                        sky=cloud_flags.sky_of(r.result))
     return path
 
 
@@ -241,10 +242,11 @@ def _atl06_header(f, granule, instruments, t_first, t_last):
 
 
 def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_deg,
-                delta_time_s):
+                delta_time_s, sky: dict | None = None):
     """Append ``table``'s segments to the beam's ``land_ice_segments``; positions and times
     are those of the shot nearest each segment centre among ``along_m`` [m] (with their
-    ``lat_deg``, ``lon_deg``, ``delta_time_s``)."""
+    ``lat_deg``, ``lon_deg``, ``delta_time_s``); ``sky``: the run's
+    :func:`~lidar_mitsuba.products.cloud_flags.sky_of`, for ``geophysical``'s cloud flags."""
     if beam.name not in f:                                # (the first section's)
         h5chunks.set_attrs(f.create_group(beam.name), beam_attrs(beam, sc_orient))
     li = f[beam.name].require_group("land_ice_segments")
@@ -269,6 +271,8 @@ def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_d
             h5chunks.set_attrs(ds, {"_FillValue": np.finfo(dtype).max.astype(dtype)})
     _put(li["ground_track"], "y_atc", np.full(len(table), beam.across_m, np.float32),
          "meters", "across-track offset of the beam from the reference ground track")
+    if sky is not None:         # ATL09-style cloud flags (r_eff, cloud_flg_asr, cloud_flg_atm)
+        cloud_flags.put_atl06(li["geophysical"], cloud_flags.atl06_columns(table, sky))
 
 
 # --------------------------------------------------------------------------- streamed granules
@@ -360,15 +364,16 @@ class _Fits:
         self.pool = ThreadPoolExecutor(1, thread_name_prefix="lidar-atl06")
 
     def submit(self, beam: Beam, segments: "_SegmentStream", run: BeamRun, *, last: bool):
-        self.jobs.append((beam, self.pool.submit(segments.fit, run, last=last)))
+        self.jobs.append((beam, self.pool.submit(segments.fit, run, last=last),
+                          cloud_flags.sky_of(run.result)))
 
     def write(self, *, wait: bool = False) -> None:
         """Write the finished fits (``wait``: all of them) to the ATL06 file."""
         while self.jobs and (wait or self.jobs[0][1].done()):
-            beam, job = self.jobs.pop(0)
+            beam, job, sky = self.jobs.pop(0)
             table, along, lat, lon, t = job.result()
             _beam_atl06(self.f6, beam, self.sc_orient, table, along_m=along, lat_deg=lat,
-                        lon_deg=lon, delta_time_s=t)
+                        lon_deg=lon, delta_time_s=t, sky=sky)
 
     def __enter__(self):
         return self

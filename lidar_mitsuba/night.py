@@ -127,6 +127,18 @@ class CloudLayer:
         return (1.0 - math.exp(-2.0 * eta * tau)) / (2.0 * eta * s)
 
 
+def cloud_backscatter(cloud) -> tuple[float, float]:
+    """``(two-way transmission, integrated attenuated backscatter [1/sr])`` of a cloud layer:
+    a :class:`CloudLayer` or a run's :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`
+    (its own lidar ratio; single scattering)."""
+    if isinstance(cloud, CloudLayer):
+        return cloud.two_way_transmission, cloud.integrated_backscatter_sr()
+    tau = float(cloud.optical_depth)
+    s = getattr(cloud, "lidar_ratio_sr", None) or CLOUD_LIDAR_RATIO_SR.get(
+        getattr(cloud, "phase", "water"), CLOUD_LIDAR_RATIO_SR["water"])
+    return math.exp(-2.0 * tau), (1.0 - math.exp(-2.0 * tau)) / (2.0 * s)
+
+
 def air_backscatter_integral_sr(atmosphere, *, z_lo_m: float, z_hi_m: float,
                                 wavelength_nm: float = 532.0, n: int = 400) -> float:
     """``integral beta(z) T(z)^2 dz`` from ``z_lo_m`` to ``z_hi_m`` [m above sea level]
@@ -181,7 +193,8 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
         signal_per_shot: detected surface photons per shot (the leak term's ``S``).
         outside_fraction: the fraction of them outside the removed span (default: the
             instrument's Gaussian pulse, :func:`gaussian_outside_fraction`).
-        cloud: a :class:`CloudLayer` (default: clear sky).
+        cloud: a :class:`CloudLayer` or a run's
+            :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud` (default: clear sky).
 
     Returns ``{"dark", "solar", "air", "cloud", "leak", "total"}`` [Hz, detected].
     """
@@ -205,13 +218,13 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
     t_cloud = 1.0
     cloud_hz = 0.0
     if cloud is not None:
-        t_cloud = cloud.two_way_transmission
+        t_cloud, cloud_ib = cloud_backscatter(cloud)
         air_above = float(link.atmosphere.transmission(z0 + cloud.top_m, wavelength_nm=lam)
                           ** 2)
         # the part of the layer inside the band (ESTIMATE: its backscatter taken uniform
         # in height; exact for a layer wholly inside or outside the band)
         in_band = max(0.0, min(cloud.top_m, top) - cloud.base_m) / (cloud.top_m - cloud.base_m)
-        cloud_hz = per_sr * cloud.integrated_backscatter_sr() * air_above * in_band / band_s
+        cloud_hz = per_sr * cloud_ib * air_above * in_band / band_s
     lo, hi = z0, z0 + max(top, 0.0)
     if cloud is not None:             # the air below the cloud dimmed by it, above it not
         below = air_backscatter_integral_sr(link.atmosphere, z_lo_m=lo,

@@ -137,6 +137,8 @@ class RunPlan:
         tiling: the scenes the chunks trace (:class:`~lidar_mitsuba.ground.surface.Tiling`:
             one for every chunk, or a DEM's corridor tile per chunk); ``plan.scene`` is the
             first chunk's.
+        cloud: the cloud over the track (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`), or
+            None (clear sky).
     """
     instrument: Instrument
     surface: surfaces.Surface
@@ -172,6 +174,7 @@ class RunPlan:
     geolocation: Geolocation
     radiometry: radiometry.ShotRadiometry | None
     tiling: object
+    cloud: object = None
 
     @property
     def scene(self):
@@ -198,6 +201,12 @@ class RunPlan:
                    + (" (the pilot's choice)" if self.bounce_pilot is not None else "")
                    + f", {self.paths_per_shot} paths per shot"
                    + (" (the scout's choice)" if self.path_budget is not None else ""))
+        if self.cloud is not None:
+            from .atmosphere import cloud_kernel
+            tab = cloud_kernel.table_for(self.cloud, inst)
+            out.append(f"cloud: {self.cloud.describe()}; forward-scattered light in the field "
+                       f"of view {tab.forward:.3g} of the clear ground's (mean delay "
+                       f"{tab.mean_delay_ns:.3g} ns), tabulated once by mediapathlength")
         out.append(f"corridor: {self.reach_m:g} m around the track"
                    + ("" if self.crop_to_track else " (the whole tile)"))
         out.append(f"site: {self.site.to_dict()}" + ("" if self.radiometry is None else
@@ -247,7 +256,7 @@ def plan(*, instrument: Instrument | None = None, surface=None, scene=None,
          max_depth: int | str = "auto", track: Track | None = None,
          variant: str | None = None, progress: bool = True, chunk_shots: int = chunks.CHUNK_SHOTS,
          crop_to_track: bool = True, snow: SnowVolume | None = None, snow_model: str = "auto",
-         site: Site | None = None) -> RunPlan:
+         site: Site | None = None, cloud=None) -> RunPlan:
     """Everything :func:`~lidar_mitsuba.run.simulate` decides before tracing, as a
     :class:`RunPlan`. Arguments as ``simulate``'s (``progress``: show the snow kernel's
     tabulation). Raises :class:`~lidar_mitsuba.constants.ParameterError` naming a bad value.
@@ -256,10 +265,29 @@ def plan(*, instrument: Instrument | None = None, surface=None, scene=None,
                    params=params, bsdf=bsdf, shots=shots, seed=seed,
                    paths_per_shot=paths_per_shot, max_depth=max_depth, variant=variant,
                    chunk_shots=chunk_shots, snow=snow, snow_model=snow_model)
+    run.cloud = _cloud(cloud, run)
     _lay_out(run, track or Track(), crop_to_track=crop_to_track)
     _choose_model(run, progress=progress)
     _place_on_earth(run, site or Site())
     return _freeze(run)
+
+
+def _cloud(cloud, run: _Run):
+    """The run's cloud checked (None or optical depth 0: clear sky), its kernel tabulated
+    (:mod:`.atmosphere.cloud_kernel`, cached: a later section or beam reuses it)."""
+    from .atmosphere import cloud_layer as clouds
+    cloud = clouds.as_cloud(cloud)
+    if cloud is None or cloud.clear:
+        return None
+    from .trace import materials
+    if isinstance(run.material, materials.SceneMaterials) and run.material.air_layers:
+        raise ParameterError("cloud", "the scene holds its own layer in the air: give the "
+                             "cloud in one place")
+    from .atmosphere import cloud_kernel
+    t1 = time.perf_counter()
+    cloud_kernel.table_for(cloud, run.instrument)
+    run.timings_s["cloud_kernel_s"] = time.perf_counter() - t1
+    return cloud
 
 
 def _check_snow(snow, snow_model, *, surf, bsdf, max_depth) -> None:
@@ -431,4 +459,9 @@ def _place_on_earth(run: _Run, site: Site) -> None:
         run.radiometry = radiometry.run_radiometry(
             run.instrument, run.geolocation, run.gate_z_m + site.height_m, scene=run.scene,
             x_m=run.x_local_m, y_m=run.y_local_m, snow=run.material.snow)
+        if run.cloud is not None:     # the sun under the cloud (atmosphere.cloud_layer)
+            from .atmosphere.cloud_layer import clouded_radiometry
+            run.radiometry = clouded_radiometry(
+                run.radiometry, run.cloud, run.instrument,
+                delta_time_s=run.geolocation.delta_time_s, z_m=run.gate_z_m + site.height_m)
         run.timings_s["radiometry_s"] = time.perf_counter() - t1

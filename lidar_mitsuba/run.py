@@ -121,7 +121,8 @@ def simulate(*, instrument: Instrument | None = None,
              track: Track | None = None, variant: str | None = None, progress: bool = True,
              chunk_shots: int = chunks.CHUNK_SHOTS, keep_returns: bool | None = None,
              crop_to_track: bool = True, snow: SnowVolume | None = None,
-             snow_model: str = "auto", site: Site | None = None) -> SimulationResult:
+             snow_model: str = "auto", site: Site | None = None, cloud=None
+             ) -> SimulationResult:
     """Simulate ``shots`` laser shots along a ground track and detect their photons.
 
     >>> lm.simulate(scene="scenes/fog.xml", params={"tau": 0.5}).report()  # doctest: +SKIP
@@ -177,6 +178,8 @@ def simulate(*, instrument: Instrument | None = None,
             longitudes and times, and the sun and air of an instrument with a link budget. A
             track with its own geolocation (a DEM granule's) keeps its own places and times
             (only the site's height applies).
+        cloud: a cloud over the track (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`, or a
+            dict of its fields; None: clear sky): :mod:`lidar_mitsuba.atmosphere.cloud_kernel`.
 
     Raises:
         ParameterError: a bad value, named (``.name``), before anything is traced.
@@ -188,7 +191,7 @@ def simulate(*, instrument: Instrument | None = None,
              params=params, bsdf=bsdf, shots=shots, seed=seed, paths_per_shot=paths_per_shot,
              max_depth=max_depth, track=track, variant=variant, progress=progress,
              chunk_shots=chunk_shots, crop_to_track=crop_to_track, snow=snow,
-             snow_model=snow_model, site=site)
+             snow_model=snow_model, site=site, cloud=cloud)
     return assemble(p, stream(p, keep_returns=keep_returns, progress=progress))
 
 
@@ -209,6 +212,12 @@ def stream(run: RunPlan, *, keep_returns: bool | None = None,
                                                                          run.z_ref_m))
     if progress:       # a first run on this machine compiles the detector: say so
         warmup.compile_kernels()
+    if run.cloud is not None:     # the cloud on every traced return (atmosphere.cloud_kernel)
+        from .atmosphere import cloud_kernel
+        source = cloud_kernel.CloudSource(
+            source, run.cloud, cloud_kernel.table_for(run.cloud, run.instrument),
+            instrument=run.instrument,
+            gate_center_ns=chunks.gate_center_ns(run.instrument, run.z_ref_m))
     rad = run.radiometry
     chunked = chunks.run(
         source=source, detectors={"run": run.instrument}, z_ref_m=run.z_ref_m, seed=run.seed,
@@ -246,6 +255,11 @@ def assemble(run: RunPlan, chunked: chunks.ChunkedRun) -> SimulationResult:
                               x_m=run.x_local_m, y_m=run.y_local_m,
                               surface_z=run.surface_z_m[:n_local], n_returns=chunked.n_returns,
                               det=det, instrument=inst)
+    if run.cloud is not None and run.cloud.base_m < inst.range_gate_m / 2:
+        warns.append(f"the cloud's base ({run.cloud.base_m:g} m) is inside the range gate: "
+                     f"its kernel misses the light the layer scatters many times there (the "
+                     f"surface ~10 cm too high under fog of optical depth 0.5, "
+                     f"docs/guide/clouds.md); trace the layer in a scene (scenes/fog.xml)")
     for w in warns:
         warnings.warn(w, SimulationWarning, stacklevel=3)
     config = {"instrument": inst.to_dict(), "surface": cfg,
@@ -257,6 +271,10 @@ def assemble(run: RunPlan, chunked: chunks.ChunkedRun) -> SimulationResult:
               **mat.config(), "integrator": run.integrator_dict["type"],
               "site": run.site.to_dict(),
               "radiometry": None if run.radiometry is None else run.radiometry.summary()}
+    if run.cloud is not None:        # (a clear run's config is as it was)
+        from .atmosphere import cloud_kernel
+        config["cloud"] = {**run.cloud.to_dict(), "kernel": cloud_kernel.table_for(
+            run.cloud, inst).summary()}
     return SimulationResult(instrument=inst, config=config, along_track_m=run.along_m,
                             shot_x_m=run.x_m, shot_y_m=run.y_m, surface_z_m=run.surface_z_m,
                             z_ref_m=run.z_ref_m, detections=det, h_m=h, signal_conf=conf,

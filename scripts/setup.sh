@@ -2,7 +2,7 @@
 # Set up lidar_mitsuba on a fresh Debian/Ubuntu machine: libLLVM 19 (Dr.Jit's LLVM backend aborts
 # with the libLLVM 15/16 these machines ship), then a virtual environment in .venv with the
 # package installed. Usage: bash scripts/setup.sh [--test]   (--test adds the test extras and
-# the documentation's, which tests/test_docs.py builds)
+# the documentation's, which tests/test_docs.py builds, with the site's own MathJax and Mermaid)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -30,4 +30,17 @@ extras=""
 [ "${1:-}" = "--test" ] && extras="[test,docs]"
 echo "== installing lidar_mitsuba$extras"
 .venv/bin/python -m pip install -q --disable-pip-version-check -e ".$extras"
+if [ "${1:-}" = "--test" ]; then
+  # the documentation's MathJax and Mermaid, shipped inside the built site (it works offline):
+  # pinned files of the npm registry's packages, into .venv/share (docs/_ext/offline_assets.py)
+  if ! command -v npm >/dev/null; then
+    echo "== installing npm (the docs' MathJax and Mermaid come from the npm registry)"
+    SUDO=""
+    [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq npm >/dev/null
+  fi
+  echo "== fetching the docs' MathJax and Mermaid"
+  .venv/bin/python docs/_ext/offline_assets.py
+fi
 .venv/bin/python -c "import lidar_mitsuba as lm; print('lidar_mitsuba ready:', lm.ensure_renderer().variant())"

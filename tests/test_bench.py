@@ -133,6 +133,10 @@ def test_bench_quick(bench_run):
         assert (out / "peer.png").stat().st_size > 10_000
         assert all(math.isfinite(r["error"]) and r["seconds"] > 0 for r in doc["peer"]["rows"])
         assert "peer comparison (mitransient)" in printed
+    c = doc["cloud"]          # a cloud in a granule: its cost against clear and rays alone
+    assert c["beams"] == 6 and c["clear_s"] > 0 and c["cloud_s"] > 0 and c["table_s"] > 0
+    assert c["cloud_of_cast"] > 1 and c["clear_of_cast"] > 1
+    assert "cloud in a DEM granule" in printed
 
 
 def test_throughput_chart_shows_the_measured_rates(bench_run):

@@ -12,8 +12,10 @@ import json
 import pathlib
 import pkgutil
 import re
+import shutil
 import subprocess
 import sys
+import tempfile
 
 import pytest
 
@@ -26,6 +28,7 @@ DOCS = ROOT / "docs"
 sys.path.insert(0, str(DOCS / "_ext"))
 from doc_commands import code_blocks, documented_commands, redirect_outputs  # noqa: E402
 from lidar_docs import plugin_names, plugin_parameters  # noqa: E402
+import offline_assets  # noqa: E402
 
 BUILD = [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html"]
 COMMANDS = documented_commands(ROOT)
@@ -37,6 +40,7 @@ SHOTS = 200
 #: that selects it or None) -> test
 ELSEWHERE = {
     ("simulate", "--snow-grain-um"): "tests/test_snow.py::test_cli_snow_options",
+    ("simulate", "--cloud-od"): "tests/test_clouds.py::test_cli_cloud_runs",
     ("bench", None): "tests/test_bench.py::bench_run",
     ("sweep", None): "tests/test_sweep.py::test_cli_runs_resumes_and_plots",
     ("validate", "--real"): "tests/test_realism.py::test_validate_real_over_every_real_file",
@@ -154,6 +158,159 @@ def test_every_scene_is_in_the_gallery(html):
         size = (DOCS / "gallery" / png).stat().st_size
         assert 0 < size < 150_000, (png, size)
         assert f"_images/{png}" in built, png
+
+
+# --- the site works offline ----------------------------------------------------------------
+
+#: what a page loads: <script src>, <link href> (stylesheets, fonts, preloads, icons; not the
+#: navigation links rel="next", "prev", "index", "search")
+LOADED = re.compile(r"<script\b[^>]*\bsrc=\"([^\"]+)\"|<link\b(?=[^>]*\brel=\"(?:stylesheet|"
+                    r"preload|modulepreload|icon|shortcut icon)\")[^>]*\bhref=\"([^\"]+)\"")
+REMOTE = re.compile(r"^(?:[a-z][a-z0-9+.-]*:)?//", re.I)          # http(s)://host, //host
+INLINE_SCRIPT = re.compile(r"<script\b(?![^>]*\bsrc=)[^>]*>(.*?)</script>", re.S)
+CSS_URL = re.compile(r"url\(\s*['\"]?([^'\")]+)|@import\s+(?:url\()?\s*['\"]([^'\"]+)")
+
+
+def static_file(page_path, ref) -> pathlib.Path:
+    """The site's file that a page's relative reference names (its ?v= query dropped)."""
+    return (page_path.parent / ref.split("?")[0].split("#")[0]).resolve()
+
+
+def test_the_built_site_loads_nothing_from_the_network(html):
+    """Every page's scripts and stylesheets are files of the site (no CDN: MathJax, Mermaid,
+    fonts), each of them there; no inline script imports from a host; no stylesheet of the site
+    imports one or a remote font."""
+    pages = sorted(p for p in html.rglob("*.html") if p.relative_to(html).parts[0] != "_static")
+    assert len(pages) > 100
+    remote, absent = [], set()
+    for path in pages:
+        text = path.read_text()
+        for m in LOADED.finditer(text):
+            ref = m.group(1) or m.group(2)
+            if REMOTE.match(ref):
+                remote.append((path.relative_to(html).as_posix(), ref))
+            elif not static_file(path, ref).is_file():
+                absent.add(ref)
+        for body in INLINE_SCRIPT.findall(text):
+            remote += [(path.relative_to(html).as_posix(), u)
+                       for u in re.findall(r"(?:https?:)?//[\w-]+(?:\.[\w-]+)+/\S*", body)]
+    for css in html.glob("_static/**/*.css"):
+        for m in CSS_URL.finditer(css.read_text()):
+            ref = m.group(1) or m.group(2)
+            if REMOTE.match(ref):
+                remote.append((css.relative_to(html).as_posix(), ref))
+            elif not ref.startswith(("data:", "#")) and not static_file(css, ref).is_file():
+                absent.add(ref)
+    assert not remote, remote[:10]
+    assert not absent, sorted(absent)[:10]
+
+
+def test_every_page_with_math_loads_the_sites_own_mathjax(html):
+    """A page with equations loads ``_static/mathjax/tex-svg-full.js``, the pinned MathJax
+    (SHA-256) that typesets them in the browser with no network; the physics pages have
+    display equations for it."""
+    shipped = html / "_static" / offline_assets.MATHJAX_JS
+    assert shipped.is_file() and offline_assets.sha256(shipped) == next(
+        a.sha256 for a in offline_assets.ASSETS if a.dest == offline_assets.MATHJAX_JS)
+    assert (shipped.parent / "LICENSE").is_file()
+    with_math = 0
+    for path in sorted(html.rglob("*.html")):
+        text = path.read_text()
+        if 'class="math' not in text:
+            continue
+        with_math += 1
+        scripts = [static_file(path, m.group(1)) for m in LOADED.finditer(text)
+                   if m.group(1)]
+        assert shipped.resolve() in scripts, path.relative_to(html)
+    assert with_math >= 7
+    equation = page(html, "physics/lidar-equation.html")
+    assert equation.count('<div class="math') >= 5 and "\\[" in equation
+
+
+def mermaid_fences():
+    """(page, number of ``mermaid`` code blocks) of the Markdown pages that have any."""
+    out = {}
+    for path in sorted(p for p in DOCS.rglob("*.md") if "_build" not in p.parts):
+        n = sum(lang == "mermaid" for lang, _, _ in code_blocks(path))
+        if n:
+            out[path.relative_to(DOCS).with_suffix(".html").as_posix()] = n
+    return out
+
+
+def test_the_diagrams_are_drawn_by_the_sites_own_mermaid(html):
+    """Each ``mermaid`` block is a ``<pre class="mermaid">`` (its source, escaped) that the
+    page's own ``_static/mermaid/mermaid.min.js`` (pinned) draws on load; a page without one
+    loads no Mermaid."""
+    fences = mermaid_fences()
+    assert fences.get("architecture.html", 0) >= 2
+    shipped = html / "_static" / offline_assets.MERMAID_JS
+    assert shipped.is_file() and offline_assets.sha256(shipped) == next(
+        a.sha256 for a in offline_assets.ASSETS if a.dest == offline_assets.MERMAID_JS)
+    for name, n in fences.items():
+        text = page(html, name)
+        blocks = re.findall(r'<pre class="mermaid">\n(.*?)</pre>', text, re.S)
+        assert len(blocks) == n, name
+        assert all(b.lstrip().startswith(("flowchart", "graph", "sequenceDiagram", "classDiagram",
+                                          "stateDiagram", "erDiagram", "gantt", "pie"))
+                   and "<" not in b for b in blocks), name
+        assert "highlight-mermaid" not in text, name
+        scripts = [static_file(html / name, m.group(1)) for m in LOADED.finditer(text)
+                   if m.group(1)]
+        assert shipped.resolve() in scripts and "mermaid.run(" in text, name
+    assert "mermaid.min.js" not in page(html, "index.html")
+
+
+def test_the_offline_assets_are_checked_against_their_pins(tmp_path):
+    """An absent or altered file counts as missing (the build then stops and says how to
+    fetch them); the pinned files pass."""
+    assert offline_assets.missing(tmp_path) == [a.dest for a in offline_assets.ASSETS]
+    for a in offline_assets.ASSETS:
+        target = tmp_path / a.dest
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(offline_assets.ASSET_DIR / a.dest, target)
+    assert offline_assets.missing(tmp_path) == []
+    with open(tmp_path / offline_assets.MERMAID_JS, "ab") as f:
+        f.write(b"\n")
+    assert offline_assets.missing(tmp_path) == [offline_assets.MERMAID_JS]
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def rendered_doms(*urls: str) -> list[str]:
+    """Each page's DOM after its scripts ran, in headless Chromium, the pages side by side
+    (this machine's network is closed; Chromium's background connections are turned off)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = []
+        for i, url in enumerate(urls):
+            out = open(pathlib.Path(tmp) / f"{i}.html", "w+")
+            runs.append((out, subprocess.Popen(
+                [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", f"--user-data-dir={tmp}/profile{i}",
+                 "--virtual-time-budget=20000", "--dump-dom", url],
+                stdout=out, stderr=subprocess.DEVNULL)))
+        doms = []
+        for out, run in runs:
+            assert run.wait(timeout=120) == 0
+            out.seek(0)
+            doms.append(out.read())
+            out.close()
+    return doms
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="no Chromium (Debian: apt-get install chromium)")
+def test_a_browser_draws_the_equations_and_diagrams_from_the_disk(html):
+    """Opened from the disk (``file://``, as on a cluster), the architecture page's diagrams
+    become SVG drawings and the lidar equation page's math MathJax's SVG, without errors."""
+    diagrams, dom = rendered_doms((html / "architecture.html").as_uri(),
+                                  (html / "physics/lidar-equation.html").as_uri())
+    drawn = re.findall(r'<pre class="mermaid" data-processed="true"[^>]*><svg\b', diagrams)
+    assert len(drawn) == mermaid_fences()["architecture.html"]
+    assert "Syntax error" not in diagrams
+    typeset = dom.count('<mjx-container class="MathJax')
+    assert typeset >= page(html, "physics/lidar-equation.html").count('class="math')
+    assert '<g data-mml-node="merror"' not in dom
 
 
 # --- the README --------------------------------------------------------------------------

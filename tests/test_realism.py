@@ -276,6 +276,10 @@ def test_a_cloud_given_predicts_the_cloudy_segments(tmp_path, capsys):
         assert p["signal_cloudy"] == pytest.approx(p["signal_per_shot"] * math.exp(-2.0))
         # the air below the cloud dimmed, the air above it kept: less air than clear sky
         assert p["background_cloudy_terms_hz"]["air"] < b["predicted"]["background_terms_hz"]["air"]
+    from lidar_mitsuba.atmosphere.cloud_layer import Cloud      # a run's cloud: the same
+    same = realism.run([night_file], None, signal_shots=0, cloud=Cloud.water(1.0, 500, 1500))
+    assert [r["predicted"]["background_cloudy_hz"] for r in same["rows"]] == pytest.approx(
+        [r["predicted"]["background_cloudy_hz"] for r in doc["rows"]], rel=1e-12)
     assert main(["validate", "--real", str(night_file), "--cloud", "1,1500,500",
                  "--out", str(tmp_path)]) == 2
     assert "--cloud" in capsys.readouterr().err

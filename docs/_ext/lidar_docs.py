@@ -257,6 +257,4 @@ def setup(app):
     app.add_directive("code-tab", CodeTab)
     app.add_directive("lidar-exports", Exports)
     app.add_role("monosp", monosp_role)
-    from pygments.lexers.special import TextLexer
-    app.add_lexer("mermaid", TextLexer)       # architecture.md's diagrams, shown as source
     return {"parallel_read_safe": True, "parallel_write_safe": True, "version": "1"}

@@ -193,7 +193,7 @@ def simulate(p: dict) -> tuple[dict, int, pathlib.Path, pathlib.Path]:
     if track.get("polyline") is not None:
         track["polyline"] = tuple(map(tuple, track["polyline"]))
     surface, kw = _surface(p)
-    kw.update(_snow(p))
+    kw.update(_snow(p), **_cloud(p))
     run = p["run"]
     try:
         summaries = stream_granule(
@@ -271,6 +271,27 @@ def _snow(p: dict) -> dict:
                 "snow_model": p["snow_model"]}
     snow = snow_volume(p.get("grain_um"), p.get("density_kg_m3"))
     return {} if snow is None else {"snow": snow, "snow_model": p["snow_model"]}
+
+
+def granule_cloud(p: dict):
+    """The granule's cloud (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`, or None: clear)
+    from the spec's ``[cloud]``: the one cloud, or a draw from its climatology seeded by the
+    granule's photon seed (the same task, the same cloud)."""
+    from ..atmosphere.cloud_layer import Cloud, CloudClimatology
+    t = p.get("cloud")
+    if not t:
+        return None
+    if "optical_depth" in t:
+        make = Cloud.ice if t.get("phase") == "ice" else Cloud.water
+        return make(t["optical_depth"], t.get("base_m", 1000.0), t.get("top_m", 1500.0))
+    clim = CloudClimatology(**{("cloud_fraction" if k == "fraction" else k): v
+                               for k, v in t.items()})
+    return clim.draw(np.random.default_rng([int(p["seed"]), 0x434C4F]))
+
+
+def _cloud(p: dict) -> dict:
+    cloud = granule_cloud(p)
+    return {} if cloud is None else {"cloud": cloud}
 
 
 def run_task(p: dict) -> dict:

@@ -12,7 +12,7 @@ from ..sweep.spec import FORMATS, SpecError, _read_source
 from .tracks import RepeatOrbit
 
 SECTIONS = ("campaign", "dem", "instrument", "run", "epochs", "orbit", "tracks", "surface",
-            "snow")
+            "snow", "cloud")
 _KEYS = {
     "campaign": ("name", "seed", "format", "version", "revision", "kernel_cache", "map_bin_m"),
     "dem": ("path", "paths"),
@@ -24,6 +24,8 @@ _KEYS = {
     "tracks": ("start", "azimuth_deg", "polyline", "file", "rgt", "epoch_utc", "dem"),
     "surface": ("roughness_relief_m", "roughness_levels_m", "roughness_p"),
     "snow": ("grain_um", "grain_levels_um", "density_kg_m3", "density_levels_kg_m3", "model"),
+    "cloud": ("optical_depth", "base_m", "top_m", "phase", "fraction", "optical_depth_median",
+              "optical_depth_log_sigma"),
 }
 PASSES = ("ascending", "descending", "both")
 SNOW_MODELS = ("auto", "kernel", "walk")
@@ -65,6 +67,7 @@ class CampaignSpec:
     grain: Property | None = None
     density: Property | None = None
     snow_model: str = "auto"
+    cloud: dict | None = None
     doc: dict = field(default_factory=dict)
     base_dir: str = "."
 
@@ -124,7 +127,8 @@ def load_spec(source, *, base_dir: str | None = None) -> CampaignSpec:
     kw = _campaign(_table(doc, "campaign"), base, name if name != "sweep" else "campaign")
     kw.update(_dems(_table(doc, "dem"), base), **_instrument(_table(doc, "instrument")),
               run=_run(_table(doc, "run")), **_epochs(_table(doc, "epochs")),
-              **_orbit(doc), tracks=_tracks(doc, base), **_surface(doc, base))
+              **_orbit(doc), tracks=_tracks(doc, base), **_surface(doc, base),
+              cloud=_cloud(doc))
     if kw.get("grain") is not None and kw["run"]["max_depth"] != "auto":
         raise SpecError("[run] max_depth", "does not apply with [snow] (a snow volume traces "
                         "its own interactions per photon): leave it out")
@@ -323,6 +327,42 @@ def _property(t: dict, key: str, levels_key: str | None, base: pathlib.Path, sec
     if levels_key and levels_key in t:
         raise SpecError(f"[{section}] {levels_key}", f"only applies to a raster {key}")
     return Property(value=_num(f"[{section}] {key}", v, lo, hi))
+
+
+def _cloud(doc: dict) -> dict | None:
+    """``[cloud]``: one cloud over every granule (``optical_depth``, ``base_m``, ``top_m``,
+    ``phase``) or a climatology each granule draws from with its own seed (``fraction``,
+    ``optical_depth_median``, ``optical_depth_log_sigma``, ``base_m``, ``top_m``, ``phase``:
+    :class:`~lidar_mitsuba.atmosphere.cloud_layer.CloudClimatology`); checked, as given."""
+    if "cloud" not in doc:
+        return None
+    from ..atmosphere.cloud_layer import Cloud, CloudClimatology
+    t = dict(_table(doc, "cloud"))
+    fixed, clim = "optical_depth" in t, "fraction" in t
+    if fixed == clim:
+        raise SpecError("[cloud]", "give optical_depth (one cloud) or fraction (a "
+                        "climatology), not both")
+    phase = t.get("phase", "water")
+    if phase not in ("water", "ice"):
+        raise SpecError("[cloud] phase", f"must be water or ice (got {phase!r})")
+    names = {"cloud_od": "optical_depth", "cloud_base_m": "base_m", "cloud_top_m": "top_m",
+             "cloud_fraction": "fraction"}
+    try:
+        if fixed:
+            make = Cloud.water if phase == "water" else Cloud.ice
+            make(t["optical_depth"], t.get("base_m", 1000.0), t.get("top_m", 1500.0))
+            bad = [k for k in ("fraction", "optical_depth_median", "optical_depth_log_sigma")
+                   if k in t]
+            if bad:
+                raise SpecError(f"[cloud] {bad[0]}", "only applies to a climatology (fraction)")
+        else:
+            CloudClimatology(**{("cloud_fraction" if k == "fraction" else k): v
+                                for k, v in t.items()})
+    except ParameterError as e:
+        raise SpecError(f"[cloud] {names.get(e.name, e.name)}", e.message) from None
+    except TypeError as e:
+        raise SpecError("[cloud]", str(e)) from None
+    return t
 
 
 def _surface(doc: dict, base: pathlib.Path) -> dict:

@@ -247,7 +247,8 @@ def _task(spec, index, dem_path, base, track, rgt, asc, shots, t_s, cycle, regio
            "sc_orient": spec.sc_orient, "instrument": spec.instrument,
            "options": spec.instrument_options, "run": spec.run, "snow_model": spec.snow_model,
            "roughness_p": spec.roughness_p, "name": name, **used,
-           **{f: v for f, v in sections.items() if v is not None or f == "grain_sections"}}
+           **{f: v for f, v in sections.items() if v is not None or f == "grain_sections"},
+           **({} if spec.cloud is None else {"cloud": spec.cloud})}   # (clear: ids kept)
     tid = task_id(doc)
     seed, rough = _seeds(spec.seed, tid)
     return Task(task_id=tid, task_index=index, granule=name, rgt=int(rgt), cycle=int(cycle),
@@ -277,7 +278,7 @@ def payload(task: Task, spec: CampaignSpec, *, out: str, kernel_cache: str,
             "instrument": spec.instrument, "instrument_options": spec.instrument_options,
             "run": spec.run, "snow_model": spec.snow_model, "roughness_p": spec.roughness_p,
             "rasters": rasters, "out": str(out), "kernel_cache": kernel_cache,
-            "variant": variant}
+            "variant": variant, "cloud": spec.cloud}
 
 
 def check_tasks(tasks: list[Task]) -> None:

@@ -272,17 +272,18 @@ def _cmd_validate(a) -> int:
 
 
 def _cloud(text: str | None):
-    """``--cloud TAU,BASE_M,TOP_M`` as a :class:`~lidar_mitsuba.night.CloudLayer` (None)."""
+    """``--cloud TAU,BASE_M,TOP_M`` as a liquid-water
+    :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`, the clouds of runs (None)."""
     if text is None:
         return None
-    from ..night import CloudLayer
+    from ..atmosphere.cloud_layer import Cloud
     try:
         tau, base, top = (float(v) for v in text.split(","))
     except ValueError:
         raise UsageError("--cloud", f"{text!r}: give TAU,BASE_M,TOP_M, e.g. 1.0,500,1500") \
             from None
     try:
-        return CloudLayer(optical_depth=tau, base_m=base, top_m=top)
+        return Cloud.water(tau, base, top)
     except ParameterError as e:
         raise UsageError("--cloud", e.message) from None
 

@@ -27,6 +27,7 @@ def add_parser(sub) -> None:
     _add_instrument_options(s)
     _add_track_and_orbit_options(s)
     _add_snow_options(s)
+    _add_cloud_options(s)
     _add_run_and_output_options(s)
 
 
@@ -147,6 +148,40 @@ def _add_snow_options(s) -> None:
                    "under every photon (the reference); auto (default): the kernel")
 
 
+def _add_cloud_options(s) -> None:
+    """A cloud layer over the track (``lidar_mitsuba.atmosphere.cloud_layer.Cloud``)."""
+    c = s.add_argument_group("cloud (off by default: clear sky; docs/guide/clouds.md)")
+    c.add_argument("--cloud-od", type=float, metavar="TAU",
+                   help="a cloud of this optical depth at 532 nm over the whole track")
+    c.add_argument("--cloud-base-m", type=float, metavar="M",
+                   help="the cloud's base above the surface [m] (1000)")
+    c.add_argument("--cloud-top-m", type=float, metavar="M",
+                   help="the cloud's top above the surface [m] (base + 500)")
+    c.add_argument("--cloud-phase", choices=("water", "ice"), default=None,
+                   help="water (default: g 0.85, lidar ratio 18.8 sr) or ice (g 0.75, 25 sr)")
+    c.add_argument("--cloud-g", type=float, metavar="G",
+                   help="Henyey-Greenstein asymmetry instead of the phase's")
+
+
+def _cloud(a):
+    """The run's cloud from the ``--cloud-*`` options, or ``None`` (no --cloud-od)."""
+    from dataclasses import replace
+    from ..atmosphere.cloud_layer import Cloud
+    given = [(f, v) for f, v in (("--cloud-base-m", a.cloud_base_m),
+                                 ("--cloud-top-m", a.cloud_top_m),
+                                 ("--cloud-phase", a.cloud_phase), ("--cloud-g", a.cloud_g))
+             if v is not None]
+    if a.cloud_od is None:
+        if given:
+            raise UsageError(given[0][0], "only applies with --cloud-od")
+        return None
+    base = 1000.0 if a.cloud_base_m is None else a.cloud_base_m
+    top = base + 500.0 if a.cloud_top_m is None else a.cloud_top_m
+    make = Cloud.ice if a.cloud_phase == "ice" else Cloud.water
+    cloud = make(a.cloud_od, base, top)
+    return cloud if a.cloud_g is None else replace(cloud, g=a.cloud_g)
+
+
 def _add_run_and_output_options(s) -> None:
     """How to trace (``simulate()``'s run keywords) and what to write."""
     from ..run import simulate
@@ -214,7 +249,7 @@ def run(a) -> int:
                        track=Track(**opts.given(a, a._track_opts)),
                        progress=not a.no_progress, crop_to_track=not a.full_tile,
                        snow=_snow(a), snow_model=_snow_model(a), site=site,
-                       **opts.given(a, RUN_OPTIONS))
+                       **_cloud_kw(a), **opts.given(a, RUN_OPTIONS))
     inst = res.instrument           # as run (an XML <integrator> may set its geometry)
     for w in res.config["warnings"]:
         sys.stderr.write(f"{PROG} simulate: warning: {w}\n")
@@ -281,6 +316,12 @@ def _snow(a):
     return vol if a.snow_similarity_g is None else vol.similar(a.snow_similarity_g)
 
 
+def _cloud_kw(a) -> dict:
+    """``{"cloud": ...}`` when ``--cloud-od`` is given (a clear run passes nothing)."""
+    cloud = _cloud(a)
+    return {} if cloud is None else {"cloud": cloud}
+
+
 def _simulate_dem(a, out, plot) -> int:
     """``simulate --dem``: a granule of up to six beams along a ground track."""
     from .. import geotrack, granule
@@ -318,7 +359,8 @@ def _simulate_dem(a, out, plot) -> int:
             surface=surface, track=track, beams=beams, sc_orient=a.sc_orient,
             instrument_options=inst_opts, instrument=a.instrument or "paper",
             progress=not a.no_progress, shots=shots,
-            atl03_path=out, atl06_path=atl06_out, snow=_snow(a), snow_model=_snow_model(a), **run)
+            atl03_path=out, atl06_path=atl06_out, snow=_snow(a), snow_model=_snow_model(a),
+            **_cloud_kw(a), **run)
     where = f"{surface.dem.path.name} ({surface.dem.crs.to_string()})"
     print(f"{len(summaries)} beam(s), {shots} shots each ({shots * 0.7e-3:.1f} km), over {where}")
     return _granule_report(a, summaries, out, atl06_out, plot)
@@ -398,7 +440,8 @@ def _simulate_like(a, out, plot) -> int:
                 surface=_dem_surface(a, run.get("seed", 0)), track=real, beams=beams,
                 sc_orient=real.sc_orient, instrument_options=inst_opts, instrument=preset,
                 progress=not a.no_progress, shots=shots, atl03_path=out,
-                atl06_path=atl06_out, snow=_snow(a), snow_model=_snow_model(a), **run)
+                atl06_path=atl06_out, snow=_snow(a), snow_model=_snow_model(a),
+                **_cloud_kw(a), **run)
         else:
             surface_given = opts.given(a, a._surface_opts)
             if "kind" not in surface_given and "slope_deg" in surface_given:
@@ -408,7 +451,7 @@ def _simulate_like(a, out, plot) -> int:
                 real, surface=SurfaceSpec(**surface_given), beams=",".join(b.name for b in beams),
                 shots=shots, instrument=preset, instrument_options=inst_opts,
                 progress=not a.no_progress, snow=_snow(a), snow_model=_snow_model(a),
-                water_wind_mps=a.water_wind_mps, **run)
+                water_wind_mps=a.water_wind_mps, **_cloud_kw(a), **run)
             granule.write_atl03(g, out)
             if atl06_out is not None:
                 granule.write_atl06(g, atl06_out)

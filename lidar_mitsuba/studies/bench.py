@@ -405,6 +405,8 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False,
         doc["snow_optics"] = snow_optics.run(quick=quick)
         doc["media"] = media_accuracy.run(quick=quick)
         doc["accuracy_vs_time"].update(doc["media"])
+        from . import cloud_cost
+        doc["cloud"] = cloud_cost.run(quick=quick)
     charts = {"throughput.png": lambda p: _chart(doc, p)}
     if not throughput_only:
         charts.update({
@@ -487,6 +489,14 @@ def format_summary(doc: dict) -> str:
                      f"peak RSS {r['peak_rss_mb']:.0f} MB (before the run "
                      f"{r['rss_before_mb']:.0f}), "
                      f"files {r['files_mb']:.0f} MB")
+    if "cloud" in doc:
+        c = doc["cloud"]
+        lines.append(f"cloud in a DEM granule ({c['beams']} beams x {c['length_km']:g} km, "
+                     f"tau {c['cloud']['optical_depth']:g} at {c['cloud']['base_m']:g}-"
+                     f"{c['cloud']['top_m']:g} m): {c['cloud_s']:.2f} s against "
+                     f"{c['clear_s']:.2f} s clear ({c['cloud_over_clear']:.2f}x), "
+                     f"{c['cloud_of_cast']:.0f}x its rays cast alone (clear "
+                     f"{c['clear_of_cast']:.0f}x); the cloud's table once: {c['table_s']:.1f} s")
     if "snow" in doc:
         from . import snow_bias
         lines += snow_bias.format_summary(doc["snow"])

@@ -262,7 +262,7 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> 
     out["background_terms_hz"] = terms
     out["background_hz"] = terms["total"]
     if cloud is not None:
-        out["signal_cloudy"] = out["signal_per_shot"] * cloud.two_way_transmission
+        out["signal_cloudy"] = out["signal_per_shot"] * night.cloud_backscatter(cloud)[0]
         cloudy = night.background_terms(inst, signal_per_shot=out["signal_cloudy"],
                                         cloud=cloud, **kw)
         out["background_cloudy_terms_hz"] = cloudy
