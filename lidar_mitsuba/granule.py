@@ -41,7 +41,8 @@ from .products.atl03 import _ds, atomic_h5file
 from .products.atl03.beam import (BCKGRD_SHOTS, PULSES_PER_MAJOR_FRAME, SEGMENT_M,
                                   beam_attrs, write_beam as _beam_atl03)  # noqa: F401
 from .products.atl03.file import (ancillary as _ancillary, header as _atl03_header,
-                                  orbit_info as _orbit_info)
+                                  orbit_info as _orbit_info, utc as _utc)
+from .products.metadata import extend_extent as _extend_extent, write_metadata as _metadata
 from .constants import ParameterError, check
 from .ground.dem import DEMSurface
 from .ground.snow import SnowVolume
@@ -182,7 +183,7 @@ def write_atl03(granule: Granule, path: str | os.PathLike) -> pathlib.Path:
     """Write ``granule`` as an ATL03 file (see the module docstring), atomically."""
     path = pathlib.Path(path)
     with atomic_h5file(path) as f:
-        _atl03_header(f, granule, *granule.span())
+        _atl03_header(f, granule, *granule.span(), path=path)
         for r in granule.beams:
             _beam_atl03(f, r, granule.sc_orient)
     return path
@@ -212,12 +213,17 @@ _ATL06_NAMES = {
 }
 
 
+_ATL06_PROCESS = ("40 m segments every 20 m fitted to each beam's simulated photons (the "
+                  "photons of the run's ATL03) and corrected for the first-photon bias "
+                  "(lidar_mitsuba.products.atl06).")
+
+
 def write_atl06(granule: Granule, path: str | os.PathLike, **options) -> pathlib.Path:
     """Fit ATL06 segments to every beam (:func:`lidar_mitsuba.products.atl06.segments_from_result`,
     ``options`` passed on) and write them with ATL06's names, atomically."""
     path = pathlib.Path(path)
     with atomic_h5file(path) as f:
-        _atl06_header(f, granule, *granule.span())
+        _atl06_header(f, granule, *granule.span(), path=path)
         for r in granule.beams:
             table = atl06.segments_from_result(r.result, **options)
             _beam_atl06(f, r.beam, granule.sc_orient, table, along_m=r.result.along_track_m,
@@ -226,8 +232,9 @@ def write_atl06(granule: Granule, path: str | os.PathLike, **options) -> pathlib
     return path
 
 
-def _atl06_header(f, granule, instruments, t_first, t_last):
+def _atl06_header(f, granule, instruments, t_first, t_last, *, path, atl03_path=None):
     f.attrs["short_name"] = "ATL06"
+    f.attrs["title"] = "simulated ATLAS/ICESat-2 L3A Land Ice Height"
     f.attrs["description"] = ("Simulated land-ice heights (lidar_mitsuba.products.atl06: 40 m "
                               "segments every 20 m, first-photon-bias corrected)")
     f.attrs["lidar_mitsuba_version"] = __version__
@@ -237,6 +244,9 @@ def _atl06_header(f, granule, instruments, t_first, t_last):
     _ds(li, "t_dead", np.array([instruments[0][1].effective_dead_time_ns * 1e-9]),
         "seconds", "dead time used by the first-photon-bias correction")
     _orbit_info(f, granule, t_first)
+    _metadata(f, short_name="ATL06", path=path, config=granule.config, instruments=instruments,
+              t_first=_utc(t_first), t_last=_utc(t_last), process=_ATL06_PROCESS,
+              inputs={"ATL03": atl03_path} if atl03_path is not None else None)
     qa = f.create_group("quality_assessment")
     _ds(qa, "qa_granule_pass_fail", np.array([0], np.int8), "1", "0: pass")
 
@@ -253,6 +263,7 @@ def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_d
     for sub in ("fit_statistics", "bias_correction", "geophysical", "ground_track", "dem"):
         li.require_group(sub)
     i = np.clip(np.searchsorted(along_m, table.x_atc), 0, max(along_m.size - 1, 0))
+    _extend_extent(f, lat_deg[i], lon_deg[i])
     _put(li, "segment_id", np.asarray(table.segment_id, np.int32), "1",
          "segment number: the segment spans 20 m ATL03 segments segment_id and segment_id + 1")
     _put(li, "latitude", lat_deg[i], "degrees_north", "latitude of the segment centre")
@@ -497,11 +508,12 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     try:
         with contextlib.ExitStack() as stack:
             f3 = stack.enter_context(atomic_h5file(atl03_path))
-            _atl03_header(f3, meta, instruments, t_first, t_last)
+            _atl03_header(f3, meta, instruments, t_first, t_last, path=atl03_path)
             fits = None
             if atl06_path is not None:
                 f6 = stack.enter_context(atomic_h5file(atl06_path))
-                _atl06_header(f6, meta, instruments, t_first, t_last)
+                _atl06_header(f6, meta, instruments, t_first, t_last, path=atl06_path,
+                              atl03_path=atl03_path)
                 fits = stack.enter_context(_Fits(f6, sc_orient))
             _sections(streams, n_sections, ctx, f3, fits, bar, seed=seed, sc_orient=sc_orient,
                       paths_per_shot=paths_per_shot, max_depth=max_depth, **simulate_options)

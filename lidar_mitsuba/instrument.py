@@ -37,6 +37,10 @@ class BeamPreset:
 DEAD_TIME_PRESETS_NS: dict[str, float] = {"paper": 3.0, "atlas": 3.2}
 """Named dead times [ns]: the paper's 3 ns and ATLAS's ~3.2 ns."""
 
+PULSE_SHAPES = ("gaussian", "atlas")
+"""``pulse_shape``: the Gaussian pulse alone, or with ATLAS's receiver response
+(:data:`lidar_mitsuba.detector.impulse.RESPONSES`)."""
+
 BEAMS: dict[str, BeamPreset] = {
     "strong": BeamPreset(signal_photons=8.17, channels=16),
     "weak": BeamPreset(signal_photons=2.04, channels=4),
@@ -56,6 +60,9 @@ class Instrument:
         anodes: anode segments of the PMT (16 for ATLAS's 4x4).
         wavelength_nm: laser wavelength [nm] (mono rendering: informational).
         pulse_fwhm_ns: full width at half maximum of the Gaussian pulse [ns].
+        pulse_shape: the receiver's response added to the Gaussian pulse, ``"gaussian"``
+            (none, the paper's) or ``"atlas"`` (ATLAS's as flown, with a tail, echoes and
+            afterpulses). :mod:`lidar_mitsuba.detector.impulse` has the details.
         footprint_diameter_m: 1/e^2 diameter of the Gaussian footprint on the ground [m].
         altitude_m: spacecraft height above the scene's z = 0 [m].
         prf_hz: pulse repetition frequency [Hz].
@@ -87,6 +94,7 @@ class Instrument:
     anodes: int = 16
     wavelength_nm: float = 532.0
     pulse_fwhm_ns: float = K.PULSE_FWHM_NS
+    pulse_shape: str = field(default="gaussian", metadata={"choices": PULSE_SHAPES})
     footprint_diameter_m: float = K.FOOTPRINT_DIAMETER_M
     altitude_m: float = K.ALTITUDE_M
     prf_hz: float = 10e3
@@ -128,6 +136,8 @@ class Instrument:
                f(self.wavelength_nm) and 100 <= self.wavelength_nm <= 20000, "must be in [100, 20000]")
         _check("pulse_fwhm_ns", self.pulse_fwhm_ns,
                f(self.pulse_fwhm_ns) and 0 <= self.pulse_fwhm_ns <= 1e4, "must be in [0, 1e4]")
+        _check("pulse_shape", self.pulse_shape, self.pulse_shape in PULSE_SHAPES,
+               f"must be one of {', '.join(PULSE_SHAPES)}")
         _check("footprint_diameter_m", self.footprint_diameter_m,
                f(self.footprint_diameter_m) and 0 <= self.footprint_diameter_m <= 1e4,
                "must be in [0, 1e4]")
@@ -287,6 +297,10 @@ ATLAS: dict = {
     # start-pulse detector measures 1.50 ns between its lower threshold crossings (0.40 ns at
     # the upper): a 1.5 ns FWHM Gaussian (ESTIMATE: the thresholds' levels are not given)
     "pulse_fwhm_ns": 1.5,
+    # the receiver's response as flown: a trailing tail, echoes at ~2.3 and ~4.2 m and
+    # afterpulses 10-45 m below bright returns (Lu et al. 2021, Earth Space Sci. 8,
+    # e2021EA001729; strengths ESTIMATE: lidar_mitsuba.detector.impulse.ATLAS_RESPONSE)
+    "pulse_shape": "atlas",
     # footprint: 10.9 +- 1.2 m measured with corner-cube retroreflectors (Magruder et al.
     # 2021, Earth and Space Science, doi:10.1029/2020EA001414), taken as the 1/e^2 diameter
     "footprint_diameter_m": 10.9,

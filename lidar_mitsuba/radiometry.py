@@ -21,19 +21,18 @@ optical depth at sea level, decaying with an aerosol scale height. ``T = exp(-ta
 
 Solar background reaching the detector [photons/s]::
 
-    rate = L * d_lambda * Omega_fov * A_tel * eta_rx / (h nu)
-    L = [E0 mu_s exp(-tau / mu_s) + E_sky] * rho_bg / pi * exp(-tau) + L_path
+    rate = E0 L * d_lambda * Omega_fov * A_tel * eta_rx / (h nu)
 
 ``E0`` the top-of-atmosphere solar spectral irradiance at the laser wavelength (scaled by the
-Earth-Sun distance), ``mu_s`` the cosine of the solar zenith angle, ``E_sky`` the diffuse sky
-irradiance in the single-scattering approximation (half of the Rayleigh-scattered and a
-forward fraction of the aerosol-scattered direct beam), ``rho_bg`` the surface's Lambertian
-albedo for sunlight, ``L_path`` the light the air itself scatters toward the receiver (single
-scattering, Rayleigh phase function), ``d_lambda`` the filter's equivalent width and
-``Omega_fov`` the field of view's solid angle. Multiple scattering between a bright surface and
-the sky (~10 % more over snow) is left out. With the sun below the horizon the solar term is
-zero (twilight sky, moon and airglow are not modelled: they add a few hundred Hz, see
-``docs/guide/atlas.md``).
+Earth-Sun distance), ``L`` the radiance per unit ``E0`` that a nadir-looking receiver sees of
+the sunlit surface (Lambertian albedo ``rho_bg``) and air, from :mod:`lidar_mitsuba.sky`: the
+direct sun (curved-Earth air mass, refraction, the surface's height), the diffuse sky
+attenuated on its way down, multiple scattering and the surface's light scattered back, and
+the twilight sky of the sunlit air above the Earth's shadow, to about -10 deg
+(``docs/physics/sky.md``); ``d_lambda`` the filter's equivalent width and ``Omega_fov`` the
+field of view's solid angle. Moon and airglow are not modelled (they add a few hundred Hz,
+see ``docs/guide/atlas.md``); ``Atmosphere.aerosol_forward_fraction`` is no longer used by
+the sun's part (the sky model's aerosol phase function is a Henyey-Greenstein one).
 
 Laser light scattered back by the air just above the surface is a background of its own, inside
 the range gate: ``(E_pulse / h nu) T^2 beta_pi(z) (c / 2) (A_tel / R^2) eta_rx`` photons per
@@ -274,33 +273,32 @@ class LinkBudget:
         return omega * self.telescope_area_m2
 
     def solar_background_hz(self, *, wavelength_nm: float, fov_diameter_m: float, range_m,
-                            z_m, solar_elevation_deg, albedo, earth_sun_au=1.0):
-        """Sunlight reaching the detector [photons/s] (before its PDE), clear sky, single
-        scattering: the surface's Lambertian reflection of the direct and diffuse sun plus
-        the air's own path radiance (module docstring). Zero with the sun below the horizon.
-        Arrays broadcast; ``albedo``: the surface's Lambertian albedo for sunlight."""
+                            z_m, solar_elevation_deg, albedo, earth_sun_au=1.0,
+                            horizon_height_m: float = 0.0):
+        """Sunlight reaching the detector [photons/s] (before its PDE), clear sky: the radiance
+        a nadir-looking receiver sees of the sunlit surface and air, from the sun at any
+        elevation down to the twilight's end (:mod:`lidar_mitsuba.sky`: curved-Earth air
+        mass and refraction, diffuse light attenuated on its way down, multiple scattering,
+        the sunlit air above the Earth's shadow; ``docs/physics/sky.md``). Arrays broadcast;
+        ``solar_elevation_deg`` geometric [deg], ``z_m`` the surface's height [m],
+        ``albedo`` its Lambertian albedo for sunlight, ``horizon_height_m`` the height [m]
+        of the sphere that casts the Earth's shadow."""
+        from . import sky
         atm = self.atmosphere
-        mu_s = np.sin(np.deg2rad(np.asarray(solar_elevation_deg, np.float64)))
-        up = mu_s > 0
-        mu = np.where(up, mu_s, 1.0)
-        tau_r, tau_a = atm.optical_depths(z_m, wavelength_nm)
+        shape = np.broadcast_shapes(np.shape(range_m), np.shape(z_m),
+                                    np.shape(solar_elevation_deg), np.shape(albedo),
+                                    np.shape(earth_sun_au))
         e0 = SOLAR_IRRADIANCE_532_W_M2_NM / np.asarray(earth_sun_au, np.float64) ** 2
-        direct = e0 * mu * np.exp(-(tau_r + tau_a) / mu)
-        sky = e0 * mu * (0.5 * (1.0 - np.exp(-tau_r / mu))
-                         + atm.aerosol_single_scattering_albedo * atm.aerosol_forward_fraction
-                         * (1.0 - np.exp(-tau_a / mu)))
-        radiance = (direct + sky) * np.asarray(albedo, np.float64) / math.pi \
-            * np.exp(-(tau_r + tau_a))
-        # the air's own radiance toward the nadir-looking receiver: single Rayleigh
-        # scattering of the direct sun (a downward photon turned straight up: cos = -mu_s),
-        # E0 mu_s P / (4 pi (mu_s + 1)) (1 - exp(-tau_R (1 / mu_s + 1))); aerosols scatter
-        # forward and add little at these angles
-        phase = 0.75 * (1.0 + mu * mu)
-        radiance = radiance + (e0 * mu * phase / (4.0 * math.pi * (mu + 1.0))
-                               * (1.0 - np.exp(-tau_r * (1.0 / mu + 1.0))))
+        radiance = e0 * sky.nadir_radiance(
+            solar_elevation_deg=solar_elevation_deg, z_m=z_m, albedo=albedo,
+            tau_rayleigh_of=lambda z: rayleigh_optical_depth(wavelength_nm, isa_pressure_hpa(z)),
+            aerosol_optical_depth=atm.aerosol_optical_depth,
+            aerosol_scale_height_m=atm.aerosol_scale_height_m,
+            aerosol_ssa=atm.aerosol_single_scattering_albedo,
+            horizon_height_m=horizon_height_m)
         watts = (radiance * self.filter_bandwidth_pm * 1e-3
                  * self._etendue_sr_m2(fov_diameter_m, range_m) * self.receiver_transmission)
-        return np.where(up, watts / photon_energy_j(wavelength_nm), 0.0)
+        return np.broadcast_to(watts / photon_energy_j(wavelength_nm), shape)
 
     def laser_backscatter_hz(self, *, wavelength_nm: float, range_m, z_m):
         """The laser's own light scattered back by the air just above height(s) ``z_m`` [m]

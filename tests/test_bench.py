@@ -137,6 +137,9 @@ def test_bench_quick(bench_run):
     assert c["beams"] == 6 and c["clear_s"] > 0 and c["cloud_s"] > 0 and c["table_s"] > 0
     assert c["cloud_of_cast"] > 1 and c["clear_of_cast"] > 1
     assert "cloud in a DEM granule" in printed
+    sky = doc["sky"]          # the sky model: closed form, table lookup, one render, as ratios
+    assert sky["render_over_closed_form"] > 10 and sky["closed_form_over_lookup"] > 1
+    assert "sky, one nadir radiance" in printed
 
 
 def test_throughput_chart_shows_the_measured_rates(bench_run):

@@ -135,8 +135,11 @@ def test_the_serial_campaign_writes_named_granules_a_table_and_a_map(serial, spe
     assert list(seg.columns) == list(campaign.SEGMENT_COLUMNS)
     np.testing.assert_array_equal(seg["error"], seg["h_li"] - seg["h_truth"])
     assert serial.map is not None and serial.map.stat().st_size > 10000
-    files = sorted(p.name for p in (serial.out / "granules").iterdir())
-    assert len(files) == 8 and not any(f.startswith(".") for f in files)
+    # a folder per product (icepyx.Read(folder) reads one product's granules), nothing else
+    files = sorted(str(p.relative_to(serial.out / "granules"))
+                   for p in (serial.out / "granules").rglob("*") if p.is_file())
+    assert len(files) == 8 and all(f.startswith(("ATL03/ATL03_", "ATL06/ATL06_")) for f in files)
+    assert sorted(p.name for p in (serial.out / "granules").iterdir()) == ["ATL03", "ATL06"]
     for _, t in tasks.iterrows():
         f3, f6 = serial.out / "granules" / t["atl03"], serial.out / "granules" / t["atl06"]
         name = tk.parse_product_name(f3.name)
@@ -177,6 +180,96 @@ def test_bias_follows_the_grain_size(serial):
     seg = serial.segments
     assert np.isfinite(seg["grain_um_raster"]).all()
     assert seg.groupby("grain_um")["grain_um_raster"].mean().is_monotonic_increasing
+
+
+def test_granule_metadata_is_the_file_name_s(serial):
+    """Every granule's ``METADATA`` (issue 44) is its file name's: the product, the file name
+    and its release as ``VersionID`` (the number icepyx and NSIDC's tools parse), a uuid of
+    its own; its ``Extent`` holds every position; ``ProcessStep`` says "simulated"; an ATL06's
+    ``Lineage/ATL03`` names the ATL03 of the same run (file name and uuid), as real ones do."""
+    folder = serial.out / "granules"
+    meta = {}
+    for _, t in serial.tasks.iterrows():
+        for product in ("atl03", "atl06"):
+            path = folder / t[product]
+            with h5py.File(path, "r") as f:
+                m = {k: v.decode() for k, v in f["METADATA/DatasetIdentification"].attrs.items()}
+                e = f["METADATA/Extent"].attrs
+                lat = f["gt1l/heights/lat_ph" if product == "atl03" else
+                        "gt1l/land_ice_segments/latitude"][()]
+                assert e["southBoundLatitude"] <= lat.min() <= lat.max() <= e["northBoundLatitude"]
+                lineage = {k: v.decode() for k, v in f["METADATA/Lineage/ATL03"].attrs.items()
+                           } if product == "atl06" else None
+                assert "simulated" in f["METADATA/ProcessStep/PGE"].attrs[
+                    "processDescription"].decode().lower()
+            assert (m["shortName"], m["fileName"], m["VersionID"]) == (
+                product.upper(), path.name, f"{tk.parse_product_name(path.name)['version']:03d}")
+            meta[path] = m
+            if lineage is not None:
+                atl03 = meta[folder / t["atl03"]]
+                assert (lineage["fileName"], lineage["uuid"]) == (atl03["fileName"], atl03["uuid"])
+    assert len({m["uuid"] for m in meta.values()}) == len(meta) == 8
+
+
+def test_icesat2_readers_load_the_campaign_s_folders(serial, monkeypatch):
+    """The ICESat-2 community's readers open a campaign's output as they open NSIDC's
+    granules (issue 44). icepyx (2.0.2) takes the product and its release from ``METADATA``
+    (a release that is not a number stops it) and loads a product's folder,
+    ``icepyx.Read("out/granules/ATL03")``, into one dataset, ATL03 and ATL06, and one granule
+    alone; SlideRule's pure-Python reader h5coro (1.0.7) reads both products' datasets and
+    metadata. What they read is what h5py reads; neither opens a socket for local files (any
+    connection here raises)."""
+    import socket
+    import warnings
+
+    def no_network(*args, **kwargs):
+        raise AssertionError(f"a reader went to the network: {args[1:]}")
+    monkeypatch.setattr(socket.socket, "connect", no_network)
+    monkeypatch.setattr(socket, "getaddrinfo", no_network)
+    import icepyx as ipx
+    from h5coro import filedriver, h5coro
+    folder = serial.out / "granules"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")      # (xarray's FutureWarnings on icepyx's merge)
+        for product, var, group in (("ATL03", "h_ph", "heights"),
+                                    ("ATL06", "h_li", "land_ice_segments")):
+            reader = ipx.Read(str(folder / product))
+            assert reader.product == product and len(reader.filelist) == 4
+            reader.variables.append(var_list=[var])
+            assert reader.variables.version == "001"
+            ds = reader.load()
+            assert ds.sizes["gran_idx"] == 4 and sorted(ds["rgt"].values) == sorted(
+                serial.tasks["rgt"])
+            for g in range(4):
+                with h5py.File(str(ds["source_file"].values[g]), "r") as f:
+                    first = 0       # (icepyx numbers a granule's photons on, spot after spot)
+                    for s in range(ds.sizes["spot"]):
+                        ours = f[f"{ds['gt'].values[g, s]}/{group}/{var}"]
+                        want = np.where(ours[()] == ours.attrs.get("_FillValue", np.nan),
+                                        np.nan, ours[()])
+                        got = ds[var].isel(spot=s, gran_idx=g).values
+                        mine = np.arange(first, first + want.size)
+                        np.testing.assert_array_equal(got[mine], want)
+                        assert np.isnan(np.delete(got, mine)).all()
+                        first += want.size if "photon_idx" in ds[var].dims else 0
+        one = folder / serial.tasks["atl06"][0]        # (a granule alone: the same reader)
+        reader = ipx.Read(str(one))
+        reader.variables.append(var_list=["h_li", "h_li_sigma", "atl06_quality_summary"])
+        ds = reader.load()
+        assert ds.sizes["gran_idx"] == 1 and set(ds["gt"].values.ravel()) == {"gt1l", "gt1r"}
+        assert (ds["atl06_quality_summary"] == 0).sum() > 0.8 * ds["h_li"].notnull().sum()
+    for path, names in ((folder / serial.tasks["atl03"][0],
+                         ["/gt1r/heights/h_ph", "/gt1r/heights/signal_conf_ph",
+                          "/gt1r/geolocation/segment_ph_cnt", "/orbit_info/sc_orient"]),
+                        (one, ["/gt1l/land_ice_segments/h_li", "/gt1l/land_ice_segments/latitude",
+                               "/gt1l/land_ice_segments/fit_statistics/n_fit_photons"])):
+        h5 = h5coro.H5Coro(str(path), filedriver.FileDriver, errorChecking=True, verbose=False)
+        read = h5.readDatasets(names, block=True)
+        with h5py.File(path, "r") as f:
+            for name in names:
+                np.testing.assert_array_equal(np.asarray(read[name]), f[name][()])
+        attrs = h5.inspectPath("/METADATA/DatasetIdentification")[1]
+        assert (attrs["shortName"], attrs["VersionID"]) == (path.name[:5], "001")
 
 
 def test_two_dask_workers_give_the_serial_table_to_the_bit(serial, spec_path, scheduler,
@@ -237,8 +330,8 @@ def test_failing_granules_are_recorded_and_the_rest_go_on(spec_path, serial, tmp
     assert sorted(bad.index) == [9, 10] and res.failed == 2
     assert "off the DEM" in bad.loc[9, "error"] and bad.loc[9, "error"].startswith("track")
     assert bad.loc[10, "error"].startswith("the grain_um raster has no value along the track")
-    assert not list((tmp_path / "out" / "granules").glob("*_00090*")) and \
-        not list((tmp_path / "out" / "granules").glob(".*"))
+    assert not list((tmp_path / "out" / "granules").rglob("*_00090*")) and \
+        not list((tmp_path / "out" / "granules").rglob(".*"))
     ok = res.segments[res.segments["rgt"] != 9].drop(columns="task_index").reset_index(drop=True)
     pd.testing.assert_frame_equal(ok, serial.segments.drop(columns="task_index"),
                                   check_exact=True)
@@ -346,6 +439,12 @@ def test_icesat2_file_names_and_granule_regions():
         "product": "ATL03", "date": "20190601", "time": "123456", "rgt": 123, "cycle": 3,
         "region": 5, "version": 6, "revision": 1}
     assert tk.parse_product_name("ATL03_2019_0123_006_01.h5") is None
+    # the metadata's file name and release (VersionID) are the name's, also from the
+    # campaign's temporary name around it; a name without a release gets 001
+    from lidar_mitsuba.products.metadata import release_of
+    assert release_of(f"/out/granules/ATL03/{name}") == (name, "006")
+    assert release_of(f"/out/.{name}.part.h5") == (name, "006")
+    assert release_of("run/ATL03_sim.h5") == ("ATL03_sim.h5", "001")
     asc = [tk.granule_region(lat, ascending=True) for lat in (10, 40, 70, 85, -10, -40, -60, -85)]
     desc = [tk.granule_region(lat, ascending=False) for lat in (10, 40, 70, 85, -10, -40, -60,
                                                                 -85)]
@@ -664,7 +763,7 @@ def test_density_and_roughness_are_resolved_per_beam_and_section(spec_path, monk
     assert np.isfinite(seg["density_kg_m3_raster"]).all()
     # the ATL03 file records each section's own model: the first in config, the second
     # (planned anew) in section_configs
-    (a3,) = (tmp_path / "out" / "granules").glob("ATL03_*.h5")
+    (a3,) = (tmp_path / "out" / "granules" / "ATL03").glob("ATL03_*.h5")
     with h5py.File(a3) as h5:
         for beam in ("gt1l", "gt1r"):
             attrs = h5["truth"][beam].attrs

@@ -397,6 +397,21 @@ def test_third_party_readers_read_our_granules(six_beams):
         # ATL06 heights follow the DEM: against the segments' truth (h_ref) within 5 cm
         href = m6[r.beam.name]["land_ice_segments"]["dem"]["h_ref_m"]
         assert np.abs(h_li[good] - href[good]).max() < 0.05
+    # both carry a real granule's METADATA (issue 44): the release icepyx parses (001 for a
+    # name without one), the file name, an extent holding every position, and "simulated"
+    # with the run's configuration where provenance is read
+    for path, group in ((atl03, "heights/lat_ph"), (atl06, "land_ice_segments/latitude")):
+        with h5py.File(path, "r") as f:
+            d = f["METADATA/DatasetIdentification"].attrs
+            assert (d["shortName"], d["VersionID"], d["fileName"]) == (
+                path.name[:5].encode(), b"001", path.name.encode())
+            lat = np.concatenate([f[f"{n}/{group}"][()] for n in names])
+            e = f["METADATA/Extent"].attrs
+            assert e["southBoundLatitude"] <= lat.min() <= lat.max() <= e["northBoundLatitude"]
+            assert f["METADATA/ProcessStep/PGE"].attrs["processDescription"].startswith(
+                b"SIMULATED DATA")
+            assert f["METADATA/Lineage/SIM"].attrs["runTimeParameters"].decode() == \
+                f.attrs["config"]
 
 
 def test_tiling_changes_no_truth_and_no_statistic(dem_path):

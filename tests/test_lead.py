@@ -192,8 +192,8 @@ def glint_rows():
 @pytest.fixture(scope="module")
 def saturation_rows():
     return lead.saturation(shots=1000, seed=2, instruments={
-        "atlas": Instrument.atlas("strong"),
-        "ideal": Instrument.atlas("strong", ideal_detector=True)})
+        "atlas": Instrument.atlas("strong", **lead.ATLAS_GAUSSIAN),
+        "ideal": Instrument.atlas("strong", ideal_detector=True, **lead.ATLAS_GAUSSIAN)})
 
 
 @pytest.fixture(scope="module")

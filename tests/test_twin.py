@@ -91,9 +91,10 @@ def test_validate_twin_signal_rate_is_within_the_real_spread(validated):
     assert 3.0 < ratio < 4.4
     rows = {r["quantity"]: r for r in doc["verdicts"]}
     assert rows["twin: signal photons per shot (weak, night)"]["verdict"] == "agrees"
-    # the night background: the model's (laser backscatter and dark counts, no sun)
+    # the night background: the model's (laser backscatter, dark counts and, with the sun 5-7
+    # deg below the horizon, the twilight sky's few kHz at most: lidar_mitsuba/sky.py)
     m = t["model_noise_hz"]
-    assert m["solar"] == 0 and m["laser_backscatter"] > 1e3 and m["dark"] > 0
+    assert 0 <= m["solar"] < 1e4 and m["laser_backscatter"] > 1e3 and m["dark"] > 0
     report = (out / "report.md").read_text()
     assert "disagrees" in report and "twin.png" in report
     assert json.loads((out / "report.json").read_text())["verdicts"]

@@ -81,9 +81,11 @@ segment table keeps the raster's own value at each segment (``*_raster``) beside
 simulated, so the difference is visible. Shorter sections, or a finer grain of levels, resolve
 the field better.
 
-**Outputs** (``out``): ``granules/ATL03_[yyyymmdd][hhmmss]_[ttttccss]_[vvv]_[rr].h5`` and
-``ATL06_...``, as ICESat-2 names them (:func:`.tracks.product_name`; ``orbit_info/rgt`` and
-``cycle_number`` filled in), read by the same tools as any granule of ours;
+**Outputs** (``out``): ``granules/ATL03/ATL03_[yyyymmdd][hhmmss]_[ttttccss]_[vvv]_[rr].h5``
+and ``granules/ATL06/ATL06_...``, as ICESat-2 names them (:func:`.tracks.product_name`;
+``orbit_info/rgt`` and ``cycle_number`` filled in, ``METADATA`` with the name's release), a
+folder per product so that ``icepyx.Read("out/granules/ATL06")`` reads a product's granules,
+read by the same tools as any granule of ours;
 ``segments.parquet``: every ATL06 segment with its latitude, longitude, ``h_li``, truth and
 error (:data:`.granules.SEGMENT_COLUMNS`); ``tasks.parquet``: a row per granule, its bias and
 precision (:data:`.granules.ROW_COLUMNS`); ``map.png``: bias and precision per along-track bin

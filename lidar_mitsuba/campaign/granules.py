@@ -66,7 +66,8 @@ ROW_COLUMNS: dict[str, str] = {
     "bias_m": "mean error of the good segments [m]",
     "bias_se_m": "its standard error from every other good segment (independent) [m]",
     "std_m": "standard deviation of the good segments' error [m] (precision)",
-    "atl03": "ATL03 file name", "atl06": "ATL06 file name",
+    "atl03": "ATL03 file, relative to granules/ (ATL03/ATL03_...h5)",
+    "atl06": "ATL06 file, relative to granules/ (ATL06/ATL06_...h5)",
     "task_s": "wall time on the worker [s]", "started_at": "UTC (ISO 8601)",
     "finished_at": "UTC (ISO 8601)", "worker": "host:pid",
     "lidar_mitsuba_version": "versions of the worker's packages", "mitsuba_version": "",
@@ -181,13 +182,17 @@ def _surface(p: dict) -> tuple[object, dict]:
 
 
 def simulate(p: dict) -> tuple[dict, int, pathlib.Path, pathlib.Path]:
-    """Stream the granule of task ``p`` to ``out/granules/ATL03_*.h5`` and ``ATL06_*.h5``
-    (each written under a temporary name with its RGT and cycle, then renamed) and
-    read its segments back: ``(segments, signal photons, atl03, atl06)``."""
+    """Stream the granule of task ``p`` to ``out/granules/ATL03/ATL03_*.h5`` and
+    ``out/granules/ATL06/ATL06_*.h5`` (a folder per product, as ``icepyx.Read(folder)`` reads
+    one product's granules; each written under a temporary name beginning with a dot, which
+    such a reader's glob skips, then renamed) and read its segments back: ``(segments, signal
+    photons, atl03, atl06)``."""
     from ..geotrack import GeoTrack
     from ..granule import stream_granule
     folder = pathlib.Path(p["out"]) / "granules"
-    final = [folder / f"ATL0{k}_{p['granule']}.h5" for k in (3, 6)]
+    final = [folder / f"ATL0{k}" / f"ATL0{k}_{p['granule']}.h5" for k in (3, 6)]
+    for f in final:
+        f.parent.mkdir(exist_ok=True)
     tmp = [f.with_name(f".{f.name}.part.h5") for f in final]
     track = dict(p["track"])
     if track.get("polyline") is not None:
@@ -211,6 +216,11 @@ def simulate(p: dict) -> tuple[dict, int, pathlib.Path, pathlib.Path]:
     for t, f in zip(tmp, final):
         os.replace(t, f)
     return read_segments(final[1]), sum(s.photons for s in summaries), final[0], final[1]
+
+
+def _granule_file(path: pathlib.Path) -> str:
+    """A granule file's path relative to ``granules/``: ``ATL03/ATL03_...h5``."""
+    return f"{path.parent.name}/{path.name}"
 
 
 def _with_properties(seg: dict, p: dict) -> dict:
@@ -309,7 +319,8 @@ def run_task(p: dict) -> dict:
             warnings.simplefilter("ignore")
             seg, photons, a3, a6 = simulate(p)
             segments = _with_properties(seg, p)
-        values.update(statistics(seg), photons=int(photons), atl03=a3.name, atl06=a6.name)
+        values.update(statistics(seg), photons=int(photons), atl03=_granule_file(a3),
+                      atl06=_granule_file(a6))
     except Exception as e:                    # recorded, not raised: the campaign goes on
         values = {"status": "failed", "error": str(e) if isinstance(e, _Invalid)
                   else _one_line(e)}

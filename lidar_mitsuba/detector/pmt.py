@@ -13,12 +13,17 @@ Per shot ``s`` with traced returns of weights ``w`` (``paths_per_shot`` photon p
    and over the anodes (signal outside the gate is lost too);
 6. each channel is dead for ``dead_time_ns`` after every detection (non-paralyzable) or after
    every arrival (paralyzable), unless the detector is ideal.
+
+With ``pulse_shape="atlas"`` (:mod:`.impulse`) each signal photon also gets the receiver's
+delay (the impulse response's tail and echoes) before step 5, and every recorded detection may
+be followed by an afterpulse on its channel, on which dead time acts again.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from . import deadtime as _deadtime
+from . import impulse as _impulse
 from ..instrument import Instrument
 from .records import Detections, Returns
 
@@ -161,6 +166,11 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
         exchangeable=returns.single_bounce, signal_scale=signal_scale,
         keep_probability=instrument.fill_factor * instrument.pde)
     anode = rng.integers(0, instrument.anodes, idx.size)
+    response = _impulse.response_of(instrument)
+    sig_time = np.asarray(returns.time_ns, np.float64)[idx]
+    if response.adds_delay:            # the receiver's tail and echoes (none: the paper's),
+        sig_time = sig_time + (response.sample_delay_ns(idx.size, rng)      # calibrated
+                               - response.calibration_ns())
     if gate_center_ns is not None:
         gate_start = np.asarray(gate_center_ns, np.float64) - instrument.range_gate_ns / 2.0
         gate_ns = instrument.range_gate_ns
@@ -171,10 +181,14 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
     # narrow types: less memory to touch (the stage is memory-bound)
     index_type = np.int32 if len(returns) < 2 ** 31 else np.int64
     shot, time_ns, anode, index, _ = _deadtime.detect_shots(
-        sig_start, np.asarray(returns.time_ns, np.float64)[idx], anode.astype(np.int16),
+        sig_start, sig_time, anode.astype(np.int16),
         idx.astype(index_type), np.nan_to_num(gate_start, nan=np.inf), float(gate_ns), noise_rate,
         instrument.anodes, instrument.channels, float(instrument.effective_dead_time_ns),
         instrument.paralyzable, int(rng.integers(0, 2 ** 62)))
+    if response.afterpulse_probability > 0:
+        shot, time_ns, anode, index = _with_afterpulses(
+            shot, time_ns, anode, index, instrument=instrument, response=response, rng=rng,
+            gate_end_ns=None if gate_center_ns is None else gate_start + gate_ns)
     hit = _deadtime.signal_hits(index, *(np.asarray(a, np.float32)
                                          for a in (returns.x_m, returns.y_m, returns.z_m)))
     index = index.astype(np.int64)
@@ -182,3 +196,40 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
                       anode=anode, time_ns=time_ns, return_index=index, is_signal=index >= 0,
                       hit_xyz_m=hit, arrivals_per_shot=counts, mean_photons_per_shot=mu,
                       run_out_shots=np.flatnonzero(run_out).astype(np.int64))
+
+
+def _with_afterpulses(shot, time_ns, anode, index, *, instrument, response, rng, gate_end_ns):
+    """The recorded events with their afterpulses (:func:`.impulse.add_afterpulses`; noise-like:
+    index -1) merged in by shot then time, and dead time applied again to the channels that
+    got one (an afterpulse blinds its channel, and needs a live channel to be recorded). The
+    recorded events are already ``dead_time_ns`` apart on each channel, so only those
+    channels can change; the others are left as they are. Returns ``(shot, time_ns, anode,
+    index)``."""
+    parent, delay = _impulse.add_afterpulses(shot, time_ns, response=response, rng=rng,
+                                             gate_end_ns=gate_end_ns)
+    if parent.size == 0:
+        return shot, time_ns, anode, index
+    per_ch = instrument.anodes_per_channel
+    group = shot * instrument.channels + anode // per_ch
+    ap_shot, ap_time, ap_anode = shot[parent], time_ns[parent] + delay, anode[parent]
+    ap_group = group[parent]
+    touched = np.flatnonzero(np.isin(group, ap_group))       # events on those channels
+    n_t = touched.size
+    with _deadtime.serial_while(True):     # a few events: a parallel region costs more
+        keep_all = _mask(np.concatenate([group[touched], ap_group]),
+                         np.concatenate([time_ns[touched], ap_time]),
+                         instrument.effective_dead_time_ns, paralyzable=instrument.paralyzable)
+    keep = np.ones(shot.size, bool)
+    keep[touched] = keep_all[:n_t]
+    ap = keep_all[n_t:]
+    ap_shot, ap_time, ap_anode = ap_shot[ap], ap_time[ap], ap_anode[ap]
+    order = np.lexsort((ap_time, ap_shot))
+    ap_shot, ap_time, ap_anode = ap_shot[order], ap_time[order], ap_anode[order]
+    shot, time_ns, anode, index = shot[keep], time_ns[keep], anode[keep], index[keep]
+    # insertion points: (shot, time) is sorted, so a structured searchsorted finds them
+    key = np.dtype([("s", np.int64), ("t", np.float64)])
+    old, new = np.empty(shot.size, key), np.empty(ap_shot.size, key)
+    old["s"], old["t"], new["s"], new["t"] = shot, time_ns, ap_shot, ap_time
+    at = np.searchsorted(old, new, side="right")
+    return (np.insert(shot, at, ap_shot), np.insert(time_ns, at, ap_time),
+            np.insert(anode, at, ap_anode), np.insert(index, at, np.asarray(-1, index.dtype)))

@@ -78,6 +78,10 @@ def bench_detector(*, quick: bool) -> list[dict]:
                                                      range_gate_m=100.0)),
         ("paralyzable, 300 MHz", 64, Instrument(beam="strong", background_mhz=300.0,
                                                 range_gate_m=100.0, paralyzable=True)),
+        # ATLAS's receiver response (detector/impulse.py: per-photon delays, afterpulses and
+        # a second dead-time pass): its cost against the row above it
+        ("strong, 10 MHz, ATLAS response", 64, Instrument(beam="strong", background_mhz=10.0,
+                                                          pulse_shape="atlas")),
     ]
     rows = []
     for name, k, inst in cases:
@@ -407,6 +411,8 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False,
         doc["accuracy_vs_time"].update(doc["media"])
         from . import cloud_cost
         doc["cloud"] = cloud_cost.run(quick=quick)
+        from . import sky_table
+        doc["sky"] = sky_table.bench(quick=quick)
     charts = {"throughput.png": lambda p: _chart(doc, p)}
     if not throughput_only:
         charts.update({
@@ -507,6 +513,9 @@ def format_summary(doc: dict) -> str:
     if "media" in doc:
         from . import media_accuracy
         lines += media_accuracy.format_summary(doc["media"])
+    if "sky" in doc:
+        from . import sky_table
+        lines.append(sky_table.format_bench(doc["sky"]))
     for name, rows in doc.get("stability", {}).items():
         bad = [f"{r['value']:g}: {r['status']}" for r in rows
                if not str(r.get("status", "ok")).startswith("ok")]

@@ -185,9 +185,9 @@ def _segment_rms_m(result, segment_m: float = 20.0) -> float:
 
 # ------------------------------------------------------------------------------ verdicts
 _WHY = {
-    ("below", "short"): "too few late photons: the model's pulse is Gaussian while ATLAS's "
-                        "impulse response has a trailing tail (transmitter pulse shape, "
-                        "detector and timing electronics), which the real file carries",
+    ("below", "short"): "too few late photons: the receiver's tail (ex-Gaussian, "
+                        "detector/impulse.py) has estimated strengths, and the real file "
+                        "carries more subsurface delay or a longer instrument tail",
     ("below", "long"): "too many late photons: the snow volume delays more than the real "
                        "floe does (coherent backscatter, which favours short paths, is not "
                        "modelled; finer or denser surface snow would shorten the paths)",

@@ -177,8 +177,9 @@ def verdicts(doc: dict) -> list[dict]:
     row("twin: surface-return spread (robust sd)",
         f"{100 * sim['spread_robust_m']:.1f} cm", f"{100 * real['spread_robust_m']:.1f} cm",
         abs(sim["spread_robust_m"] - real["spread_robust_m"]) < 0.02,
-        "the twin's surface is flat and its pulse Gaussian; the real sea ice is rough at the "
-        "footprint scale and ATLAS's impulse response has a tail")
+        "the twin's surface is flat snow (its pulse has ATLAS's receiver tail, estimated "
+        "strengths: docs/physics/impulse-response.md); the real sea ice is rough at the "
+        "footprint scale under snow that delays light, and the real tail may be longer")
     # the twin's file holds the model's rate (bckgrd_atlas/bckgrd_rate), read as the real one
     bg = sim.get("background_hz", {}).get("median", doc["twin"]["model_noise_hz"]["total"])
     rb = real.get("background_hz", {})

@@ -63,7 +63,7 @@ def write(result, path: str | os.PathLike) -> pathlib.Path:
     path = pathlib.Path(path)
     granule = Granule.single(result)
     with atomic_h5file(path) as f:
-        atl03_file.header(f, granule, *granule.span())
+        atl03_file.header(f, granule, *granule.span(), path=path)
         atl03_beam.write_beam(f, granule.beams[0], 0)
     return path
 

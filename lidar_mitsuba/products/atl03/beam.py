@@ -118,6 +118,7 @@ def _heights(s: _Section) -> dict:
         "ph_id_channel": s.channel.astype(np.int64) + base,
         "ph_id_pulse": s.gshot % PULSES_PER_MAJOR_FRAME + 1,
         "pce_mframe_cnt": s.gshot // PULSES_PER_MAJOR_FRAME,
+        "quality_ph": _quality(s),
     }
 
 
@@ -174,16 +175,49 @@ def _solar(s: _Section):
     return radiometry.solar_angles(run.lat_deg[ref], run.lon_deg[ref], run.delta_time_s[ref])
 
 
-def _saturation(s: _Section):
-    """Per segment, the fractions of its pulses with photons that are fully saturated (their
-    surface events, ``signal_conf_ph >= 2``, at least the beam's channels) and nearly
-    saturated (at least 3/4 of the channels, fewer than all); fill value without photons."""
-    n_shots, n_seg = s.res.n_shots, s.count.size
-    surface = np.bincount(s.shot[s.conf >= 2], minlength=n_shots)
-    with_photons = np.bincount(s.shot, minlength=n_shots) > 0
+def _saturated_pulses(s: _Section):
+    """Per shot (n_shots,): fully saturated (its surface events, ``signal_conf_ph >= 2``, at
+    least the beam's channels) and nearly saturated (at least 3/4 of them, fewer than all)."""
+    surface = np.bincount(s.shot[s.conf >= 2], minlength=s.res.n_shots)
     channels = s.inst.channels
     full = surface >= channels
-    near = (surface >= math.ceil(0.75 * channels)) & ~full
+    return full, (surface >= math.ceil(0.75 * channels)) & ~full
+
+
+#: ``quality_ph`` below a (fully or nearly) saturated pulse's highest surface event [m]:
+#: 1 (possible afterpulse) over the receiver's echoes, 2 (possible impulse-response effect)
+#: below them down to the end of the photomultiplier's afterpulses. ESTIMATE: ATL03's own
+#: windows are not published where we could read them; ours bracket Lu et al. 2021's echoes
+#: (~2.3 m and ~4.2 m, +-0.5 m: the saturation window) and afterpulses (to ~45 m)
+QUALITY_WINDOWS_M = ((1.8, 4.7, 1), (4.7, 45.0, 2))
+
+
+def _quality(s: _Section) -> np.ndarray:
+    """``quality_ph`` per photon (in the section's order): 0 nominal; in a saturated pulse
+    (:func:`_saturated_pulses`), by depth below its highest surface event,
+    :data:`QUALITY_WINDOWS_M`. 3 (possible TEP) never: the transmitter echo path is not
+    simulated. int8."""
+    q = np.zeros(s.shot.size, np.int8)
+    full, near = _saturated_pulses(s)
+    sat = full | near
+    if not sat.any():
+        return q
+    h = np.asarray(s.res.h_m, np.float64)[s.order]
+    top = np.full(sat.size, -np.inf)
+    surf = s.conf >= 2
+    np.maximum.at(top, s.shot[surf], h[surf])
+    depth = np.where(sat[s.shot], top[s.shot] - h, -np.inf)
+    for lo, hi, flag in QUALITY_WINDOWS_M:
+        q[(depth > lo) & (depth <= hi)] = flag
+    return q
+
+
+def _saturation(s: _Section):
+    """Per segment, the fractions of its pulses with photons that are fully saturated and
+    nearly saturated (:func:`_saturated_pulses`); fill value without photons."""
+    n_shots, n_seg = s.res.n_shots, s.count.size
+    with_photons = np.bincount(s.shot, minlength=n_shots) > 0
+    full, near = _saturated_pulses(s)
     seg = s.seg_of_shot - s.k0
     pulses = np.bincount(seg, weights=with_photons, minlength=n_seg)
     out = []

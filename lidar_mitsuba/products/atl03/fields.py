@@ -93,9 +93,12 @@ HEIGHTS = {
                          "1-based index of the event among its channel's events of the pulse"),
     "ph_id_pulse": Field("u1", "counts", "laser pulse counter",
                          "pulse number within the major frame (1-200)"),
-    "quality_ph": Field("i1", "1", "Photon Quality", "0: nominal (no afterpulses, impulse "
-                        "response or TEP photons are simulated)", const=0,
-                        model_note="not modelled: the detector has no afterpulsing and no TEP",
+    "quality_ph": Field("i1", "1", "Photon Quality",
+                        "0 nominal; in a fully or nearly saturated pulse (see full_sat_fract), "
+                        "1 possible afterpulse 1.8-4.7 m and 2 possible impulse-response effect "
+                        "4.7-45 m below its highest surface event (windows bracketing Lu et al. "
+                        "2021's receiver echoes and afterpulses; ATL03's own are not published); "
+                        "3 (possible TEP) never: the transmitter echo path is not simulated",
                         attrs=dict(valid_min=0, valid_max=3, flag_values=[0, 1, 2, 3],
                                    flag_meanings="nominal possible_afterpulse "
                                    "possible_impulse_response_effect possible_tep")),

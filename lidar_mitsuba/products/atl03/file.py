@@ -1,19 +1,18 @@
 """The file-level groups of our ATL03 (and ATL06) files: root attributes, ``ancillary_data``,
-``orbit_info``, ``atlas_impulse_response`` and the ISO 19115 ``METADATA`` group real granules
-carry (``DatasetIdentification``, ``SeriesIdentification``, ``Extent``,
-``AcquisitionInformation/{lidar,platform}``, ``ProcessStep/PGE``) with the granule's time
-bounds and latitude and longitude bounds (:func:`extend_extent`, as beams are written), and the
-root dimension scales ``ds_surf_type`` and ``ds_xyz``."""
+``orbit_info``, ``atlas_impulse_response``, the ISO 19115 ``METADATA`` group real granules
+carry (:mod:`lidar_mitsuba.products.metadata`: ``DatasetIdentification``, ``Extent``,
+``Lineage``, ``ProcessStep``, ...) with the granule's time bounds and latitude and longitude
+bounds (:func:`extend_extent`, as beams are written), and the root dimension scales
+``ds_surf_type`` and ``ds_xyz``."""
 from __future__ import annotations
 
 import datetime as _dt
 import json
-import uuid
 
 import numpy as np
 
 from ... import __version__, geotrack
-from .. import h5write as h5chunks
+from .. import h5write as h5chunks, metadata as meta
 from ...constants import FWHM_PER_SIGMA
 
 
@@ -32,11 +31,12 @@ def gps_week_sow(delta_time_s: float) -> tuple[int, float]:
     return int(gps // 604800), gps % 604800
 
 
-def header(f, granule, instruments, t_first, t_last) -> None:
+def header(f, granule, instruments, t_first, t_last, *, path=None) -> None:
     """Root attributes, ``ancillary_data``, ``orbit_info``, ``METADATA`` and the ``/truth``
     group's attributes of an ATL03 file. ``granule``: its ``config``, ``sc_orient``, ``crs``
     and ``frame_origin_m``; ``instruments``: ``[(beam, instrument), ...]``; ``t_first``,
-    ``t_last``: the first and last shot times [s since 2018-01-01]."""
+    ``t_last``: the first and last shot times [s since 2018-01-01]; ``path``: where the file
+    will be (its name gives the metadata's file name and release; default ``f``'s own)."""
     f.attrs["short_name"] = "ATL03"
     f.attrs["title"] = "simulated ATLAS/ICESat-2 L2A Global Geolocated Photon Data"
     f.attrs["description"] = ("Simulated by lidar_mitsuba (first-principles Monte Carlo): "
@@ -49,7 +49,8 @@ def header(f, granule, instruments, t_first, t_last) -> None:
                     "time_coverage_start": utc(t_first), "time_coverage_end": utc(t_last)})
     ancillary(f, instruments, t_first, t_last)
     orbit_info(f, granule, t_first)
-    metadata(f, granule, instruments, t_first, t_last)
+    metadata(f, granule, instruments, t_first, t_last,
+             path=f.filename if path is None else path)
     column_scales(f)
     t = f.require_group("truth")
     t.attrs["crs"] = granule.crs
@@ -117,62 +118,19 @@ def orbit_info(f, granule, t_first) -> None:
             _ds(o, key, np.array([0], dtype), "1", f"{key}: not applicable to a simulated track")
 
 
-def metadata(f, granule, instruments, t_first, t_last) -> None:
-    """The ``METADATA`` group's identification, acquisition and processing attributes (as
-    real granules carry them); ``Extent`` starts empty and grows with the beams written."""
-    m = f.create_group("METADATA")
-    m.attrs["Description"] = "ISO19115 Structured Metadata Represented within HDF5"
-    ident = str(uuid.uuid5(uuid.NAMESPACE_URL, "lidar_mitsuba:" + json.dumps(granule.config)))
-    abstract = ("Simulated ICESat-2 ATL03 photon data: latitude, longitude, height and time of "
-                "every detected photon of a Monte Carlo simulation (lidar_mitsuba), with its "
-                "truth in /truth.")
-    m.create_group("DatasetIdentification").attrs.update({
-        "shortName": "ATL03", "VersionID": "SIM", "uuid": ident, "abstract": abstract,
-        "purpose": "simulated along-track photon data", "language": "eng",
-        "characterSet": "utf8", "spatialRepresentationType": "along-track",
-        "topicCategory": "geoscientificInformation", "status": "onGoing",
-        "originatorOrganizationName": "lidar_mitsuba", "credit": "lidar_mitsuba "
-        f"{__version__}"})
-    m.create_group("SeriesIdentification").attrs.update({
-        "shortName": "ATL03", "VersionID": "SIM",
-        "longName": "ATLAS/ICESat-2 L2A Global Geolocated Photon Data (simulated)",
-        "format": "HDF", "formatVersion": "5", "abstract": abstract})
-    beams = ", ".join(f"{b.name} ({b.strength})" for b, _ in instruments)
-    inst = instruments[0][1]
-    acq = m.create_group("AcquisitionInformation")
-    acq.create_group("lidar").attrs.update({
-        "identifier": "ATLAS (simulated)", "type": "Laser Altimeter",
-        "wavelength": f"{inst.wavelength_nm:g} nm", "pulse_rate": f"{inst.prf_hz:g} pps",
-        "description": f"simulated photon-counting lidar, beams {beams}"})
-    acq.create_group("platform").attrs.update({
-        "identifier": "ICESat-2 (simulated)", "type": "Spacecraft",
-        "description": f"nadir-pointing, {inst.altitude_m / 1e3:g} km above the heights' datum"})
-    m.create_group("ProcessStep/PGE").attrs.update({
-        "identifier": "lidar_mitsuba", "softwareTitle": "lidar_mitsuba",
-        "softwareVersion": __version__, "processDescription": "first-principles Monte Carlo "
-        "simulation of the photons (Mitsuba 3), detector model, histogram signal finding"})
-    m.create_group("Extent").attrs.update({"rangeBeginningDateTime": utc(t_first),
-                                           "rangeEndingDateTime": utc(t_last)})
+def metadata(f, granule, instruments, t_first, t_last, *, path) -> None:
+    """The ``METADATA`` group of an ATL03 file to be found at ``path``
+    (:func:`lidar_mitsuba.products.metadata.write_metadata`); ``Extent`` starts with the times
+    and grows with the beams written (:func:`extend_extent`)."""
+    meta.write_metadata(
+        f, short_name="ATL03", path=path, config=granule.config, instruments=instruments,
+        t_first=utc(t_first), t_last=utc(t_last),
+        process="Photons traced by a first-principles Monte Carlo simulation (Mitsuba 3) "
+        "over the simulated surface, detected by a modelled ATLAS detector (dead time, "
+        "background), geolocated along the track and classified by histogram signal finding.")
 
 
-def extend_extent(f, lat_deg, lon_deg) -> None:
-    """Widen the file's latitude and longitude bounds (``METADATA/Extent`` and the root
-    ``geospatial_*`` attributes) to take in these shots (longitudes as they are: a track
-    across the antimeridian gets -180 to 180)."""
-    if np.size(lat_deg) == 0:
-        return
-    e = f.require_group("METADATA/Extent").attrs
-    bounds = {"southBoundLatitude": (np.min(lat_deg), min), "northBoundLatitude":
-              (np.max(lat_deg), max), "westBoundLongitude": (np.min(lon_deg), min),
-              "eastBoundLongitude": (np.max(lon_deg), max)}
-    for key, (v, pick) in bounds.items():
-        e[key] = float(pick(float(v), float(e[key])) if key in e else v)
-    f.attrs.update({"geospatial_lat_min": e["southBoundLatitude"],
-                    "geospatial_lat_max": e["northBoundLatitude"],
-                    "geospatial_lon_min": e["westBoundLongitude"],
-                    "geospatial_lon_max": e["eastBoundLongitude"],
-                    "geospatial_lat_units": "degrees_north",
-                    "geospatial_lon_units": "degrees_east"})
+extend_extent = meta.extend_extent
 
 
 _COLUMN_SCALES = {5: "ds_surf_type", 3: "ds_xyz"}
