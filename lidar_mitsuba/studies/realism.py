@@ -401,7 +401,9 @@ def background_curve(*, elevations_deg=None, z_m: float = 0.0) -> dict:
     """The model's background [Hz, detected] against solar elevation for ATLAS's strong and
     weak beams over clear snow (albedo 0.9) at sea level, the 2018 energy, 21 March at 70 N
     (Earth-Sun distance ~1 au), the polar band defaults and the lidar-equation signal for the
-    leak term: ``{"elevation_deg": [...], "strong": [...], "weak": [...]}``."""
+    leak term, whose outside fraction is the Gaussian pulse's (no afterpulses: the beams'
+    own predictions, from a simulation, have them): ``{"elevation_deg": [...], "strong": [...],
+    "weak": [...]}``."""
     from .. import night
     from ..instrument import Instrument
     el = np.linspace(-10.0, 35.0, 46) if elevations_deg is None else np.asarray(elevations_deg)

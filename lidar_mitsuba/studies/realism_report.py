@@ -23,7 +23,7 @@ def plot(doc: dict, path) -> None:
     fig, ax = plt.subplots(figsize=(9, 5.5))
     for kind in ("strong", "weak"):
         ax.plot(c["elevation_deg"], c[kind], color=colour[kind], lw=2,
-                label=f"model, {kind} beam (clear snow, sea level)")
+                label=f"model, {kind} beam (clear snow, sea level; leak: Gaussian pulse)")
     lo, hi = ELEVATION_RANGE_DEG
     for r in doc["rows"]:
         m, p = r["measured"], r["predicted"]
