@@ -227,7 +227,12 @@ class Instrument:
                                  "set its pulse energy, receiver transmission, ... instead")
         budget.setdefault("pulse_energy_uj", ATLAS_PULSE_ENERGY_UJ[beam])
         link = LinkBudget(atmosphere=Atmosphere(**air), **budget)
-        return cls(beam=beam, link_budget=link, **{**ATLAS, **changes})
+        fields = {**ATLAS, **changes}
+        if "dark_count_hz" not in changes:        # every anode's dark counts, summed per channel
+            from .night import dark_count_per_channel_hz
+            fields["dark_count_hz"] = dark_count_per_channel_hz(
+                anodes=fields["anodes"], channels=fields.get("channels") or BEAMS[beam].channels)
+        return cls(beam=beam, link_budget=link, **fields)
 
     def integrator_dict(self, *, max_depth: int = 1, max_lanes: int = 2 ** 23) -> dict:
         """Mitsuba dict of the ``pathlength`` integrator for this instrument."""
@@ -252,6 +257,40 @@ reading in a real ATL03 granule (``geolocation/tx_pulse_energy``, gt1l, 14 Oct 2
 27.65 uJ; ``lidar_mitsuba/data/``). Strong: four times the weak beam, ATLAS's design ratio (the
 strong beam "approximately four times brighter": read-ICESat-2's documentation; ATL07's
 weak-beam thresholds are the strong ones / 4); ESTIMATE for the flown strong energy."""
+
+ATLAS_WEAK_ENERGY_HISTORY: tuple[tuple[str, float, str], ...] = (
+    ("2018-10-14", 27.5, "ATL03 geolocation/tx_pulse_energy, gt1l (weak), granule "
+     "ATL03_20181014002445_02350104_006_02: 27.30-27.65 uJ (lidar_mitsuba/data)"),
+    ("2022-04-01", 22.8, "ATL03 geolocation/tx_pulse_energy, gt1r (weak), granule "
+     "ATL03_20220401221822_01501506 (ICESat2VegR inst/extdata/atl03_clip.h5)"),
+    ("2023-09-15", 27.5, "Martino et al. 2023, Proc. SPIE 12512, 125120A: the laser energy "
+     "setting was raised in September 2023, for the first time, to keep ranging performance "
+     "at its early-mission level (ESTIMATE: back to the 2018 reading, mid-month)"),
+)
+"""ATLAS's weak-beam pulse energy over the mission [uJ]: dated readings of the laser energy
+monitor (ATL03 ``tx_pulse_energy``) and the one published change of setting, with sources.
+:func:`atlas_pulse_energy_uj` interpolates between them (ESTIMATE: linear in time; the energy
+fell between the readings as the laser aged, Martino et al. 2023) and holds the ends."""
+
+
+def atlas_pulse_energy_uj(beam: str, delta_time_s: float) -> tuple[float, str]:
+    """The pulse energy [uJ] of an ATLAS ``beam`` (``strong``: four times the weak,
+    :data:`ATLAS_PULSE_ENERGY_UJ`) at ``delta_time_s`` [s since 2018-01-01 UTC], from
+    :data:`ATLAS_WEAK_ENERGY_HISTORY`, and a note of where it comes from (``ESTIMATE`` where
+    interpolated or held beyond the readings). For a file without ``tx_pulse_energy``."""
+    _check("beam", beam, beam in BEAMS, f"must be one of {', '.join(BEAMS)}")
+    epoch = np.datetime64("2018-01-01T00:00:00")
+    (t0, e0), (t1, e1), (t_step, e_step) = (
+        ((np.datetime64(d) - epoch) / np.timedelta64(1, "s"), v)
+        for d, v, _ in ATLAS_WEAK_ENERGY_HISTORY)
+    if delta_time_s >= t_step:               # after the setting was raised
+        weak = e_step
+    else:                                    # the decline of the readings, held before them
+        weak = e0 + (e1 - e0) / (t1 - t0) * (max(float(delta_time_s), t0) - t0)
+    scale = ATLAS_PULSE_ENERGY_UJ[beam] / ATLAS_PULSE_ENERGY_UJ["weak"]
+    return weak * scale, ("ESTIMATE: ATLAS's pulse-energy history (instrument."
+                          "ATLAS_WEAK_ENERGY_HISTORY), interpolated to the file's time")
+
 
 ATLAS: dict = {
     # pulse: Brunt, Neumann & Larsen 2019 (The Cryosphere 13, 579): "<2 ns" pulses; ATL03's
@@ -278,8 +317,10 @@ ATLAS: dict = {
     "fill_factor": 0.8,
     # dead time: ATLAS's ~3.2 ns (the "atlas" preset; Zhang & Kerekes: "typically 3 ns")
     "dead_time_ns": DEAD_TIME_PRESETS_NS["atlas"],
-    # dark counts per channel: ESTIMATE 100 Hz; the quietest night background of the real
-    # weak beam (599 Hz over its 4 channels, lidar_mitsuba/data) bounds them at ~150 Hz
+    # dark counts: every anode's own (night.DARK_COUNT_PER_ANODE_HZ, with its source), summed
+    # over the anodes of a channel: both beams' detectors have 16 anodes, so both count the
+    # same dark rate (the strong beam in 16 channels, the weak one in 4); Instrument.atlas sets
+    # the per-channel rate from the beam's channels
     "dark_count_hz": 100.0,
 }
 """ATLAS as flown, the fields :meth:`Instrument.atlas` sets (besides the beam and its link

@@ -1,9 +1,11 @@
-"""A real granule's twin: the shots of a real ATL03 file (its beams, spacecraft orientation,
-ground tracks, times, sun and spacecraft altitude), to simulate them again over a DEM or a
-built-in surface (``lidar-mitsuba simulate --like REAL_ATL03.h5``) and set real and simulated
-photons side by side along the same track.
+"""A real granule's twin: the shots of a real ICESat-2 file of any product (ATL03, ATL06,
+ATL07 or ATL08: its beams, strong or weak, spacecraft orientation, ground tracks, times, sun,
+spacecraft altitude and transmitted energy, :mod:`lidar_mitsuba.products.real`), to simulate
+them again over a DEM or a built-in surface, open water included (``lidar-mitsuba simulate
+--like REAL.h5``) and set real and simulated photons side by side along the same track.
 
-Shots come from the file's 20 m geolocation segments: per beam, runs of segments with no gap
+Shots come from the file's segments (ATL03's 20 m geolocation segments, ATL06's land-ice,
+ATL07's sea-ice or ATL08's land segments): per beam, runs of segments with no gap
 in time longer than ``GAP_S`` are *pieces* (a subset may hold several, e.g. two passes over the
 same latitude); in a piece the pulses fire at the PRF from half a segment before the first
 segment's reference time to half a segment after the last, and each pulse's footprint centre,
@@ -33,6 +35,20 @@ PIECE_GAP_M = 100.0
 """Along-track distance put between two pieces [m] (their shots never share a footprint)."""
 
 
+def beam_energy_uj(own_strength: str, file_energy_uj: float | None, delta_time_s: float,
+                   strength: str | None = None) -> tuple[float, str]:
+    """The pulse energy [uJ] of a real beam (``own_strength``) fired as a ``strength`` beam
+    (its own by default), and where it comes from: the file's ``tx_pulse_energy`` (scaled by
+    ATLAS's strong:weak design ratio for the other strength), else ATLAS's history at
+    ``delta_time_s`` (:func:`~lidar_mitsuba.instrument.atlas_pulse_energy_uj`, ESTIMATE)."""
+    from .instrument import ATLAS_PULSE_ENERGY_UJ, atlas_pulse_energy_uj
+    kind = strength or own_strength
+    if file_energy_uj is not None and np.isfinite(file_energy_uj):
+        scale = ATLAS_PULSE_ENERGY_UJ[kind] / ATLAS_PULSE_ENERGY_UJ[own_strength]
+        return float(file_energy_uj) * scale, "tx_pulse_energy"
+    return atlas_pulse_energy_uj(kind, delta_time_s)
+
+
 @dataclass
 class TwinBeam:
     """The shots of one beam of a real granule. Arrays have shape (n_shots,).
@@ -45,6 +61,9 @@ class TwinBeam:
         surface_h_m: the surface height under the pulse [m above the ellipsoid]: the median
             height of the segment's high-confidence photons (NaN where a segment has none).
         pieces: ``[(first, stop), ...]`` pulse ranges with no gap in time.
+        pulse_energy_uj: the beam's transmitted energy per pulse [uJ] as the file records it
+            (ATL03 ``tx_pulse_energy``, median), or None (ATLAS's history applies).
+        surface: what the product says the surface is (``sea ice``, ``land ice``, ...).
     """
     beam: Beam
     geolocation: Geolocation
@@ -52,6 +71,14 @@ class TwinBeam:
     altitude_m: np.ndarray
     surface_h_m: np.ndarray
     pieces: list[tuple[int, int]]
+    pulse_energy_uj: float | None = None
+    surface: str = "unknown"
+
+    def energy_uj(self, strength: str | None = None) -> tuple[float, str]:
+        """The pulse energy [uJ] to fire this beam's shots with as a ``strength`` beam (its
+        own by default) and where it comes from (:func:`beam_energy_uj`)."""
+        return beam_energy_uj(self.beam.strength, self.pulse_energy_uj,
+                              float(np.median(self.geolocation.delta_time_s)), strength)
 
     @property
     def n_shots(self) -> int:
@@ -60,11 +87,19 @@ class TwinBeam:
 
 @dataclass
 class TwinGranule:
-    """The beams of a real ATL03 file, ready to simulate again (:func:`read`)."""
+    """The beams of a real ICESat-2 file, ready to simulate again (:func:`read`)."""
     path: pathlib.Path
     sc_orient: int
     beams: list[TwinBeam]
     prf_hz: float
+    product: str = "ATL03"
+    missing: list[str] | None = None
+
+    def missing_line(self) -> str:
+        """What the file lacks that the twin would use, in one line."""
+        if not self.missing:
+            return f"{self.path.name} ({self.product}): nothing missing"
+        return f"{self.path.name} ({self.product}) lacks: " + "; ".join(self.missing)
 
     # the reference-track interface of lidar_mitsuba.granule (as GeoTrack's)
     def beam_geolocation(self, beam: Beam, first: int, n_shots: int, *, spacing_m: float = 0.7,
@@ -121,8 +156,9 @@ class TwinGranule:
         return float(np.nanmedian(np.concatenate([b.altitude_m for b in self.beams])))
 
     def to_dict(self) -> dict:
-        return {"like": str(self.path), "sc_orient": self.sc_orient,
-                "beams": {b.beam.name: b.n_shots for b in self.beams}}
+        return {"like": str(self.path), "product": self.product, "sc_orient": self.sc_orient,
+                "beams": {b.beam.name: b.n_shots for b in self.beams},
+                "missing": list(self.missing or [])}
 
     def beam(self, name: str) -> TwinBeam:
         for b in self.beams:
@@ -132,62 +168,44 @@ class TwinGranule:
                              f"{', '.join(b.beam.name for b in self.beams)})")
 
 
-def _text(value) -> str:
-    return value.decode() if isinstance(value, bytes) else str(value)
-
-
-def _sc_orient(f) -> int:
-    """0 backward, 1 forward: ``orbit_info/sc_orient`` or a beam's ``sc_orientation``."""
-    if "orbit_info/sc_orient" in f:
-        return int(np.asarray(f["orbit_info/sc_orient"][()]).ravel()[0])
-    for name in ("gt1l", "gt1r", "gt2l", "gt2r", "gt3l", "gt3r"):
-        if name in f and "sc_orientation" in f[name].attrs:
-            return 1 if _text(f[name].attrs["sc_orientation"]).lower() == "forward" else 0
-    raise ValueError("no spacecraft orientation (orbit_info/sc_orient or sc_orientation)")
-
-
 def read(path: str | os.PathLike, *, beams: str = "all", prf_hz: float = 10e3) -> TwinGranule:
-    """The shots of the beams of a real ATL03 file (``beams``: ``all``, ``strong``, ``weak``
-    or names) that have geolocation segments. Raises ``ParameterError`` (``like``) for a file
-    that is not an ATL03 granule."""
-    import h5py
-    path = pathlib.Path(path)
-    if not path.is_file():
-        raise ParameterError("like", f"{path}: no such file")
-    try:
-        with h5py.File(path, "r") as f:
-            sc_orient = _sc_orient(f)
-            layout = {b.name: b for b in beam_layout(sc_orient)}
-            out = []
-            for name, beam in layout.items():
-                if f"{name}/geolocation/segment_id" not in f:
-                    continue
-                if beams not in ("all", beam.strength) and name not in beams.split(","):
-                    continue
-                twin = _beam(f[name], beam, prf_hz)
-                if twin is not None:
-                    out.append(twin)
-    except (OSError, KeyError, ValueError) as e:
-        raise ParameterError("like", f"{path}: not an ATL03 granule we can read "
-                             f"({str(e).splitlines()[0]})") from None
+    """The shots of the beams of a real ICESat-2 file (ATL03, ATL06, ATL07 or ATL08, any
+    release; ``beams``: ``all``, ``strong``, ``weak`` or names) from its segments
+    (:func:`lidar_mitsuba.products.real.read_product`): strong or weak from each beam
+    group's ``atlas_beam_type``, the pulse energy from ATL03's ``tx_pulse_energy`` (else
+    ATLAS's energy history), the surface from the product's heights. What the file lacks is
+    in ``missing`` (one line: :meth:`TwinGranule.missing_line`). Raises ``ParameterError``
+    (``like``) for a file it cannot read."""
+    from .products.real import read_product
+    real = read_product(path, beams=beams)
+    out = [b for b in (_beam(rb, prf_hz) for rb in real.beams) if b is not None]
     if not out:
-        raise ParameterError("like", f"{path}: no beam with geolocation segments"
+        raise ParameterError("like", f"{real.path}: no beam with two segments in a row"
                              + ("" if beams == "all" else f" among {beams!r}"))
-    return TwinGranule(path=path, sc_orient=sc_orient, beams=out, prf_hz=float(prf_hz))
+    orient = real.sc_orient if real.sc_orient in (0, 1) else 0
+    return TwinGranule(path=real.path, sc_orient=orient, beams=out, prf_hz=float(prf_hz),
+                       product=real.product, missing=list(real.missing))
 
 
-def _beam(g, beam: Beam, prf_hz: float) -> TwinBeam | None:
-    """One beam group's pulses (None when it has fewer than two segments)."""
-    geo = g["geolocation"]
-    t_seg = geo["delta_time"][()]
+def _beam(rb, prf_hz: float) -> TwinBeam | None:
+    """One beam's pulses from its segments (a :class:`~lidar_mitsuba.products.real.RealBeam`;
+    None when no two segments are in a row). Segments without a place are dropped; a
+    product without the spacecraft's altitude puts it at ATLAS's nominal range above the
+    surface."""
+    from .constants import ALTITUDE_M
+    ok = np.isfinite(rb.delta_time_s) & np.isfinite(rb.lat_deg) & np.isfinite(rb.lon_deg)
+    order = np.flatnonzero(ok)[np.argsort(rb.delta_time_s[ok], kind="stable")]
+    order = order[np.r_[True, np.diff(rb.delta_time_s[order]) > 0]]   # one segment a time
+    t_seg = rb.delta_time_s[order]
     if t_seg.size < 2:
         return None
-    lat_seg = geo["reference_photon_lat"][()]
-    lon_seg = geo["reference_photon_lon"][()]
-    alt_seg = geo["altitude_sc"][()] if "altitude_sc" in geo else np.full(t_seg.size, np.nan)
-    sun = [geo[k][()].astype(np.float64) if k in geo else None
-           for k in ("solar_elevation", "solar_azimuth")]
-    h_seg = _segment_heights(g, geo)
+    lat_seg, lon_seg = rb.lat_deg[order], rb.lon_deg[order]
+    h_seg = rb.surface_h_m[order]
+    alt_seg = (rb.altitude_m[order] if rb.altitude_m is not None
+               else ALTITUDE_M + np.nan_to_num(h_seg, nan=float(np.nanmedian(h_seg))
+                                               if np.isfinite(h_seg).any() else 0.0))
+    sun = [None if s is None else s[order] for s in (rb.solar_elevation_deg,
+                                                      rb.solar_azimuth_deg)]
     cuts = np.flatnonzero(np.diff(t_seg) > GAP_S) + 1
     bounds = list(zip(np.r_[0, cuts], np.r_[cuts, t_seg.size]))
     parts, pieces, along0 = [], [], 0.0
@@ -208,27 +226,14 @@ def _beam(g, beam: Beam, prf_hz: float) -> TwinBeam | None:
     geoloc = Geolocation(lat_deg=cat["lat"], lon_deg=cat["lon"], azimuth_deg=cat["az"],
                          delta_time_s=cat["t"], solar_elevation_deg=cat.get("sun_el"),
                          solar_azimuth_deg=cat.get("sun_az"))
-    return TwinBeam(beam=beam, geolocation=geoloc, along_m=cat["along_m"],
-                    altitude_m=cat["alt"], surface_h_m=cat["h"], pieces=pieces)
-
-
-def _segment_heights(g, geo) -> np.ndarray:
-    """Median height [m] of each segment's photons of high confidence (4) in any surface
-    class (NaN when none)."""
-    cnt = geo["segment_ph_cnt"][()]
-    beg = geo["ph_index_beg"][()].astype(np.int64) - 1
-    out = np.full(cnt.size, np.nan)
-    if "heights/h_ph" not in g:
-        return out
-    h = g["heights/h_ph"][()]
-    conf = g["heights/signal_conf_ph"][()].max(axis=1) if "heights/signal_conf_ph" in g \
-        else np.full(h.size, 4)
-    for k, (b, c) in enumerate(zip(beg, cnt)):
-        if c > 0 and b >= 0:
-            s = h[b:b + c][conf[b:b + c] >= 4]
-            if s.size:
-                out[k] = np.median(s)
-    return out
+    across = {b.name: b.across_m for b in beam_layout(0)}[rb.name]
+    energy = (float(np.nanmedian(rb.pulse_energy_uj)) if rb.pulse_energy_uj is not None
+              else None)
+    return TwinBeam(beam=Beam(name=rb.name, spot=rb.spot, strength=rb.strength,
+                              across_m=across),
+                    geolocation=geoloc, along_m=cat["along_m"], altitude_m=cat["alt"],
+                    surface_h_m=cat["h"], pieces=pieces, pulse_energy_uj=energy,
+                    surface=rb.surface)
 
 
 def _piece(t, lat, lon, alt, h, sun, prf_hz: float) -> dict:
@@ -272,7 +277,7 @@ def simulate_over_surface(twin: TwinGranule, *, surface=None, beams: str = "all"
                           shots: int | None = None, instrument: str = "atlas",
                           instrument_options: dict | None = None, seed: int = 0,
                           progress: bool = True, strength: str | None = None,
-                          **simulate_options):
+                          water_wind_mps: float | None = None, **simulate_options):
     """The twin of ``twin`` over a built-in surface (a
     :class:`~lidar_mitsuba.ground.surface.SurfaceSpec`; default: the flat Ward snow), in memory: each
     beam's pulses are placed in a frame centred on the granule's first pulse (an azimuthal
@@ -287,7 +292,13 @@ def simulate_over_surface(twin: TwinGranule, *, surface=None, beams: str = "all"
         instrument: ``atlas`` (default) or ``paper``; ``instrument_options``: fields.
         strength: fire every beam's shots as a ``"strong"`` or ``"weak"`` beam instead of its
             own (``None``): e.g. the strong:weak ratio on the same shots.
+        water_wind_mps: open water (ocean, leads) instead of the surface's Ward snow: the
+            ``water`` BSDF (:func:`~lidar_mitsuba.ground.water.water_bsdf`) roughened by
+            this wind speed [m/s] (Cox & Munk), on the (flat by default) surface.
         seed, progress, simulate_options: as :func:`~lidar_mitsuba.run.simulate`.
+
+    With ATLAS (``instrument="atlas"``) each beam fires the energy its file recorded
+    (:meth:`TwinBeam.energy_uj`) unless ``instrument_options`` sets ``pulse_energy_uj``.
     """
     from pyproj import Transformer
     from .geotrack import GeoTrack, ProjectedTrack, Site
@@ -302,6 +313,14 @@ def simulate_over_surface(twin: TwinGranule, *, surface=None, beams: str = "all"
     to_xy = Transformer.from_crs("EPSG:4326", aeqd, always_xy=True)
     opts = {"altitude_m": twin.median_range_m(), **(instrument_options or {})}
     site = Site(height_m=float(np.clip(twin.median_surface_height_m(), -500, 9000)))
+    if water_wind_mps is not None:
+        from .ground.water import water_bsdf
+        if "bsdf" in simulate_options:
+            raise ParameterError("water_wind_mps", "give a bsdf or open water, not both")
+        try:
+            simulate_options["bsdf"] = water_bsdf(wind_speed_mps=water_wind_mps)
+        except ValueError as e:
+            raise ParameterError("water_wind_mps", str(e)) from None
     runs = []
     for beam in twin.select_beams(beams):
         n = twin.beam_shot_count(beam, shots)
@@ -310,8 +329,11 @@ def simulate_over_surface(twin: TwinGranule, *, surface=None, beams: str = "all"
         track = ProjectedTrack(x_m=x, y_m=y, along_m=along, geolocation=geo,
                                info={"like": str(twin.path), "beam": beam.name})
         kind = strength or beam.strength
-        inst = (Instrument.atlas(kind, **opts) if instrument == "atlas"
-                else Instrument(beam=kind, **opts))
+        beam_opts = dict(opts)
+        if instrument == "atlas" and "pulse_energy_uj" not in beam_opts:
+            beam_opts["pulse_energy_uj"] = twin.beam(beam.name).energy_uj(kind)[0]
+        inst = (Instrument.atlas(kind, **beam_opts) if instrument == "atlas"
+                else Instrument(beam=kind, **beam_opts))
         try:
             res = simulate(instrument=inst, surface=surface or SurfaceSpec(kind="flat"),
                            track=track, shots=n, seed=_beam_seed(seed, beam), site=site,
@@ -325,5 +347,6 @@ def simulate_over_surface(twin: TwinGranule, *, surface=None, beams: str = "all"
     return Granule(beams=runs, sc_orient=twin.sc_orient, crs=aeqd, frame_origin_m=(0.0, 0.0),
                    track=ref, config={"like": twin.to_dict(), "instrument": instrument,
                                       "instrument_options": opts, "seed": int(seed),
+                                      "water_wind_mps": water_wind_mps,
                                       "sc_orient": twin.sc_orient,
                                       "beams": [r.beam.name for r in runs]})

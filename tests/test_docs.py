@@ -43,6 +43,7 @@ ELSEWHERE = {
     ("simulate", "--cloud-od"): "tests/test_clouds.py::test_cli_cloud_runs",
     ("bench", None): "tests/test_bench.py::bench_run",
     ("sweep", None): "tests/test_sweep.py::test_cli_runs_resumes_and_plots",
+    ("validate", "--real"): "tests/test_realism.py::test_validate_real_over_every_real_file",
     ("validate", None): "tests/test_docs.py::test_validate_command_runs_the_study",
     ("make-raster", None): "tests/test_campaign.py::"
                            "test_the_demo_spec_flies_seven_tracks_of_six_beams_over_a_grain_gradient",

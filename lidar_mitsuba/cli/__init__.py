@@ -106,6 +106,20 @@ def _add_study_parsers(sub) -> None:
                     help="folder for report.md, report.json and the PNGs (created if missing)")
     va.add_argument("--quick", action="store_true",
                     help="fewer interior shots (what the tests run)")
+    va.add_argument("--real", nargs="*", metavar="FILE_OR_DIR",
+                    help="instead, the realism matrix: every beam of these real ATL03, ATL06, "
+                    "ATL07 or ATL08 files (a folder: its *.h5; none: the files the package "
+                    "ships) against the model's background, signal, strong:weak, spread, tails "
+                    "and saturation, with verdicts; writes realism.md, realism.json and "
+                    "realism_background.png")
+    va.add_argument("--cloud", metavar="TAU,BASE_M,TOP_M",
+                    help="with --real: a cloud layer (optical depth, base and top above the "
+                    "surface [m], liquid water) given to the cloudy segments: their background "
+                    "(its backscatter, the air below dimmed) and signal (dimmed by exp(-2 tau)) "
+                    "are then predicted instead of called missing")
+    va.add_argument("--signal-shots", type=nonnegative_int, default=200, metavar="N",
+                    help="with --real: shots simulated per beam for its signal through dead "
+                    "time (200; 0: the lidar equation alone, no rendering)")
 
 
 def _add_terrain_parsers(sub) -> None:
@@ -240,11 +254,38 @@ def _cmd_terrain(a) -> int:
 
 def _cmd_validate(a) -> int:
     out = out_dir(a.out)
+    if a.real is not None:
+        from ..studies import realism
+        realism.run(a.real, out, signal_shots=a.signal_shots, progress=print,
+                    cloud=_cloud(a.cloud))
+        print(f"wrote {out / 'realism.md'}, {out / 'realism.json'} and "
+              f"{out / 'realism_background.png'}")
+        return 0
+    for flag, given in (("--signal-shots", a.signal_shots != 200), ("--cloud", a.cloud)):
+        if given:
+            raise UsageError(flag, "only applies with --real")
     from ..studies import validate
     doc = validate.run(out, quick=a.quick)
     print(validate.format_summary(doc))
     print(f"wrote {out / 'report.md'}, {out / 'report.json'} and {len(validate.PNG)} figures")
     return 0
+
+
+def _cloud(text: str | None):
+    """``--cloud TAU,BASE_M,TOP_M`` as a liquid-water
+    :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`, the clouds of runs (None)."""
+    if text is None:
+        return None
+    from ..atmosphere.cloud_layer import Cloud
+    try:
+        tau, base, top = (float(v) for v in text.split(","))
+    except ValueError:
+        raise UsageError("--cloud", f"{text!r}: give TAU,BASE_M,TOP_M, e.g. 1.0,500,1500") \
+            from None
+    try:
+        return Cloud.water(tau, base, top)
+    except ParameterError as e:
+        raise UsageError("--cloud", e.message) from None
 
 
 def _cmd_reproduce(a) -> int:

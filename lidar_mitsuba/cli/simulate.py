@@ -75,10 +75,15 @@ def _add_track_and_orbit_options(s) -> None:
     d = s.add_argument_group("real terrain and orbit (--dem: a granule of up to six beams)")
     d.add_argument("--dem", metavar="FILE.tif", help="GeoTIFF DEM in a projected CRS (metres); "
                    "the track streams over it in corridor tiles")
-    d.add_argument("--like", metavar="ATL03.h5",
-                   help="simulate a real ATL03 granule's twin: its beams, orientation, ground "
-                   "tracks, times and sun, over --dem or a built-in surface (flat by default, "
-                   "the spacecraft at the real range); --shots caps each beam's pulses")
+    d.add_argument("--like", metavar="REAL.h5",
+                   help="simulate a real granule's twin (ATL03, ATL06, ATL07 or ATL08, any "
+                   "release): its beams, strong or weak, ground tracks, times, sun and pulse "
+                   "energy, over --dem or a built-in surface (flat by default, the spacecraft "
+                   "at the real range); --shots caps each beam's pulses; says what the file "
+                   "lacks in one line")
+    d.add_argument("--water-wind-mps", type=float, metavar="M_S",
+                   help="open water (ocean, leads) instead of the Ward snow: the water BSDF "
+                   "roughened by this wind speed [m/s] (Cox & Munk) on the built-in surface")
     d.add_argument("--track", metavar="LAT,LON,AZIMUTH|FILE",
                    help="reference ground track: first shot and azimuth [deg, clockwise from "
                    "north], or a file of lat, lon rows (a polyline)")
@@ -203,6 +208,8 @@ def run(a) -> int:
     plot = out_path(a.plot, (".png",), "--plot") if a.plot else None
     dem_only = {"--track": a.track, "--atl06": a.atl06,
                 "--roughness-relief-m": a.roughness_relief_m}
+    if a.dem is not None and a.water_wind_mps is not None:
+        raise UsageError("--water-wind-mps", "does not apply to --dem")
     if a.like is not None:
         return _simulate_like(a, out, plot)
     if a.dem is not None:
@@ -233,9 +240,11 @@ def run(a) -> int:
     if a.scene is not None and a.snow_grain_um is not None:
         raise UsageError("--snow-grain-um", "does not apply to --scene: put a <medium> inside "
                          "its terrain shape")
+    water = _water_bsdf(a)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SimulationWarning)     # printed below, our way
         res = simulate(instrument=inst, surface=None if a.scene else SurfaceSpec(**surface_given),
+                       bsdf=water,
                        scene_file=a.scene, params=params or None,
                        track=Track(**opts.given(a, a._track_opts)),
                        progress=not a.no_progress, crop_to_track=not a.full_tile,
@@ -419,6 +428,7 @@ def _simulate_like(a, out, plot) -> int:
     run = opts.given(a, RUN_OPTIONS)
     shots = run.pop("shots", None)
     real = twin.read(a.like)
+    print(real.missing_line())
     beams = real.select_beams(a.beams)
     # the spacecraft at the real range to the surface (a DEM: at the real altitude above it)
     inst_opts.setdefault("altitude_m", real.median_range_m() if a.dem is None
@@ -441,7 +451,7 @@ def _simulate_like(a, out, plot) -> int:
                 real, surface=SurfaceSpec(**surface_given), beams=",".join(b.name for b in beams),
                 shots=shots, instrument=preset, instrument_options=inst_opts,
                 progress=not a.no_progress, snow=_snow(a), snow_model=_snow_model(a),
-                **_cloud_kw(a), **run)
+                water_wind_mps=a.water_wind_mps, **_cloud_kw(a), **run)
             granule.write_atl03(g, out)
             if atl06_out is not None:
                 granule.write_atl06(g, atl06_out)
@@ -456,3 +466,17 @@ def _simulate_like(a, out, plot) -> int:
           f"{', '.join(f'{k} {v}' for k, v in n.items())}), {preset} instrument, over "
           + (a.dem if a.dem else f"a {surface_given['kind']} surface"))
     return _granule_report(a, summaries, out, atl06_out, plot)
+
+
+def _water_bsdf(a) -> dict | None:
+    """``--water-wind-mps``: the water BSDF dict (None without it); refused with --scene."""
+    if a.water_wind_mps is None:
+        return None
+    if a.scene is not None:
+        raise UsageError("--water-wind-mps", "does not apply to --scene (give the XML a "
+                         "<bsdf type=\"water\">)")
+    from ..ground.water import water_bsdf
+    try:
+        return water_bsdf(wind_speed_mps=a.water_wind_mps)
+    except ValueError as e:
+        raise UsageError("--water-wind-mps", str(e)) from None

@@ -1,0 +1,249 @@
+"""Every count that makes ATLAS's background rate: what the ``bckgrd_atlas/bckgrd_rate`` of an
+ATL03 file (and the ``bckgrd`` of ATL06, ``backgr_r_200`` of ATL07 copied from it) counts,
+term by term, each with its source. Pure numpy.
+
+How the product measures it (ATL03 ATBD, Neumann et al., "background rate from the altimetric
+histogram"; the fields of ``bckgrd_atlas``): ATLAS sums the photon events of 50 shots into an
+altimetric histogram over a band ``bckgrd_int_height`` tall (about 5 km, its top
+``bckgrd_hist_top`` about 2.5 km above the surface in the real files); the ground processing
+removes the bins its signal finder calls surface (``bckgrd_int_height_reduced`` is the band less
+that span, ``bckgrd_counts_reduced`` the counts left) and divides::
+
+    bckgrd_rate = bckgrd_counts_reduced / (50 * 2 * bckgrd_int_height_reduced / c)
+
+(the real ATL03 files agree to 2e-7). So the rate holds, averaged over the whole band:
+
+1. **dark counts** of every anode of the beam's detector (:data:`DARK_COUNT_PER_ANODE_HZ`);
+   both beams' detectors have 16 anodes, so both count the same dark rate;
+2. **sunlight** (surface and sky): :meth:`~lidar_mitsuba.radiometry.LinkBudget.solar_background_hz`
+   through :func:`~lidar_mitsuba.radiometry.shot_radiometry` (the sky model's, unchanged here);
+3. **the laser's light scattered back by the air** over the part of the band above the surface
+   (Rayleigh and aerosol; below the surface the band holds no air):
+   ``N T0^2 (A / R^2) eta_rx * integral beta(z) T(z)^2 dz / (2 H / c)``;
+4. **cloud backscatter** where a cloud layer is given (:class:`CloudLayer`), which also dims
+   everything below it by ``exp(-2 eta tau)``;
+5. **the laser's own surface photons that the signal span misses**: a signal of ``S`` detected
+   photons per shot of which a fraction ``f`` falls outside the removed span adds
+   ``S f c / (2 H)`` (the pulse's tails, echoes and afterpulses: whatever the detected
+   photons' height distribution has outside the span; for a Gaussian pulse
+   ``f = erfc(w / (2 sqrt(2) sigma))``).
+
+Photon terms are thinned by the detector's fill factor and PDE (dead time is negligible at
+these rates: < 1e-3 of a channel's time); dark counts are counted as they are. The strong:weak
+ratio of the night floor follows from these terms: the air and the leak scale with the pulse
+energy (4:1), the dark counts do not.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .constants import C_M_PER_NS, check
+
+C_M_PER_S = C_M_PER_NS * 1e9
+
+DARK_COUNT_PER_ANODE_HZ = 25.0
+"""Dark counts of one anode of an ATLAS detector (a 16-anode photomultiplier) [Hz].
+ESTIMATE: no flown value is published that we found (Martino et al. 2019 and the ATL03 ATBD
+give none); bounded by the quietest 50-shot row of the real weak beam at night (599 Hz over
+its detector's 16 anodes, ``lidar_mitsuba/data``, sun 7 deg below the horizon): <= 37 Hz an
+anode. 25 Hz keeps the weak beam's 100 Hz a channel of earlier versions."""
+
+AEROSOL_LIDAR_RATIO_SR = 50.0
+"""Extinction-to-backscatter ratio of aerosol at 532 nm [sr] (ESTIMATE from the published
+range: 40-70 sr for most aerosol types, Mueller et al. 2007, J. Geophys. Res. 112, D16202;
+Arctic haze ~50-60 sr)."""
+
+CLOUD_LIDAR_RATIO_SR = {"water": 18.8, "ice": 29.0}
+"""Extinction-to-backscatter ratio of clouds [sr]: liquid water 18.8 (O'Connor, Illingworth &
+Hogan 2004, J. Atmos. Oceanic Technol. 21, 777), ice (cirrus) 29 +- 12 (Chen, Chiang & Nee
+2002, Appl. Opt. 41, 6470)."""
+
+BAND_HEIGHT_M = 5006.5
+"""Height of the altimetric histogram's band where a file does not give it [m]: ATL03's
+``bckgrd_int_height`` over polar surfaces (5006.5 m in the shipped subset; ATL07's
+``background_int_height`` reads 4998-5006 m). ESTIMATE for other files (over land the band
+follows the onboard relief map: 750-3400 m in the forest clip)."""
+
+BAND_TOP_ABOVE_SURFACE_M = 2506.0
+"""Top of that band above the surface where a file does not give it [m]: the shipped subset's
+``bckgrd_hist_top`` (2517-2521 m) over its surface (12 m). ESTIMATE elsewhere."""
+
+SIGNAL_SPAN_M = 0.9
+"""Height span the product removes as surface signal where a file does not give it [m]:
+``bckgrd_int_height - bckgrd_int_height_reduced`` of the shipped subset (median 0.9 m, sea
+ice at night). ESTIMATE elsewhere (the forest clip removes ~5 m)."""
+
+
+def dark_count_per_channel_hz(*, anodes: int, channels: int) -> float:
+    """Dark counts of one channel [Hz]: :data:`DARK_COUNT_PER_ANODE_HZ` times the anodes it
+    sums (``anodes / channels``)."""
+    check("channels", channels, channels > 0 and anodes % channels == 0,
+          f"must divide the {anodes} anodes")
+    return DARK_COUNT_PER_ANODE_HZ * anodes / channels
+
+
+@dataclass(frozen=True)
+class CloudLayer:
+    """A uniform cloud layer for the background's cloud term.
+
+    Attributes:
+        optical_depth: the layer's extinction optical depth at 532 nm (>= 0).
+        base_m, top_m: its base and top above the surface [m].
+        phase: ``water`` or ``ice`` (sets the lidar ratio, :data:`CLOUD_LIDAR_RATIO_SR`).
+        multiple_scattering_eta: the factor on the optical depth for the attenuation of a
+            lidar beam (Platt 1973: < 1 where forward-scattered light stays in the field of
+            view; 1 = single scattering, the default).
+    """
+    optical_depth: float
+    base_m: float
+    top_m: float
+    phase: str = "water"
+    multiple_scattering_eta: float = 1.0
+
+    def __post_init__(self):
+        check("cloud_optical_depth", self.optical_depth,
+              math.isfinite(self.optical_depth) and self.optical_depth >= 0, "must be >= 0")
+        check("cloud_base_m", self.base_m, 0 <= self.base_m < self.top_m,
+              "must be >= 0 and below the top")
+        check("cloud_phase", self.phase, self.phase in CLOUD_LIDAR_RATIO_SR,
+              f"must be one of {', '.join(CLOUD_LIDAR_RATIO_SR)}")
+        check("multiple_scattering_eta", self.multiple_scattering_eta,
+              0 < self.multiple_scattering_eta <= 1, "must be in (0, 1]")
+
+    @property
+    def two_way_transmission(self) -> float:
+        """``exp(-2 eta tau)``: what the layer leaves of a return from below it."""
+        return math.exp(-2.0 * self.multiple_scattering_eta * self.optical_depth)
+
+    def integrated_backscatter_sr(self) -> float:
+        """``integral beta T_c^2 dz`` through the layer [1/sr]: for a uniform layer
+        ``(1 - exp(-2 eta tau)) / (2 eta S)`` (S its lidar ratio; the closed form of the
+        layer's attenuated backscatter)."""
+        eta, tau = self.multiple_scattering_eta, self.optical_depth
+        s = CLOUD_LIDAR_RATIO_SR[self.phase]
+        return (1.0 - math.exp(-2.0 * eta * tau)) / (2.0 * eta * s)
+
+
+def cloud_backscatter(cloud) -> tuple[float, float]:
+    """``(two-way transmission, integrated attenuated backscatter [1/sr])`` of a cloud layer:
+    a :class:`CloudLayer` or a run's :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`
+    (its own lidar ratio; single scattering)."""
+    if isinstance(cloud, CloudLayer):
+        return cloud.two_way_transmission, cloud.integrated_backscatter_sr()
+    tau = float(cloud.optical_depth)
+    s = getattr(cloud, "lidar_ratio_sr", None) or CLOUD_LIDAR_RATIO_SR.get(
+        getattr(cloud, "phase", "water"), CLOUD_LIDAR_RATIO_SR["water"])
+    return math.exp(-2.0 * tau), (1.0 - math.exp(-2.0 * tau)) / (2.0 * s)
+
+
+def air_backscatter_integral_sr(atmosphere, *, z_lo_m: float, z_hi_m: float,
+                                wavelength_nm: float = 532.0, n: int = 400) -> float:
+    """``integral beta(z) T(z)^2 dz`` from ``z_lo_m`` to ``z_hi_m`` [m above sea level]
+    [1/sr]: the air's backscatter (Rayleigh ``3 / 8 pi`` of its scattering, aerosol
+    ``1 / AEROSOL_LIDAR_RATIO_SR`` of its extinction), the scattering coefficients the height
+    derivatives of the :class:`~lidar_mitsuba.radiometry.Atmosphere`'s optical depths, each
+    height's light attenuated on its way up and back (``T(z)`` its one-way transmission to
+    space). Trapezoids on ``n`` heights."""
+    if z_hi_m <= z_lo_m:
+        return 0.0
+    z = np.linspace(z_lo_m, z_hi_m, n)
+    tau_r, tau_a = atmosphere.optical_depths(z, wavelength_nm)
+    sigma_r = -np.gradient(tau_r, z)
+    sigma_a = -np.gradient(tau_a, z)
+    beta = 3.0 / (8.0 * math.pi) * sigma_r + sigma_a / AEROSOL_LIDAR_RATIO_SR
+    t2 = np.exp(-2.0 * (tau_r + tau_a))
+    y = beta * t2
+    return float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(z)))
+
+
+def gaussian_outside_fraction(span_m, sigma_m: float):
+    """Fraction of a Gaussian of standard deviation ``sigma_m`` [m] outside a span of
+    ``span_m`` [m] centred on it: ``erfc(span / (2 sqrt(2) sigma))``."""
+    from scipy.special import erfc
+    span = np.asarray(span_m, np.float64)
+    return erfc(span / (2.0 * math.sqrt(2.0) * max(sigma_m, 1e-12)))
+
+
+@dataclass
+class HistogramBand:
+    """The altimetric histogram's band for one beam: its height, its top above the surface and
+    the span removed as signal, each [m] (arrays or scalars; the defaults where a file gives
+    none, :data:`BAND_HEIGHT_M`, ...), and whether they came from the file."""
+    height_m: np.ndarray | float = BAND_HEIGHT_M
+    top_above_surface_m: np.ndarray | float = BAND_TOP_ABOVE_SURFACE_M
+    signal_span_m: np.ndarray | float = SIGNAL_SPAN_M
+    from_file: bool = False
+
+
+def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elevation_deg,
+                     solar_azimuth_deg, band: HistogramBand | None = None,
+                     signal_per_shot: float = 0.0, outside_fraction=None,
+                     cloud: CloudLayer | None = None) -> dict:
+    """The detected background rate the product reports, term by term [Hz, medians over the
+    shots or segments given], for an ATLAS ``instrument`` (with a link budget).
+
+    Args:
+        delta_time_s, z_m, solar_elevation_deg, solar_azimuth_deg: (n,) when [s since
+            2018-01-01], the surface height [m above sea level], the sun [deg].
+        albedo: the surface's Lambertian albedo for sunlight.
+        band: the histogram's band (:class:`HistogramBand`; default: the polar defaults).
+        signal_per_shot: detected surface photons per shot (the leak term's ``S``).
+        outside_fraction: the fraction of them outside the removed span (default: the
+            instrument's Gaussian pulse, :func:`gaussian_outside_fraction`).
+        cloud: a :class:`CloudLayer` or a run's
+            :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud` (default: clear sky).
+
+    Returns ``{"dark", "solar", "air", "cloud", "leak", "total"}`` [Hz, detected].
+    """
+    from .radiometry import shot_radiometry
+    band = band or HistogramBand()
+    link = instrument.link_budget
+    keep = instrument.fill_factor * instrument.pde
+    z = np.atleast_1d(np.asarray(z_m, np.float64))
+    rad = shot_radiometry(instrument, delta_time_s=delta_time_s, z_m=z, albedo=albedo,
+                          solar_elevation_deg=solar_elevation_deg,
+                          solar_azimuth_deg=solar_azimuth_deg)
+    h = float(np.nanmedian(np.atleast_1d(band.height_m)))
+    top = float(np.nanmedian(np.atleast_1d(band.top_above_surface_m)))
+    z0 = float(np.nanmedian(z))
+    lam = instrument.wavelength_nm
+    range_m = instrument.altitude_m - z0
+    # photons per shot per (1/sr of integrated backscatter) at the detector
+    per_sr = (link.photons_per_pulse(lam) * link.telescope_area_m2 / range_m ** 2
+              * link.receiver_transmission)
+    band_s = 2.0 * h / C_M_PER_S
+    t_cloud = 1.0
+    cloud_hz = 0.0
+    if cloud is not None:
+        t_cloud, cloud_ib = cloud_backscatter(cloud)
+        air_above = float(link.atmosphere.transmission(z0 + cloud.top_m, wavelength_nm=lam)
+                          ** 2)
+        # the part of the layer inside the band (ESTIMATE: its backscatter taken uniform
+        # in height; exact for a layer wholly inside or outside the band)
+        in_band = max(0.0, min(cloud.top_m, top) - cloud.base_m) / (cloud.top_m - cloud.base_m)
+        cloud_hz = per_sr * cloud_ib * air_above * in_band / band_s
+    lo, hi = z0, z0 + max(top, 0.0)
+    if cloud is not None:             # the air below the cloud dimmed by it, above it not
+        below = air_backscatter_integral_sr(link.atmosphere, z_lo_m=lo,
+                                            z_hi_m=min(hi, z0 + cloud.base_m), wavelength_nm=lam)
+        above = air_backscatter_integral_sr(link.atmosphere, z_lo_m=z0 + cloud.top_m,
+                                            z_hi_m=hi, wavelength_nm=lam)
+        air_sr = below * t_cloud + above
+    else:
+        air_sr = air_backscatter_integral_sr(link.atmosphere, z_lo_m=lo, z_hi_m=hi,
+                                             wavelength_nm=lam)
+    air_hz = per_sr * air_sr / band_s
+    if outside_fraction is None:
+        sigma_m = C_M_PER_NS * instrument.pulse_sigma_ns / 2.0
+        outside_fraction = gaussian_outside_fraction(band.signal_span_m, sigma_m)
+    f_out = float(np.nanmedian(np.atleast_1d(outside_fraction)))
+    leak_hz = signal_per_shot * f_out / band_s          # detected photons already
+    out = {"dark": instrument.dark_count_hz * instrument.channels,
+           # sunlight as the sky model gives it (clear sky: a cloud's sunlit top is not here)
+           "solar": float(np.median(rad.solar_mhz)) * 1e6 * keep,
+           "air": air_hz * keep, "cloud": cloud_hz * keep, "leak": leak_hz}
+    out["total"] = sum(out.values())
+    return out

@@ -1,0 +1,503 @@
+"""What a real ICESat-2 file of any product says, beam by beam: ATL03 (geolocated photons),
+ATL06 (land-ice segments), ATL07 (sea-ice segments) and ATL08 (land and vegetation segments),
+of any release (v001-v006) and as subsetting tools leave them (groups dropped, attributes
+rewritten as object arrays). Pure (h5py, numpy).
+
+Each beam becomes a table of segments (:class:`RealBeam`): where and when (latitude,
+longitude, time), the surface height above the ellipsoid, the spacecraft's altitude, the sun,
+the transmitted pulse energy, and what the product measured there (background rate, signal
+photons per shot, cloud flags, saturation). What a file lacks is left ``None`` and named in
+:attr:`RealFile.missing`, said in one line by :meth:`RealFile.missing_line`.
+
+Strong or weak comes from the beam group's ``atlas_beam_type`` attribute, trusted over
+``orbit_info/sc_orient`` (a clip tool can rewrite the latter; ``sc_orient`` is the fallback).
+"""
+from __future__ import annotations
+
+import pathlib
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..constants import C_M_PER_NS, ParameterError
+
+BEAM_NAMES = ("gt1l", "gt1r", "gt2l", "gt2r", "gt3l", "gt3r")
+PRODUCT_GROUPS = {"ATL03": "geolocation", "ATL06": "land_ice_segments",
+                  "ATL07": "sea_ice_segments", "ATL08": "land_segments"}
+"""Each product's per-beam group that holds its segments."""
+SURF_TYPES = ("land", "ocean", "sea ice", "land ice", "inland water")
+"""ATL03 ``geolocation/surf_type``'s five columns (ATL03 data dictionary)."""
+SURF_PRIORITY = (3, 2, 4, 0, 1)
+"""Which of them names a segment flagged as several (the mask's regions overlap: sea ice is
+also ocean): land ice, sea ice, inland water, land, ocean."""
+CLEAR_TWO_WAY_TRANSMISSION = 0.5
+"""A segment is clear when its apparent surface reflectance (ATL06 ``r_eff``, ATL07
+``asr_25``) is at least this fraction of its surface's reflectance: a cloud's two-way
+transmission ``exp(-2 tau)`` >= 0.5, i.e. optical depth <= 0.35 (ESTIMATE: a cloud that
+halves the return is one the model must hold)."""
+SNOW_REFLECTANCE = 0.9
+"""The reflectance a clear snow segment's ``r_eff`` or ``asr_25`` is held against (the
+reference plate's albedo; clean snow 0.9-0.98 at 532 nm: ICESat-2 science specifications)."""
+
+
+@dataclass
+class RealBeam:
+    """One beam of a real file as segments; arrays have shape (n_segments,), ``None`` where
+    the file lacks them.
+
+    Attributes:
+        name, spot, strength: the beam (``gt1l``, its ATLAS spot, ``strong`` or ``weak``).
+        strength_from: ``atlas_beam_type`` or ``sc_orient`` (where strength came from).
+        delta_time_s, lat_deg, lon_deg: each segment's time [s since 2018-01-01] and place.
+        surface_h_m: the surface height above the ellipsoid [m] (NaN where none).
+        altitude_m: the spacecraft's height above the ellipsoid [m], or None.
+        solar_elevation_deg, solar_azimuth_deg: the sun [deg], or None.
+        pulse_energy_uj: transmitted energy per pulse of this beam [uJ] (ATL03
+            ``tx_pulse_energy``), or None.
+        background_hz: the product's background rate [Hz], or None.
+        signal_per_shot: signal photons per shot the product measured, or None.
+        clear: True where the sky is clear by the product's cloud flags, or None (no flag).
+        band_height_m, band_top_above_surface_m, signal_span_m: the background histogram's
+            band (ATL03 ``bckgrd_atlas``; ATL07 ``background_int_height``), or None.
+        full_sat_fract, near_sat_fract: ATL03's saturation fractions, or None.
+        surface: what the product says the surface is (``land ice``, ``sea ice``, ...).
+        notes: what each measured quantity is, for a report.
+    """
+    name: str
+    spot: int
+    strength: str
+    strength_from: str
+    delta_time_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    surface_h_m: np.ndarray
+    altitude_m: np.ndarray | None = None
+    solar_elevation_deg: np.ndarray | None = None
+    solar_azimuth_deg: np.ndarray | None = None
+    pulse_energy_uj: np.ndarray | None = None
+    background_hz: np.ndarray | None = None
+    signal_per_shot: np.ndarray | None = None
+    clear: np.ndarray | None = None
+    band_height_m: np.ndarray | None = None
+    band_top_above_surface_m: np.ndarray | None = None
+    signal_span_m: np.ndarray | None = None
+    full_sat_fract: np.ndarray | None = None
+    near_sat_fract: np.ndarray | None = None
+    surface: str = "unknown"
+    notes: dict = field(default_factory=dict)
+
+    @property
+    def n_segments(self) -> int:
+        return int(self.delta_time_s.size)
+
+
+@dataclass
+class RealFile:
+    """A real ICESat-2 file read by :func:`read_product`."""
+    path: pathlib.Path
+    product: str
+    release: str | None
+    sc_orient: int | None
+    beams: list[RealBeam]
+    missing: list[str]
+
+    def missing_line(self) -> str:
+        """What the file lacks that a twin or the realism matrix would use, in one line."""
+        if not self.missing:
+            return f"{self.path.name} ({self.product}): nothing missing"
+        return f"{self.path.name} ({self.product}) lacks: " + "; ".join(self.missing)
+
+
+# ------------------------------------------------------------------------------ helpers
+def text(value) -> str:
+    """An HDF5 attribute as text: bytes, numpy bytes, or a one-element (object) array."""
+    if isinstance(value, np.ndarray):
+        value = value.ravel()[0] if value.size else ""
+    return value.decode() if isinstance(value, (bytes, np.bytes_)) else str(value)
+
+
+def _num(g, key: str) -> np.ndarray | None:
+    """Dataset ``key`` of group ``g`` as float64 with fill values (> 1e30, int32 max) NaN;
+    None when absent."""
+    if key not in g:
+        return None
+    a = np.asarray(g[key][()])
+    if a.dtype.kind in "iu":
+        bad = a >= np.iinfo(np.int32).max if a.dtype.itemsize >= 4 else np.zeros(a.shape, bool)
+        a = a.astype(np.float64)
+        a[bad] = np.nan
+        return a
+    a = a.astype(np.float64)
+    a[np.abs(a) > 1e30] = np.nan
+    return a
+
+
+def sc_orient(f) -> int | None:
+    """0 backward, 1 forward: ``orbit_info/sc_orient`` or a beam's ``sc_orientation``;
+    None when neither is there."""
+    if "orbit_info/sc_orient" in f:
+        return int(np.asarray(f["orbit_info/sc_orient"][()]).ravel()[0])
+    for name in BEAM_NAMES:
+        if name in f and "sc_orientation" in f[name].attrs:
+            return 1 if text(f[name].attrs["sc_orientation"]).lower() == "forward" else 0
+    return None
+
+
+def product_of(f, path: pathlib.Path) -> str:
+    """The product: from the beam groups' contents (a subset keeps those), else the name."""
+    for name in BEAM_NAMES:
+        if name not in f:
+            continue
+        if "heights" in f[name] or f"{name}/geolocation/reference_photon_lat" in f:
+            return "ATL03"
+        for product, group in PRODUCT_GROUPS.items():
+            if product != "ATL03" and group in f[name]:
+                return product
+    m = re.search(r"ATL0[3678]", path.name.upper())
+    if m:
+        return m.group(0)
+    raise ParameterError("like", f"{path}: not an ICESat-2 ATL03, ATL06, ATL07 or ATL08 file")
+
+
+def release_of(f, path: pathlib.Path) -> str | None:
+    """The release (``006``): ``ancillary_data/release`` or ``version``, else the file name's
+    ``_RRR_VV.h5`` tail; None when neither says."""
+    for key in ("ancillary_data/release", "ancillary_data/version"):
+        if key in f:
+            v = text(np.asarray(f[key][()])).strip()
+            if v:
+                return v
+    m = re.search(r"_(\d{3})_\d{2}(?:_[^.]*)?\.h5$", path.name)
+    return m.group(1) if m else None
+
+
+def _strength(f, name: str, orient: int | None) -> tuple[int, str, str]:
+    """``(spot, strength, from)``: the group's ``atlas_beam_type`` and ``atlas_spot_number``
+    where given, else the layout of ``sc_orient``."""
+    from ..geotrack import beam_layout
+    attrs = f[name].attrs
+    layout = {b.name: b for b in beam_layout(orient if orient in (0, 1) else 0)}
+    spot = layout[name].spot
+    if "atlas_spot_number" in attrs:
+        try:
+            spot = int(text(attrs["atlas_spot_number"]))
+        except ValueError:
+            pass
+    if "atlas_beam_type" in attrs and text(attrs["atlas_beam_type"]).lower() in ("strong",
+                                                                                 "weak"):
+        return spot, text(attrs["atlas_beam_type"]).lower(), "atlas_beam_type"
+    if orient is None:
+        raise ParameterError("like", f"{name}: neither atlas_beam_type nor sc_orient says "
+                             "whether it is strong or weak")
+    return spot, layout[name].strength, "sc_orient"
+
+
+# ------------------------------------------------------------------------------ the reader
+def read_product(path, *, beams: str = "all") -> RealFile:
+    """The beams of a real ATL03, ATL06, ATL07 or ATL08 file (``beams``: ``all``,
+    ``strong``, ``weak`` or names) as :class:`RealBeam` segment tables. Raises
+    ``ParameterError`` (``like``) for a file it cannot read."""
+    import h5py
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise ParameterError("like", f"{path}: no such file")
+    try:
+        with h5py.File(path, "r") as f:
+            product = product_of(f, path)
+            orient = sc_orient(f)
+            missing = [] if orient is not None else ["orbit_info/sc_orient"]
+            out = []
+            for name in BEAM_NAMES:
+                if f"{name}/{PRODUCT_GROUPS[product]}" not in f:
+                    continue
+                spot, strength, source = _strength(f, name, orient)
+                if beams not in ("all", strength) and name not in beams.split(","):
+                    continue
+                b = READERS[product](f[name], name=name, spot=spot, strength=strength,
+                                     strength_from=source)
+                if b is not None and b.n_segments >= 2:
+                    out.append(b)
+            release = release_of(f, path)
+    except OSError as e:
+        raise ParameterError("like", f"{path}: not an HDF5 file we can read "
+                             f"({str(e).splitlines()[0]})") from None
+    except ParameterError:
+        raise
+    except (KeyError, ValueError) as e:
+        raise ParameterError("like", f"{path}: not an ICESat-2 product we can read "
+                             f"({str(e).splitlines()[0]})") from None
+    if not out:
+        raise ParameterError("like", f"{path}: no beam with {PRODUCT_GROUPS[product]}"
+                             + ("" if beams == "all" else f" among {beams!r}"))
+    missing += _missing(out, product)
+    if release is None:
+        missing.append("release (ancillary_data/release)")
+    return RealFile(path=path, product=product, release=release, sc_orient=orient,
+                    beams=out, missing=missing)
+
+
+def _missing(beams: list[RealBeam], product: str) -> list[str]:
+    """Names of what every beam lacks, with what stands in for it."""
+    out = []
+    checks = (("altitude_m", "altitude_sc (range: ATLAS's nominal)"),
+              ("solar_elevation_deg", "solar_elevation (the sun from the time and place)"),
+              ("pulse_energy_uj", "tx_pulse_energy (ATLAS's energy history, ESTIMATE)"),
+              ("background_hz", "a background rate"),
+              ("signal_per_shot", "a signal rate"),
+              ("clear", "cloud flags (all segments taken as clear)"),
+              ("band_height_m", "the background histogram's band (polar defaults)"),
+              ("full_sat_fract", "saturation fractions"))
+    for attr, words in checks:
+        if all(getattr(b, attr) is None for b in beams):
+            out.append(words)
+    if all(not np.isfinite(b.surface_h_m).any() for b in beams):
+        out.append("surface heights")
+    bad = [b.name for b in beams if b.strength_from != "atlas_beam_type"]
+    if bad:
+        out.append(f"atlas_beam_type on {', '.join(bad)} (strength from sc_orient)")
+    return out
+
+
+def _atl03(g, **beam) -> RealBeam | None:
+    """An ATL03 beam: 20 m geolocation segments, the median height of each segment's
+    high-confidence photons, signal photons (``signal_conf_ph >= 3``) per pulse, the 50-shot
+    background row nearest each segment and its band."""
+    geo = g["geolocation"]
+    t = _num(geo, "delta_time")
+    if t is None or t.size < 2:
+        return None
+    h, sig = segment_photons(g, geo)
+    bg = g["bckgrd_atlas"] if "bckgrd_atlas" in g else None
+    b = RealBeam(**beam, delta_time_s=t, lat_deg=_num(geo, "reference_photon_lat"),
+                 lon_deg=_num(geo, "reference_photon_lon"), surface_h_m=h,
+                 altitude_m=_num(geo, "altitude_sc"),
+                 solar_elevation_deg=_num(geo, "solar_elevation"),
+                 solar_azimuth_deg=_num(geo, "solar_azimuth"), signal_per_shot=sig,
+                 full_sat_fract=_num(geo, "full_sat_fract"),
+                 near_sat_fract=_num(geo, "near_sat_fract"),
+                 notes={"background": "bckgrd_atlas/bckgrd_rate (50-shot rows nearest each "
+                        "segment)", "signal": "signal_conf_ph >= 3 photons per pulse"})
+    e = _num(geo, "tx_pulse_energy")
+    if e is not None and np.isfinite(e).any():
+        b.pulse_energy_uj = e * 1e6
+    if "surf_type" in geo:
+        st = np.asarray(geo["surf_type"][()])
+        if st.ndim == 2 and st.shape[1] == len(SURF_TYPES):
+            present = (st > 0).sum(axis=0) >= 0.5 * st.shape[0]
+            b.surface = next((SURF_TYPES[i] for i in SURF_PRIORITY if present[i]), "unknown")
+    if bg is not None and "delta_time" in bg and "bckgrd_rate" in bg:
+        tb = _num(bg, "delta_time")
+        k = np.clip(np.searchsorted(tb, t), 0, tb.size - 1)
+        b.background_hz = _num(bg, "bckgrd_rate")[k]
+        height, reduced = _num(bg, "bckgrd_int_height"), _num(bg, "bckgrd_int_height_reduced")
+        top = _num(bg, "bckgrd_hist_top")
+        if height is not None and reduced is not None and top is not None:
+            b.band_height_m = reduced[k]
+            b.signal_span_m = np.maximum(height[k] - reduced[k], 0.0)
+            if np.isfinite(h).any():
+                b.band_top_above_surface_m = top[k] - np.where(np.isfinite(h), h,
+                                                               np.nanmedian(h))
+    return b
+
+
+def segment_photons(g, geo) -> tuple[np.ndarray, np.ndarray | None]:
+    """Each ATL03 segment's median height of its photons of the file's highest confidence
+    (4; 3 or 2 in a file that has none higher) [m] (NaN when none) and its signal photons (``signal_conf_ph >= 3``) per pulse (NaN for segments of
+    fewer than 10 pulses; None without photon ids)."""
+    if "segment_ph_cnt" not in geo or "ph_index_beg" not in geo or "heights/h_ph" not in g:
+        return np.full(geo["delta_time"].shape[0], np.nan), None     # photons dropped
+    cnt = geo["segment_ph_cnt"][()].astype(np.int64)
+    beg = geo["ph_index_beg"][()].astype(np.int64) - 1
+    h_out = np.full(cnt.size, np.nan)
+    h = g["heights/h_ph"][()]
+    conf = g["heights/signal_conf_ph"][()].max(axis=1) if "heights/signal_conf_ph" in g \
+        else np.full(h.size, 4)
+    top = max(int(conf.max()) if conf.size else 4, 2)
+    has_ids = "heights/pce_mframe_cnt" in g and "heights/ph_id_pulse" in g
+    pulse = (g["heights/pce_mframe_cnt"][()].astype(np.int64) * 200
+             + g["heights/ph_id_pulse"][()].astype(np.int64)) if has_ids else None
+    rate = np.full(cnt.size, np.nan)
+    for k, (b, c) in enumerate(zip(beg, cnt)):
+        if c <= 0 or b < 0:
+            continue
+        cs = conf[b:b + c]
+        s = h[b:b + c][cs >= top]
+        if s.size:
+            h_out[k] = np.median(s)
+        if pulse is not None:
+            p = pulse[b:b + c]
+            shots = int(p.max() - p.min() + 1)
+            if shots >= 10:
+                rate[k] = np.count_nonzero(cs >= 3) / shots
+    return h_out, (rate if pulse is not None else None)
+
+
+def _flag_clear(asr_ok, flag_asr, flag_atm) -> np.ndarray | None:
+    """Clear where every flag given says so: ASR-based flag <= 2 (clear, any confidence),
+    no layer found by the atmospheric profile, apparent reflectance high enough."""
+    parts = [p for p in (asr_ok,
+                         None if flag_asr is None else flag_asr <= 2,
+                         None if flag_atm is None else flag_atm == 0) if p is not None]
+    if not parts:
+        return None
+    return np.logical_and.reduce(parts)
+
+
+def _atl06(g, **beam) -> RealBeam | None:
+    """An ATL06 beam: 40 m land-ice segments every 20 m. Signal per shot: the fitted
+    photons less the background expected in the final window, per pulse,
+    ``(n_fit_photons - bckgrd * w_surface_window_final * 2 / c * n_seg_pulses) /
+    n_seg_pulses``, on segments of quality 0."""
+    s = g["land_ice_segments"]
+    t = _num(s, "delta_time")
+    if t is None:
+        return None
+    gp = s["geophysical"] if "geophysical" in s else {}
+    fs = s["fit_statistics"] if "fit_statistics" in s else {}
+    bg = _num(gp, "bckgrd")
+    n_fit, n_pulses, w = (_num(fs, k) for k in ("n_fit_photons", "n_seg_pulses",
+                                                "w_surface_window_final"))
+    sig = None
+    if n_fit is not None and n_pulses is not None:
+        noise = (bg * w * 2.0 / (C_M_PER_NS * 1e9) * n_pulses
+                 if bg is not None and w is not None else 0.0)
+        sig = np.where(n_pulses > 0, (n_fit - noise) / np.where(n_pulses > 0, n_pulses, 1),
+                       np.nan)
+        q = _num(s, "atl06_quality_summary")
+        if q is not None:
+            sig = np.where(q == 0, sig, np.nan)
+    r_eff = _num(gp, "r_eff")
+    clear = _flag_clear(None if r_eff is None
+                        else r_eff >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE,
+                        _num(gp, "cloud_flg_asr"), _num(gp, "cloud_flg_atm"))
+    return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),
+                    lon_deg=_num(s, "longitude"), surface_h_m=_num(s, "h_li"),
+                    solar_elevation_deg=_num(gp, "solar_elevation"),
+                    solar_azimuth_deg=_num(gp, "solar_azimuth"), background_hz=bg,
+                    signal_per_shot=sig, clear=clear, surface="land ice",
+                    notes={"background": "geophysical/bckgrd",
+                           "signal": "(n_fit_photons - background in the window) / "
+                           "n_seg_pulses, quality 0",
+                           "clear": "r_eff >= 0.45, cloud_flg_asr <= 2, cloud_flg_atm == 0"})
+
+
+def _atl07(g, **beam) -> RealBeam | None:
+    """An ATL07 beam: 150-photon sea-ice segments. Height above the ellipsoid:
+    ``height_segment_height + height_segment_mss`` (tides and the inverted barometer, a few
+    dm, left in); signal per shot: ``photon_rate`` on snow-covered ice
+    (``height_segment_type == 1``)."""
+    s = g["sea_ice_segments"]
+    t = _num(s, "delta_time")
+    if t is None:
+        return None
+    geo = s["geolocation"] if "geolocation" in s else {}
+    hts = s["heights"] if "heights" in s else {}
+    gp = s["geophysical"] if "geophysical" in s else {}
+    st = s["stats"] if "stats" in s else {}
+    h = _num(hts, "height_segment_height")
+    mss = _num(gp, "height_segment_mss")
+    h = h + mss if h is not None and mss is not None else h
+    if h is None:
+        h = np.full(t.size, np.nan)
+    rate = _num(st, "photon_rate")
+    kind = _num(hts, "height_segment_type")
+    if rate is not None and kind is not None:
+        rate = np.where(kind == 1, rate, np.nan)
+    asr = _num(st, "asr_25")
+    clear = _flag_clear(None if asr is None
+                        else asr >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE,
+                        _num(st, "cloud_flag_asr"), _num(st, "cloud_flag_atm"))
+    band = _num(st, "background_int_height")
+    return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),
+                    lon_deg=_num(s, "longitude"), surface_h_m=h,
+                    solar_elevation_deg=_num(geo, "solar_elevation"),
+                    solar_azimuth_deg=_num(geo, "solar_azimuth"),
+                    background_hz=_num(st, "backgr_r_200"), signal_per_shot=rate, clear=clear,
+                    band_height_m=band, surface="sea ice",
+                    notes={"background": "stats/backgr_r_200 (ATL03's 50-shot rate)",
+                           "signal": "stats/photon_rate on snow-covered ice (type 1)",
+                           "clear": "asr_25 >= 0.45, cloud_flag_asr <= 2, cloud_flag_atm == 0"})
+
+
+def _atl08(g, **beam) -> RealBeam | None:
+    """An ATL08 beam: 100 m land segments. Surface: ``terrain/h_te_best_fit``; signal per
+    shot: terrain and canopy photon rates (``photon_rate_te + photon_rate_can``); no
+    background rate."""
+    s = g["land_segments"]
+    t = _num(s, "delta_time")
+    if t is None:
+        return None
+    ter = s["terrain"] if "terrain" in s else {}
+    can = s["canopy"] if "canopy" in s else {}
+    te, cn = _num(ter, "photon_rate_te"), _num(can, "photon_rate_can")
+    sig = None if te is None else te + (np.nan_to_num(cn) if cn is not None else 0.0)
+    h = _num(ter, "h_te_best_fit")
+    return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),
+                    lon_deg=_num(s, "longitude"),
+                    surface_h_m=h if h is not None else np.full(t.size, np.nan),
+                    solar_elevation_deg=_num(s, "solar_elevation"),
+                    solar_azimuth_deg=_num(s, "solar_azimuth"), signal_per_shot=sig,
+                    clear=_flag_clear(None, None, _num(s, "cloud_flag_atm")), surface="land",
+                    notes={"signal": "photon_rate_te + photon_rate_can",
+                           "clear": "cloud_flag_atm == 0"})
+
+
+READERS = {"ATL03": _atl03, "ATL06": _atl06, "ATL07": _atl07, "ATL08": _atl08}
+
+
+# ------------------------------------------------------------------------------ trimming
+READ_DATASETS = {
+    "ATL06": tuple("land_ice_segments/" + k for k in (
+        "delta_time", "latitude", "longitude", "h_li", "atl06_quality_summary",
+        "geophysical/bckgrd", "geophysical/r_eff", "geophysical/cloud_flg_asr",
+        "geophysical/cloud_flg_atm", "geophysical/solar_elevation", "geophysical/solar_azimuth",
+        "fit_statistics/n_fit_photons", "fit_statistics/n_seg_pulses",
+        "fit_statistics/w_surface_window_final")),
+    "ATL07": tuple("sea_ice_segments/" + k for k in (
+        "delta_time", "latitude", "longitude", "heights/height_segment_height",
+        "heights/height_segment_type", "geophysical/height_segment_mss",
+        "geolocation/solar_elevation", "geolocation/solar_azimuth", "stats/photon_rate",
+        "stats/asr_25", "stats/cloud_flag_asr", "stats/cloud_flag_atm", "stats/backgr_r_200",
+        "stats/background_int_height")),
+    "ATL08": tuple("land_segments/" + k for k in (
+        "delta_time", "latitude", "longitude", "terrain/h_te_best_fit",
+        "terrain/photon_rate_te", "canopy/photon_rate_can", "solar_elevation",
+        "solar_azimuth", "cloud_flag_atm")),
+}
+"""Per beam, the datasets :func:`read_product` reads of each segment product (what
+:func:`trim` keeps); ATL03 is kept whole (its photons are what it is read for)."""
+KEPT_GLOBAL = ("orbit_info/sc_orient", "ancillary_data/release", "ancillary_data/version",
+               "ancillary_data/atlas_sdp_gps_epoch")
+
+
+def trim(path, out) -> pathlib.Path:
+    """A copy of a real ATL06, ATL07 or ATL08 file with only what :func:`read_product` reads
+    (:data:`READ_DATASETS`, the beam groups' attributes, :data:`KEPT_GLOBAL`), compressed: a
+    file small enough to ship, read to the same numbers."""
+    import h5py
+    path, out = pathlib.Path(path), pathlib.Path(out)
+    with h5py.File(path, "r") as f, h5py.File(out, "w") as g:
+        product = product_of(f, path)
+        if product not in READ_DATASETS:
+            raise ParameterError("real", f"{path.name}: only ATL06, ATL07 and ATL08 are trimmed "
+                                 f"(it is {product})")
+        for key in KEPT_GLOBAL:
+            if key in f:
+                g.create_dataset(key, data=f[key][()])
+        for name in BEAM_NAMES:
+            if name not in f:
+                continue
+            grp = g.create_group(name)
+            for k, v in f[name].attrs.items():
+                grp.attrs[k] = v
+            for key in READ_DATASETS[product]:
+                if key in f[name]:
+                    src = f[name][key]
+                    big = src.size > 4096          # small ones: contiguous, no chunk overhead
+                    grp.create_dataset(key, data=src[()], **({"compression": "gzip",
+                                       "compression_opts": 9, "shuffle": True} if big else {}))
+                    for k, v in src.attrs.items():
+                        if k not in ("DIMENSION_LIST", "REFERENCE_LIST", "CLASS", "NAME"):
+                            grp[key].attrs[k] = v
+    return out

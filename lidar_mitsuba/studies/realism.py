@@ -1,0 +1,447 @@
+"""The realism matrix (``lidar-mitsuba validate --real FILE_OR_DIR ...``): every beam of every
+real ICESat-2 file (ATL03, ATL06, ATL07, ATL08; :mod:`lidar_mitsuba.products.real`) against
+what the model predicts there, nothing fitted to the file.
+
+For each beam: the measured background (clear and cloudy segments apart) against the
+model's (:func:`lidar_mitsuba.night.background_terms`: dark counts, sunlight, the air's and a
+cloud's backscatter, the laser's own photons the product's signal span misses), the signal
+photons per shot on clear segments against a short simulation of the file's own shots over
+the surface a user would choose knowing only the product (:data:`PRODUCT_SURFACES`) through
+the detector's dead time (or, with ``signal_shots=0``, the lidar equation alone), the
+strong:weak ratios of each beam pair, the spread and tails of ATL03's surface photons, the
+saturation fractions, and a verdict with its reason. Cloudy segments are compared with the
+clear-sky model and their verdict says the cloud is missing (no cloud is given to a file).
+
+The model is the package's: :meth:`~lidar_mitsuba.instrument.Instrument.atlas` with the
+beam's energy (the file's ``tx_pulse_energy`` or ATLAS's history), the sun from the file,
+:func:`~lidar_mitsuba.radiometry.shot_radiometry` and :func:`~lidar_mitsuba.twin.simulate_over_surface`:
+improvements to any of them show up here unchanged.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import time
+
+import numpy as np
+
+from ..constants import ALTITUDE_M, REFERENCE_ALBEDO, ParameterError
+
+PACKAGE_DATA = pathlib.Path(__file__).resolve().parents[1] / "data"
+"""The real files the package ships (``validate --real`` with no file)."""
+
+BACKGROUND_AGREES = (0.5, 2.0)
+"""Predicted / measured background within this range agrees (issue 41's criterion)."""
+SIGNAL_AGREES = (0.7, 1.4)
+"""Predicted / measured signal photons per shot within this range agrees (issue 41)."""
+TAIL_M = 0.20
+"""ATL03 tails: the fraction of surface photons farther than this below / above their
+segment's median [m]."""
+
+PRODUCT_SURFACES = {
+    "land ice": {"name": "ice-sheet snow (flat, Ward snow)", "albedo": 0.9, "water": None},
+    "sea ice": {"name": "snow-covered sea ice (flat, Ward snow)", "albedo": 0.9, "water": None},
+    "ocean": {"name": "open water (water BSDF, 5 m/s wind)", "albedo": 0.06, "water": 5.0},
+    "inland water": {"name": "open water (water BSDF, 5 m/s wind)", "albedo": 0.06,
+                     "water": 5.0},
+    "land": {"name": "land / forest: MISSING (the forest issue)", "albedo": 0.1, "water": None,
+             "missing": True},
+}
+"""The surface a user would choose knowing only the product (ATL06: land ice, ATL07: sea
+ice, ATL08: land, ATL03: its ``surf_type``) and its Lambertian albedo for sunlight: snow 0.9
+(the reference plate), open water 0.06 (Payne 1972, J. Atmos. Sci. 29, 959: the sea's
+albedo at moderate sun) at an ESTIMATE 5 m/s wind, land 0.1 (ESTIMATE: conifer canopy in the
+green, with its surface missing)."""
+
+
+def real_files(paths=None) -> list[pathlib.Path]:
+    """The ``.h5`` files among ``paths`` (files or folders; folders give their ``*.h5``,
+    sorted); ``None`` or empty: the package's shipped real files."""
+    if not paths:
+        paths = [PACKAGE_DATA]
+    out = []
+    for p in map(pathlib.Path, paths):
+        if p.is_dir():
+            out += sorted(p.glob("*.h5"))
+        elif p.is_file():
+            out.append(p)
+        else:
+            raise ParameterError("real", f"{p}: no such file or folder")
+    if not out:
+        raise ParameterError("real", f"no .h5 file in {', '.join(map(str, paths))}")
+    return out
+
+
+# ------------------------------------------------------------------------------ measured
+def _median(a, mask=None) -> float | None:
+    if a is None:
+        return None
+    a = np.asarray(a, np.float64)
+    if mask is not None:
+        a = a[mask]
+    a = a[np.isfinite(a)]
+    return float(np.median(a)) if a.size else None
+
+
+def measured(rf, rb) -> dict:
+    """What the file measured on a beam: background and signal on clear and cloudy
+    segments, saturation, and (ATL03) the spread and tails of its surface photons."""
+    clear = rb.clear if rb.clear is not None else np.ones(rb.n_segments, bool)
+    out = {"segments": rb.n_segments, "clear_fraction": float(np.mean(clear)),
+           "cloud_flags": rb.clear is not None,
+           "background_clear_hz": _median(rb.background_hz, clear),
+           "background_cloudy_hz": _median(rb.background_hz, ~clear),
+           "signal_clear": _median(rb.signal_per_shot, clear),
+           "signal_cloudy": _median(rb.signal_per_shot, ~clear),
+           "full_sat_fract": _mean(rb.full_sat_fract), "near_sat_fract": _mean(rb.near_sat_fract),
+           "solar_elevation_deg": _median(rb.solar_elevation_deg), "notes": dict(rb.notes)}
+    if rf.product == "ATL03":
+        out.update(_atl03_shape(rf.path, rb.name))
+    return out
+
+
+def _mean(a) -> float | None:
+    if a is None:
+        return None
+    a = np.asarray(a, np.float64)
+    a = a[np.isfinite(a)]
+    return float(a.mean()) if a.size else None
+
+
+def _atl03_shape(path, beam: str) -> dict:
+    """Robust spread and tails of an ATL03 beam's surface photons about each segment's
+    median (:func:`~lidar_mitsuba.products.atl03.rates.atl03_rates`, the code validate uses)."""
+    from ..products.atl03.rates import atl03_rates
+    try:
+        r = atl03_rates(path, beam)
+    except KeyError:
+        return {}
+    res = np.asarray(r["residuals_m"])
+    return shape_stats(res)
+
+
+def shape_stats(residuals_m) -> dict:
+    """Robust sd (1.4826 MAD) of height residuals [m] and their tails below / above
+    ``TAIL_M``."""
+    res = np.asarray(residuals_m, np.float64)
+    if res.size < 10:
+        return {}
+    return {"spread_robust_m": float(1.4826 * np.median(np.abs(res - np.median(res)))),
+            "tail_below": float(np.mean(res < -TAIL_M)), "tail_above": float(np.mean(res > TAIL_M))}
+
+
+# ------------------------------------------------------------------------------ predicted
+def beam_energy(rb) -> tuple[float, str]:
+    """A real beam's pulse energy [uJ] and its source (:func:`~lidar_mitsuba.twin.beam_energy_uj`)."""
+    from ..twin import beam_energy_uj
+    e = _median(rb.pulse_energy_uj)
+    return beam_energy_uj(rb.strength, e, float(np.nanmedian(rb.delta_time_s)))
+
+
+def beam_instrument(rb, *, range_m: float):
+    """ATLAS as flown for a real beam ``rb``: its strength, its energy (the file's or the
+    history's), the spacecraft at ``range_m`` above the surface."""
+    from ..instrument import Instrument
+    energy, _ = beam_energy(rb)
+    return Instrument.atlas(rb.strength, pulse_energy_uj=float(energy),
+                            altitude_m=float(range_m))
+
+
+def _range_m(rb) -> float:
+    h = np.nan_to_num(rb.surface_h_m, nan=_median(rb.surface_h_m) or 0.0)
+    if rb.altitude_m is None:
+        return float(ALTITUDE_M)
+    r = rb.altitude_m - h
+    return float(np.nanmedian(r)) if np.isfinite(r).any() else float(ALTITUDE_M)
+
+
+def radiometric_signal(inst, *, z_m: float, surface: dict) -> float:
+    """Detected signal photons per shot by the lidar equation alone (no dead time): the
+    instrument's reference-plate photons, the air above ``z_m``, the surface's nadir weight
+    (Ward snow: ``(rho_d / pi + rho_s / (4 pi alpha^2)) / (0.9 / pi)``; water:
+    :func:`~lidar_mitsuba.ground.water.nadir_return_weight`), fill factor and PDE."""
+    from ..ground.surface import SurfaceSpec
+    from ..radiometry import shot_radiometry
+    rad = shot_radiometry(inst, delta_time_s=np.zeros(1), z_m=np.array([z_m]), albedo=0.9,
+                          solar_elevation_deg=np.array([-90.0]), solar_azimuth_deg=np.zeros(1))
+    if surface.get("water") is not None:
+        from ..ground.water import WATER_INDEX_532 as n, cox_munk_mss, nadir_return_weight
+        weight = float(nadir_return_weight(n, cox_munk_mss(surface["water"])))
+    else:
+        w = SurfaceSpec(kind="flat")
+        weight = (w.rho_d / np.pi + w.rho_s / (4 * np.pi * w.alpha ** 2)) / (REFERENCE_ALBEDO
+                                                                           / np.pi)
+    return float(inst.signal_photons * rad.signal_scale[0] * weight * inst.pde
+                 * inst.fill_factor)
+
+
+def simulated(twin_granule, name: str, *, surface: dict, shots: int, seed: int,
+              spans_m) -> dict:
+    """A short simulation of the beam's first ``shots`` shots over a flat surface (the
+    product's, :data:`PRODUCT_SURFACES`): detected signal per shot through dead time, the
+    spread and tails of its surface photons, saturation as our ATL03 writes it, and the
+    fraction of signal photons outside each of ``spans_m`` (the leak term)."""
+    import warnings
+    from .. import twin
+    from ..ground.surface import SurfaceSpec
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        g = twin.simulate_over_surface(twin_granule, surface=SurfaceSpec(kind="flat"),
+                                       beams=name, shots=shots, seed=seed,
+                                       progress=False, water_wind_mps=surface.get("water"))
+    res = g.beams[0].result
+    det = res.detections
+    sig = det.is_signal
+    dh = res.dh_m[sig]
+    n = res.n_shots
+    surface_events = np.bincount(det.shot[res.signal_conf >= 2], minlength=n)
+    ch = res.instrument.channels
+    out = {"shots": n, "signal_per_shot": float(sig.sum() / n),
+           "full_sat_fract": float(np.mean(surface_events >= ch)),
+           "near_sat_fract": float(np.mean((surface_events >= np.ceil(0.75 * ch))
+                                           & (surface_events < ch)))}
+    out.update(shape_stats(dh - np.median(dh)) if dh.size else {})
+    out["outside_fraction"] = outside_fraction(dh, spans_m)
+    return out
+
+
+def outside_fraction(dh_m, spans_m) -> np.ndarray:
+    """For each span [m], the fraction of heights ``dh_m`` farther than half of it from their
+    median."""
+    d = np.sort(np.abs(np.asarray(dh_m, np.float64) - np.median(dh_m))) if np.size(dh_m) \
+        else np.zeros(1)
+    spans = np.atleast_1d(np.asarray(spans_m, np.float64))
+    return 1.0 - np.searchsorted(d, spans / 2.0, side="right") / d.size
+
+
+def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> dict:
+    """The model's background (term by term), signal and shape for one beam (``twin_granule``:
+    the file's twin, for ``signal_shots > 0``); with a ``cloud``
+    (:class:`~lidar_mitsuba.night.CloudLayer`), also its cloudy segments' background and
+    signal (ESTIMATE: the clear signal dimmed by the cloud's two-way transmission; through dead
+    time that overstates the loss dead time takes from the dimmer return, without it, with
+    ``signal_shots=0``, it ignores dead time; the cloud's forward scattering is the cloud
+    model's, not here)."""
+    from .. import night
+    surface = PRODUCT_SURFACES.get(rb.surface, PRODUCT_SURFACES["land"])
+    range_m = _range_m(rb)
+    inst = beam_instrument(rb, range_m=range_m)
+    z = float(np.clip(_median(rb.surface_h_m) or 0.0, -500.0, 9000.0))
+    band = night.HistogramBand(from_file=rb.band_height_m is not None)
+    for attr, key in (("height_m", "band_height_m"), ("top_above_surface_m",
+                                                      "band_top_above_surface_m"),
+                      ("signal_span_m", "signal_span_m")):
+        v = getattr(rb, key)
+        if v is not None and np.isfinite(v).any():
+            setattr(band, attr, v[np.isfinite(v)])
+    out = {"surface": surface["name"], "surface_missing": bool(surface.get("missing")),
+           "range_m": range_m, "pulse_energy_uj": float(inst.link_budget.pulse_energy_uj),
+           "energy_source": beam_energy(rb)[1], "band_from_file": band.from_file}
+    f_out = None
+    if signal_shots > 0 and twin_granule is not None:
+        sim = simulated(twin_granule, rb.name, surface=surface, shots=signal_shots, seed=seed,
+                        spans_m=band.signal_span_m)
+        out.update({k: v for k, v in sim.items() if k != "outside_fraction"})
+        f_out = sim["outside_fraction"]
+    else:
+        out["signal_per_shot"] = radiometric_signal(inst, z_m=z, surface=surface)
+        out["signal_from"] = "lidar equation (no dead time)"
+    t = rb.delta_time_s
+    sun = rb.solar_elevation_deg
+    if sun is None:
+        from ..radiometry import solar_angles
+        sun, az = solar_angles(rb.lat_deg, rb.lon_deg, t)
+    else:
+        az = rb.solar_azimuth_deg if rb.solar_azimuth_deg is not None else np.zeros(t.size)
+    ok = np.isfinite(sun) & np.isfinite(t)
+    kw = dict(delta_time_s=t[ok], z_m=np.full(ok.sum(), z), albedo=surface["albedo"],
+              solar_elevation_deg=sun[ok], solar_azimuth_deg=np.nan_to_num(az[ok]), band=band,
+              outside_fraction=f_out)
+    terms = night.background_terms(inst, signal_per_shot=out["signal_per_shot"], **kw)
+    out["background_terms_hz"] = terms
+    out["background_hz"] = terms["total"]
+    if cloud is not None:
+        out["signal_cloudy"] = out["signal_per_shot"] * night.cloud_backscatter(cloud)[0]
+        cloudy = night.background_terms(inst, signal_per_shot=out["signal_cloudy"],
+                                        cloud=cloud, **kw)
+        out["background_cloudy_terms_hz"] = cloudy
+        out["background_cloudy_hz"] = cloudy["total"]
+    return out
+
+
+# ------------------------------------------------------------------------------ verdicts
+def _ratio(pred, meas) -> float | None:
+    if pred is None or meas is None or not meas > 0:
+        return None
+    return float(pred / meas)
+
+
+def verdict(row: dict) -> tuple[str, str]:
+    """``(verdict, reason)`` for a beam's row: agrees / disagrees / cloud missing / surface
+    missing / not measured, the reason naming the quantity that decides it."""
+    m, p = row["measured"], row["predicted"]
+    bg = _ratio(p["background_hz"], m["background_clear_hz"])
+    sig = _ratio(p["signal_per_shot"], m["signal_clear"])
+    row["background_ratio"], row["signal_ratio"] = bg, sig
+    row["background_cloudy_ratio"] = _ratio(p["background_hz"], m["background_cloudy_hz"])
+    cloudy = m["cloud_flags"] and m["clear_fraction"] == 0
+    if p["surface_missing"]:
+        return "surface missing", ("the product's surface (land, forest) is not modelled here"
+                                   + ("; every segment is cloudy and no cloud is given"
+                                      if cloudy else "") + "; beam, energy and sky as given")
+    if cloudy and "background_cloudy_hz" in p:
+        return _cloudy_verdict(row)
+    if cloudy:
+        return "cloud missing", ("every segment is cloudy by the product's flags: the model is "
+                                 "clear-sky and no cloud is given (background x"
+                                 f"{_fmt(row['background_cloudy_ratio'])} of the cloudy one)")
+    lo, hi = BACKGROUND_AGREES
+    slo, shi = SIGNAL_AGREES
+    bad = []
+    if bg is not None and not lo <= bg <= hi:
+        bad.append(f"background x{bg:.2f}")
+    if sig is not None and not slo <= sig <= shi:
+        bad.append(f"signal x{sig:.2f}")
+    if bg is None and sig is None:
+        return "not measured", "the file gives neither a background nor a signal rate"
+    cloud = ("" if m["cloud_flags"] else " (no cloud flag in the file: all segments taken as "
+             "clear)")
+    if bad:
+        return "disagrees", ", ".join(bad) + cloud
+    return "agrees", (f"background x{_fmt(bg)}, signal x{_fmt(sig)}" + cloud)
+
+
+def _cloudy_verdict(row: dict) -> tuple[str, str]:
+    """A beam whose segments are all cloudy, against the model with the cloud given."""
+    m, p = row["measured"], row["predicted"]
+    bg = _ratio(p["background_cloudy_hz"], m["background_cloudy_hz"])
+    sig = _ratio(p["signal_cloudy"], m["signal_cloudy"])
+    row["background_cloudy_ratio"], row["signal_cloudy_ratio"] = bg, sig
+    bad = [f"{k} x{v:.2f}" for k, v, (lo, hi) in (("background", bg, BACKGROUND_AGREES),
+                                                  ("signal", sig, SIGNAL_AGREES))
+           if v is not None and not lo <= v <= hi]
+    given = "with the cloud given, on cloudy segments"
+    if bad:
+        return "disagrees", f"{given}: " + ", ".join(bad)
+    return "agrees", f"{given}: background x{_fmt(bg)}, signal x{_fmt(sig)}"
+
+
+def _fmt(v) -> str:
+    return "-" if v is None else f"{v:.2f}"
+
+
+def pair_ratios(rows: list[dict]) -> list[dict]:
+    """Strong:weak ratios of each beam pair of a file (gt1, gt2, gt3) with both beams:
+    background (clear segments) and signal, measured and predicted."""
+    out = []
+    by = {(r["file"], r["beam"]): r for r in rows}
+    for (f, name), r in by.items():
+        if r["strength"] != "strong":
+            continue
+        other = by.get((f, name[:3] + ("r" if name[3] == "l" else "l")))
+        if other is None or other["strength"] != "weak":
+            continue
+        q = {"file": f, "pair": name[:3]}
+        for key, mk, pk in (("background", "background_clear_hz", "background_hz"),
+                            ("signal", "signal_clear", "signal_per_shot")):
+            q[f"{key}_measured"] = _ratio(r["measured"][mk], other["measured"][mk])
+            q[f"{key}_predicted"] = _ratio(r["predicted"][pk], other["predicted"][pk])
+        q["background_cloudy_measured"] = _ratio(r["measured"]["background_cloudy_hz"],
+                                                 other["measured"]["background_cloudy_hz"])
+        q["solar_elevation_deg"] = r["measured"]["solar_elevation_deg"]
+        out.append(q)
+    return out
+
+
+# ------------------------------------------------------------------------------ the run
+def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
+        progress=None, cloud=None) -> dict:
+    """The realism matrix over ``paths`` (files or folders; default the package's real
+    files): ``realism.json``, ``realism.md`` and ``realism_background.png`` in ``out_dir``
+    (when given). ``signal_shots``: shots simulated per beam for its signal (0: the lidar
+    equation, no rendering). ``progress``: a callable given one line per beam. ``cloud``: a
+    :class:`~lidar_mitsuba.night.CloudLayer` for the cloudy segments (default: none given,
+    their verdict says the cloud is missing)."""
+    from .. import twin
+    from ..products.real import read_product
+    t0 = time.perf_counter()
+    rows, files = [], []
+    for k, path in enumerate(real_files(paths)):
+        rf = read_product(path)
+        tg = twin.read(path) if signal_shots > 0 else None
+        files.append({"file": path.name, "product": rf.product, "release": rf.release,
+                      "missing": rf.missing_line()})
+        for rb in rf.beams:
+            if tg is not None and rb.name not in {b.beam.name for b in tg.beams}:
+                continue                          # no two segments in a row: no shots
+            row = {"file": path.name, "product": rf.product, "beam": rb.name,
+                   "strength": rb.strength, "measured": measured(rf, rb),
+                   "predicted": predicted(rb, tg, signal_shots=signal_shots,
+                                          seed=seed + 7 * k, cloud=cloud)}
+            row["verdict"], row["reason"] = verdict(row)
+            rows.append(row)
+            if progress is not None:
+                progress(format_row(row))
+    doc = {"signal_shots": int(signal_shots), "files": files, "rows": rows,
+           "cloud": None if cloud is None else dataclasses.asdict(cloud),
+           "pairs": pair_ratios(rows), "seconds": time.perf_counter() - t0,
+           "curve": background_curve()}
+    if out_dir is not None:
+        from . import realism_report
+        out = pathlib.Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        realism_report.plot(doc, out / "realism_background.png")
+        (out / "realism.json").write_text(json.dumps(_json_safe(doc), indent=1))
+        (out / "realism.md").write_text(realism_report.report_md(doc))
+    return doc
+
+
+def background_curve(*, elevations_deg=None, z_m: float = 0.0) -> dict:
+    """The model's background [Hz, detected] against solar elevation for ATLAS's strong and
+    weak beams over clear snow (albedo 0.9) at sea level, the 2018 energy, 21 March at 70 N
+    (Earth-Sun distance ~1 au), the polar band defaults and the lidar-equation signal for the
+    leak term, whose outside fraction is the Gaussian pulse's (no afterpulses: the beams'
+    own predictions, from a simulation, have them): ``{"elevation_deg": [...], "strong": [...],
+    "weak": [...]}``."""
+    from .. import night
+    from ..instrument import Instrument
+    el = np.linspace(-10.0, 35.0, 46) if elevations_deg is None else np.asarray(elevations_deg)
+    t = np.full(1, 6.6e6)                        # 2018-03-18, s since 2018-01-01
+    out = {"elevation_deg": el.tolist()}
+    for kind in ("strong", "weak"):
+        inst = Instrument.atlas(kind)
+        s = radiometric_signal(inst, z_m=z_m, surface=PRODUCT_SURFACES["land ice"])
+        out[kind] = [night.background_terms(
+            inst, delta_time_s=t, z_m=np.array([z_m]), albedo=0.9,
+            solar_elevation_deg=np.array([e]), solar_azimuth_deg=np.zeros(1),
+            signal_per_shot=s)["total"] for e in el]
+    return out
+
+
+def format_row(r: dict) -> str:
+    """One beam's line: file, beam, measured and predicted background and signal, verdict."""
+    m, p = r["measured"], r["predicted"]
+
+    def k(v):
+        return "-" if v is None else f"{v / 1e3:.1f}"
+
+    def s(v):
+        return "-" if v is None else f"{v:.2f}"
+    return (f"{r['file'][:34]:<34} {r['beam']} {r['strength']:<6} "
+            f"bg {k(m['background_clear_hz'])}/{k(p['background_hz'])} kHz "
+            f"sig {s(m['signal_clear'])}/{s(p['signal_per_shot'])}  {r['verdict']}")
+
+
+def _json_safe(obj):
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return _json_safe(obj.item())
+    if isinstance(obj, np.ndarray):
+        return _json_safe(obj.tolist())
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj

@@ -1,0 +1,121 @@
+"""The realism matrix's figure and report (:mod:`lidar_mitsuba.studies.realism`):
+``realism_background.png`` (background against solar elevation, -10 to +35 deg: the model's
+curves for strong and weak beams with every real beam over them) and ``realism.md``."""
+from __future__ import annotations
+
+import pathlib
+
+import numpy as np
+
+ELEVATION_RANGE_DEG = (-10.0, 35.0)
+
+
+def plot(doc: dict, path) -> None:
+    """Background [Hz, log] against solar elevation [deg]: the model's curves (clear snow,
+    sea level; :func:`~lidar_mitsuba.studies.realism.background_curve`) and each real beam's
+    median (filled: clear segments, open: cloudy ones; beams with the sun below -10 deg drawn
+    at -10 with a left arrow), our prediction for it as a cross."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    c = doc["curve"]
+    colour = {"strong": "tab:red", "weak": "tab:blue"}
+    fig, ax = plt.subplots(figsize=(9, 5.5))
+    for kind in ("strong", "weak"):
+        ax.plot(c["elevation_deg"], c[kind], color=colour[kind], lw=2,
+                label=f"model, {kind} beam (clear snow, sea level; leak: Gaussian pulse)")
+    lo, hi = ELEVATION_RANGE_DEG
+    for r in doc["rows"]:
+        m, p = r["measured"], r["predicted"]
+        el = m["solar_elevation_deg"]
+        if el is None:
+            continue
+        x = float(np.clip(el, lo, hi))
+        col = colour[r["strength"]]
+        for key, fill in (("background_clear_hz", col), ("background_cloudy_hz", "none")):
+            v = m[key]
+            if v is not None and v > 0:
+                ax.plot(x, v, "<" if el < lo else "o", ms=7, mfc=fill, mec=col, alpha=0.8)
+        ax.plot(x, p["background_hz"], "x", color=col, ms=6, alpha=0.8)
+    ax.plot([], [], "o", color="gray", label="real beam, clear segments (median)")
+    ax.plot([], [], "o", mfc="none", mec="gray", label="real beam, cloudy segments")
+    ax.plot([], [], "x", color="gray", label="our prediction for that beam")
+    ax.plot([], [], "<", color="gray", label="sun below -10 deg (drawn at -10)")
+    ax.set_yscale("log")
+    ax.set_xlim(lo - 1, hi + 1)
+    ax.set_xlabel("solar elevation [deg]")
+    ax.set_ylabel("background rate, detected [Hz]")
+    ax.set_title("ATLAS background against solar elevation: model and real files")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(pathlib.Path(path), dpi=110)
+    plt.close(fig)
+
+
+def _k(v) -> str:
+    return "-" if v is None else f"{v / 1e3:.3g}"
+
+
+def _f(v, spec=".2f") -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def report_md(doc: dict) -> str:
+    """``realism.md``: the files and what each lacks, the matrix, the pairs' strong:weak
+    ratios, ATL03's shape and saturation."""
+    lines = ["# Realism matrix: the model against real ICESat-2 files", "",
+             f"`lidar-mitsuba validate --real`: {len(doc['files'])} files, "
+             f"{len(doc['rows'])} beams, {doc['seconds']:.0f} s; signal "
+             + (f"from {doc['signal_shots']} simulated shots per beam (through dead time)"
+                if doc["signal_shots"] else "from the lidar equation (no dead time)") + ".",
+             "Nothing is fitted to a file. Background: measured median on clear / cloudy "
+             "segments against the model (clear sky); signal: photons per shot on clear "
+             "segments.", "", "## Files", ""]
+    lines += [f"- {f['missing']} (release {f['release'] or '?'})" for f in doc["files"]]
+    lines += ["", "## Beams", "",
+              "| file | beam | sun [deg] | clear | background clear / cloudy [kHz] | "
+              "predicted [kHz] (dark, sun, air, leak) | ratio | signal measured | predicted | "
+              "ratio | energy [uJ] | surface | verdict | reason |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in doc["rows"]:
+        m, p = r["measured"], r["predicted"]
+        t = p["background_terms_hz"]
+        parts = ", ".join(_k(t[x]) for x in ("dark", "solar", "air", "leak"))
+        lines.append(
+            f"| {r['file']} | {r['beam']} ({r['strength']}) | {_f(m['solar_elevation_deg'], '.1f')} "
+            f"| {m['clear_fraction']:.2f}{'' if m['cloud_flags'] else ' (no flag)'} | "
+            f"{_k(m['background_clear_hz'])} / {_k(m['background_cloudy_hz'])} | "
+            f"{_k(p['background_hz'])} ({parts}) | {_f(r['background_ratio'])} | "
+            f"{_f(m['signal_clear'])} | {_f(p['signal_per_shot'])} | {_f(r['signal_ratio'])} | "
+            f"{p['pulse_energy_uj']:.1f} ({'file' if p['energy_source'] == 'tx_pulse_energy' else 'history'}) "
+            f"| {p['surface']} | **{r['verdict']}** | {r['reason']} |")
+    lines += ["", "## Strong:weak", "", "| file | pair | sun [deg] | background measured, "
+              "clear / cloudy | predicted (clear) | signal measured | predicted |",
+              "|---|---|---|---|---|---|---|"]
+    for q in doc["pairs"]:
+        lines.append(f"| {q['file']} | {q['pair']} | {_f(q['solar_elevation_deg'], '.1f')} | "
+                     f"{_f(q['background_measured'])} / {_f(q['background_cloudy_measured'])} | "
+                     f"{_f(q['background_predicted'])} | "
+                     f"{_f(q['signal_measured'])} | {_f(q['signal_predicted'])} |")
+    shape = [r for r in doc["rows"] if "spread_robust_m" in r["measured"]]
+    if shape:
+        lines += ["", "## ATL03: spread, tails, saturation", "",
+                  f"| file | beam | spread measured / predicted [cm] | tails below / above "
+                  f"{100 * 0.2:.0f} cm, measured | predicted | full / near saturated, measured "
+                  "| predicted |", "|---|---|---|---|---|---|---|"]
+        for r in shape:
+            m, p = r["measured"], r["predicted"]
+            lines.append(
+                f"| {r['file']} | {r['beam']} | {_f(100 * m['spread_robust_m'], '.1f')} / "
+                f"{_f(100 * p['spread_robust_m'], '.1f') if 'spread_robust_m' in p else '-'} | "
+                f"{_f(m.get('tail_below'), '.3f')} / {_f(m.get('tail_above'), '.3f')} | "
+                f"{_f(p.get('tail_below'), '.3f')} / {_f(p.get('tail_above'), '.3f')} | "
+                f"{_f(m['full_sat_fract'], '.3f')} / {_f(m['near_sat_fract'], '.3f')} | "
+                f"{_f(p.get('full_sat_fract'), '.3f')} / {_f(p.get('near_sat_fract'), '.3f')} |")
+    n = {}
+    for r in doc["rows"]:
+        n[r["verdict"]] = n.get(r["verdict"], 0) + 1
+    lines += ["", ", ".join(f"{v} {k}" for k, v in sorted(n.items())) + ".", "",
+              "![background against solar elevation](realism_background.png)", ""]
+    return "\n".join(lines)

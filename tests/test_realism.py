@@ -1,0 +1,285 @@
+"""Issue 41: twins of any ICESat-2 product, every count that makes the night, the epoch's pulse
+energy, and the realism matrix (``validate --real``) over the real files in ``../shared/real``.
+
+Closed forms: the air's attenuated backscatter integral (exact when the aerosol's lidar ratio is
+Rayleigh's 8 pi / 3), a uniform cloud's integrated backscatter, a Gaussian's mass outside a
+span (against seeded sampling, tolerance five binomial standard errors)."""
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+
+import numpy as np
+import pytest
+
+from lidar_mitsuba import night, twin
+from lidar_mitsuba.cli import main
+from lidar_mitsuba.instrument import Instrument, atlas_pulse_energy_uj
+from lidar_mitsuba.products import real
+from lidar_mitsuba.radiometry import Atmosphere
+from lidar_mitsuba.studies import realism
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "real"
+DAY_S = 86400.0
+
+
+# ------------------------------------------------------------------------------ night floor
+def test_the_airs_backscatter_integral_is_its_closed_form(monkeypatch):
+    """With both scatterers' backscatter 3 / 8 pi of their extinction, integral beta T^2 dz =
+    (3 / 8 pi) (exp(-2 tau_top) - exp(-2 tau_bottom)) / 2 exactly (d tau = -sigma dz)."""
+    monkeypatch.setattr(night, "AEROSOL_LIDAR_RATIO_SR", 8.0 * math.pi / 3.0)
+    atm = Atmosphere(aerosol_optical_depth=0.2)
+    for lo, hi in ((0.0, 2506.0), (1000.0, 3500.0)):
+        tr_lo, ta_lo = atm.optical_depths(lo)
+        tr_hi, ta_hi = atm.optical_depths(hi)
+        exact = 3.0 / (8.0 * math.pi) * (np.exp(-2 * (tr_hi + ta_hi))
+                                         - np.exp(-2 * (tr_lo + ta_lo))) / 2.0
+        got = night.air_backscatter_integral_sr(atm, z_lo_m=lo, z_hi_m=hi)
+        assert got == pytest.approx(float(exact), rel=1e-4)     # trapezoids on 400 heights
+
+
+def test_a_clouds_integrated_backscatter_is_its_closed_form():
+    c = night.CloudLayer(optical_depth=1.3, base_m=800.0, top_m=1800.0, phase="ice",
+                         multiple_scattering_eta=0.7)
+    z = np.linspace(0.0, 1000.0, 200001)                   # depth into the layer from its top
+    sigma = c.optical_depth / 1000.0
+    y = sigma / night.CLOUD_LIDAR_RATIO_SR["ice"] * np.exp(-2 * 0.7 * sigma * z)
+    numeric = float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(z)))
+    assert c.integrated_backscatter_sr() == pytest.approx(numeric, rel=1e-8)
+    assert c.two_way_transmission == pytest.approx(math.exp(-2 * 0.7 * 1.3))
+
+
+def test_a_gaussians_mass_outside_a_span_against_sampling():
+    rng = np.random.default_rng(41)
+    n, sigma = 200_000, 0.1
+    x = rng.normal(0.0, sigma, n)
+    spans = np.array([0.0, 0.1, 0.3])
+    f = night.gaussian_outside_fraction(spans, sigma)
+    sampled = realism.outside_fraction(x, spans)
+    se = np.sqrt(f * (1 - f) / n) + 1.0 / n                  # binomial standard error
+    assert np.all(np.abs(sampled - f) <= 5 * se + 2.0 / n)   # the sample median's offset
+    assert f[0] == pytest.approx(1.0)
+
+
+def test_dark_counts_are_every_anodes_and_the_weak_beam_keeps_its_own():
+    strong, weak = Instrument.atlas("strong"), Instrument.atlas("weak")
+    assert strong.dark_count_hz * strong.channels == weak.dark_count_hz * weak.channels \
+        == 16 * night.DARK_COUNT_PER_ANODE_HZ
+    assert weak.dark_count_hz == 100.0                      # earlier versions' weak beam
+    assert Instrument.atlas("strong", dark_count_hz=7.0).dark_count_hz == 7.0
+
+
+def test_the_nights_strong_weak_ratio_follows_from_its_terms():
+    """The air and the leak scale with the pulse energy, the dark counts do not: the ratio
+    lies strictly between 1 and the energy ratio, and is what the terms say."""
+    kw = dict(delta_time_s=np.full(3, 3.1e7), z_m=np.zeros(3), albedo=0.9,
+              solar_elevation_deg=np.full(3, -30.0), solar_azimuth_deg=np.zeros(3))
+    s = night.background_terms(Instrument.atlas("strong"), signal_per_shot=8.0,
+                               outside_fraction=0.05, **kw)
+    w = night.background_terms(Instrument.atlas("weak"), signal_per_shot=2.0,
+                               outside_fraction=0.05, **kw)
+    assert s["solar"] == w["solar"] == 0.0
+    assert s["air"] / w["air"] == pytest.approx(4.0, rel=1e-12)
+    assert s["dark"] == w["dark"] > 0
+    ratio = s["total"] / w["total"]
+    assert 1.0 < ratio < 4.0
+    assert ratio == pytest.approx((s["air"] + s["leak"] + s["dark"])
+                                  / (w["air"] + w["leak"] + w["dark"]))
+
+
+def test_the_epochs_pulse_energy():
+    t = lambda d: (np.datetime64(d) - np.datetime64("2018-01-01")) / np.timedelta64(1, "s")  # noqa: E731
+    assert atlas_pulse_energy_uj("weak", t("2018-10-14"))[0] == pytest.approx(27.5)
+    assert atlas_pulse_energy_uj("weak", t("2022-04-01"))[0] == pytest.approx(22.8)
+    mid = atlas_pulse_energy_uj("weak", t("2020-07-01"))
+    assert 22.8 < mid[0] < 27.5 and "ESTIMATE" in mid[1]
+    assert atlas_pulse_energy_uj("strong", t("2024-01-01"))[0] == pytest.approx(4 * 27.5)
+    assert twin.beam_energy_uj("weak", 22.0, 0.0, "strong") == (88.0, "tx_pulse_energy")
+
+
+# ------------------------------------------------------------------------------ any product
+def _atl06(path, *, beam_type: str | None, sc_orient: int = 0, n: int = 30):
+    """A small ATL06-like file: two beams of ``n`` 20 m segments north from 70 N."""
+    import h5py
+    with h5py.File(path, "w") as f:
+        f["orbit_info/sc_orient"] = np.array([sc_orient], np.int8)
+        for k, name in enumerate(("gt1l", "gt1r")):
+            g = f.create_group(name)
+            if beam_type is not None:
+                g.attrs["atlas_beam_type"] = np.array(
+                    [(beam_type if k == 0 else ("weak" if beam_type == "strong" else "strong"))],
+                    dtype=object).astype(h5py.string_dtype())
+            s = g.create_group("land_ice_segments")
+            s["delta_time"] = 4.1e7 + np.arange(n) * 20.0 / 7000.0
+            s["latitude"] = 70.0 + np.arange(n) * 20.0 / 111_000.0
+            s["longitude"] = np.full(n, -45.0)
+            h = np.full(n, 2000.0, np.float32)
+            h[3] = 3.4028235e38                              # a fill value
+            s["h_li"] = h
+            s["geophysical/solar_elevation"] = np.full(n, 10.0, np.float32)
+            s["geophysical/solar_azimuth"] = np.full(n, 90.0, np.float32)
+            s["geophysical/bckgrd"] = np.full(n, 1e6, np.float32)
+            s["geophysical/r_eff"] = np.where(np.arange(n) < n // 2, 0.9, 0.1).astype(np.float32)
+            s["fit_statistics/n_fit_photons"] = np.full(n, 500, np.int32)
+            s["fit_statistics/n_seg_pulses"] = np.full(n, 57.0, np.float32)
+            s["fit_statistics/w_surface_window_final"] = np.full(n, 3.0, np.float32)
+    return path
+
+
+def test_strength_comes_from_atlas_beam_type_over_sc_orient(tmp_path):
+    # sc_orient 0 says gt1l is strong; the attribute (a clip tool's object array) says weak
+    f = real.read_product(_atl06(tmp_path / "a.h5", beam_type="weak", sc_orient=0))
+    assert f.product == "ATL06"
+    assert {b.name: (b.strength, b.strength_from) for b in f.beams} == {
+        "gt1l": ("weak", "atlas_beam_type"), "gt1r": ("strong", "atlas_beam_type")}
+    b = f.beams[0]
+    assert np.isnan(b.surface_h_m[3]) and b.surface_h_m[0] == 2000.0
+    expected = (500 - 1e6 * 3.0 * 2 / 299792458.0 * 57) / 57
+    assert np.allclose(b.signal_per_shot, expected, rtol=1e-5)
+    assert b.clear.tolist() == [True] * 15 + [False] * 15      # r_eff 0.9 / 0.1
+    line = f.missing_line()
+    assert "\n" not in line and "altitude_sc" in line and "tx_pulse_energy" in line
+    # without the attribute: sc_orient decides, and the line says so
+    g = real.read_product(_atl06(tmp_path / "b.h5", beam_type=None, sc_orient=1))
+    assert {b.name: b.strength for b in g.beams} == {"gt1l": "weak", "gt1r": "strong"}
+    assert "atlas_beam_type on gt1l, gt1r" in g.missing_line()
+
+
+def test_a_twin_of_an_atl06_file(tmp_path):
+    g = twin.read(_atl06(tmp_path / "a.h5", beam_type="strong"))
+    assert g.product == "ATL06" and [b.beam.strength for b in g.beams] == ["strong", "weak"]
+    b = g.beams[0]
+    assert b.n_shots == pytest.approx(29 * 20 / 0.7, rel=0.05)
+    assert np.all(np.isfinite(b.surface_h_m))               # the fill interpolated over
+    assert g.median_range_m() == pytest.approx(496e3)       # no altitude_sc: nominal range
+    e, where = b.energy_uj()
+    assert "ESTIMATE" in where and 4 * 22.8 < e < 4 * 27.5
+
+
+def test_the_real_files_every_product_and_their_trimmed_copies(tmp_path):
+    if not SHARED.is_dir():
+        pytest.skip(f"no real files at {SHARED} (the shared data folder beside the repo)")
+    seen = {}
+    for p in sorted(SHARED.glob("*.h5")):
+        f = real.read_product(p)
+        seen.setdefault(f.product, []).append(p.name)
+        assert all(b.strength_from == "atlas_beam_type" for b in f.beams)
+        assert "\n" not in f.missing_line()
+        if f.product == "ATL03":     # the product's rate: reduced counts over 50 shots' band
+            import h5py
+            for b in f.beams:
+                with h5py.File(p) as h:
+                    g = h[b.name]["bckgrd_atlas"]
+                    rate = g["bckgrd_counts_reduced"][()] / (
+                        50 * 2 * g["bckgrd_int_height_reduced"][()] / 299792458.0)
+                    assert np.allclose(rate, g["bckgrd_rate"][()], rtol=1e-6)
+        else:                                        # trimmed: the same numbers
+            t = real.read_product(real.trim(p, tmp_path / p.name))
+            assert t.missing == f.missing and len(t.beams) == len(f.beams)
+            for a, b in zip(f.beams, t.beams):
+                for k in ("surface_h_m", "background_hz", "signal_per_shot", "clear"):
+                    u, v = getattr(a, k), getattr(b, k)
+                    assert (u is None and v is None) or np.array_equal(u, v, equal_nan=True)
+    assert set(seen) == {"ATL03", "ATL06", "ATL07", "ATL08"}
+
+
+# ------------------------------------------------------------------------------ the matrix
+def test_validate_real_over_every_real_file(tmp_path, capsys):
+    """The realism matrix over ../shared/real by the lidar equation (no rendering): every beam
+    of every file has a row, its verdict follows from its ratios, the figure is drawn."""
+    if not SHARED.is_dir():
+        pytest.skip(f"no real files at {SHARED} (the shared data folder beside the repo)")
+    assert main(["validate", "--real", str(SHARED), "--signal-shots", "0",
+                 "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "realism.json").read_text())
+    files = sorted(p.name for p in SHARED.glob("*.h5"))
+    assert sorted(f["file"] for f in doc["files"]) == files
+    by_file = {}
+    for r in doc["rows"]:
+        by_file.setdefault(r["file"], []).append(r)
+        lo, hi = realism.BACKGROUND_AGREES
+        if r["verdict"] == "agrees":
+            assert lo <= r["background_ratio"] <= hi
+        if r["product"] == "ATL08":
+            assert r["verdict"] == "surface missing"
+        assert r["predicted"]["background_hz"] == pytest.approx(
+            sum(v for k, v in r["predicted"]["background_terms_hz"].items() if k != "total"))
+    assert set(by_file) == set(files)
+    pine = [r for r in doc["rows"] if "pine_island" in r["file"]]
+    assert pine and all(r["verdict"] == "cloud missing" for r in pine)   # every segment cloudy
+    assert (tmp_path / "realism_background.png").stat().st_size > 10_000
+    md = (tmp_path / "realism.md").read_text()
+    assert all(f in md for f in files)
+    out = capsys.readouterr().out
+    assert "ATL06_20190420093051" in out and "wrote" in out
+
+
+def test_validate_real_runs_over_the_shipped_files_and_simulates_a_beam(tmp_path):
+    """With no file: the package's own real files (every product); a beam's signal through a
+    short simulation."""
+    shipped = realism.real_files(None)
+    assert shipped == sorted(realism.PACKAGE_DATA.glob("*.h5")) and len(shipped) == 7
+    assert {real.read_product(p).product for p in shipped} == {"ATL03", "ATL06", "ATL07",
+                                                                "ATL08"}
+    doc = realism.run([twin.REAL_SUBSET], tmp_path, signal_shots=60)
+    (row,) = doc["rows"]
+    assert row["file"] == twin.REAL_SUBSET.name and row["strength"] == "weak"
+    p = row["predicted"]
+    assert p["shots"] == 60 and p["signal_per_shot"] > 0 and "spread_robust_m" in p
+    assert p["energy_source"] == "tx_pulse_energy"
+    assert row["measured"]["spread_robust_m"] > 0
+
+
+def test_open_water_twin_and_option_refusals(tmp_path, capsys):
+    g = twin.read(twin.REAL_SUBSET)
+    snow = twin.simulate_over_surface(g, shots=40, progress=False, seed=3)
+    water = twin.simulate_over_surface(g, shots=40, progress=False, seed=3, water_wind_mps=5.0)
+    assert water.config["water_wind_mps"] == 5.0
+    # nadir weight of 5 m/s water ~0.2 against Ward snow's 1.15 (ground.water): ~80 signal
+    # photons over snow in 40 weak shots, ~20 over water (Poisson sd ~9 and ~4.5)
+    n = [r.beams[0].result.detections.is_signal.sum() for r in (snow, water)]
+    assert n[1] < 0.5 * n[0]
+    assert main(["validate", "--out", str(tmp_path), "--signal-shots", "10"]) == 2
+    assert "--signal-shots" in capsys.readouterr().err
+    assert main(["simulate", "--dem", "x.tif", "--water-wind-mps", "5",
+                 "--out", str(tmp_path / "o.h5")]) == 2
+    assert "--water-wind-mps" in capsys.readouterr().err
+
+
+def test_a_subset_without_photons_or_attributes_is_still_read(tmp_path):
+    """A subsetter that drops the photons and rewrites sc_orient: the twin still has its
+    shots (at the ellipsoid), its strength from atlas_beam_type, and the line says so."""
+    import shutil
+    import h5py
+    p = shutil.copy(twin.REAL_SUBSET, tmp_path / "cut.h5")
+    with h5py.File(p, "a") as f:
+        del f["gt1l/heights"]
+        f["gt1l"].attrs["sc_orientation"] = "Backward"   # gt1l strong; atlas_beam_type: weak
+    g = twin.read(p)
+    assert g.beams[0].beam.strength == "weak" and g.beams[0].n_shots > 1000
+    assert "surface heights" in g.missing_line()
+    assert g.beams[0].pulse_energy_uj == pytest.approx(27.65, abs=0.01)
+
+
+def test_a_cloud_given_predicts_the_cloudy_segments(tmp_path, capsys):
+    night_file = realism.PACKAGE_DATA / "ATL06_20181226035130_13520105_001_01_greenland_night.h5"
+    bare = realism.run([night_file], None, signal_shots=0)
+    assert {r["verdict"] for r in bare["rows"]} == {"cloud missing"}
+    layer = night.CloudLayer(optical_depth=1.0, base_m=500.0, top_m=1500.0)
+    doc = realism.run([night_file], None, signal_shots=0, cloud=layer)
+    for r, b in zip(doc["rows"], bare["rows"]):
+        assert r["verdict"] in ("agrees", "disagrees") and "cloud given" in r["reason"]
+        p = r["predicted"]
+        assert p["background_cloudy_terms_hz"]["cloud"] > 0
+        assert p["signal_cloudy"] == pytest.approx(p["signal_per_shot"] * math.exp(-2.0))
+        # the air below the cloud dimmed, the air above it kept: less air than clear sky
+        assert p["background_cloudy_terms_hz"]["air"] < b["predicted"]["background_terms_hz"]["air"]
+    from lidar_mitsuba.atmosphere.cloud_layer import Cloud      # a run's cloud: the same
+    same = realism.run([night_file], None, signal_shots=0, cloud=Cloud.water(1.0, 500, 1500))
+    assert [r["predicted"]["background_cloudy_hz"] for r in same["rows"]] == pytest.approx(
+        [r["predicted"]["background_cloudy_hz"] for r in doc["rows"]], rel=1e-12)
+    assert main(["validate", "--real", str(night_file), "--cloud", "1,1500,500",
+                 "--out", str(tmp_path)]) == 2
+    assert "--cloud" in capsys.readouterr().err
