@@ -9,8 +9,9 @@ photons per shot on clear segments against a short simulation of the file's own 
 the surface a user would choose knowing only the product (:data:`PRODUCT_SURFACES`) through
 the detector's dead time (or, with ``signal_shots=0``, the lidar equation alone), the
 strong:weak ratios of each beam pair, the spread and tails of ATL03's surface photons, the
-saturation fractions, and a verdict with its reason. Cloudy segments are compared with the
-clear-sky model and their verdict says the cloud is missing (no cloud is given to a file).
+saturation fractions, and a verdict with its reason. Cloudy segments are predicted with the
+cloud the file's own flags imply (:func:`~lidar_mitsuba.studies.realism_inputs.implied_cloud`:
+its apparent reflectance's optical depth, ATL09's ``msw_flag``'s height) or the one given.
 
 The model is the package's: :meth:`~lidar_mitsuba.instrument.Instrument.atlas` with the
 beam's energy (the file's ``tx_pulse_energy`` or ATLAS's history), the sun from the file,
@@ -295,11 +296,14 @@ def verdict(row: dict) -> tuple[str, str]:
         return "surface missing", ("the product's surface (land, forest) is not modelled here"
                                    + ("; every segment is cloudy and no cloud is given"
                                       if cloudy else "") + "; beam, energy and sky as given")
+    if cloudy and m["background_cloudy_hz"] is None and m["signal_cloudy"] is None:
+        return "not measured", "the file gives neither a background nor a signal rate"
     if cloudy and "background_cloudy_hz" in p:
         return _cloudy_verdict(row)
     if cloudy:
-        return "cloud missing", ("every segment is cloudy by the product's flags: the model is "
-                                 "clear-sky and no cloud is given (background x"
+        return "cloud missing", ("every segment is cloudy by the product's flags, the file "
+                                 "gives no reflectance to read its cloud from and none is given "
+                                 "(clear-sky background x"
                                  f"{_fmt(row['background_cloudy_ratio'])} of the cloudy one)")
     lo, hi = BACKGROUND_AGREES
     slo, shi = SIGNAL_AGREES
@@ -365,6 +369,8 @@ def pair_ratios(rows: list[dict]) -> list[dict]:
             q[f"{key}_predicted"] = _ratio(r["predicted"][pk], other["predicted"][pk])
         q["background_cloudy_measured"] = _ratio(r["measured"]["background_cloudy_hz"],
                                                  other["measured"]["background_cloudy_hz"])
+        q["background_cloudy_predicted"] = _ratio(r["predicted"].get("background_cloudy_hz"),
+                                                  other["predicted"].get("background_cloudy_hz"))
         q["solar_elevation_deg"] = r["measured"]["solar_elevation_deg"]
         out.append(q)
     return out
@@ -377,8 +383,8 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
     files): ``realism.json``, ``realism.md`` and ``realism_background.png`` in ``out_dir``
     (when given). ``signal_shots``: shots simulated per beam for its signal (0: the lidar
     equation, no rendering). ``progress``: a callable given one line per beam. ``cloud``: a
-    :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud` for the cloudy segments (default: none given,
-    their verdict says the cloud is missing)."""
+    :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud` for the cloudy segments (default: each
+    beam's own, :func:`~lidar_mitsuba.studies.realism_inputs.implied_cloud`)."""
     from .. import twin
     from ..products.real import read_product
     t0 = time.perf_counter()

@@ -21,9 +21,10 @@ def sea_ice_snow():
 
 def ice_sheet_snow():
     """The snow on an ice sheet: wind-packed surface snow as the floe's slab (130 um, 350
-    kg/m^3: Sturm et al. 2002, Macfarlane et al. 2023, via :data:`~lidar_mitsuba.studies.
-    sea_ice.FLOE`), a half-space (ESTIMATE: dry firn below it, seasonally and regionally
-    varying; the grain sizes of Greenland's surface snow, 50-300 um, bracket it)."""
+    kg/m^3: Sturm et al. 2002, Macfarlane et al. 2023, via
+    :data:`~lidar_mitsuba.studies.sea_ice.FLOE`), a half-space (ESTIMATE: dry firn below it,
+    seasonally and regionally varying; the grain sizes of Greenland's surface snow, 50-300
+    um, bracket it)."""
     from ..ground import snow
     from .sea_ice import FLOE
     slab = FLOE["slab"]
