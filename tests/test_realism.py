@@ -322,3 +322,15 @@ def test_the_cloud_a_files_reflectance_and_layer_flag_imply():
     assert realism.layer_heights_m([5, 4, 4, 0]) == (0.0, realism.BLOWING_SNOW_TOP_M)
     assert realism.implied_cloud(_beam([0.9, 0.9], [True, True])) is None    # all clear
     assert realism.implied_cloud(_beam([0.9, 0.95], [True, False])) is None  # not dimmed
+
+
+def test_the_sun_sees_the_files_ice_concentration():
+    """On sea ice the sunlit albedo is the area mean c 0.9 + (1 - c) 0.06 with c ATL07's
+    ice_conc (the median over the beam's segments); elsewhere the surface's own."""
+    b = _beam([0.9] * 3, [True] * 3)
+    b.ice_fraction = np.array([0.92, 0.90, np.nan])
+    sea, ice = realism.PRODUCT_SURFACES["sea ice"], realism.PRODUCT_SURFACES["land ice"]
+    assert realism.sunlit_albedo(b, sea) == pytest.approx(0.91 * 0.9 + 0.09 * 0.06)
+    assert realism.sunlit_albedo(b, ice) == 0.9
+    b.ice_fraction = None
+    assert realism.sunlit_albedo(b, sea) == 0.9

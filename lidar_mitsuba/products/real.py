@@ -61,6 +61,8 @@ class RealBeam:
         reflectance: the apparent surface reflectance the product measured (ATL06 ``r_eff``,
             ATL07 ``asr_25``), or None: with the clear segments', the cloud's optical depth
             (:func:`~lidar_mitsuba.products.cloud_flags.implied_optical_depth`).
+        ice_fraction: the sea-ice concentration where the product gives it (ATL07
+            ``stats/ice_conc`` [%] / 100, from passive microwave), or None.
         layer_class: ATL09's multiple-scattering warning ``msw_flag`` copied by ATL06 and
             ATL07 (the height class of the lowest layer's base: 3 below 1 km, 2 1-3 km, 1
             above 3 km, 4-5 blowing snow, 0 none, -1 unknown), or None.
@@ -87,6 +89,7 @@ class RealBeam:
     clear: np.ndarray | None = None
     reflectance: np.ndarray | None = None
     layer_class: np.ndarray | None = None
+    ice_fraction: np.ndarray | None = None
     band_height_m: np.ndarray | None = None
     band_top_above_surface_m: np.ndarray | None = None
     signal_span_m: np.ndarray | None = None
@@ -418,13 +421,14 @@ def _atl07(g, **beam) -> RealBeam | None:
                         else asr >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE,
                         _num(st, "cloud_flag_asr"), _num(st, "cloud_flag_atm"))
     band = _num(st, "background_int_height")
+    conc = _num(st, "ice_conc")
     return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),
                     lon_deg=_num(s, "longitude"), surface_h_m=h,
                     solar_elevation_deg=_num(geo, "solar_elevation"),
                     solar_azimuth_deg=_num(geo, "solar_azimuth"),
                     background_hz=_num(st, "backgr_r_200"), signal_per_shot=rate, clear=clear,
                     reflectance=asr, layer_class=_num(st, "msw_flag"), band_height_m=band,
-                    surface="sea ice",
+                    ice_fraction=None if conc is None else conc / 100.0, surface="sea ice",
                     notes={"background": "stats/backgr_r_200 (ATL03's 50-shot rate)",
                            "signal": "stats/photon_rate on snow-covered ice (type 1)",
                            "clear": "asr_25 >= 0.45, cloud_flag_asr <= 2, cloud_flag_atm == 0"})
@@ -470,6 +474,7 @@ READ_DATASETS = {
         "heights/height_segment_type", "geophysical/height_segment_mss",
         "geolocation/solar_elevation", "geolocation/solar_azimuth", "stats/photon_rate",
         "stats/asr_25", "stats/cloud_flag_asr", "stats/cloud_flag_atm", "stats/msw_flag",
+        "stats/ice_conc",
         "stats/backgr_r_200",
         "stats/background_int_height")),
     "ATL08": tuple("land_segments/" + k for k in (

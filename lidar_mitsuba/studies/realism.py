@@ -42,7 +42,8 @@ segment's median [m]."""
 
 from .realism_inputs import (BLOWING_SNOW_TOP_M, LAYER_BASE_M, LAYER_THICKNESS_M,  # noqa: F401
                              PRODUCT_SURFACES, equation_outside_fraction, ice_sheet_snow,
-                             implied_cloud, layer_heights_m, sea_ice_snow, snow_delay)
+                             implied_cloud, layer_heights_m, sea_ice_snow, snow_delay,
+                             sunlit_albedo)
 
 TAIL_WINDOW_M = 1.0
 """The predicted tails count the simulated surface photons within this distance [m] of their
@@ -258,7 +259,8 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> 
     else:
         az = rb.solar_azimuth_deg if rb.solar_azimuth_deg is not None else np.zeros(t.size)
     ok = np.isfinite(sun) & np.isfinite(t)
-    kw = dict(delta_time_s=t[ok], z_m=np.full(ok.sum(), z), albedo=surface["albedo"],
+    out["sunlit_albedo"] = albedo = sunlit_albedo(rb, surface)
+    kw = dict(delta_time_s=t[ok], z_m=np.full(ok.sum(), z), albedo=albedo,
               solar_elevation_deg=sun[ok], solar_azimuth_deg=np.nan_to_num(az[ok]), band=band,
               outside_fraction=f_out)
     terms = night.background_terms(inst, signal_per_shot=out["signal_per_shot"], **kw)

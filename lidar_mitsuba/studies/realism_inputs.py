@@ -51,6 +51,21 @@ green, with its surface missing). Snow surfaces also delay the share of their re
 their volume scatters back (``snow``: the pack, :mod:`lidar_mitsuba.ground.snow.delay`)."""
 
 
+def sunlit_albedo(rb, surface: dict) -> float:
+    """The albedo the sun sees around a beam: the product surface's, or on sea ice with the
+    file's ice concentration ``c`` (ATL07 ``ice_conc``) the area mean ``c A_ice + (1 - c)
+    A_water`` with open water's 0.06 (:data:`PRODUCT_SURFACES`' ``ocean``; the sky's light
+    is reflected over kilometres, the concentration's passive-microwave cells are 25 km)."""
+    c = getattr(rb, "ice_fraction", None)
+    if surface is not PRODUCT_SURFACES["sea ice"] or c is None:
+        return float(surface["albedo"])
+    c = _median(c)
+    if c is None:
+        return float(surface["albedo"])
+    c = min(max(c, 0.0), 1.0)
+    return c * surface["albedo"] + (1.0 - c) * PRODUCT_SURFACES["ocean"]["albedo"]
+
+
 def snow_delay(surface: dict):
     """``(pack, share)``: the surface's snow (a half-space) and the share of its nadir return
     the volume carries (the flat Ward surface's diffuse lobe), or ``(None, 0)``."""
