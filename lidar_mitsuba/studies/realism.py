@@ -178,8 +178,11 @@ def simulated(twin_granule, name: str, *, surface: dict, shots: int, seed: int,
               spans_m) -> dict:
     """A short simulation of the beam's first ``shots`` shots over a flat surface (the
     product's, :data:`PRODUCT_SURFACES`): detected signal per shot through dead time, the
-    spread and tails of its surface photons, saturation as our ATL03 writes it, and the
-    fraction of signal photons outside each of ``spans_m`` (the leak term)."""
+    spread and tails of its surface photons (within :data:`TAIL_WINDOW_M`), saturation as our
+    ATL03 writes it, and the fraction of signal photons outside each of ``spans_m`` (the leak
+    term). Over snow, the surface's diffuse share of its photons is lowered by the pack's
+    volume return (:func:`~lidar_mitsuba.ground.snow.delay.delay_heights`, seeded
+    ``seed + 1``) before both."""
     import warnings
     from .. import twin
     from ..ground.surface import SurfaceSpec
