@@ -244,16 +244,17 @@ def _robust_sigma(r: np.ndarray) -> float:
     return float(np.median(np.abs(r - np.median(r))) / MAD_PER_SIGMA) if r.size else 0.0
 
 
-def _fit(x: np.ndarray, h: np.ndarray):
+def _fit(x: np.ndarray, h: np.ndarray, sigma_m: float | None = None):
     """A cubic smoothing spline through ``(x, h)`` (``x`` strictly increasing) that smooths
-    down to the points' own noise: FITPACK's ``s = m sigma^2`` (Dierckx, "Curve and Surface
-    Fitting with Splines", 1993: the residual sum of squares of ``m`` points with noise
-    ``sigma``), ``sigma`` the robust spread of successive differences over sqrt(2) (a trend
-    cancels in them), continued linearly beyond the end points. A line for fewer than 6
-    points, a constant for one; a callable."""
+    down to the points' own noise ``sigma_m``: FITPACK's ``s = m sigma^2`` (Dierckx, "Curve
+    and Surface Fitting with Splines", 1993: the residual sum of squares of ``m`` points
+    with noise ``sigma``). ``sigma_m`` None: the robust spread about a running median of 5
+    (:func:`_median_curve`; a trend cancels in it). Continued linearly beyond the end
+    points. A line for fewer than 6 points, a constant for one; a callable."""
     if x.size >= 6:
-        d = np.diff(h)
-        sigma = max(_robust_sigma(d) / np.sqrt(2.0), 1e-3)
+        if sigma_m is None:
+            sigma_m = _robust_sigma(h - _median_curve(x, h)(x))
+        sigma = max(float(sigma_m), 1e-3)
         try:
             with warnings.catch_warnings():        # FITPACK's "s too small": still a fit
                 warnings.simplefilter("ignore", UserWarning)
@@ -333,14 +334,14 @@ def _envelope_level(x, h, s: Settings, *, upper: bool, skip: int, bin_m: float):
     for it in range(s.max_iterations):
         # first a running median of 5 candidates (a lone outlier cannot move it; a spline
         # smoothed to the others' scatter would pass through it), then the spline
-        f = _median_curve(xc, hc) if it == 0 else _fit(xc[good], hc[good])
+        f = _median_curve(xc, hc) if it == 0 else _fit(xc[good], hc[good], sigma)
         r = hc - f(xc)
         sigma = max(_outer_sigma(r[good], upper=upper), floor)
         new = np.abs(r) <= s.outlier_sigmas * sigma
         if np.array_equal(new, good) or new.sum() < 2:
             break
         good = new
-    f = _fit(xc[good], hc[good])
+    f = _fit(xc[good], hc[good], sigma)
     r = hc[good] - f(xc[good])
     return f, max(_outer_sigma(r, upper=upper), floor), r
 
@@ -377,7 +378,7 @@ def _final_ground(x, h, sig, gf, g_sigma: float, s: Settings) -> tuple[np.ndarra
             idx = np.cumsum(u) - 1
             hs = np.bincount(idx, hs) / np.bincount(idx)
             xs = xs[u]
-        f = _fit(xs, hs)
+        f = _fit(xs, hs, buf / s.outlier_sigmas)
         g = f(x)
         buf = min(buf, max(s.outlier_sigmas * _robust_sigma(h[sel] - g[sel]), s.min_buffer_m))
         new = sig & (np.abs(h - g) <= buf)
@@ -414,7 +415,6 @@ def classify_photons(*, x_m: np.ndarray, h_m: np.ndarray,
     toc = np.full(x.size, np.nan)
     out = Classification(classes, sig, ground, toc, 0.0, rho, h)
     flat_h = min(w[1] for w in s.windows)
-    tall_h = max(w[1] for w in s.windows)
     gf, g_sigma, _ = envelope(x[flat], h[flat], s, upper=False,
                               skip=expected_passing(rho, s, height_m=flat_h))
     if gf is None:
@@ -425,8 +425,7 @@ def classify_photons(*, x_m: np.ndarray, h_m: np.ndarray,
     is_ground = sig & (np.abs(dz) <= g_buf)
     classes[is_ground] = GROUND
     above = sig & (dz > g_buf)
-    tf, t_sigma, _ = envelope(x[above], h[above], s, upper=True,
-                              skip=expected_passing(rho, s, height_m=tall_h))
+    tf, t_sigma, _ = envelope(x[above], h[above], s, upper=True)
     if tf is None:
         return out
     toc[:] = np.maximum(tf(x), ground + g_buf)

@@ -139,7 +139,7 @@ SIGNAL_PHOTONS = {
     "ph_segment_id": Field("i4", None, "1", "Georeferenced bin number",
                            "the ATL03 segment_id of the photon's 20 m segment"),
     "delta_time": Field("f8", None, _T, "Elapsed GPS seconds", "the photon's time"),
-    "ph_h": Field("f4", None, "meters", "Photon height above ground",
+    "ph_h": Field("f4", F4_FILL, "meters", "Photon height above ground",
                   "photon height above the interpolated ground surface"),
     "d_flag": Field("i1", None, "1", "DRAGANN flag",
                     "1: the photon passed our noise filter (all photons written here did)"),
