@@ -138,13 +138,19 @@ def _datasets(g) -> dict:
     return out
 
 
+@pytest.fixture(scope="module")
+def real_run(tmp_path_factory):
+    """Our ATL08 of the real forest ATL03 clip, and the file written."""
+    beam = atl08.from_atl03(REAL_ATL03, "gt1r")
+    return beam, atl08.write(beam, tmp_path_factory.mktemp("a8") / "ATL08_ours.h5")
+
+
 @have_real
-def test_written_fields_match_the_real_atl08(tmp_path):
+def test_written_fields_match_the_real_atl08(real_run):
     """Every dataset we write exists in the real clip's gt1r/ with the same dtype, trailing
     shape and HDF5 fill value, and carries units, long_name and _FillValue (the clip's
     subsetter dropped its attributes; the fill values survive in the datasets)."""
-    beam = atl08.from_atl03(REAL_ATL03, "gt1r")
-    path = atl08.write(beam, tmp_path / "ATL08_ours.h5")
+    beam, path = real_run
     with h5py.File(REAL_ATL08) as f:
         real = _datasets(f["gt1r"])
     with h5py.File(path) as f:
@@ -163,13 +169,12 @@ def test_written_fields_match_the_real_atl08(tmp_path):
 
 
 @have_real
-def test_h5coro_reads_ours(tmp_path):
+def test_h5coro_reads_ours(real_run):
     """SlideRule's h5coro (pure Python) reads our ATL08 to the same values as h5py. (On the
     real clip h5coro 1.0.7 returns garbage for the gzip'd float datasets the clip tool
     rewrote: it is not the reader that opens the real one; h5py is.)"""
     from h5coro import h5coro, filedriver
-    beam = atl08.from_atl03(REAL_ATL03, "gt1r")
-    path = atl08.write(beam, tmp_path / "ATL08_ours.h5")
+    path = real_run[1]
     names = ["gt1r/land_segments/terrain/h_te_best_fit", "gt1r/land_segments/canopy/h_canopy",
              "gt1r/land_segments/canopy/canopy_h_metrics", "gt1r/signal_photons/classed_pc_flag",
              "gt1r/land_segments/segment_id_beg"]

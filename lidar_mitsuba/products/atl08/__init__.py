@@ -39,13 +39,15 @@ metre of track are this over the ground speed."""
 @dataclass
 class Atl08Beam:
     """One beam's ATL08: ``segments`` (``group/name`` -> array, :data:`GROUPS` but the
-    photons), ``photons`` (``signal_photons`` fields), the ``classification`` of every ATL03
-    photon, the beam's group attributes, and ``truth`` (``name`` -> (array, units,
-    description), empty when the input has none)."""
+    photons), ``photons`` (``signal_photons`` fields), the ``classification`` of the ATL03
+    photons inside 20 m segments and their 0-based ATL03 indices ``atl03_index``, the beam's
+    group attributes, and ``truth`` (``name`` -> (array, units, description), empty when the
+    input has none)."""
     beam: str
     segments: dict
     photons: dict
     classification: Classification
+    atl03_index: np.ndarray
     attrs: dict = field(default_factory=dict)
     truth: dict = field(default_factory=dict)
     source: str = ""
@@ -154,7 +156,8 @@ def from_atl03(path: str | os.PathLike, beam: str = "gt1l", *,
     truth = _truth(d, ok, s, segs, seg_len_m=float(np.median(np.diff(d["seg_x_m"])))
                    if d["seg_x_m"].size > 1 else 20.0)
     return Atl08Beam(beam=beam, segments=segs, photons=photons, classification=c,
-                     attrs=d["attrs"], truth=truth, source=os.fspath(path))
+                     atl03_index=np.flatnonzero(ok), attrs=d["attrs"], truth=truth,
+                     source=os.fspath(path))
 
 
 def _truth(d: dict, ok: np.ndarray, s: np.ndarray, segs: dict, *, seg_len_m: float) -> dict:
