@@ -44,11 +44,10 @@ Constants not from a source are marked ESTIMATE in :class:`Settings`.
 """
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import interpolate, ndimage, spatial, stats
+from scipy import ndimage, spatial, stats
 
 from ...constants import C_M_PER_NS
 
@@ -244,40 +243,31 @@ def _robust_sigma(r: np.ndarray) -> float:
     return float(np.median(np.abs(r - np.median(r))) / MAD_PER_SIGMA) if r.size else 0.0
 
 
-def _fit(x: np.ndarray, h: np.ndarray, sigma_m: float | None = None):
-    """A cubic smoothing spline through ``(x, h)`` (``x`` strictly increasing) that smooths
-    down to the points' own noise ``sigma_m``: FITPACK's ``s = m sigma^2`` (Dierckx, "Curve
-    and Surface Fitting with Splines", 1993: the residual sum of squares of ``m`` points
-    with noise ``sigma``). ``sigma_m`` None: the robust spread about a running median of 5
-    (:func:`_median_curve`; a trend cancels in it). Continued linearly beyond the end
-    points. A line for fewer than 6 points, a constant for one; a callable."""
-    if x.size >= 6:
-        if sigma_m is None:
-            sigma_m = _robust_sigma(h - _median_curve(x, h)(x))
-        sigma = max(float(sigma_m), 1e-3)
-        try:
-            with warnings.catch_warnings():        # FITPACK's "s too small": still a fit
-                warnings.simplefilter("ignore", UserWarning)
-                spl = interpolate.UnivariateSpline(x, h, k=3, s=x.size * sigma ** 2)
-            return _linear_beyond(spl, float(x[0]), float(x[-1]))
-        except ValueError:
-            pass
-    if x.size >= 2:
-        c = np.polyfit(x, h, 1)
-        return lambda t: np.polyval(c, t)
-    v = float(h[0]) if h.size else np.nan
-    return lambda t: np.full(np.shape(t), v)
-
-
-def _linear_beyond(spl, x0: float, x1: float):
-    """``spl`` inside ``[x0, x1]``, continued along its end tangents outside (a cubic's own
-    extrapolation runs away within a bin or two)."""
-    d = spl.derivative()
+def _polyline(x: np.ndarray, h: np.ndarray):
+    """Linear interpolation through ``(x, h)`` (``x`` increasing), continued beyond the end
+    points along the slope of the last few (:func:`_end_slope`); a callable. A smoothing spline (the ATBD's) overshoots by tens of metres
+    between close points of different heights (two bins' extremes at a shared edge) and
+    across the gaps a dense canopy leaves; the candidates are already bin extremes or bin
+    medians, so the line between them is the smoothing."""
+    if x.size == 0:
+        return lambda t: np.full(np.shape(t), np.nan)
+    if x.size == 1:
+        return lambda t: np.full(np.shape(t), float(h[0]))
+    s0, s1 = _end_slope(x[:4], h[:4]), _end_slope(x[-4:], h[-4:])
 
     def f(t):
-        c = np.clip(t, x0, x1)
-        return spl(c) + d(c) * (t - c)
+        t = np.asarray(t, np.float64)
+        return np.interp(t, x, h) + np.where(t < x[0], s0 * (t - x[0]), 0.0) + \
+            np.where(t > x[-1], s1 * (t - x[-1]), 0.0)
     return f
+
+
+def _end_slope(x: np.ndarray, h: np.ndarray) -> float:
+    """The median of the pairwise slopes of a few end points (Theil-Sen)."""
+    a, b = np.triu_indices(x.size, 1)
+    dx = x[b] - x[a]
+    ok = dx != 0
+    return float(np.median((h[b] - h[a])[ok] / dx[ok])) if ok.any() else 0.0
 
 
 def envelope(x_m: np.ndarray, h_m: np.ndarray, s: Settings, *, upper: bool, skip: int = 0):
@@ -307,10 +297,24 @@ def envelope(x_m: np.ndarray, h_m: np.ndarray, s: Settings, *, upper: bool, skip
     return f, sigma, r
 
 
-def _median_curve(x: np.ndarray, h: np.ndarray):
-    """Running median of 5 consecutive points, linearly interpolated: a callable."""
-    m = ndimage.median_filter(h, size=min(5, h.size), mode="nearest")
-    return lambda t: np.interp(t, x, m)
+def _neighbour_residuals(x: np.ndarray, h: np.ndarray, *, half: int = 3) -> np.ndarray:
+    """(n,) each point's height less a Theil-Sen line (the median of the pairwise slopes,
+    the median intercept; robust to ~29 % outliers) through its up to ``half`` neighbours
+    either side, evaluated at its position: leave-one-out, so a point never explains
+    itself, and a line, so a slope is no outlier. Zero for fewer than 3 points."""
+    n = x.size
+    r = np.zeros(n)
+    if n < 3:
+        return r
+    for i in range(n):
+        j = np.r_[max(0, i - half):i, i + 1:min(n, i + half + 1)]
+        xj, hj = x[j], h[j]
+        a, b = np.triu_indices(j.size, 1)
+        dx = xj[b] - xj[a]
+        ok = dx != 0
+        slope = float(np.median((hj[b] - hj[a])[ok] / dx[ok])) if ok.any() else 0.0
+        r[i] = h[i] - (np.median(hj - slope * (xj - x[i])))
+    return r
 
 
 def _envelope_level(x, h, s: Settings, *, upper: bool, skip: int, bin_m: float):
@@ -329,58 +333,68 @@ def _envelope_level(x, h, s: Settings, *, upper: bool, skip: int, bin_m: float):
     xc, hc = xc[keep], hc[keep]
     if xc.size == 0:
         return None, 0.0, np.zeros(0)
-    good = np.ones(xc.size, bool)
+    # each candidate against what its neighbours say (:func:`_neighbour_residuals`): a
+    # lone outlier (a canopy bin's minimum, a noise photon) cannot hide, on any slope, and
+    # the candidates' scatter measures the surface's; the kept candidates, joined
     floor = s.min_buffer_m / s.outlier_sigmas
-    for it in range(s.max_iterations):
-        # first a running median of 5 candidates (a lone outlier cannot move it; a spline
-        # smoothed to the others' scatter would pass through it), then the spline
-        f = _median_curve(xc, hc) if it == 0 else _fit(xc[good], hc[good], sigma)
-        r = hc - f(xc)
-        sigma = max(_outer_sigma(r[good], upper=upper), floor)
-        new = np.abs(r) <= s.outlier_sigmas * sigma
-        if np.array_equal(new, good) or new.sum() < 2:
-            break
-        good = new
-    f = _fit(xc[good], hc[good], sigma)
-    r = hc[good] - f(xc[good])
-    return f, max(_outer_sigma(r, upper=upper), floor), r
+    r = _neighbour_residuals(xc, hc)
+    sigma = max(_outer_sigma(r, upper=upper), floor)
+    good = np.abs(r) <= s.outlier_sigmas * sigma
+    if good.sum() < 2:
+        good[:] = True
+    return _polyline(xc[good], hc[good]), sigma, r[good]
 
 
-def _outer_sigma(r: np.ndarray, *, upper: bool) -> float:
+def _outer_sigma(r: np.ndarray, *, upper: bool, strict: bool = True) -> float:
     """Robust spread of an envelope's candidates from its outer side only: the residuals
     below a lower envelope (above an upper one) are the surface's own scatter, while the
     inner side holds what the surface did not return in a bin (canopy over the ground,
     ground through a gap under the canopy top). For a normal scatter, 1.4826 x the median
     of ``|r|`` over the outer half is sigma; an envelope fitted above the ground sees the
     ground as outer residuals, so the cut tightens until the fit comes down to it."""
-    outer = r[r > 0] if upper else -r[r < 0]
+    if strict:               # about bin medians: the medians' own zero residuals left out
+        outer = r[r > 0] if upper else -r[r < 0]
+    else:                    # about a running median, which fits some candidates exactly
+        outer = r[r >= 0] if upper else -r[r <= 0]
     if outer.size == 0:
         return 0.0
     return float(np.median(outer) / MAD_PER_SIGMA)
+
+
+def _bin_medians(x: np.ndarray, h: np.ndarray, bin_m: float):
+    """:func:`_polyline` through the median position and height of the photons in each
+    ``bin_m`` along-track bin."""
+    b = np.floor((x - x.min()) / bin_m).astype(np.int64)
+    order = np.argsort(b, kind="stable")
+    b, xs, hs = b[order], x[order], h[order]
+    cuts = np.flatnonzero(np.r_[True, b[1:] != b[:-1], True])
+    xm = np.array([np.median(xs[i:j]) for i, j in zip(cuts[:-1], cuts[1:])])
+    hm = np.array([np.median(hs[i:j]) for i, j in zip(cuts[:-1], cuts[1:])])
+    return _polyline(xm, hm)
 
 
 def _final_ground(x, h, sig, gf, g_sigma: float, s: Settings) -> tuple[np.ndarray, float]:
     """The ground surface at every photon and its buffer [m]: the lower envelope ``gf`` is
     biased low (each candidate is its bin's lowest photon), so the spline is refitted
     through all signal photons within the buffer (ATBD 4.10's final ground), until the
-    selection stops changing; the buffer never widens (a wider one would take in canopy)."""
+    selection stops changing. The buffer is ``outlier_sigmas`` times the ground's spread
+    measured below the surface only (vegetation lies above it), over a first buffer ``b0``
+    (measured inside the current buffer instead, the spread would shrink with it), never
+    wider than ``b0``: the envelope's ``outlier_sigmas`` spreads, at least the ground
+    window's half height (the envelope's candidates are bin minima, whose scatter
+    understates the ground's own)."""
     g = gf(x)
-    buf = max(s.outlier_sigmas * g_sigma, s.min_buffer_m)
+    flat_h = min(w[1] for w in s.windows)
+    b0 = buf = max(s.outlier_sigmas * g_sigma, s.min_buffer_m, flat_h)
     sel = sig & (np.abs(h - g) <= buf)
     for _ in range(s.max_iterations):
         if sel.sum() < 2:
             break
-        xs, hs = x[sel], h[sel]
-        o = np.argsort(xs, kind="stable")
-        xs, hs = xs[o], hs[o]
-        u = np.r_[True, np.diff(xs) > 0]
-        if u.sum() < xs.size:                     # several photons of one shot: their mean
-            idx = np.cumsum(u) - 1
-            hs = np.bincount(idx, hs) / np.bincount(idx)
-            xs = xs[u]
-        f = _fit(xs, hs, buf / s.outlier_sigmas)
+        f = _bin_medians(x[sel], h[sel], s.envelope_bin_m)
         g = f(x)
-        buf = min(buf, max(s.outlier_sigmas * _robust_sigma(h[sel] - g[sel]), s.min_buffer_m))
+        wide = sig & (np.abs(h - g) <= b0)
+        buf = min(b0, max(s.outlier_sigmas * _outer_sigma(h[wide] - g[wide], upper=False),
+                          s.min_buffer_m))
         new = sig & (np.abs(h - g) <= buf)
         if np.array_equal(new, sel):
             break
