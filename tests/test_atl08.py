@@ -183,3 +183,19 @@ def test_h5coro_reads_ours(real_run):
     with h5py.File(path) as f:
         for n in names:
             assert np.array_equal(np.asarray(got[n]), f[n][()]), n
+
+
+@have_real
+def test_the_real_comparison_study(real_run):
+    """studies.atl08_real maps NASA's classes to the clip's ATL03 photons (every mapped photon
+    checked on delta_time: 1610 of the 1771 NASA lists; the rest lie beyond the clip's last
+    20 m segment), compares the 8 full segments, and prints its table."""
+    from lidar_mitsuba.studies import atl08_real
+    r = atl08_real.compare(REAL_ATL03, REAL_ATL08, "gt1r", ours=real_run[0])
+    assert r["n_segments"] == 8 and r["confusion"]["n_mapped"] == 1610
+    cm = np.array(r["confusion"]["matrix_nasa_rows_ours_cols"])
+    # the clip's photons inside 20 m segments; NASA's ground, canopy and top of canopy among
+    # them (the other 262 mapped it lists as noise)
+    assert cm.sum() == 6808 and cm[1:].sum() == 1348
+    assert "h_te_best_fit" in atl08_real.table(r)
+    assert atl08_real.pairs([REAL_DIR]) == [(REAL_ATL03, REAL_ATL08)]

@@ -262,6 +262,9 @@ def _cmd_validate(a) -> int:
                     cloud=_cloud(a.cloud))
         print(f"wrote {out / 'realism.md'}, {out / 'realism.json'} and "
               f"{out / 'realism_background.png'}")
+        from ..studies import atl08_real          # ATL03 + NASA's ATL08 pairs among them
+        if atl08_real.run(a.real, out, progress=print):
+            print(f"wrote {out / 'atl08_real.md'} and {out / 'atl08_real.json'}")
         return 0
     for flag, given in (("--signal-shots", a.signal_shots != 200), ("--cloud", a.cloud)):
         if given:

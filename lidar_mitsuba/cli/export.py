@@ -16,7 +16,8 @@ def add_parsers(sub) -> None:
                        "signal 1 / noise 7 by ATL03's confidence), beam spot as point source, "
                        "confidence as user data, photon rank in its shot as return number.")
     e.add_argument("file", metavar="ATL03.h5", help="ATL03 file")
-    e.add_argument("out", metavar="OUT.laz", help=".las or .laz (compressed) to write")
+    e.add_argument("--out", required=True, metavar="FILE.laz",
+                   help=".las or .laz (compressed) to write")
     e.add_argument("--beams", metavar="LIST", help="comma-separated beams (default: all)")
     e.add_argument("--no-classify", action="store_true", help="classes from ATL03's signal "
                    "confidence instead of our ATL08 classifier")
@@ -25,7 +26,7 @@ def add_parsers(sub) -> None:
                        "top of canopy) and write 100 m terrain and canopy segments laid out as "
                        "NASA's ATL08 (docs/guide/atl08.md).")
     a.add_argument("file", metavar="ATL03.h5", help="ATL03 file (ours or NASA's)")
-    a.add_argument("out", metavar="OUT.h5", help="ATL08-like HDF5 to write")
+    a.add_argument("--out", required=True, metavar="FILE.h5", help="ATL08-like HDF5 to write")
     a.add_argument("--beams", metavar="LIST", help="comma-separated beams (default: all)")
 
 
@@ -41,7 +42,7 @@ def _beams(text: str | None) -> list[str] | None:
 
 def cmd_export_las(a) -> int:
     from ..products import las
-    out = out_path(a.out, (".las", ".laz"), option="OUT")
+    out = out_path(a.out, (".las", ".laz"))
     pts = read_input(a.file, lambda p: las.photons(p, beams=_beams(a.beams),
                                                    classify=not a.no_classify))
     las.write(pts, out)
@@ -52,7 +53,7 @@ def cmd_export_las(a) -> int:
 def cmd_atl08(a) -> int:
     import h5py
     from ..products import atl08, las
-    out = out_path(a.out, (".h5",), option="OUT")
+    out = out_path(a.out, (".h5",))
     beams = _beams(a.beams) or read_input(a.file, lambda p: las._beams_in(h5py.File(p, "r")))
     made = [read_input(a.file, lambda p, b=b: atl08.from_atl03(p, b)) for b in beams]
     atl08.write(made, out)

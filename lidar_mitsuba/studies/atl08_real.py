@@ -19,11 +19,13 @@ ATL08 = REAL_DIR + "ATL08_gt1r_20220401_forest_wyoming.h5"
 F4_FILL = np.finfo(np.float32).max
 
 
-def compare(atl03_path: str = ATL03, atl08_path: str = ATL08, beam: str = "gt1r") -> dict:
-    """The comparison (module docstring) as a JSON-able dict."""
+def compare(atl03_path: str = ATL03, atl08_path: str = ATL08, beam: str = "gt1r", *,
+            ours=None) -> dict:
+    """The comparison (module docstring) as a JSON-able dict; ``ours``: our
+    :class:`~lidar_mitsuba.products.atl08.Atl08Beam` of the ATL03 beam, if already made."""
     import h5py
     from ..products import atl08
-    ours = atl08.from_atl03(atl03_path, beam)
+    ours = ours if ours is not None else atl08.from_atl03(atl03_path, beam)
     d = atl08.read_atl03_beam(atl03_path, beam)
     with h5py.File(atl08_path) as f:
         ls, sp = f[f"{beam}/land_segments"], f[f"{beam}/signal_photons"]
@@ -105,3 +107,48 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+
+
+def pairs(paths) -> list[tuple[str, str]]:
+    """``(ATL03, ATL08)`` file pairs among ``paths`` (files, or folders: their ``*.h5``):
+    an ATL08 file and the ATL03 file of the same name with ``ATL03`` for ``ATL08``."""
+    import pathlib
+    files = []
+    for p in map(pathlib.Path, paths or []):
+        files += sorted(p.glob("*.h5")) if p.is_dir() else [p]
+    out = []
+    for f in files:
+        if f.name.startswith("ATL08"):
+            twin = f.with_name("ATL03" + f.name[5:])
+            if twin.exists():
+                out.append((str(twin), str(f)))
+    return out
+
+
+def run(paths, out_dir, *, progress=print) -> list[dict]:
+    """:func:`compare` on every ATL03/ATL08 pair among ``paths`` (:func:`pairs`), every beam
+    both have; writes ``atl08_real.md`` and ``atl08_real.json`` to ``out_dir`` when there is
+    one. Returns the results."""
+    import json
+    import pathlib
+    import h5py
+    results = []
+    for a03, a08 in pairs(paths):
+        with h5py.File(a08) as f8, h5py.File(a03) as f3:
+            beams = [b for b in f8 if b.startswith("gt") and b in f3]
+        for beam in beams:
+            progress(f"ATL08 classifier on {pathlib.Path(a03).name} {beam} against NASA's ATL08")
+            r = compare(a03, a08, beam)
+            r.update({"atl03": pathlib.Path(a03).name, "atl08": pathlib.Path(a08).name,
+                      "beam": beam})
+            results.append(r)
+    if results:
+        out = pathlib.Path(out_dir)
+        (out / "atl08_real.json").write_text(json.dumps(results, indent=1))
+        text = ["# Our ATL08 classifier against NASA's ATL08", "",
+                "Validation only: no constant of lidar_mitsuba.products.atl08 was set from "
+                "these files (docs/guide/atl08.md).", ""]
+        for r in results:
+            text += [f"## {r['atl03']} {r['beam']}", "", "```", table(r), "```", ""]
+        (out / "atl08_real.md").write_text("\n".join(text))
+    return results
