@@ -2,8 +2,8 @@
 
 Our own algorithm in the spirit of the ATL08 ATBD (Neuenschwander & Pitts, "ATBD for
 Land-Vegetation Along-Track Products (ATL08)", release 002, 2019, sec. 4: noise filtering by
-DRAGANN, de-trending, iterative ground finding with a smoothing spline, a top-of-canopy
-upper envelope, photon classification). Pure numpy/scipy; it works on any photon cloud given
+DRAGANN, de-trending, iterative ground finding, a top-of-canopy upper envelope, photon
+classification). Pure numpy/scipy; it works on any photon cloud given
 as along-track distance and height. The steps (:func:`classify_photons`):
 
 1. **Trend** (ATBD 4.5, "de-trend the data"): in along-track blocks of ``trend_block_m``
@@ -14,7 +14,8 @@ as along-track distance and height. The steps (:func:`classify_photons`):
 2. **Noise filter** (DRAGANN's idea, ATBD 4.3: count each photon's neighbours in a fixed
    search area; the background's count distribution is told apart from the signal's): the
    neighbours of each photon in rectangles ``|dx| <= a``, ``|dh - dtrend| <= b`` (self
-   excluded; one tall window for canopy, one flat for ground: ``Settings.windows``). Under background alone the count is Poisson with mean
+   excluded; one tall window for canopy, one flat for ground: ``Settings.windows``).
+   Under background alone the count is Poisson with mean
    ``lam = rho A`` (``rho``: background photons per m along track per m of height, ``A``
    the rectangle's area); a photon is signal when ``P(N >= n | lam) < false_alarm``. DRAGANN
    fits two Gaussians to the count histogram and cuts at their crossing; we cut where the
@@ -22,18 +23,22 @@ as along-track distance and height. The steps (:func:`classify_photons`):
    for any background rate. ``rho`` comes from the ATL03 background rate when known
    (``rate [Hz] * 2 / c`` per m of height per shot, times shots per metre) or is estimated
    from the cloud (:func:`background_density`).
-3. **Ground** (ATBD 4.6-4.10, iterative filtering of the lowest photons with a smoothing
-   spline): the lowest signal photon of each ``envelope_bin_m`` (5 m) bin; a cubic smoothing
-   spline through them, smoothed to the candidates' own scatter (FITPACK's ``s = m
-   sigma^2``, so no tuned stiffness: :func:`_fit`); candidates farther than
-   ``outlier_sigmas`` (3) robust standard deviations from it (the spread measured on the
-   outer side, below the ground: :func:`_outer_sigma`) are dropped (canopy minima of
-   bins the ground did not return from, lie above; noise that passed the filter, below) and
-   the spline is fitted again, until none is dropped. Ground photons: within
-   ``g_buf = max(outlier_sigmas * sigma_g, min_buffer_m)`` of it, ``sigma_g`` the robust
-   spread of the final candidates about the spline.
-4. **Top of canopy** (ATBD 4.11, upper envelope): the same iteration on the highest photon
-   above the ground buffer in each bin. Photons above it by more than ``outlier_sigmas``
+3. **Ground** (ATBD 4.6-4.10, iterative filtering of the lowest photons): the lowest photon
+   passing the ground's window in each along-track bin, coarse to fine
+   (``envelope_levels``: 40, 20, 10, 5 m; each level searches only near the previous
+   level's surface, and a 40 m bin holds a ground photon even under a dense stand). Each
+   candidate is compared with a leave-one-out Theil-Sen line through its neighbours
+   (:func:`_neighbour_residuals`: an outlier cannot explain itself, a slope is no outlier);
+   those beyond ``outlier_sigmas`` (3) robust spreads, measured on the side below the ground
+   where no vegetation is (:func:`_outer_sigma`), are dropped (canopy minima of bins the
+   ground did not return from lie above; noise that passed the filter, below) and the rest
+   joined by lines (:func:`_polyline`: the ATBD's smoothing spline overshoots between close
+   candidates and across gaps). The final ground (:func:`_final_ground`): the line through
+   the medians of the signal photons within the buffer in 5 m bins, refitted until the
+   selection settles; ground photons lie within ``g_buf = max(outlier_sigmas * sigma_g,
+   min_buffer_m)`` of it, ``sigma_g`` the spread below it.
+4. **Top of canopy** (ATBD 4.11, upper envelope): the same on the highest photon above the
+   ground buffer in each bin, the spread measured above it. Photons above it by more than ``outlier_sigmas``
    robust spreads are noise; canopy photons within one robust spread below it (or above it
    up to the noise cut) are top of canopy.
 5. **Classes** (``classed_pc_flag``): 0 noise (filtered out, below the ground buffer or
@@ -47,7 +52,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage, spatial, stats
+from scipy import spatial, stats
 
 from ...constants import C_M_PER_NS
 
@@ -239,16 +244,13 @@ def expected_passing(background_per_m2: np.ndarray, s: Settings, *, height_m: fl
     return int(round(rho * s.envelope_bin_m * height_m))
 
 
-def _robust_sigma(r: np.ndarray) -> float:
-    return float(np.median(np.abs(r - np.median(r))) / MAD_PER_SIGMA) if r.size else 0.0
-
-
 def _polyline(x: np.ndarray, h: np.ndarray):
     """Linear interpolation through ``(x, h)`` (``x`` increasing), continued beyond the end
-    points along the slope of the last few (:func:`_end_slope`); a callable. A smoothing spline (the ATBD's) overshoots by tens of metres
-    between close points of different heights (two bins' extremes at a shared edge) and
-    across the gaps a dense canopy leaves; the candidates are already bin extremes or bin
-    medians, so the line between them is the smoothing."""
+    points along the slope of the last few (:func:`_end_slope`); a callable. A smoothing
+    spline (the ATBD's) overshoots by tens of metres between close points of different
+    heights (two bins' extremes at a shared edge) and across the gaps a dense canopy
+    leaves; the candidates are already bin extremes or bin medians, so the line between
+    them is the smoothing."""
     if x.size == 0:
         return lambda t: np.full(np.shape(t), np.nan)
     if x.size == 1:
@@ -275,11 +277,12 @@ def envelope(x_m: np.ndarray, h_m: np.ndarray, s: Settings, *, upper: bool, skip
     fine: at each bin size of ``envelope_levels`` (times ``envelope_bin_m``) the ``skip +
     1``-th most extreme photon of each bin (``skip``: the background photons expected to
     pass the noise filter beyond the surface in one bin, :func:`expected_passing`), among
-    the photons within the previous level's cut of its surface; a smoothing spline refitted
-    without the candidates beyond ``outlier_sigmas`` robust spreads until none is dropped.
-    A coarse bin almost surely holds a ground photon even under a dense canopy, and its
-    surface keeps the finer levels' canopy-only bins out. Returns ``(surface callable or
-    None, robust sigma [m], the candidates' residuals)``."""
+    the photons within the previous level's cut of its surface; candidates beyond
+    ``outlier_sigmas`` robust spreads of their neighbours' line are dropped and the rest
+    joined (:func:`_envelope_level`). A coarse bin almost surely holds a ground photon even
+    under a dense canopy, and its surface keeps the finer levels' canopy-only bins out.
+    Returns ``(surface callable or None, robust sigma [m], the kept candidates'
+    residuals)``."""
     x, h = np.asarray(x_m, np.float64), np.asarray(h_m, np.float64)
     if x.size == 0:
         return None, 0.0, np.zeros(0)
@@ -329,7 +332,7 @@ def _envelope_level(x, h, s: Settings, *, upper: bool, skip: int, bin_m: float):
     pick = order[rank == np.minimum(skip, run_len - 1)]
     pick = pick[np.argsort(x[pick], kind="stable")]
     xc, hc = x[pick], h[pick]
-    keep = np.r_[True, np.diff(xc) > 0]               # strictly increasing for the spline
+    keep = np.r_[True, np.diff(xc) > 0]               # strictly increasing for the line
     xc, hc = xc[keep], hc[keep]
     if xc.size == 0:
         return None, 0.0, np.zeros(0)
@@ -375,7 +378,7 @@ def _bin_medians(x: np.ndarray, h: np.ndarray, bin_m: float):
 
 def _final_ground(x, h, sig, gf, g_sigma: float, s: Settings) -> tuple[np.ndarray, float]:
     """The ground surface at every photon and its buffer [m]: the lower envelope ``gf`` is
-    biased low (each candidate is its bin's lowest photon), so the spline is refitted
+    biased low (each candidate is its bin's lowest photon), so the line is refitted
     through all signal photons within the buffer (ATBD 4.10's final ground), until the
     selection stops changing. The buffer is ``outlier_sigmas`` times the ground's spread
     measured below the surface only (vegetation lies above it), over a first buffer ``b0``
