@@ -41,8 +41,8 @@ class Atl08Beam:
     """One beam's ATL08: ``segments`` (``group/name`` -> array, :data:`GROUPS` but the
     photons), ``photons`` (``signal_photons`` fields), the ``classification`` of the ATL03
     photons inside 20 m segments and their 0-based ATL03 indices ``atl03_index``, the beam's
-    group attributes, and ``truth`` (``name`` -> (array, units, description), empty when the
-    input has none)."""
+    group attributes, ``truth`` (``name`` -> (array, units, description), empty when the
+    input has none), and the input's ``orbit_info`` datasets (icepyx reads them)."""
     beam: str
     segments: dict
     photons: dict
@@ -51,6 +51,7 @@ class Atl08Beam:
     attrs: dict = field(default_factory=dict)
     truth: dict = field(default_factory=dict)
     source: str = ""
+    orbit_info: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.segments["land_segments/segment_id_beg"].size)
@@ -106,6 +107,8 @@ def read_atl03_beam(path: str | os.PathLike, beam: str) -> dict:
             out["bckgrd_hz"] = np.interp(out["delta_time_s"], b["delta_time"][()],
                                          b["bckgrd_rate"][()])
         out["shots_per_m"] = _shots_per_m(out["seg_x_m"], out["seg_dt_s"])
+        out["orbit_info"] = ({k: v[()] for k, v in f["orbit_info"].items()}
+                             if "orbit_info" in f else {})
         t = f.get(f"truth/{beam}")
         if t is not None and "shots" in t:
             out["truth_along_m"] = t["shots/along_track_m"][()]
@@ -157,7 +160,7 @@ def from_atl03(path: str | os.PathLike, beam: str = "gt1l", *,
                    if d["seg_x_m"].size > 1 else 20.0)
     return Atl08Beam(beam=beam, segments=segs, photons=photons, classification=c,
                      atl03_index=np.flatnonzero(ok), attrs=d["attrs"], truth=truth,
-                     source=os.fspath(path))
+                     source=os.fspath(path), orbit_info=d["orbit_info"])
 
 
 def _truth(d: dict, ok: np.ndarray, s: np.ndarray, segs: dict, *, seg_len_m: float) -> dict:
@@ -190,8 +193,9 @@ def write(beams: Atl08Beam | list, path: str | os.PathLike, *,
     ATL08 (``<beam>/land_segments``, ``.../terrain``, ``.../canopy``,
     ``<beam>/signal_photons``; dtypes, fill values, ``units``/``long_name``/``description``
     attributes of :data:`GROUPS`), with ``METADATA`` (:mod:`lidar_mitsuba.products.metadata`)
-    and the truth under ``/truth/<beam>``. ``instrument``: the ATLAS of the METADATA's
-    acquisition (default :meth:`~lidar_mitsuba.instrument.Instrument.atlas`)."""
+    the input's ``orbit_info``, ``ancillary_data/atlas_sdp_gps_epoch``, and the truth under
+    ``/truth/<beam>``. ``instrument``: the ATLAS of the METADATA's acquisition (default
+    :meth:`~lidar_mitsuba.instrument.Instrument.atlas`)."""
     from ...instrument import Instrument
     from ..atl03 import atomic_h5file
     from ..atl03.file import utc
@@ -217,11 +221,36 @@ def write(beams: Atl08Beam | list, path: str | os.PathLike, *,
                        process="Photons of an ATL03 file classified and aggregated into "
                        "100 m segments by lidar_mitsuba.products.atl08 (not NASA's ATL08 "
                        "software): " + ", ".join(sorted({b.source for b in beams})))
+        _orbit_and_ancillary(f, beams[0].orbit_info, t0, t1)
         for b in beams:
             _write_beam(f, b)
             lat = b.segments["land_segments/latitude"]
             extend_extent(f, lat, b.segments["land_segments/longitude"])
     return path
+
+
+def _orbit_and_ancillary(f, orbit: dict, t0: float, t1: float) -> None:
+    """``orbit_info`` (the input's: icepyx reads it) and the ``ancillary_data`` times a
+    real ATL08 carries (icepyx reads the epoch and the data's start and end)."""
+    from ..atl03.file import gps_week_sow, utc
+    from ..las import ATLAS_SDP_GPS_EPOCH_S
+    for k, v in orbit.items():
+        f.create_dataset(f"orbit_info/{k}", data=v)
+    a = f.create_group("ancillary_data")
+
+    def put(name, value, units):
+        a.create_dataset(name, data=np.array([value])).attrs["units"] = np.bytes_(units)
+    put("atlas_sdp_gps_epoch", ATLAS_SDP_GPS_EPOCH_S, "seconds since 1980-01-06T00:00:00Z")
+    for when, t in (("start", t0), ("end", t1)):
+        put(f"data_{when}_utc", utc(t), "1")
+        put(f"granule_{when}_utc", utc(t), "1")
+        put(f"{when}_delta_time", t, "seconds since 2018-01-01")
+        week, sow = gps_week_sow(t)
+        put(f"{when}_gpsweek", np.int32(week), "weeks")
+        put(f"{when}_gpssow", sow, "seconds")
+        for key, src in (("rgt", "rgt"), ("cycle", "cycle_number"), ("orbit", "orbit_number")):
+            v = orbit.get(src)
+            put(f"{when}_{key}", np.int32(v[0] if v is not None and np.size(v) else 0), "1")
 
 
 def _beam_of(b: Atl08Beam):
@@ -253,11 +282,40 @@ def _write_beam(f, b: Atl08Beam) -> None:
             ds.attrs["source"] = np.bytes_("lidar_mitsuba.products.atl08")
             if fld.fill is not None:
                 ds.attrs.create("_FillValue", fld.fill, dtype=fld.dtype)
+    _scales(f, g)
     if b.truth:
         t = f.require_group(f"truth/{b.beam}")
         for name, (data, units, desc) in b.truth.items():
             ds = t.create_dataset(name, data=data)
             ds.attrs["units"], ds.attrs["description"] = units, desc
+
+
+COLUMN_SCALES = {"ds_metrics": len(RH_PERCENTILES), "ds_geosegments": SEGMENTS_PER_LAND_SEGMENT}
+"""The root dimension scales of a real ATL08's second axes: the 18 canopy metrics, the five
+20 m geosegments."""
+
+
+def _scales(f, g) -> None:
+    """Dimension scales as in real granules: ``land_segments/delta_time`` for axis 0 of every
+    dataset of ``land_segments`` and its ``terrain`` and ``canopy`` groups,
+    ``signal_photons/delta_time`` for the photons', and the root :data:`COLUMN_SCALES` for
+    second axes (xarray and icepyx then open the nested groups on the segments' times)."""
+    for name, n in COLUMN_SCALES.items():
+        if name not in f:
+            f.create_dataset(name, data=np.arange(1, n + 1, dtype=np.int32)).make_scale(name)
+    by_columns = {n: f[name] for name, n in COLUMN_SCALES.items()}
+    for top, groups in (("land_segments", ("land_segments", "land_segments/terrain",
+                                           "land_segments/canopy")),
+                        ("signal_photons", ("signal_photons",))):
+        t = g[f"{top}/delta_time"]
+        t.make_scale("delta_time")
+        for grp in groups:
+            for name, ds in g[grp].items():
+                if name == "delta_time" and grp == top or not hasattr(ds, "dims"):
+                    continue
+                ds.dims[0].attach_scale(t)
+                if ds.ndim == 2:
+                    ds.dims[1].attach_scale(by_columns[ds.shape[1]])
 
 
 def read(path: str | os.PathLike, beam: str) -> dict:
