@@ -201,6 +201,7 @@ def test_the_real_comparison_study(real_run):
     assert atl08_real.pairs([REAL_DIR]) == [(REAL_ATL03, REAL_ATL08)]
 
 
+@pytest.mark.slow     # ~18 s alone, ~15 s of it importing icepyx (test_campaign imports it too)
 @have_real
 def test_icepyx_reads_ours_offline(real_run, monkeypatch):
     """icepyx (2.0.2) reads our ATL08 from the disk with no network (any connection raises):
