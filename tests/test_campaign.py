@@ -57,6 +57,18 @@ grain_levels_um = [150, 1000]
 """
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _small_kernel_tables():
+    """This module checks the campaign's plumbing (which tables, where, the same table to the
+    bit however it is run), not a table's precision (tests/test_snow_kernel.py does): its
+    tables, built here and read by the Dask workers it starts, have 2^13 walk photons a node."""
+    from lidar_mitsuba.ground.snow import kernel
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("LIDAR_MITSUBA_KERNEL_PHOTONS", str(1 << 13))
+        mp.setattr(kernel, "PHOTONS", 1 << 13)
+        yield
+
+
 @pytest.fixture(scope="module")
 def spec_path(tmp_path_factory):
     """A 20 x 6 km DEM (80 m posting, no hole) that four repeat-orbit tracks cross with both
