@@ -4,6 +4,7 @@ dtypes, trailing shapes, fill values), opened by the readers that open the real 
 from __future__ import annotations
 
 import math
+import pathlib
 
 import h5py
 import numpy as np
@@ -12,10 +13,11 @@ import pytest
 from lidar_mitsuba.products import atl08
 from lidar_mitsuba.products.atl08 import classify as C, fields
 
-REAL_DIR = "/work/shared/real/"
-REAL_ATL08 = REAL_DIR + "ATL08_gt1r_20220401_forest_wyoming.h5"
-REAL_ATL03 = REAL_DIR + "ATL03_gt1r_20220401_forest_wyoming.h5"
-have_real = pytest.mark.skipif(not __import__("os").path.exists(REAL_ATL08),
+REAL_DIR = pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "real"
+"""The real files beside the repository (as tests/test_realism.py finds them)."""
+REAL_ATL08 = REAL_DIR / "ATL08_gt1r_20220401_forest_wyoming.h5"
+REAL_ATL03 = REAL_DIR / "ATL03_gt1r_20220401_forest_wyoming.h5"
+have_real = pytest.mark.skipif(not REAL_ATL08.exists(),
                                reason="the real forest clip is not on this machine")
 
 SHOT_M = 0.7            # ATLAS's along-track shot spacing [m]
@@ -198,36 +200,5 @@ def test_the_real_comparison_study(real_run):
     # them (the other 262 mapped it lists as noise)
     assert cm.sum() == 6808 and cm[1:].sum() == 1348
     assert "h_te_best_fit" in atl08_real.table(r)
-    assert atl08_real.pairs([REAL_DIR]) == [(REAL_ATL03, REAL_ATL08)]
+    assert atl08_real.pairs([REAL_DIR]) == [(str(REAL_ATL03), str(REAL_ATL08))]
 
-
-@pytest.mark.slow     # ~18 s alone, ~15 s of it importing icepyx (test_campaign imports it too)
-@have_real
-def test_icepyx_reads_ours_offline(real_run, monkeypatch):
-    """icepyx (2.0.2) reads our ATL08 from the disk with no network (any connection raises):
-    the product and release from METADATA, the orbit from orbit_info, and the nested
-    terrain and canopy groups on the segments' times (dimension scales, as in real
-    granules), to the values h5py reads. The real clip it cannot read: its subsetter dropped
-    METADATA, where icepyx parses the release."""
-    import socket
-    import warnings
-
-    def no_network(*args, **kwargs):
-        raise AssertionError(f"a reader went to the network: {args[1:]}")
-    monkeypatch.setattr(socket.socket, "connect", no_network)
-    monkeypatch.setattr(socket, "getaddrinfo", no_network)
-    import icepyx as ipx
-    path = real_run[1]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        reader = ipx.Read(str(path))
-        assert reader.product == "ATL08"
-        reader.variables.append(var_list=["h_te_best_fit", "terrain_slope"])
-        ds = reader.load()
-        with pytest.raises(Exception, match="version"):
-            ipx.Read(REAL_ATL08).variables.append(var_list=["h_te_best_fit"])
-    with h5py.File(path) as f:
-        want = f["gt1r/land_segments/terrain/h_te_best_fit"][()]
-    got = ds["h_te_best_fit"].values.ravel()
-    np.testing.assert_array_equal(got[np.isfinite(got)], want[want < fields.F4_FILL])
-    assert int(ds["rgt"].values[0]) == 150

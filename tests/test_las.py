@@ -5,7 +5,7 @@ LASzip, which laspy only calls to compress)."""
 from __future__ import annotations
 
 import io
-import os
+import pathlib
 import struct
 
 import numpy as np
@@ -13,8 +13,9 @@ import pytest
 
 from lidar_mitsuba.products import las
 
-REAL_ATL03 = "/work/shared/real/ATL03_gt1r_20220401_forest_wyoming.h5"
-pytestmark = pytest.mark.skipif(not os.path.exists(REAL_ATL03),
+REAL_ATL03 = (pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "real"
+              / "ATL03_gt1r_20220401_forest_wyoming.h5")
+pytestmark = pytest.mark.skipif(not REAL_ATL03.exists(),
                                 reason="the real forest clip is not on this machine")
 
 POINT6 = np.dtype([("X", "<i4"), ("Y", "<i4"), ("Z", "<i4"), ("intensity", "<u2"),
