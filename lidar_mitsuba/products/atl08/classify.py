@@ -403,7 +403,8 @@ def classify_photons(*, x_m: np.ndarray, h_m: np.ndarray,
         return out
     fit = final_ground(x, h, sig, gf(x), None, min_sigma_m=s.min_buffer_m / s.outlier_sigmas,
                        min_bin_m=s.envelope_bin_m,
-                       max_bin_m=s.envelope_bin_m * max(s.envelope_levels), depth0_m=flat_h)
+                       max_bin_m=s.envelope_bin_m * max(s.envelope_levels), depth0_m=flat_h,
+                       background_per_m2=float(np.median(rho)))
     ground[:] = fit.surface_m
     out.ground_buffer_m = fit.lower_m
     out.ground_top_m = fit.upper_m
