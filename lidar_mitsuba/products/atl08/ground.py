@@ -15,13 +15,16 @@ Here the ground's return is taken as what the instrument makes it: heights norma
 surface with spread ``sigma`` (the pulse, 0.1 m for ATLAS, widened by slope and roughness over
 the footprint), and vegetation only *above* it. So:
 
-1. **Fit window, asymmetric** (:data:`LOWER_SIGMAS` below, :data:`UPPER_SIGMAS` above the
-   current surface): the lower part of the ground's return and one spread above it, which
-   vegetation beginning more than a spread above the ground does not reach.
+1. **Fit window, asymmetric**: from :data:`LOWER_SIGMAS` spreads below the current surface
+   up to the ground band's top (step 5): over bare ground 3 spreads (a symmetric window,
+   whose median is the centre whatever the return's shape), under a dense understorey down
+   to one (:data:`UPPER_SIGMAS`), which vegetation beginning more than a spread above the
+   ground does not reach.
 2. **Surface**: the first surface smoothed at the fit's bin (along-track bins holding
    ~:data:`GROUND_PER_BIN` ground photons), plus, in each bin, the median residual in the
    window less the median a normal variable has in that window
-   (:func:`truncated_normal_median`: ``-0.199 sigma`` for ``[-3, 1] sigma``), joined by lines:
+   (:func:`truncated_normal_median`: ``-0.199 sigma`` for ``[-3, 1] sigma``, 0 for
+   ``[-3, 3]``), joined by lines:
    its fixed point is the ground's centre, whatever lies above the window.
 3. **Spread** from the curvature of the ground's lower flank (:func:`_flank_fit`): a Poisson
    maximum-likelihood fit of a normal plus the known background to the histogram of the
@@ -53,7 +56,8 @@ LOWER_SIGMAS = 3.0
 """Fit window and ground band below the surface, in ground spreads: the usual 3-sigma tail
 (0.13 % of ground photons beyond it); below the ground there is only background."""
 UPPER_SIGMAS = 1.0
-"""Fit window above the surface, in ground spreads. ESTIMATE: the window holds 84 % of the
+"""The least top of the fit window and of the ground band above the surface, in ground
+spreads (under a dense understorey). ESTIMATE: the window holds 84 % of the
 ground's return, while vegetation must begin within one spread (0.1-0.5 m) of the ground to
 enter. Narrower (0.5) keeps more of a dense understorey out of a 0.4 m ground's fit but leaves
 the flank too short to measure a rough ground's spread (on the synthetic clouds of
@@ -78,10 +82,11 @@ ln 5 / ln 1.25 ~ 7 refits, and the surface, starting on the lower envelope (with
 two of the centre), moves by up to ~1.2 spreads a refit."""
 
 
-def truncated_normal_median(lo: float, hi: float) -> float:
-    """Median of a standard normal variable restricted to ``[-lo, hi]`` [standard deviations]."""
+def truncated_normal_median(lo: float, hi):
+    """Median of a standard normal variable restricted to ``[-lo, hi]`` [standard deviations]
+    (``hi`` scalar or array)."""
     a, b = stats.norm.cdf(-lo), stats.norm.cdf(hi)
-    return float(stats.norm.ppf(0.5 * (a + b)))
+    return stats.norm.ppf(0.5 * (a + b))
 
 
 @dataclass
@@ -171,16 +176,18 @@ def final_ground(x: np.ndarray, h: np.ndarray, sig: np.ndarray, start_m: np.ndar
     start = np.asarray(start_m, np.float64)
     g = start.copy()
     sigma = min_sigma_m if sigma0_m is None else max(float(sigma0_m), min_sigma_m)
-    m0 = truncated_normal_median(LOWER_SIGMAS, UPPER_SIGMAS)
     mass = stats.norm.cdf(UPPER_SIGMAS) - stats.norm.cdf(-LOWER_SIGMAS)
     span = max(float(np.ptp(x[sig])) if sig.any() else 0.0, min_bin_m)
     x0 = float(x.min()) if x.size else 0.0
     bin_m = max_bin_m
     for _ in range(MAX_ITERATIONS):
         r = h - g
-        keep = sig & (r >= -LOWER_SIGMAS * sigma) & (r <= UPPER_SIGMAS * sigma)
+        # the window's top: the ground band's (the equal-odds height, 1 to 3 spreads)
+        top = _upper_edge(x, r, sig, sigma, bin_m, x0)
+        keep = sig & (r >= -LOWER_SIGMAS * sigma) & (r <= top)
         if keep.sum() < 2:
             break
+        m0 = truncated_normal_median(LOWER_SIGMAS, top / sigma)
         per_m = keep.sum() / mass / span                  # ground photons per metre
         bin_m = float(np.clip(GROUND_PER_BIN / per_m, min_bin_m, max_bin_m))
         # the first surface smoothed at this bin (the lower envelope passes through single
