@@ -33,16 +33,18 @@ as along-track distance and height. The steps (:func:`classify_photons`):
    where no vegetation is (:func:`_outer_sigma`), are dropped (canopy minima of bins the
    ground did not return from lie above; noise that passed the filter, below) and the rest
    joined by lines (:func:`_polyline`: the ATBD's smoothing spline overshoots between close
-   candidates and across gaps). The final ground (:func:`_final_ground`): the line through
-   the medians of the signal photons within the buffer in 5 m bins, refitted until the
-   selection settles; ground photons lie within ``g_buf = max(outlier_sigmas * sigma_g,
-   min_buffer_m)`` of it, ``sigma_g`` the spread below it.
+   candidates and across gaps). The final ground
+   (:func:`lidar_mitsuba.products.atl08.ground.final_ground`): the ground's centre fitted from
+   its lower side (a window 3 spreads below and 1 above the surface, less a normal's
+   median in it), its spread from the curvature of its lower flank, climbing from the
+   pulse's; ground photons lie from 3 spreads below the centre to the height where the
+   ground's density falls to that of the vegetation above it (1 to 3 spreads).
 4. **Top of canopy** (ATBD 4.11, upper envelope): the same on the highest photon above the
-   ground buffer in each bin, the spread measured above it. Photons above it by more than ``outlier_sigmas``
-   robust spreads are noise; canopy photons within one robust spread below it (or above it
-   up to the noise cut) are top of canopy.
-5. **Classes** (``classed_pc_flag``): 0 noise (filtered out, below the ground buffer or
-   above the canopy), 1 ground, 2 canopy (between the ground buffer and the top-of-canopy
+   ground band in each bin, the spread measured above it. Photons above it by more than
+   ``outlier_sigmas`` robust spreads are noise; canopy photons within one robust spread
+   below it (or above it up to the noise cut) are top of canopy.
+5. **Classes** (``classed_pc_flag``): 0 noise (filtered out, below the ground band or
+   above the canopy), 1 ground, 2 canopy (between the ground band and the top-of-canopy
    band), 3 top of canopy.
 
 Constants not from a source are marked ESTIMATE in :class:`Settings`.
@@ -55,6 +57,7 @@ import numpy as np
 from scipy import spatial, stats
 
 from ...constants import C_M_PER_NS
+from .ground import final_ground
 
 NOISE, GROUND, CANOPY, TOP_OF_CANOPY = 0, 1, 2, 3
 """ATL08 ``classed_pc_flag`` values (ATL08 data dictionary: 0 noise, 1 ground, 2 canopy,
@@ -96,9 +99,9 @@ class Settings:
             a 40 m bin of ~57 shots misses the ground with probability e^-5.7 ~ 0.3 %).
         outlier_sigmas: envelope outlier cut and buffer, in robust standard deviations
             (3: the usual normal-tail cut, 0.27 % of good points).
-        min_buffer_m: floor of the ground buffer [m]: 3 x ATLAS's pulse sigma in height
-            (1.5 ns FWHM -> 0.64 ns -> 0.096 m; ATLAS as flown, docs/guide/atlas.md), so a
-            flat bare surface keeps its own returns.
+        min_buffer_m: floor of the ground band's depth [m]: 3 x ATLAS's pulse sigma in
+            height (1.5 ns FWHM -> 0.64 ns -> 0.096 m; ATLAS as flown, docs/guide/atlas.md);
+            the ground's spread starts from, and never falls below, a third of it.
         max_iterations: envelope refits at most.
     """
     trend_block_m: float = 20.0
@@ -122,9 +125,12 @@ class Classification:
         is_signal: (n,) bool: passed the noise filter (ATL08's ``d_flag``).
         ground_h_m: (n,) the ground surface at each photon [m] (NaN where none was found).
         toc_h_m: (n,) the top-of-canopy surface at each photon [m] (NaN where none).
-        ground_buffer_m: the ground buffer half width [m].
+        ground_buffer_m: the ground band's depth below the ground surface [m].
         background_per_m2: (n,) the background density used at each photon [1/(m m)].
         h_m: (n,) the photon heights classified [m].
+        ground_top_m: (n,) the ground band's height above the ground surface [m]
+            (:func:`lidar_mitsuba.products.atl08.ground.final_ground`); NaN where no ground.
+        ground_sigma_m: the ground return's fitted spread [m] (0 where no ground).
     """
     classes: np.ndarray
     is_signal: np.ndarray
@@ -133,6 +139,8 @@ class Classification:
     ground_buffer_m: float
     background_per_m2: np.ndarray
     h_m: np.ndarray
+    ground_top_m: np.ndarray | float = np.nan
+    ground_sigma_m: float = 0.0
 
     @property
     def h_rel_m(self) -> np.ndarray:
@@ -364,47 +372,6 @@ def _outer_sigma(r: np.ndarray, *, upper: bool, strict: bool = True) -> float:
     return float(np.median(outer) / MAD_PER_SIGMA)
 
 
-def _bin_medians(x: np.ndarray, h: np.ndarray, bin_m: float):
-    """:func:`_polyline` through the median position and height of the photons in each
-    ``bin_m`` along-track bin."""
-    b = np.floor((x - x.min()) / bin_m).astype(np.int64)
-    order = np.argsort(b, kind="stable")
-    b, xs, hs = b[order], x[order], h[order]
-    cuts = np.flatnonzero(np.r_[True, b[1:] != b[:-1], True])
-    xm = np.array([np.median(xs[i:j]) for i, j in zip(cuts[:-1], cuts[1:])])
-    hm = np.array([np.median(hs[i:j]) for i, j in zip(cuts[:-1], cuts[1:])])
-    return _polyline(xm, hm)
-
-
-def _final_ground(x, h, sig, gf, g_sigma: float, s: Settings) -> tuple[np.ndarray, float]:
-    """The ground surface at every photon and its buffer [m]: the lower envelope ``gf`` is
-    biased low (each candidate is its bin's lowest photon), so the line is refitted
-    through all signal photons within the buffer (ATBD 4.10's final ground), until the
-    selection stops changing. The buffer is ``outlier_sigmas`` times the ground's spread
-    measured below the surface only (vegetation lies above it), over a first buffer ``b0``
-    (measured inside the current buffer instead, the spread would shrink with it), never
-    wider than ``b0``: the envelope's ``outlier_sigmas`` spreads, at least the ground
-    window's half height (the envelope's candidates are bin minima, whose scatter
-    understates the ground's own)."""
-    g = gf(x)
-    flat_h = min(w[1] for w in s.windows)
-    b0 = buf = max(s.outlier_sigmas * g_sigma, s.min_buffer_m, flat_h)
-    sel = sig & (np.abs(h - g) <= buf)
-    for _ in range(s.max_iterations):
-        if sel.sum() < 2:
-            break
-        f = _bin_medians(x[sel], h[sel], s.envelope_bin_m)
-        g = f(x)
-        wide = sig & (np.abs(h - g) <= b0)
-        buf = min(b0, max(s.outlier_sigmas * _outer_sigma(h[wide] - g[wide], upper=False),
-                          s.min_buffer_m))
-        new = sig & (np.abs(h - g) <= buf)
-        if np.array_equal(new, sel):
-            break
-        sel = new
-    return g, buf
-
-
 def classify_photons(*, x_m: np.ndarray, h_m: np.ndarray,
                      background_per_m2: np.ndarray | float | None = None,
                      settings: Settings | None = None) -> Classification:
@@ -436,16 +403,22 @@ def classify_photons(*, x_m: np.ndarray, h_m: np.ndarray,
                               skip=expected_passing(rho, s, height_m=flat_h))
     if gf is None:
         return out
-    ground[:], g_buf = _final_ground(x, h, sig, gf, g_sigma, s)
-    out.ground_buffer_m = g_buf
+    fit = final_ground(x, h, sig, gf(x), None, min_sigma_m=s.min_buffer_m / s.outlier_sigmas,
+                       min_bin_m=s.envelope_bin_m,
+                       max_bin_m=s.envelope_bin_m * max(s.envelope_levels), depth0_m=flat_h,
+                       background_per_m2=float(np.median(rho)))
+    ground[:] = fit.surface_m
+    out.ground_buffer_m = fit.lower_m
+    out.ground_top_m = fit.upper_m
+    out.ground_sigma_m = fit.sigma_m
     dz = h - ground
-    is_ground = sig & (np.abs(dz) <= g_buf)
+    is_ground = sig & (dz >= -fit.lower_m) & (dz <= fit.upper_m)
     classes[is_ground] = GROUND
-    above = sig & (dz > g_buf)
+    above = sig & (dz > fit.upper_m)
     tf, t_sigma, _ = envelope(x[above], h[above], s, upper=True)
     if tf is None:
         return out
-    toc[:] = np.maximum(tf(x), ground + g_buf)
+    toc[:] = np.maximum(tf(x), ground + fit.upper_m)
     dt = h - toc
     canopy = above & (dt <= s.outlier_sigmas * t_sigma)
     classes[canopy] = CANOPY
