@@ -104,6 +104,7 @@ class WriterProcess:
             pass_fds=(r_child, w_child), env=env, stdin=subprocess.DEVNULL)
         os.close(r_child)
         os.close(w_child)
+        self.owner = os.getpid()
         self.out = Connection(w_parent, readable=False)
         self.back = Connection(r_parent, writable=False)
         self.jobs: queue.Queue = queue.Queue(maxsize=MAX_QUEUED)
@@ -113,7 +114,9 @@ class WriterProcess:
         self.feeder.start()
 
     def alive(self) -> bool:
-        return self.proc.poll() is None and self.failed is None
+        """Usable by this process (not a forked child's copy, nor ended, nor cut off)."""
+        return (self.owner == os.getpid() and self.proc.poll() is None
+                and self.failed is None)
 
     def _feed(self) -> None:
         while True:
@@ -223,7 +226,7 @@ def writer(mode: str | None = None):
         return None
     w = _WRITER[0]
     if w is None or not w.alive():
-        if w is not None:
+        if w is not None and w.owner == os.getpid():
             w.stop()
         w = _WRITER[0] = WriterProcess()
     return w
@@ -233,7 +236,7 @@ def _serve(conn_in: Connection, conn_out: Connection) -> None:
     """The writer process: one granule's files at a time, until its parent closes the pipe.
     A failure is sent back at once (``error``); the granule's later sections are dropped,
     and its close or abort answered ``done``."""
-    from . import granule  # noqa: F401  (the heavy imports, before the first section)
+    _warm_up()
     files, failed = None, False
     while True:
         try:
@@ -269,6 +272,14 @@ def _serve(conn_in: Connection, conn_out: Connection) -> None:
                 conn_out.send(("done", None))
             else:
                 failed = True
+
+
+def _warm_up() -> None:
+    """The writer's imports, and the compiled ATL06 fit loaded from numba's cache when it is
+    there (never compiled here: a short track does not use it), before the first section."""
+    from . import granule, precompile  # noqa: F401
+    if precompile._cached("products.atl06.kernel", ("fit_segment", "reference_heights")):
+        precompile._atl06()
 
 
 def _picklable(e: BaseException):
