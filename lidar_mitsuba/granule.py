@@ -34,7 +34,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import __version__, geotrack, precompile as warmup
+from . import __version__, geotrack, granule_writer, precompile as warmup
 from .products import atl06, cloud_flags, h5write as h5chunks
 from .ground.snow import kernel as snow_kernel
 from .products.atl03 import _ds, atomic_h5file
@@ -452,7 +452,7 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                    max_depth: int | str = "auto",
                    progress: bool = True, section_shots: int = SECTION_SHOTS,
                    segment_options: dict | None = None, orbit_info: dict | None = None,
-                   **simulate_options) -> list[BeamSummary]:
+                   writer: str | None = None, **simulate_options) -> list[BeamSummary]:
     """Simulate a granule section by section straight into its ATL03 (and ATL06) files, so
     memory is bounded by a section (``section_shots`` shots) for a track of any length.
 
@@ -470,10 +470,11 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     plan). Likewise ``roughness(beam, k)``: the roughness heightfield (or None) of the
     section, on ``surface`` (``replace(surface, roughness=...)``), planned anew where it is
     not the same object as the one before. ``orbit_info``: the files' ``orbit_info`` labels of
-    a repeat-orbit track (``rgt``, ``cycle_number``, ``orbit_number``). Returns each beam's
-    running statistics.
+    a repeat-orbit track (``rgt``, ``cycle_number``, ``orbit_number``). ``writer``: where the
+    files are written (:func:`lidar_mitsuba.granule_writer.writer`: ``"process"``, a process
+    of its own beside the simulation, the default on POSIX; ``"inline"``, this thread; the
+    same files either way). Returns each beam's running statistics.
     """
-    import contextlib
     simulate_options.pop("keep_returns", None)     # sections keep no traced returns
     if isinstance(beams, str):
         beams = geotrack.select_beams(beams, sc_orient)
@@ -494,8 +495,6 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     if max(st.n_shots for st in streams) * spacing / SEGMENT_M >= atl06.COMPILE_MIN_SEGMENTS:
         # one engine for every section of a long track (its short last section too)
         seg_options.setdefault("engine", "compiled")
-    for st in streams:
-        st.segments = _SegmentStream(dict(seg_options))
     snow = simulate_options.get("snow")
     if isinstance(snow, SnowVolume) and simulate_options.get("snow_model", "auto") != "walk":
         snow_kernel.table(snow, progress=progress)    # the snow's kernel, before the bar
@@ -505,37 +504,37 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
         warmup.compile_kernels(atl06=seg_options.get("engine") == "compiled")
         bar = tqdm(total=sum(st.n_shots for st in streams), desc="granule", unit="shot",
                    delay=2.0, leave=False)
+    files = granule_writer.writer(writer)
     try:
-        with contextlib.ExitStack() as stack:
-            f3 = stack.enter_context(atomic_h5file(atl03_path))
-            _atl03_header(f3, meta, instruments, t_first, t_last, path=atl03_path)
-            fits = None
-            if atl06_path is not None:
-                f6 = stack.enter_context(atomic_h5file(atl06_path))
-                _atl06_header(f6, meta, instruments, t_first, t_last, path=atl06_path,
-                              atl03_path=atl03_path)
-                fits = stack.enter_context(_Fits(f6, sc_orient))
-            _sections(streams, n_sections, ctx, f3, fits, bar, seed=seed, sc_orient=sc_orient,
-                      paths_per_shot=paths_per_shot, max_depth=max_depth, **simulate_options)
+        opened = dict(meta=meta, instruments=instruments, t_first=t_first, t_last=t_last,
+                      atl03_path=atl03_path, atl06_path=atl06_path, sc_orient=sc_orient,
+                      segment_options=seg_options, beams=beams)
+        if files is None:                   # in this thread
+            files = granule_writer.GranuleFiles(**opened)
+        else:                               # in the writer process
+            files.open(**opened)
+        _sections(streams, n_sections, ctx, files, bar, seed=seed, sc_orient=sc_orient,
+                  paths_per_shot=paths_per_shot, max_depth=max_depth, **simulate_options)
+        files.close()
+    except BaseException:
+        if files is not None:
+            files.abort()
+        raise
     finally:
         if bar is not None:
             bar.close()
     return [st.summary for st in streams]
 
 
-def _sections(streams, n_sections: int, ctx, f3, fits, bar, **kw) -> None:
+def _sections(streams, n_sections: int, ctx, files, bar, **kw) -> None:
     """Simulate every beam's sections, section by section (a section's beams in turn), into
-    the ATL03 file ``f3`` and the ATL06 fits ``fits`` (written as they finish, all at the
-    end), the progress ``bar`` following."""
+    ``files`` (a :class:`~lidar_mitsuba.granule_writer.GranuleFiles` or the writer process),
+    the progress ``bar`` following."""
     for k in range(n_sections):
         for st in streams:
-            done = st.section(k, ctx, f3, fits, **kw)
-            if fits is not None:
-                fits.write()
+            done = st.section(k, ctx, files, **kw)
             if bar is not None:
                 bar.update(done)
-    if fits is not None:
-        fits.write(wait=True)
 
 
 class _BeamStream:
@@ -551,13 +550,12 @@ class _BeamStream:
                                      section_shots=section_shots,
                                      along_m=_along_of(track, beam, self.n_shots, spacing))
         self.plan = None
-        self.segments: _SegmentStream | None = None
         self.summary = BeamSummary(beam=beam)
 
-    def section(self, k: int, ctx: _Context, f3, fits, *, seed: int, sc_orient: int,
+    def section(self, k: int, ctx: _Context, files, *, seed: int, sc_orient: int,
                 **plan_kw) -> int:
-        """Simulate section ``k`` (if the beam has it) into the ATL03 file ``f3`` and hand it
-        to the ATL06 fits (a :class:`_Fits`, or None); returns its shots."""
+        """Simulate section ``k`` (if the beam has it) and hand it to ``files`` (its ATL03
+        rows and ATL06 fit); returns its shots."""
         from .run import assemble, stream
         if k >= len(self.bounds):
             return 0
@@ -585,8 +583,6 @@ class _BeamStream:
                                      seed=_beam_seed(seed, self.beam, k))
         run = BeamRun(beam=self.beam, result=assemble(part, stream(part, keep_returns=False)),
                       first_shot=a)
-        _beam_atl03(f3, run, sc_orient, replanned=replanned)
-        if fits is not None:
-            fits.submit(self.beam, self.segments, run, last=k == len(self.bounds) - 1)
+        files.section(run, replanned=replanned, last=k == len(self.bounds) - 1)
         self.summary.add(run.result)
         return b - a

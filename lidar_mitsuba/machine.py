@@ -30,6 +30,7 @@ def available_memory_bytes() -> int:
 
 
 _pool: tuple[tuple[int, int], ThreadPoolExecutor] | None = None
+_CORES = max(1, os.cpu_count() or 1)     # (asked once: a writer process asks per chunk)
 
 
 def host_threads() -> int:
@@ -37,7 +38,7 @@ def host_threads() -> int:
     cores, or what a sweep task was given) once the renderer is loaded; before that (a pure
     stage, e.g. reading a file and fitting ATL06 segments) the cores."""
     if "drjit" not in sys.modules:
-        return max(1, os.cpu_count() or 1)
+        return _CORES
     import drjit as dr
     return max(1, int(dr.thread_count()))
 

@@ -606,7 +606,9 @@ def test_crossings_keep_every_beam_over_the_dem(spec_path, serial):
 # --------------------------------------------------------------------------- rasters
 def test_a_property_raster_is_read_by_window(tmp_path, monkeypatch):
     """Values along a 2 km track come from one small window of a 40 x 30 km raster (read by
-    rasterio's window, not whole), bilinear (exact on a linear gradient)."""
+    rasterio's window, not whole, as a raster above ``WHOLE_DEM_MAX_BYTES`` is: smaller ones
+    are read whole once), bilinear (exact on a linear gradient)."""
+    monkeypatch.setattr(dems, "WHOLE_DEM_MAX_BYTES", 0)
     dem = dems.synthetic_ice_sheet(tmp_path / "dem.tif", width_m=40000, length_m=30000,
                                    posting_m=100, hole=False)
     path = rasters.gradient_raster(tmp_path / "g.tif", like=dem, start=100, stop=1000)

@@ -223,6 +223,28 @@ def test_a_rewritten_dem_is_read_anew(tmp_path):
         assert surf.height_m(cx, cy) == pytest.approx(level)
 
 
+def test_windows_from_the_whole_dem_are_the_file_reads(dem_path, monkeypatch):
+    """A small DEM is read whole once and its windows sliced from memory: the same float64
+    windows (NaN over the nodata hole and off the DEM, bit for bit) and origins as rasterio's
+    windowed and boundless reads, on windows inside, across the hole and over every edge."""
+    dem = dems.DEM.open(dem_path)
+    x0, x1, y0, y1 = dem.bounds_m
+    rng = np.random.default_rng(7)
+    boxes = [(x0 - 500, x0 + 800, y0 - 300, y0 + 900), (x1 - 700, x1 + 400, y1 - 50, y1 + 50),
+             (x0 - 1e4, x0 - 9e3, y0, y0 + 100)]
+    for _ in range(20):
+        a, b = np.sort(rng.uniform(x0 - 300, x1 + 300, 2))
+        c, d = np.sort(rng.uniform(y0 - 300, y1 + 300, 2))
+        boxes.append((a, b, c, d))
+    whole = [dem.read_window(*box) for box in boxes]
+    monkeypatch.setattr(dems, "WHOLE_DEM_MAX_BYTES", 0)
+    assert any(np.isnan(z).any() and np.isfinite(z).any() for z, _ in whole)
+    for box, (z, origin) in zip(boxes, whole):
+        zf, of = dem.read_window(*box)
+        assert origin == of and z.dtype == zf.dtype and z.flags.c_contiguous
+        np.testing.assert_array_equal(z, zf)
+
+
 def test_roughness_has_no_wavelength_longer_than_the_posting():
     r = dems.roughness(p=1.8, relief_m=0.5, posting_m=16.0, grid_m=1.0, size_m=256.0)
     assert r.relief_m == pytest.approx(0.5)
@@ -515,7 +537,8 @@ def test_streamed_granule_sections_join_exactly(dem_path, tmp_path):
 
 def test_a_failed_fit_leaves_neither_file(dem_path, tmp_path, monkeypatch):
     """The ATL06 fits run on a thread of their own beside the simulation: a fit that fails
-    (here the third) stops the granule with its error, and neither file is left."""
+    (here the third) stops the granule with its error, and neither file is left (written
+    in this process, where the failing fit is patched in)."""
     calls = []
     real = granule._SegmentStream.fit
 
@@ -530,9 +553,60 @@ def test_a_failed_fit_leaves_neither_file(dem_path, tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="fit failed"):
         granule.stream_granule(surface=surf, track=TRACK, shots=2400, beams="gt2l,gt2r",
                                atl03_path=a3, atl06_path=a6, seed=5, progress=False,
-                               max_depth=1, section_shots=700)
+                               max_depth=1, section_shots=700, writer="inline")
     assert len(calls) >= 3        # (a fit already under way may finish first)
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def _h5_objects(path) -> dict:
+    """Every group and dataset of an HDF5 file: its attributes and, for a dataset, dtype,
+    shape, chunks, filters, fill value and bytes (object references as the names they name)."""
+    out = {}
+    with h5py.File(path, "r") as f:
+        def attrs(obj):
+            return {k: repr([[f[r].name for r in row] for row in v] if k == "DIMENSION_LIST"
+                            else [(f[r].name, int(i)) for r, i in v] if k == "REFERENCE_LIST"
+                            else v) for k, v in obj.attrs.items()}
+
+        def visit(name, obj):
+            if isinstance(obj, h5py.Dataset):
+                out[name] = (attrs(obj), obj.dtype.str, obj.shape, obj.chunks, obj.compression,
+                             obj.compression_opts, obj.shuffle, repr(obj.fillvalue),
+                             obj[()].tobytes())
+            else:
+                out[name] = attrs(obj)
+        f.visititems(visit)
+        out["/"] = attrs(f)
+    return out
+
+
+def test_the_writer_process_writes_the_same_files_and_reports_failures(dem_path, tmp_path):
+    """A granule written by the writer process (the default) and in the simulating thread:
+    the same objects, attributes, dataset bytes, dtypes, chunks, filters and fill values.
+    A failure in the writer (an ATL06 path it cannot create) stops the granule with its
+    error and leaves no file, and the same process writes the next granule."""
+    surf = dems.DEMSurface(dems.DEM.open(dem_path), tile_shots=512)
+    kw = dict(surface=surf, track=TRACK, shots=400, beams="gt2l,gt3r", seed=5,
+              progress=False, max_depth=1, paths_per_shot=16, section_shots=200)
+    for mode in ("inline", "process"):
+        (tmp_path / mode).mkdir()
+        granule.stream_granule(**kw, atl03_path=tmp_path / mode / "a3.h5",
+                               atl06_path=tmp_path / mode / "a6.h5", writer=mode)
+    for name in ("a3.h5", "a6.h5"):
+        a, b = (_h5_objects(tmp_path / m / name) for m in ("inline", "process"))
+        assert a.keys() == b.keys() and len(a) > 100
+        assert [k for k in a if a[k] != b[k]] == []
+        if name == "a3.h5":
+            h_ph = a["gt2l/heights/h_ph"]
+            assert h_ph[2][0] > 1000          # (its shape: photons were written)
+    (tmp_path / "bad").mkdir()
+    with pytest.raises(Exception, match="missing"):
+        granule.stream_granule(**kw, atl03_path=tmp_path / "bad" / "a3.h5",
+                               atl06_path=tmp_path / "missing" / "a6.h5", writer="process")
+    assert list((tmp_path / "bad").iterdir()) == []
+    granule.stream_granule(**kw, atl03_path=tmp_path / "bad" / "a3.h5", writer="process")
+    assert _h5_objects(tmp_path / "bad" / "a3.h5")["gt2l/heights/h_ph"] == \
+        _h5_objects(tmp_path / "inline" / "a3.h5")["gt2l/heights/h_ph"]
 
 
 def test_make_dem_writes_a_dem_that_opens_and_refuses_bad_sizes(tmp_path):

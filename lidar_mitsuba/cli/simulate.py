@@ -324,7 +324,8 @@ def _cloud_kw(a) -> dict:
 
 def _simulate_dem(a, out, plot) -> int:
     """``simulate --dem``: a granule of up to six beams along a ground track."""
-    from .. import geotrack, granule
+    from .. import geotrack, granule, granule_writer
+    granule_writer.writer()     # its process starts (imports) while this one sets up
     atl06_out = out_path(a.atl06, (".h5", ".hdf5"), "--atl06") if a.atl06 else None
     if a.scene is not None:
         raise UsageError("--scene", "give --dem or --scene, not both")

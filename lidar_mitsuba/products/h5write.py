@@ -59,6 +59,7 @@ _queued = [0]                                        # bytes of rows in _pending
 _tails: dict = {}           # (file key, dataset name) -> (dataset, first row, rows, level)
 _open: dict = {}            # (HDF5 file number, dataset name) -> _Entry of put(append=True)
 _made: dict = {}            # what a new dataset is made of -> (HDF5 type, creation plist, level)
+_chunk_rows: dict = {}      # (file key, dataset name) -> rows per chunk, of those _write cut
 
 
 def put(group, name: str, data, units: str, description: str, *, append: bool = False,
@@ -217,12 +218,14 @@ def _write(dset, start: int, data, *, dtype, level, key) -> None:
         if stop > start:
             dset[start:stop] = data
         return
-    rows = dset.chunks[0]
+    rows = _chunk_rows.get(key)
+    if rows is None:                  # (h5py's chunks property costs ~0.1 ms a call)
+        rows = _chunk_rows[key] = dset.chunks[0]
     a = -(-start // rows) * rows                       # first chunk boundary at or after start
     if start < a:                                      # a chunk begun by someone else
         dset[start:min(a, stop)] = data[:a - start]
     for c0 in range(a, stop - rows + 1, rows):
-        _submit(key[0], dset, c0, data[c0 - start:c0 - start + rows], level)
+        _submit(key[0], dset, c0, data[c0 - start:c0 - start + rows], level, rows)
     b = max(a, stop // rows * rows)
     if b < stop:
         _tails[key] = (dset, b, data[b - start:].copy(), level)
@@ -256,11 +259,12 @@ def discard(f) -> None:
         _queued[0] = sum(e[4] for e in keep)
 
 
-def _submit(file_key: bytes, dset, first_row: int, rows: np.ndarray, level: int) -> None:
+def _submit(file_key: bytes, dset, first_row: int, rows: np.ndarray, level: int,
+            chunk_rows: int | None = None) -> None:
     """Queue the chunk of ``dset`` (in the file ``file_key`` names) that starts at
     ``first_row`` (``rows``: all of it, or its first rows, then padded with the dataset's fill
     value) for compression."""
-    n = dset.chunks[0]
+    n = dset.chunks[0] if chunk_rows is None else chunk_rows
     if rows.shape[0] < n:
         rows = np.concatenate([rows, np.full((n - rows.shape[0],) + rows.shape[1:],
                                              dset.fillvalue, rows.dtype)])
@@ -313,6 +317,8 @@ def _forget(file_key: bytes) -> None:
     """Drop the appended datasets of the file ``file_key`` names (it is about to close)."""
     for k in [k for k, e in list(_open.items()) if e.key[0] == file_key]:
         del _open[k]
+    for k in [k for k in _chunk_rows if k[0] == file_key]:
+        del _chunk_rows[k]
 
 
 def _file_key(obj) -> bytes:

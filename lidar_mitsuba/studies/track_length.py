@@ -8,11 +8,18 @@ peak RSS and its RSS before the run (imports, DEM opened), ``working_mb`` = peak
 the size of the files written, and ``kernels``, the distinct Dr.Jit kernels the run
 launched (up to 100 km): it must not grow with the tiles (each new kernel is an LLVM or CUDA
 compile, ~0.2 s, that the disk cache hides only on a repeat of the same terrain).
+
+The six-beam granule row runs the granule twice in its process, as a campaign's long-lived
+worker does: ``seconds`` is the second (warm: renderer, kernels, writer process and DEM
+already loaded), ``of_cast`` its ratio to casting the same rays alone, ``end_to_end_s`` the
+first granule's end counted from the interpreter's start (what a cold
+``lidar-mitsuba simulate`` pays) and ``end_to_end_over_warm`` the ratio of the two.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import pathlib
 import resource
 import subprocess
@@ -20,6 +27,8 @@ import sys
 import time
 
 import numpy as np
+
+from .. import granule
 
 #: the long test DEM: 10 km wide along the -45 meridian (a straight line x = 0 in EPSG:3413)
 DEM_WIDTH_M = 10_000.0
@@ -63,7 +72,7 @@ def cast_rate(surface, track, *, paths_per_shot: int, shots: int = 4096) -> floa
     ``track``'s first ``shots`` shots (``paths_per_shot`` rays a shot, Gaussian footprints):
     the bound a granule's pipeline is held against (median of 7 casts after 2)."""
     import drjit as dr
-    from .. import geotrack, granule
+    from .. import geotrack
     from ..trace.scene import scene_bounds
     from ..trace.variant import ensure_renderer
     mi = ensure_renderer()
@@ -91,50 +100,91 @@ def cast_rate(surface, track, *, paths_per_shot: int, shots: int = 4096) -> floa
     return n / float(np.median(times))
 
 
+def _process_age_s() -> float:
+    """Seconds since this process started (Linux's ``/proc``: the interpreter's start
+    included), or NaN where that is not known."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = float(f.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/uptime") as f:
+            uptime_s = float(f.read().split()[0])
+        return uptime_s - start_ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return float("nan")
+
+
+def _writer_peak_rss_mb() -> float | None:
+    """The writer process's peak resident memory [MB] (``VmHWM``), if one is running."""
+    from .. import granule_writer
+    w = granule_writer._WRITER[0]
+    try:
+        with open(f"/proc/{w.proc.pid}/status") as f:
+            return next(float(ln.split()[1]) / 1024.0 for ln in f if ln.startswith("VmHWM:"))
+    except (AttributeError, OSError, StopIteration):
+        return None
+
+
 def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
     """Run one length of ``beams`` in this process (call in a fresh one); with every beam,
-    also the time its rays alone take to cast (:func:`cast_rate`) and the run's ratio to it."""
-    import tempfile
+    the granule twice, as a long-lived worker runs granule after granule: the first (cold:
+    ``end_to_end_s`` counts from the interpreter's start, imports and the renderer's set-up
+    included) and the second (``seconds``: warm), against the time its rays alone take to
+    cast (:func:`cast_rate`)."""
     from ..trace.variant import ensure_renderer
     ensure_renderer()                  # libLLVM, variant, plugins
-    import drjit as dr
     from ..ground import dem
-    from .. import geotrack, granule
+    from .. import geotrack
     surf = dem.DEMSurface(dem.DEM.open(dem_path))
     shots = int(round(length_km * 1e3 / 0.7))
     before = _peak_rss_mb()
+    track = geotrack.GeoTrack(start_lat_deg=START_LAT, start_lon_deg=-45.0, azimuth_deg=0.0)
+    first = None
+    if beams == "all":                 # a worker's first granule, then the one reported
+        first = _granule(surf, track, shots, beams, count_kernels=False)
+        first.update(end_to_end_s=_process_age_s(), peak_rss_first_mb=_peak_rss_mb())
+    res = _granule(surf, track, shots, beams,
+                   count_kernels=length_km <= KERNELS_UP_TO_KM and first is None)
+    seconds, out = res["seconds"], res["out"]
+    peak = _peak_rss_mb()
+    sections = len(granule.section_bounds(shots, spacing_m=0.7,
+                                          section_shots=granule.SECTION_SHOTS))
+    row = {}
+    if first is not None:        # the same rays, cast alone: the pipeline's cost over them
+        rays = sum(o.shots * o.config["paths_per_shot"] * o.config["max_depth"] for o in out)
+        rate = cast_rate(surf, track, paths_per_shot=out[0].config["paths_per_shot"])
+        row = {"beams": len(out), "rays": int(rays), "cast_rays_per_s": rate,
+               "cast_s": rays / rate, "of_cast": seconds / (rays / rate),
+               "first_s": first["seconds"], "end_to_end_s": first["end_to_end_s"],
+               "end_to_end_over_warm": first["end_to_end_s"] / seconds,
+               "peak_rss_first_mb": first["peak_rss_first_mb"],
+               "writer_peak_rss_mb": _writer_peak_rss_mb()}
+    return {**row, "length_km": float(length_km), "shots": shots, "seconds": seconds,
+            "shots_per_s": shots / seconds, "peak_rss_mb": peak, "rss_before_mb": before,
+            "working_mb": peak - before, "files_mb": res["files_mb"], "sections": sections,
+            "tiles": -(-shots // surf.tile_shots), "kernels": res["kernels"],
+            "photons": out[0].photons, "bias_m": out[0].bias_m, "std_m": out[0].std_m}
+
+
+def _granule(surf, track, shots: int, beams: str, *, count_kernels: bool) -> dict:
+    """One streamed granule into a temporary folder: its wall time [s] (Dr.Jit's queue
+    synced), summaries, files' size [MB] and distinct kernels (when counted)."""
+    import tempfile
+    import drjit as dr
     with tempfile.TemporaryDirectory() as tmp:
         a3, a6 = pathlib.Path(tmp) / "ATL03.h5", pathlib.Path(tmp) / "ATL06.h5"
         t0 = time.perf_counter()
         # the history keeps every launch's code (~14 KB each: ~50 MB over 1000 km), which
         # the memory figures would count: kernels are counted up to KERNELS_UP_TO_KM only
-        count_kernels = length_km <= KERNELS_UP_TO_KM
         with dr.scoped_set_flag(dr.JitFlag.KernelHistory, count_kernels):
             out = granule.stream_granule(
-                surface=surf, track=geotrack.GeoTrack(start_lat_deg=START_LAT,
-                                                      start_lon_deg=-45.0, azimuth_deg=0.0),
-                shots=shots, beams=beams, max_depth=1, progress=False, paths_per_shot="auto",
-                atl03_path=a3, atl06_path=a6)
+                surface=surf, track=track, shots=shots, beams=beams, max_depth=1,
+                progress=False, paths_per_shot="auto", atl03_path=a3, atl06_path=a6)
+            dr.sync_thread()
             kernels = (len({k["hash"] for k in dr.kernel_history([dr.KernelType.JIT])})
                        if count_kernels else None)
         seconds = time.perf_counter() - t0
         files_mb = (a3.stat().st_size + a6.stat().st_size) / 2 ** 20
-    peak = _peak_rss_mb()
-    sections = len(granule.section_bounds(shots, spacing_m=0.7,
-                                          section_shots=granule.SECTION_SHOTS))
-    row = {}
-    if beams == "all":           # the same rays, cast alone: the pipeline's cost over them
-        rays = sum(o.shots * o.config["paths_per_shot"] * o.config["max_depth"] for o in out)
-        rate = cast_rate(surf, geotrack.GeoTrack(start_lat_deg=START_LAT, start_lon_deg=-45.0,
-                                                 azimuth_deg=0.0),
-                         paths_per_shot=out[0].config["paths_per_shot"])
-        row = {"beams": len(out), "rays": int(rays), "cast_rays_per_s": rate,
-               "cast_s": rays / rate, "of_cast": seconds / (rays / rate)}
-    return {**row, "length_km": float(length_km), "shots": shots, "seconds": seconds,
-            "shots_per_s": shots / seconds, "peak_rss_mb": peak, "rss_before_mb": before,
-            "working_mb": peak - before, "files_mb": files_mb, "sections": sections,
-            "tiles": -(-shots // surf.tile_shots), "kernels": kernels, "photons": out[0].photons,
-            "bias_m": out[0].bias_m, "std_m": out[0].std_m}
+    return {"seconds": seconds, "out": out, "files_mb": files_mb, "kernels": kernels}
 
 
 def run(*, out: pathlib.Path, quick: bool) -> list[dict]:

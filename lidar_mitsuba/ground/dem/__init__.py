@@ -78,6 +78,47 @@ def _open_for_reading(path):
     return ds
 
 
+#: a DEM of at most this many bytes (as float64) is read whole, once per process, and its
+#: windows are sliced from memory (a 100 km x 10 km DEM at 100 m is 0.8 MB; a granule reads
+#: ~860 windows, each ~0.1-0.4 ms of rasterio and masked-array work)
+WHOLE_DEM_MAX_BYTES = 64 * 2 ** 20
+_WHOLE: dict = {}
+_WHOLE_MAX = 2                  # DEMs held (a campaign's worker moves from DEM to DEM)
+_WHOLE_LOCK = threading.Lock()
+
+
+def _whole_band(path, width: int, height: int):
+    """The whole first band of ``path`` as float64 [m], nodata and non-finite values NaN
+    (what :meth:`DEM.read_window` makes of a window), read once per file version and
+    process; ``None`` when it is larger than :data:`WHOLE_DEM_MAX_BYTES`."""
+    if 8.0 * width * height > WHOLE_DEM_MAX_BYTES:
+        return None
+    st = os.stat(path)
+    key = (str(path), st.st_mtime_ns, st.st_size, os.getpid())
+    with _WHOLE_LOCK:
+        z = _WHOLE.get(key)
+        if z is None:
+            ds = _open_for_reading(path)
+            z = np.ma.filled(ds.read(1, masked=True).astype(np.float64), np.nan)
+            z[~np.isfinite(z)] = np.nan
+            z.setflags(write=False)
+            while len(_WHOLE) >= _WHOLE_MAX:
+                _WHOLE.pop(next(iter(_WHOLE)))
+            _WHOLE[key] = z
+    return z
+
+
+def _slice_padded(z: np.ndarray, row0: int, row1: int, col0: int, col1: int) -> np.ndarray:
+    """Rows ``row0 .. row1`` and columns ``col0 .. col1`` (inclusive) of ``z``, NaN where
+    they fall off it (as a boundless read fills them)."""
+    out = np.full((row1 - row0 + 1, col1 - col0 + 1), np.nan)
+    r0, r1 = max(row0, 0), min(row1, z.shape[0] - 1)
+    c0, c1 = max(col0, 0), min(col1, z.shape[1] - 1)
+    if r0 <= r1 and c0 <= c1:
+        out[r0 - row0:r1 - row0 + 1, c0 - col0:c1 - col0 + 1] = z[r0:r1 + 1, c0:c1 + 1]
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class DEM:
     """A north-up GeoTIFF DEM, read window by window.
@@ -143,7 +184,6 @@ class DEM:
         """The pixels covering ``[x0, x1] x [y0, y1]`` [m] (plus one on every side):
         ``(z, (ox, oy))``, ``z`` (ny, nx) float64 [m] with rows running south to north and
         ``z[0, 0]`` the pixel centred at (ox, oy); nodata and pixels off the DEM are NaN."""
-        rio = _rasterio()
         tr, g = self.transform, self.posting_m
         col0 = math.floor((x0 - tr.c) / g - 0.5) - 1
         col1 = math.ceil((x1 - tr.c) / g - 0.5) + 1
@@ -152,13 +192,18 @@ class DEM:
         check_memory("dem", 8.0 * (col1 - col0 + 1) * (row1 - row0 + 1),
                      f"a DEM window of {col1 - col0 + 1} x {row1 - row0 + 1} pixels",
                      "use a shorter track chunk")
-        win = rio.windows.Window(col0, row0, col1 - col0 + 1, row1 - row0 + 1)
-        inside = col0 >= 0 and row0 >= 0 and col1 < self.width and row1 < self.height
-        ds = _open_for_reading(self.path)       # (boundless reads go through a slow VRT)
-        z = ds.read(1, window=win, boundless=not inside, masked=True,
-                    fill_value=self.nodata if self.nodata is not None else np.nan)
-        z = np.ma.filled(z.astype(np.float64), np.nan)
-        z[~np.isfinite(z)] = np.nan
+        whole = _whole_band(self.path, self.width, self.height)
+        if whole is not None:
+            z = _slice_padded(whole, row0, row1, col0, col1)
+        else:
+            rio = _rasterio()
+            win = rio.windows.Window(col0, row0, col1 - col0 + 1, row1 - row0 + 1)
+            inside = col0 >= 0 and row0 >= 0 and col1 < self.width and row1 < self.height
+            ds = _open_for_reading(self.path)       # (boundless reads go through a slow VRT)
+            z = ds.read(1, window=win, boundless=not inside, masked=True,
+                        fill_value=self.nodata if self.nodata is not None else np.nan)
+            z = np.ma.filled(z.astype(np.float64), np.nan)
+            z[~np.isfinite(z)] = np.nan
         origin = (tr.c + (col0 + 0.5) * g, tr.f - (row1 + 0.5) * g)
         return np.ascontiguousarray(z[::-1]), origin     # the file's rows run north to south
 

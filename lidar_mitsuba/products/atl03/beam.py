@@ -287,8 +287,11 @@ def _bckgrd_rows(s: _Section) -> dict:
     sig = s.conf >= 2
     h = res.h_m[s.order][sig]
     lo, hi = np.full(n_rows, np.inf), np.full(n_rows, -np.inf)
-    np.minimum.at(lo, lr[s.shot[sig]], h)
-    np.maximum.at(hi, lr[s.shot[sig]], h)
+    at = lr[s.shot[sig]]              # (ascending: photons are in shot order)
+    if at.size:     # each row's extremes (ufunc.at took ~0.3 s a granule; a min is exact)
+        start = np.flatnonzero(np.r_[True, at[1:] != at[:-1]])
+        lo[at[start]] = np.minimum.reduceat(h, start)
+        hi[at[start]] = np.maximum.reduceat(h, start)
     first = np.searchsorted(lr, np.arange(n_rows))
     return {"row": row[0] + np.arange(n_rows), "counts": np.bincount(lr[s.shot], minlength=n_rows),
             "signal": np.bincount(lr[s.shot[sig]], minlength=n_rows),

@@ -1,0 +1,295 @@
+"""A streamed granule's ATL03 and ATL06 files, written beside the simulation (issue 43).
+
+:class:`GranuleFiles` holds the two files of one granule open and appends each section as
+it comes: its ATL03 rows (:func:`lidar_mitsuba.products.atl03.beam.write_beam`) and its ATL06
+fit (:class:`lidar_mitsuba.granule._Fits`, on a thread of its own); both files are written
+atomically (a failure leaves neither).
+
+:class:`WriterProcess` runs a :class:`GranuleFiles` in a process of its own, so the
+simulating thread never waits for HDF5 nor shares its interpreter lock with the writer (a
+writer *thread* gained nothing: the layout and the tracer's host work hold the GIL that
+HDF5's Python side needs). A section goes to it as a pickle (protocol 5: the arrays travel
+out of band, each one copy through a pipe, ~30 MB a six-beam section of 65 536 shots) from a
+feeder thread, at most :data:`MAX_QUEUED` sections waiting (memory stays a few sections);
+errors come back with the next section or at the close. The process lives as long as the
+process that started it (:func:`writer`: one per process, reused granule after granule, so
+a campaign worker pays its start, ~1 s of imports, once); the files are the same to the bit
+as those written in the simulating process (``tests/test_granule.py``).
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import pathlib
+import pickle
+import queue
+import subprocess
+import sys
+import threading
+import traceback
+from multiprocessing.connection import Connection
+
+#: sections waiting for the writer process before the simulating thread waits
+MAX_QUEUED = 2
+#: ``"process"``, ``"inline"`` (in the simulating thread) or ``"auto"`` (a process on POSIX)
+WRITER = os.environ.get("LIDAR_MITSUBA_WRITER", "auto")
+
+
+class GranuleFiles:
+    """The ATL03 (and ATL06, when ``atl06_path`` is given) file of one streamed granule: the
+    headers written on opening (``meta``: the :class:`~lidar_mitsuba.products.record.Granule`
+    without beams; ``instruments``: ``[(beam, Instrument)]``; ``t_first``, ``t_last`` [s since
+    the SDP epoch]), then :meth:`section` per section, then :meth:`close` (or :meth:`abort`)."""
+
+    def __init__(self, *, meta, instruments, t_first: float, t_last: float, atl03_path,
+                 atl06_path, sc_orient: int, segment_options: dict, beams):
+        from . import granule
+        from .products.atl03 import atomic_h5file
+        self.granule, self.sc_orient, self.fits = granule, int(sc_orient), None
+        self.stack = contextlib.ExitStack()
+        try:
+            self.f3 = self.stack.enter_context(atomic_h5file(atl03_path))
+            granule._atl03_header(self.f3, meta, instruments, t_first, t_last, path=atl03_path)
+            if atl06_path is not None:
+                f6 = self.stack.enter_context(atomic_h5file(atl06_path))
+                granule._atl06_header(f6, meta, instruments, t_first, t_last, path=atl06_path,
+                                      atl03_path=atl03_path)
+                self.fits = self.stack.enter_context(granule._Fits(f6, sc_orient))
+        except BaseException:
+            self.abort()
+            raise
+        self.segments = {b.name: granule._SegmentStream(dict(segment_options)) for b in beams}
+
+    def section(self, run, *, replanned: bool, last: bool) -> None:
+        """Append one section (a :class:`~lidar_mitsuba.products.record.BeamRun`) to ATL03
+        and hand it to the ATL06 fits (``last``: the beam's last section)."""
+        self.granule._beam_atl03(self.f3, run, self.sc_orient, replanned=replanned)
+        if self.fits is not None:
+            self.fits.submit(run.beam, self.segments[run.beam.name], run, last=last)
+            self.fits.write()
+
+    def close(self) -> None:
+        """Write the last fits and close both files (renamed into place)."""
+        try:
+            if self.fits is not None:
+                self.fits.write(wait=True)
+        except BaseException:
+            self.abort()
+            raise
+        self.stack.close()
+
+    def abort(self) -> None:
+        """Close both files as failed: neither is left."""
+        exc = RuntimeError("the granule was not finished")
+        self.stack.__exit__(type(exc), exc, None)
+
+
+class WriterError(RuntimeError):
+    """The writer process failed (its traceback is the message)."""
+
+
+class WriterProcess:
+    """A :class:`GranuleFiles` in a process of its own (see the module docstring): the same
+    methods, called from the simulating thread, which waits only when :data:`MAX_QUEUED`
+    sections are already waiting, and at :meth:`close`."""
+
+    def __init__(self):
+        r_child, w_parent = os.pipe()             # parent -> child
+        r_parent, w_child = os.pipe()             # child -> parent
+        root = str(pathlib.Path(__file__).resolve().parents[1])
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+            [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "lidar_mitsuba.granule_writer", str(r_child), str(w_child)],
+            pass_fds=(r_child, w_child), env=env, stdin=subprocess.DEVNULL)
+        os.close(r_child)
+        os.close(w_child)
+        self.owner = os.getpid()
+        self.out = Connection(w_parent, readable=False)
+        self.back = Connection(r_parent, writable=False)
+        self.jobs: queue.Queue = queue.Queue(maxsize=MAX_QUEUED)
+        self.failed: BaseException | None = None      # the feeder's (a broken pipe)
+        self.error = None                  # (exception, traceback) the child sent
+        self.feeder = threading.Thread(target=self._feed, name="lidar-writer-feed", daemon=True)
+        self.feeder.start()
+
+    def alive(self) -> bool:
+        """Usable by this process (not a forked child's copy, nor ended, nor cut off)."""
+        return (self.owner == os.getpid() and self.proc.poll() is None
+                and self.failed is None)
+
+    def _feed(self) -> None:
+        while True:
+            item = self.jobs.get()
+            if item is None:
+                return
+            try:
+                _send(self.out, item)
+            except BaseException as e:     # (a broken pipe: the child died)
+                self.failed = e
+
+    def _put(self, kind: str, payload) -> None:
+        if self.failed is not None:
+            raise WriterError(f"the writer process is gone ({self.failed!r})")
+        self.jobs.put((kind, payload))
+
+    def _read(self, *, until_done: bool) -> None:
+        """Read the child's messages (an ``error`` it sent when a section failed; ``ok`` or
+        ``done`` answering a close or abort): all that wait, or (``until_done``) up to the
+        answer."""
+        while until_done or self.back.poll():
+            try:
+                kind, value = self.back.recv()
+            except EOFError:
+                raise WriterError(f"the writer process ended (exit code "
+                                  f"{self.proc.wait()})") from None
+            if kind == "error":
+                self.error = value
+            elif until_done:
+                return
+
+    def _raise(self) -> None:
+        if self.error is not None:
+            (exc, text), self.error = self.error, None
+            if isinstance(exc, BaseException):
+                raise exc from WriterError(text)
+            raise WriterError(text)
+
+    def open(self, **files) -> None:
+        self.error = None
+        self._put("open", {**files, "cwd": os.getcwd()})   # (relative paths are the caller's)
+
+    def section(self, run, *, replanned: bool, last: bool) -> None:
+        self._read(until_done=False)      # a failed section: stop the granule now
+        self._raise()
+        self._put("section", (run, replanned, last))
+
+    def close(self) -> None:
+        self._put("close", None)
+        self._read(until_done=True)
+        self._raise()
+
+    def abort(self) -> None:
+        """Drop the granule's files (its simulation failed); the process stays usable."""
+        if self.alive():
+            self.jobs.put(("abort", None))
+            with contextlib.suppress(Exception):
+                self._read(until_done=True)
+        self.error = None
+
+    def stop(self) -> None:
+        self.jobs.put(None)
+        with contextlib.suppress(OSError):
+            self.out.close()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.proc.wait(timeout=10)
+
+
+def _send(conn: Connection, item) -> None:
+    """Pickle ``item`` (protocol 5) and send it, its contiguous arrays out of band."""
+    buffers: list = []
+    head = pickle.dumps(item, protocol=5, buffer_callback=buffers.append)
+    raws = [b.raw() for b in buffers]
+    conn.send((len(head), [r.nbytes for r in raws]))
+    conn.send_bytes(head)
+    for r in raws:
+        conn.send_bytes(r)
+
+
+def _receive(conn: Connection):
+    _, sizes = conn.recv()
+    head = conn.recv_bytes()
+    buffers = []
+    for n in sizes:
+        b = bytearray(n)                 # writable, as the arrays were
+        if n:
+            conn.recv_bytes_into(b)
+        else:
+            conn.recv_bytes()
+        buffers.append(b)
+    return pickle.loads(head, buffers=buffers)
+
+
+_WRITER: list = [None]
+
+
+def writer(mode: str | None = None):
+    """This process's :class:`WriterProcess` (started on first use, reused by every later
+    granule), or ``None`` to write in the simulating thread (``mode`` ``"inline"``, or
+    ``"auto"`` where processes cannot be started so: not POSIX). ``mode`` defaults to
+    :data:`WRITER` (the environment's ``LIDAR_MITSUBA_WRITER``)."""
+    mode = WRITER if mode is None else mode
+    if mode not in ("auto", "process", "inline"):
+        from .constants import ParameterError
+        raise ParameterError("writer", f"must be auto, process or inline (got {mode!r})")
+    if mode == "inline" or (mode == "auto" and os.name != "posix"):
+        return None
+    w = _WRITER[0]
+    if w is None or not w.alive():
+        if w is not None and w.owner == os.getpid():
+            w.stop()
+        w = _WRITER[0] = WriterProcess()
+    return w
+
+
+def _serve(conn_in: Connection, conn_out: Connection) -> None:
+    """The writer process: one granule's files at a time, until its parent closes the pipe.
+    A failure is sent back at once (``error``); the granule's later sections are dropped,
+    and its close or abort answered ``done``."""
+    _warm_up()
+    files, failed = None, False
+    while True:
+        try:
+            kind, payload = _receive(conn_in)
+        except EOFError:
+            break
+        try:
+            if kind == "open":
+                files, failed = None, False
+                os.chdir(payload.pop("cwd"))
+                files = GranuleFiles(**payload)
+            elif failed:
+                if kind in ("close", "abort"):
+                    failed = False
+                    conn_out.send(("done", None))
+            elif kind == "section":
+                run, replanned, last = payload
+                files.section(run, replanned=replanned, last=last)
+            else:                            # close or abort
+                f, files = files, None
+                if f is not None and kind == "close":
+                    f.close()
+                elif f is not None:
+                    f.abort()
+                conn_out.send(("ok", None))
+        except BaseException as e:   # noqa: BLE001 (sent back to the simulating process)
+            if files is not None:
+                with contextlib.suppress(BaseException):
+                    files.abort()
+                files = None
+            conn_out.send(("error", (_picklable(e), traceback.format_exc())))
+            if kind in ("close", "abort"):
+                conn_out.send(("done", None))
+            else:
+                failed = True
+
+
+def _warm_up() -> None:
+    """The writer's imports, and the compiled ATL06 fit loaded from numba's cache when it is
+    there (never compiled here: a short track does not use it), before the first section."""
+    from . import granule, precompile  # noqa: F401
+    if precompile._cached("products.atl06.kernel", ("fit_segment", "reference_heights")):
+        precompile._atl06()
+
+
+def _picklable(e: BaseException):
+    try:
+        pickle.loads(pickle.dumps(e))
+        return e
+    except Exception:                   # noqa: BLE001
+        return None
+
+
+if __name__ == "__main__":
+    _serve(Connection(int(sys.argv[1]), writable=False), Connection(int(sys.argv[2]),
+                                                                    readable=False))
