@@ -124,3 +124,38 @@ def test_forest_spec_and_errors():
     with pytest.raises(ParameterError) as e:
         ForestSurface(ground=lm.Plane(size_m=30.0), stand=f.stand, representation="voxels")
     assert e.value.name == "representation"
+
+
+@pytest.mark.parametrize("argv,option", [
+    (["--forest", "conifer:cover=1.5"], "--forest"),
+    (["--forest", "palm"], "--forest"),
+    (["--forest", "conifer:size=100", "--surface", "flat"], "--forest"),
+    (["--forest", "conifer", "--snow-grain-um", "100"], "--snow-grain-um"),
+    (["--forest", "conifer", "--scene", "scenes/slope.xml"], "--scene"),
+])
+def test_cli_forest_bad_values_exit_2(argv, option, tmp_path, capsys):
+    from cli_checks import bad_call
+    err = bad_call(["simulate", "--shots", "10", "--out", str(tmp_path / "x.h5"), *argv],
+                   capsys)
+    assert option in err
+    assert not (tmp_path / "x.h5").exists()
+
+
+def test_cli_forest_runs(tmp_path, capsys):
+    """The guide's command (docs/guide/forests.md) at a small size: a conifer stand over a
+    60 m plane, coarse facets, 30 shots; photons come back from the canopy and the ground,
+    the config says what was traced."""
+    from lidar_mitsuba.cli import main
+    out = tmp_path / "forest.h5"
+    assert main(["simulate", "--forest",
+                 "conifer:height=18,cover=0.6,lai=3,size=60,leaf_width=0.3,seed=2",
+                 "--beam", "strong", "--shots", "20", "--out", str(out), "--explain",
+                 "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "forest (explicit): " in text and "conifer" in text
+    assert out.is_file()
+    beam = lm.read_atl03(out)
+    assert beam["config"]["surface"]["kind"] == "forest"
+    assert beam["config"]["surface"]["stand"]["species"] == "conifer"
+    h = beam["h_m"][beam["is_signal"]]
+    assert np.any(np.abs(h) < 1.0) and np.any(h > 5.0)       # ground and canopy photons

@@ -1,7 +1,8 @@
 """The explicit representation of a stand: every leaf a facet, every stem a bark frustum.
 
-A :class:`~.stand.Stand`'s trees are drawn as instances of a few prototype trees (Mitsuba
-``shapegroup`` + ``instance``): the trees are sorted into ``classes`` height classes; each
+A :class:`~.stand.Stand`'s trees are copies of a few prototype trees, merged into one leaf
+mesh and one stem mesh per scene (Mitsuba instancing was measured slower: Dr.Jit traces each
+``instance`` into every kernel): the trees are sorted into ``classes`` height classes; each
 class has one prototype (the class's mean height, the crown base and radius in the class's
 mean proportion to height) holding
 
@@ -170,3 +171,37 @@ def trees_near(stand: Stand, bounds_xy_m: tuple[float, float, float, float] | No
         xs.append(x[ok])
         ys.append(y[ok])
     return np.concatenate(idx), np.concatenate(xs), np.concatenate(ys)
+
+
+def placed_meshes(protos: list[dict], idx: np.ndarray, place_m: np.ndarray, *,
+                  turn_deg: np.ndarray) -> tuple[tuple, tuple]:
+    """The trees ``idx`` (stand indices, (m,)) as copies of their prototypes, each scaled,
+    turned by ``turn_deg`` (m,) about the vertical and moved to ``place_m`` (m, 3) [m]:
+    ``((leaf vertices, leaf faces), (stem vertices, stem faces))``, float32 / uint32."""
+    out = {"leaves": ([], []), "stem": ([], [])}
+    count = {"leaves": 0, "stem": 0}
+    member_of = {}
+    for k, p in enumerate(protos):
+        for j, t in enumerate(p["members"]):
+            member_of[int(t)] = (k, float(p["scale"][j]))
+    which = np.array([member_of[int(t)][0] for t in idx], int)
+    scale = np.array([member_of[int(t)][1] for t in idx])
+    a = np.radians(turn_deg)
+    for k, p in enumerate(protos):
+        sel = np.flatnonzero(which == k)
+        if sel.size == 0:
+            continue
+        c, s_ = np.cos(a[sel]) * scale[sel], np.sin(a[sel]) * scale[sel]
+        for part in ("leaves", "stem"):
+            v, f = p[part]
+            v = v.astype(np.float32)
+            xs = c[:, None] * v[None, :, 0] - s_[:, None] * v[None, :, 1]
+            ys = s_[:, None] * v[None, :, 0] + c[:, None] * v[None, :, 1]
+            zs = scale[sel, None] * v[None, :, 2]
+            verts = np.stack([xs, ys, zs], axis=-1) + place_m[sel, None, :]
+            faces = (f[None, :, :] + (count[part] + len(v) * np.arange(sel.size))[:, None, None])
+            out[part][0].append(verts.reshape(-1, 3).astype(np.float32))
+            out[part][1].append(faces.reshape(-1, 3).astype(np.uint32))
+            count[part] += len(v) * sel.size
+    return tuple(tuple(np.concatenate(x) if x else np.zeros((0, 3)) for x in out[part])
+                 for part in ("leaves", "stem"))
