@@ -124,6 +124,10 @@ def test_forest_spec_and_errors():
     with pytest.raises(ParameterError) as e:
         ForestSurface(ground=lm.Plane(size_m=30.0), stand=f.stand, representation="voxels")
     assert e.value.name == "representation"
+    # a range gate that cuts the canopy is said
+    tall = forest_from_spec("conifer:height=18,size=30")
+    assert any("range gate" in w for w in tall.warnings(instrument=lm.Instrument()))
+    assert not tall.warnings(instrument=lm.Instrument(range_gate_m=60.0))
 
 
 @pytest.mark.parametrize("argv,option", [
@@ -149,7 +153,8 @@ def test_cli_forest_runs(tmp_path, capsys):
     out = tmp_path / "forest.h5"
     assert main(["simulate", "--forest",
                  "conifer:height=18,cover=0.6,lai=3,size=60,leaf_width=0.3,seed=2",
-                 "--beam", "strong", "--shots", "20", "--out", str(out), "--explain",
+                 "--beam", "strong", "--range-gate-m", "60", "--shots", "20", "--out",
+                 str(out), "--explain",
                  "--no-progress"]) == 0
     text = capsys.readouterr().out
     assert "forest (explicit): " in text and "conifer" in text

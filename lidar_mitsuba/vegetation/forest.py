@@ -202,7 +202,15 @@ class ForestSurface(Surface):
                                        triangles=triangles)
 
     def warnings(self, *, instrument) -> list[str]:
-        return self.ground.warnings(instrument=instrument)
+        out = self.ground.warnings(instrument=instrument)
+        top = float(self.stand.height_m.max()) if self.stand.n_trees else 0.0
+        half = instrument.range_gate_m / 2.0
+        if top > half:
+            out.append(f"the range gate (+-{half:g} m about the ground) cuts the canopy "
+                       f"(trees up to {top:.3g} m): photons from above are not recorded; "
+                       f"set range_gate_m (--range-gate-m) to at least "
+                       f"{2 * math.ceil(top + 2):g}")
+        return out
 
 
 class ForestTiles(Tiling):
