@@ -216,9 +216,7 @@ def run(a) -> int:
                 "--roughness-relief-m": a.roughness_relief_m}
     if a.dem is not None and a.water_wind_mps is not None:
         raise UsageError("--water-wind-mps", "does not apply to --dem")
-    if a.forest is not None and (a.dem is not None or a.like is not None):
-        raise UsageError("--forest", "applies to a built-in surface only (over a DEM: "
-                         "lm.forest(ground=lm.DEMSurface(...), bounds_m=...) in Python)")
+    _forest_only_on_built_in(a)
     if a.like is not None:
         return _simulate_like(a, out, plot)
     if a.dem is not None:
@@ -229,7 +227,6 @@ def run(a) -> int:
     from ..products import atl03
     from ..products.retrieval import format_report
     from ..run import simulate
-    from ..ground.surface import SurfaceSpec
 
     surface_given = opts.given(a, a._surface_opts)
     params = dict(a.define or [])
@@ -250,9 +247,7 @@ def run(a) -> int:
         raise UsageError("--snow-grain-um", "does not apply to --scene: put a <medium> inside "
                          "its terrain shape")
     water = _water_bsdf(a)
-    surface = None if a.scene else SurfaceSpec(**surface_given)
-    if a.forest is not None:
-        surface = _forest(a, surface if surface_given else None, water)
+    surface = _forest(a, surface_given, water)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SimulationWarning)     # printed below, our way
         res = simulate(instrument=inst, surface=surface,
@@ -292,15 +287,28 @@ def run(a) -> int:
     return 0
 
 
-def _forest(a, ground, water):
-    """``--forest``'s :class:`~lidar_mitsuba.vegetation.forest.ForestSurface` over ``ground``
-    (the ``--surface`` options' surface, or None: flat)."""
+def _forest_only_on_built_in(a) -> None:
+    """``--forest`` is refused with ``--dem`` and ``--like``."""
+    if a.forest is not None and (a.dem is not None or a.like is not None):
+        raise UsageError("--forest", "applies to a built-in surface only (over a DEM: "
+                         "lm.forest(ground=lm.DEMSurface(...), bounds_m=...) in Python)")
+
+
+def _forest(a, surface_given: dict, water):
+    """The run's surface: the ``--surface`` options' :class:`SurfaceSpec` (None with
+    ``--scene``), or with ``--forest`` a
+    :class:`~lidar_mitsuba.vegetation.forest.ForestSurface` over it (flat without
+    ``--surface`` options)."""
+    from ..ground.surface import SurfaceSpec
+    if a.forest is None:
+        return None if a.scene else SurfaceSpec(**surface_given)
     for flag, value in (("--scene", a.scene), ("--snow-grain-um", a.snow_grain_um),
                         ("--water-wind-mps", water)):
         if value is not None:
             raise UsageError(flag, "does not apply to --forest")
     from ..vegetation.forest import forest_from_spec
-    return forest_from_spec(a.forest, ground=None if ground is None else ground.build())
+    return forest_from_spec(a.forest, ground=(SurfaceSpec(**surface_given).build()
+                                              if surface_given else None))
 
 
 def _instrument(a) -> Instrument:

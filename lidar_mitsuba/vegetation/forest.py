@@ -164,7 +164,7 @@ class ForestSurface(Surface):
     def tiles(self, x_m, y_m, *, x_local_m, y_local_m, dz_m, reach_m: float, bsdf,
               crop: bool, chunk_shots: int) -> Tiling:
         """A corridor tile per chunk of at most :data:`TILE_SHOTS` shots
-        (:class:`ForestTiles`): the ground's mesh and the trees within ``reach_m`` of the
+        (``_ForestTiles``): the ground's mesh and the trees within ``reach_m`` of the
         chunk's shots (a DEM's own corridor tiles with the trees over them). ``crop`` False
         (``--full-tile``) is refused: a forest's tile is too many leaves to trace whole."""
         if hasattr(bsdf, "shapes"):
@@ -174,9 +174,10 @@ class ForestSurface(Surface):
         if not crop:
             raise ParameterError("crop_to_track", "a forest is traced in corridor tiles "
                                  "along the track (its whole tile is too many leaves)")
-        return ForestTiles(self, x_m, y_m, x_local_m=x_local_m, y_local_m=y_local_m,
+        return _ForestTiles(self, x_m, y_m, x_local_m=x_local_m, y_local_m=y_local_m,
                            dz_m=dz_m, reach_m=reach_m, bsdf=bsdf,
-                           chunk_shots=min(int(chunk_shots), TILE_SHOTS))
+                           chunk_shots=min(int(chunk_shots), TILE_SHOTS,
+                                           getattr(self.ground, "tile_shots", TILE_SHOTS)))
 
     # ------------------------------------------------------------ words
     def config(self) -> dict:
@@ -213,7 +214,7 @@ class ForestSurface(Surface):
         return out
 
 
-class ForestTiles(Tiling):
+class _ForestTiles(Tiling):
     """A forest's tiling: every chunk of shots traces its own corridor tile, built when the
     chunk is launched: the ground's mesh over the chunk's shots ``reach_m`` about them (a
     plane's or a heightfield's in the frame of the chunk's first shot, unwrapped; a DEM's own

@@ -83,14 +83,16 @@ class SpeciesPreset:
 
 
 #: Species presets. Sources:
+#:
 #: * lai: biome means of Asner, Scurlock & Hicke 2003 ("Global synthesis of leaf area index
-#:   observations", Global Ecol. Biogeogr. 12, 191-205, Table 2): evergreen needleleaf forest
-#:   5.5, deciduous broadleaf 5.1, shrubland 2.1. We take the lower quartile-ish values
+#:   observations", Global Ecol. Biogeogr. 12, 191-205): evergreen needleleaf forest 5.5,
+#:   deciduous broadleaf 5.1, shrubland 2.1 (as we recall them; not re-read here). We take
 #:   3.0 / 4.0 / 2.0 for conifer / broadleaf / shrub: ESTIMATE (the means include dense
 #:   plantations; a stand's own LAI should be passed when known).
 #: * clumping: He, Chen, Pisek, Schaaf & Strahler 2012 ("Global clumping index map derived from
-#:   the MODIS BRDF product", Remote Sens. Environ. 119, 118-130, Table 3), per-biome means:
-#:   evergreen needleleaf 0.62 ~ 0.6, deciduous broadleaf 0.70 ~ 0.7, shrubs 0.71 ~ 0.7 (rounded).
+#:   the MODIS BRDF product", Remote Sens. Environ. 119, 118-130): per-biome means of about
+#:   0.6 for evergreen needleleaf forests and 0.7 for broadleaf forests and shrubs (as we
+#:   recall them, rounded; not re-read here).
 #: * leaf_angle: needles and shrubs spherical (the usual assumption, Ross 1981); broadleaf
 #:   planophile (Pisek, Sonnentag, Richardson & Mottus 2013, "Is the spherical leaf inclination
 #:   angle distribution a valid assumption for temperate and boreal broadleaf tree species?",
@@ -98,7 +100,7 @@ class SpeciesPreset:
 #:   plagiophile, few spherical).
 #: * crown_shape: conifers cones, broadleaf ellipsoids (the shapes of the geometric-optical
 #:   models, Li & Strahler 1992, IEEE TGRS 30, 276-292); shrubs ellipsoids.
-#: * height_m, cover, crown_ratio, radius_ratio, height_cv, leaf_width_m: ESTIMATE (typical
+#: * height_m, cover, crown_ratio, radius_ratio, height_cv: ESTIMATE (typical
 #:   values: a conifer crown 1/10 of its height in radius over half its height, as lodgepole
 #:   pine; a broadleaf crown 1/4 of its height in radius over 60 %; a shrub as wide as tall;
 #:   10 % height variation in an even-aged stand). Pass the stand's own values when known.
