@@ -196,6 +196,10 @@ class ForestSurface(Surface):
                f"{s.crown_shape} crowns, LAI {s.lai():.3g}, leaf angles {s.leaf_angle}; "
                f"{triangles} triangles in the first corridor tile (copies of "
                f"{len(self.prototypes())} prototype trees)"]
+        if self.representation == "explicit" and s.clumping != 1:
+            out.append(f"leaves placed independently inside each crown (Omega 1 there): the "
+                       f"stand's clumping index {s.clumping:g} is not realised by explicit "
+                       f"leaves; between-crown gaps come from the crowns themselves")
         out.append(f"optics at 532 nm: {self.leaf.name} R {self.leaf.reflectance:g} "
                    f"T {self.leaf.transmittance:g}, bark {self.bark.reflectance:g}, floor "
                    f"{self.floor.reflectance:g}")
