@@ -196,10 +196,11 @@ class ForestSurface(Surface):
                f"{s.crown_shape} crowns, LAI {s.lai():.3g}, leaf angles {s.leaf_angle}; "
                f"{triangles} triangles in the first corridor tile (copies of "
                f"{len(self.prototypes())} prototype trees)"]
-        if self.representation == "explicit" and s.clumping != 1:
-            out.append(f"leaves placed independently inside each crown (Omega 1 there): the "
-                       f"stand's clumping index {s.clumping:g} is not realised by explicit "
-                       f"leaves; between-crown gaps come from the crowns themselves")
+        if self.representation == "explicit" and s.clumping < 1:
+            from .explicit import CLUSTER_LEAVES, cluster_radius
+            out.append(f"clumping index {s.clumping:g} inside the crowns: leaves in clusters "
+                       f"of {CLUSTER_LEAVES}, {100 * cluster_radius(s):.3g} cm in radius "
+                       f"(solved for it at nadir)")
         out.append(f"optics at 532 nm: {self.leaf.name} R {self.leaf.reflectance:g} "
                    f"T {self.leaf.transmittance:g}, bark {self.bark.reflectance:g}, floor "
                    f"{self.floor.reflectance:g}")
