@@ -163,10 +163,18 @@ class ForestSurface(Surface):
 
     def tiles(self, x_m, y_m, *, x_local_m, y_local_m, dz_m, reach_m: float, bsdf,
               crop: bool, chunk_shots: int) -> Tiling:
-        """A corridor tile per chunk of at most :data:`TILE_SHOTS` shots
-        (``_ForestTiles``): the ground's mesh and the trees within ``reach_m`` of the
-        chunk's shots (a DEM's own corridor tiles with the trees over them). ``crop`` False
-        (``--full-tile``) is refused: a forest's tile is too many leaves to trace whole."""
+        """Explicit leaves: a corridor tile per chunk of at most :data:`TILE_SHOTS` shots
+        (``_ForestTiles``): the ground's mesh and the trees within ``reach_m`` of the chunk's
+        shots (a DEM's own corridor tiles with the trees over them); ``crop`` False
+        (``--full-tile``) is refused: a forest's tile is too many leaves to trace whole. A
+        representation that adds no shapes to the scene: the ground's own tiling (one scene
+        for a plane or a tile, folded positions; a DEM's corridor tiles)."""
+        kw = dict(x_local_m=x_local_m, y_local_m=y_local_m, dz_m=dz_m, reach_m=reach_m,
+                  bsdf=bsdf, crop=crop, chunk_shots=chunk_shots)
+        if self.representation != "explicit":
+            if type(self.ground).tiles is Surface.tiles:
+                return Surface.tiles(self, x_m, y_m, **kw)
+            return self.ground.tiles(x_m, y_m, **kw)
         if hasattr(bsdf, "shapes"):
             raise ParameterError("snow", "a snow volume under a forest is not supported: "
                                  "give the floor snow's albedo (floor=vegetation.optics."
@@ -174,10 +182,9 @@ class ForestSurface(Surface):
         if not crop:
             raise ParameterError("crop_to_track", "a forest is traced in corridor tiles "
                                  "along the track (its whole tile is too many leaves)")
-        return _ForestTiles(self, x_m, y_m, x_local_m=x_local_m, y_local_m=y_local_m,
-                           dz_m=dz_m, reach_m=reach_m, bsdf=bsdf,
-                           chunk_shots=min(int(chunk_shots), TILE_SHOTS,
-                                           getattr(self.ground, "tile_shots", TILE_SHOTS)))
+        kw["chunk_shots"] = min(int(chunk_shots), TILE_SHOTS,
+                                getattr(self.ground, "tile_shots", TILE_SHOTS))
+        return _ForestTiles(self, x_m, y_m, **{k: v for k, v in kw.items() if k != "crop"})
 
     # ------------------------------------------------------------ words
     def config(self) -> dict:
