@@ -16,10 +16,9 @@ from lidar_mitsuba_plugins import canopy_table
 from lidar_mitsuba_plugins.constants import C_M_PER_NS, REFERENCE_ALBEDO
 
 _pathlength = sys.modules[f"lidar_mitsuba_plugins._{mi.variant()}_pathlength"]
+_fov_exit = _pathlength._fov_exit
 #: leaf normals per photon tried before giving up (acceptance >= 0.21 per try: 0.79^96 ~ 1e-10)
 NORMAL_TRIES = 96
-#: bisection steps locating the gap representation's canopy return (2^-24 of the path)
-BISECTIONS = 24
 
 
 class CanopyIntegrator(_pathlength.PathLengthIntegrator):
@@ -85,13 +84,16 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
     crowns it crosses), the ground's return times :math:`P = e^{-\tau}` (hot spot;
     :math:`P^2` without), and the canopy's, :math:`(1 - P)\,\pi\Gamma_b/(G\,0.9)`
     (:math:`(1 - P^2)/2` times it without), at the depth where the optical depth reaches
-    :math:`-\ln(1 - u(1 - P))` (bisection). Slot 1 the canopy, slot 2 the ground; both
+    :math:`-\ln(1 - u(1 - P))` (the piecewise-linear optical depth walked from chord end to
+    chord end, the chords in local memory). Slot 1 the canopy, slot 2 the ground; both
     report depth 1 (each is a first vertex).
 
-    Crowns are found by two uniform grids of the table's crowns: 1 m cells, the crowns over
-    each cell (the vertical line of the first leg); and cells of the field of view's radius,
-    the crowns within a field of view of any shot centred in the cell (later legs; a photon
-    scattered out of the field of view no longer meets crowns, and returns nothing).
+    Crowns are found through a uniform grid of 1 m cells, each listing the crowns over it:
+    a vertical line looks in one cell, an oblique leg walks the cells it crosses (a 2-D DDA)
+    until the first collision found ends before the next cell. A leg after the first ends
+    where it leaves the field of view's cylinder (a photon scattered out of it is dropped:
+    nothing it does later is seen, but for light scattered back into the field of view,
+    left out).
 
     .. tabs::
 
@@ -107,8 +109,8 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
             {'type': 'canopy', 'filename': 'stand.npz', 'mode': 'turbid'}
     """
 
-    #: cell of the vertical lines' grid [m] (ESTIMATE: a speed choice; any size is exact)
-    LINE_CELL_M = 1.0
+    #: cell of the crowns' grid [m] (ESTIMATE: a speed choice; any size is exact)
+    CELL_M = 1.0
 
     def __init__(self, props: mi.Properties):
         if "max_depth" not in props:
@@ -126,19 +128,18 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
     def set_table(self, table: dict) -> None:
         """Use a canopy table (module ``canopy_table``): its crowns, foliage and grids."""
         t = canopy_table.check(table)
-        grids = []
-        for cell, pad in ((self.LINE_CELL_M, 0.0),
-                          (max(self.fov_radius_m, 1.0), self.fov_radius_m)):
-            x0, y0, nx, ny, off, trees = canopy_table.grid(t["cx"], t["cy"], t["r"],
-                                                           cell_m=cell, pad_m=pad)
-            grids.append((x0, y0, nx, ny, cell, mi.UInt32(off), mi.UInt32(trees)))
+        x0, y0, nx, ny, off, trees = canopy_table.grid(t["cx"], t["cy"], t["r"],
+                                                       cell_m=self.CELL_M, pad_m=0.0)
+        line = (x0, y0, nx, ny, self.CELL_M, mi.UInt32(off), mi.UInt32(trees))
         omega = t["rho"] + t["tau"]
         self._table = dict(
             crowns=[mi.Float(t[k]) for k in canopy_table.ARRAYS], shape=t["shape"],
             leaf_angle=canopy_table.LEAF_ANGLES.index(t["leaf_angle"]),
             sigma_g=mi.Float(t["g"] * np.float32(t["clumping"] * t["lad"])),
             n_g=int(t["g"].size), rho=t["rho"], tau=t["tau"], omega=omega,
-            line=grids[0], fov=grids[1], n=int(t["cx"].size),
+            line=line, n=int(t["cx"].size),
+            max_per_cell=max(1, int(np.diff(off).max())) if off.size > 1 else 1,
+            sigma_nadir=float(t["g"][-1] * t["clumping"] * t["lad"]),
             top=float(t["zt"].max()) + 1e-2 if t["cx"].size else -1e30,
             # the gap layer's leaf return: pi Gamma_b / (G 0.9) at nadir, from the table's G
             # and <cos^2> (Ross; lidar_mitsuba.vegetation.ross.leaf_return_weight)
@@ -185,22 +186,50 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
         return crown_chord(self._table["shape"], o, d, cx, cy, zb, zt, r)
 
     @dr.syntax
-    def _first_collision(self, grid, o, d, t_max, sampler, lane_x, lane_y, active):
+    def _first_collision(self, o, d, t_max, seed, active):
         """Distance to the first leaf along ``o + t d`` before ``t_max`` (inf if none): the
-        least of each crown's own exponential free path (independent media)."""
-        start, end = self._cells(grid, lane_x, lane_y, active)
-        sigma = self._sigma(d)
+        least of each crown's own exponential free path (independent media), the crowns
+        visited cell by cell along the ray (a 2-D DDA over the grid), stopping at the first
+        cell that ends beyond a collision found. A crown listed in several cells draws the
+        same free path in each (its uniform variate hashes ``seed`` and its index)."""
+        x0, y0, nx, ny, cell, off, trees = self._table["line"]
+        sigma = dr.maximum(self._sigma(d), 1e-30)
+        fx, fy = (o.x - x0) / cell, (o.y - y0) / cell
+        ix, iy = mi.Int32(dr.floor(fx)), mi.Int32(dr.floor(fy))
+        step_x = dr.select(d.x > 0.0, 1, -1)
+        step_y = dr.select(d.y > 0.0, 1, -1)
+        inv_x = dr.select(dr.abs(d.x) > 1e-9, cell / dr.abs(d.x), dr.inf)
+        inv_y = dr.select(dr.abs(d.y) > 1e-9, cell / dr.abs(d.y), dr.inf)
+        next_x = dr.select(d.x > 0.0, dr.floor(fx) + 1.0 - fx, fx - dr.floor(fx)) * inv_x
+        next_y = dr.select(d.y > 0.0, dr.floor(fy) + 1.0 - fy, fy - dr.floor(fy)) * inv_y
         t_c = mi.Float(dr.inf)
-        k = mi.UInt32(start)
-        while active & (k < end):
-            tree = dr.gather(mi.UInt32, grid[6], k)
-            t0, t1 = self._chord(tree, o, d, active)
-            t0 = dr.maximum(t0, 0.0)
-            t1 = dr.minimum(t1, t_max)
-            u = sampler.next_1d(active)
-            t = t0 - dr.log(dr.maximum(1.0 - u, 1e-30)) / dr.maximum(sigma, 1e-30)
-            t_c = dr.select((t0 < t1) & (t < t1), dr.minimum(t_c, t), t_c)
-            k += 1
+        go = mi.Bool(active)
+        visits = mi.UInt32(0)
+        while go:
+            inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+            c = mi.UInt32(dr.select(inside, iy * nx + ix, 0))
+            k = dr.gather(mi.UInt32, off, c, go & inside)
+            end = dr.select(inside, dr.gather(mi.UInt32, off, c + 1, go & inside), k)
+            while go & (k < end):
+                tree = dr.gather(mi.UInt32, trees, k, go)
+                t0, t1 = self._chord(tree, o, d, go)
+                t0 = dr.maximum(t0, 0.0)
+                t1 = dr.minimum(t1, t_max)
+                u = mi.sample_tea_float32(seed, tree)
+                t = t0 - dr.log(dr.maximum(1.0 - u, 1e-30)) / sigma
+                t_c = dr.select(go & (t0 < t1) & (t < t1), dr.minimum(t_c, t), t_c)
+                k += 1
+            t_exit = dr.minimum(next_x, next_y)
+            along_x = next_x <= next_y
+            ix += dr.select(along_x, step_x, 0)
+            iy += dr.select(along_x, 0, step_y)
+            next_x += dr.select(along_x, inv_x, 0.0)
+            next_y += dr.select(along_x, 0.0, inv_y)
+            visits += 1
+            # on while the next cell starts before the collision found and the ray's end,
+            # and lies on the grid
+            go &= ((t_exit < t_c) & (t_exit < t_max) & (ix >= 0) & (ix < nx) & (iy >= 0)
+                   & (iy < ny) & (visits < 4 * (nx + ny)))
         return t_c
 
     @dr.syntax
@@ -258,22 +287,14 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
         n = dr.width(sx) * paths_per_shot
         x0, y0, sampler, ray, t_emit_ns, si, leg_m, wo, seen = self._first_hit(
             scene, sx, sy, paths_per_shot, seed, z_start)
-        line = self._table["line"]
         t_g = dr.select(si.is_valid(), si.t, 0.0)
-        tau = self._depth(line, ray.o, ray.d, t_g, ray.o.x, ray.o.y, seen)
-        p_gap = dr.exp(-tau)
         two_way = self.hot_spot
-        w_ground = self._return_weight(si, wo, seen) * (p_gap if two_way else p_gap * p_gap)
-        # the canopy: the depth where the optical depth reaches tau* (collision density
-        # sigma e^-tau, or sigma e^-2tau without the hot spot), by bisection
-        q = (1.0 - p_gap) if two_way else 0.5 * (1.0 - p_gap * p_gap)
         u = sampler.next_1d(seen)
-        top = (1.0 - p_gap) if two_way else (1.0 - p_gap * p_gap)
-        tau_star = -dr.log(dr.maximum(1.0 - u * top, 1e-30)) * (1.0 if two_way else 0.5)
-        t_c = self._bisect(line, ray, t_g, tau_star, seen & (q > 0.0))
+        t_c, p_gap = self._line(ray, t_g, u, seen)
+        w_ground = self._return_weight(si, wo, seen) * (p_gap if two_way else p_gap * p_gap)
+        q = (1.0 - p_gap) if two_way else 0.5 * (1.0 - p_gap * p_gap)
         p_c = ray.o + ray.d * t_c
-        sx64, sy64 = mi.Float64(x0), mi.Float64(y0)
-        leg_c = self._leg_m(p_c, sx64, sy64)
+        leg_c = self._leg_m(p_c, mi.Float64(x0), mi.Float64(y0))
         w_canopy = dr.select(seen, q * self._table["leaf_nadir"], 0.0)
         t_ground = mi.Float64(t_emit_ns) + (leg_m + leg_m) / C_M_PER_NS
         t_canopy = mi.Float64(t_emit_ns) + (leg_c + leg_c) / C_M_PER_NS
@@ -286,19 +307,58 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
         return (*out, dr.full(mi.UInt32, 1, 2 * n))
 
     @dr.syntax
-    def _bisect(self, grid, ray, t_max, tau_star, active):
-        """The distance along ``ray`` at which the crowns' optical depth reaches
-        ``tau_star`` (monotone in t: bisection on [0, t_max])."""
-        lo = mi.Float(0.0)
-        hi = mi.Float(t_max)
-        i = mi.UInt32(0)
-        while active & (i < BISECTIONS):
-            mid = 0.5 * (lo + hi)
-            below = self._depth(grid, ray.o, ray.d, mid, ray.o.x, ray.o.y, active) < tau_star
-            lo = dr.select(below, mid, lo)
-            hi = dr.select(below, hi, mid)
-            i += 1
-        return 0.5 * (lo + hi)
+    def _line(self, ray, t_g, u, active):
+        """The vertical line of ``ray`` down to the ground at ``t_g``: ``(t_c, P_gap)``, the
+        gap probability and the distance of a canopy return drawn from the collision
+        density (``sigma e^-tau``, or ``sigma e^-2 tau`` without the hot spot) with the
+        uniform ``u``: where the optical depth reaches ``tau* = -ln(1 - u (1 - P))`` (or
+        half of ``-ln(1 - u (1 - P^2))``). The crowns' chords are kept in local memory; the
+        optical depth is piecewise linear between their ends, walked end by end (exact)."""
+        x0, y0, nx, ny, cell, off, trees = self._table["line"]
+        sigma = self._table["sigma_nadir"]
+        start, end = self._cells(self._table["line"], ray.o.x, ray.o.y, active)
+        a_buf = dr.alloc_local(mi.Float, self._table["max_per_cell"], mi.Float(0.0))
+        b_buf = dr.alloc_local(mi.Float, self._table["max_per_cell"], mi.Float(0.0))
+        length = mi.Float(0.0)
+        k = mi.UInt32(start)
+        while active & (k < end):
+            t0, t1 = self._chord(dr.gather(mi.UInt32, trees, k, active), ray.o, ray.d, active)
+            t0 = dr.maximum(t0, 0.0)
+            t1 = dr.minimum(t1, t_g)
+            keep = active & (t1 > t0)
+            # slot k - start (a crown the line misses: the empty chord [0, 0]); slots counted
+            # up only for the crowns hit put chords in the wrong slots (drjit 1.5, LLVM: a
+            # conditionally incremented index into local memory, in a loop)
+            a_buf[k - start] = dr.select(keep, t0, 0.0)
+            b_buf[k - start] = dr.select(keep, t1, 0.0)
+            length += dr.select(keep, t1 - t0, 0.0)
+            k += 1
+        count = end - start
+        p_gap = dr.exp(-sigma * length)
+        two_way = self.hot_spot
+        top = (1.0 - p_gap) if two_way else (1.0 - p_gap * p_gap)
+        tau_star = -dr.log(dr.maximum(1.0 - u * top, 1e-30)) * (1.0 if two_way else 0.5)
+        t = mi.Float(0.0)
+        acc = mi.Float(0.0)                  # the optical depth down to t
+        todo = active & (length > 0.0)
+        step = mi.UInt32(0)
+        while todo & (step < 2 * count + 1):
+            inside = mi.UInt32(0)
+            nxt = mi.Float(dr.inf)           # the next chord end beyond t
+            j = mi.UInt32(0)
+            while todo & (j < count):
+                a, b = a_buf[j], b_buf[j]
+                inside += dr.select((a <= t) & (t < b), 1, 0)
+                nxt = dr.minimum(nxt, dr.select(a > t, a, dr.select(b > t, b, dr.inf)))
+                j += 1
+            slope = sigma * mi.Float(inside)
+            gain = slope * (nxt - t)
+            here = (acc + gain >= tau_star) & (inside > 0)
+            t = dr.select(here, t + (tau_star - acc) / dr.maximum(slope, 1e-30), nxt)
+            acc += dr.select(here, 0.0, gain)
+            todo &= ~here & dr.isfinite(nxt)
+            step += 1
+        return t, p_gap
 
     # ------------------------------------------------------------- the turbid medium
     def _turbid(self, scene, sx, sy, paths_per_shot, seed, z_start):
@@ -378,7 +438,7 @@ def _walk(integ, scene, sx, sy, paths_per_shot, seed, z_start):
     out = [dr.zeros(mi.Float64 if k == 0 else mi.Float, n * depth_max) for k in range(5)]
     fov2 = integ.fov_radius_m ** 2
     ctx = mi.BSDFContext(mi.TransportMode.Importance)
-    line, fov = tab["line"], tab["fov"]
+    line = tab["line"]
     omega = tab["omega"]
     hot = integ.hot_spot
     throughput = mi.Float(1.0)
@@ -390,16 +450,14 @@ def _walk(integ, scene, sx, sy, paths_per_shot, seed, z_start):
         first = depth == 0
         si = scene.ray_intersect(ray, active)
         t_g = dr.select(si.is_valid(), si.t, dr.inf)
-        # the first leg is vertical: the crowns over its line; later legs: the field of view's
-        gx = dr.select(first, ray.o.x, x0)
-        gy = dr.select(first, ray.o.y, y0)
-        t_line = integ._first_collision(line, ray.o, ray.d, t_g, sampler, gx, gy,
-                                        active & first)
-        t_fov = integ._first_collision(fov, ray.o, ray.d, t_g, sampler, gx, gy,
-                                       active & ~first)
-        t_c = dr.select(first, t_line, t_fov)
-        scatter = active & (t_c < t_g)
-        surface = active & ~scatter & si.is_valid()
+        # the crowns up to the ground or, after the first leg, to the field of view's edge
+        # (beyond it nothing returns: a photon leaving it is dropped)
+        t_fov = _fov_exit(ray, x0, y0, integ.fov_radius_m)
+        t_max = dr.select(first, t_g, dr.minimum(t_g, t_fov))
+        seg_seed = mi.UInt32(sampler.next_1d(active) * 4294967040.0)
+        t_c = integ._first_collision(ray.o, ray.d, t_max, seg_seed, active)
+        scatter = active & (t_c < t_max)
+        surface = active & ~scatter & si.is_valid() & (t_g <= t_max)
         vertex = scatter | surface
         p = dr.select(scatter, ray.o + ray.d * t_c, si.p)
         down_m = dr.select(vertex & first, integ._leg_m(p, sx64, sy64), down_m)
@@ -416,9 +474,10 @@ def _walk(integ, scene, sx, sy, paths_per_shot, seed, z_start):
         n_off = dr.select(scatter, mi.Vector3f(0.0), si.n)
         up = _pathlength_spawn(p, n_off, wo)
         blocked = scene.ray_test(up, seen & ~first)
-        tau_line = integ._depth(line, up.o, wo, dr.inf, gx, gy, seen & first & (not hot))
-        tau_fov = integ._depth(fov, up.o, wo, dr.inf, gx, gy, seen & ~first)
-        trans = dr.select(first, dr.exp(-tau_line), dr.exp(-tau_fov))
+        # (wo is within microradians of the vertical: the crowns over p's cell are those
+        # it crosses, to within a millimetre of their edges)
+        tau_up = integ._depth(line, up.o, wo, dr.inf, p.x, p.y, seen & (~first | (not hot)))
+        trans = dr.select(first & hot, 1.0, dr.exp(-tau_up))
         w = dr.select(seen & ~blocked, throughput * value * trans, 0.0)
         t_ns = mi.Float64(t_emit_ns) + (down_m + inner_m + up_m) / C_M_PER_NS
         slot = lane * depth_max + depth

@@ -229,3 +229,6 @@ def test_gap_layer_matches_numpy_over_a_stand():
     p_num = gap.gap_probability(table, ret.x_m[ground], ret.y_m[ground], 0.0)
     np.testing.assert_allclose(ret.weight[ground] / (0.5 / 0.9), p_num, atol=1e-4)
     assert 0.05 < p_num.mean() < 0.9 and p_num.min() < 0.05       # canopy and gaps both seen
+    # every canopy return lies in a crown (drawn on its line's chords)
+    canopy = ~ground & (ret.weight > 0)
+    assert st.inside_crown(ret.x_m[canopy], ret.y_m[canopy], ret.z_m[canopy]).mean() > 0.999
