@@ -106,3 +106,25 @@ def integrator_dict(stand, *, mode: str, base: dict, rho: float, tau: float,
     if mode == "turbid" and max_depth is not None:
         d["max_depth"] = int(max_depth)
     return d
+
+
+def no_shapes(forest, *, bounds_xy_m, shift_m) -> tuple[dict, int]:
+    """The turbid and gap representations' Mitsuba shapes: none (the crowns are the
+    ``canopy`` integrator's table, :func:`forest_integrator`); the scene is the ground's."""
+    return {}, 0
+
+
+def forest_integrator(forest, base: dict) -> dict:
+    """The integrator a :class:`~lidar_mitsuba.vegetation.forest.ForestSurface` in the
+    ``turbid`` or ``gap`` representation is traced with: ``canopy`` over ``base`` (the
+    material's ``pathlength`` dict, whose ``max_depth`` the turbid medium keeps), the leaves'
+    optics the forest's. Its ground must be one scene in the stand's coordinates (a plane or
+    a heightfield): a DEM's corridor tiles, each shifted, are refused."""
+    from ..ground.surface import Surface
+    if type(forest.ground).tiles is not Surface.tiles:
+        raise ParameterError("representation", f"{forest.representation} needs a plane or "
+                             f"heightfield ground (a DEM's corridor tiles are not supported "
+                             f"yet); use representation='explicit'")
+    return integrator_dict(forest.stand, mode=forest.representation, base=base,
+                           rho=forest.leaf.reflectance, tau=forest.leaf.transmittance,
+                           max_depth=base.get("max_depth"))
