@@ -10,6 +10,7 @@ The front door: everything a run needs, under one name.
 >>> res.report().overall                                              # doctest: +SKIP
 
 The package folders follow the data flow: ``ground/`` (terrain, DEMs, surfaces, snow, water),
+``vegetation/`` (forest stands over any ground, leaf optics, their representations),
 ``trace/`` (the renderer: variant, scenes, materials, the chunk stream), ``detector/`` (PMT,
 dead time, records), ``products/`` (ATL03, ATL06, ATL07, classification, retrieval,
 first-photon-bias correction), ``planning.py`` (a run's plan: ``lm.plan``), ``run.py`` (one
@@ -53,6 +54,11 @@ _EXPORTS = {
     "SnowVolume": ("lidar_mitsuba.ground.snow", "SnowVolume"),
     "snow_from_grains": ("lidar_mitsuba.ground.snow", "snow_from_grains"),
     "water_bsdf": ("lidar_mitsuba.ground.water", "water_bsdf"),
+    # vegetation: forest stands and their representations
+    "forest": ("lidar_mitsuba.vegetation.forest", "forest"),
+    "ForestSurface": ("lidar_mitsuba.vegetation.forest", "ForestSurface"),
+    "stand": ("lidar_mitsuba.vegetation.stand", "stand"),
+    "Stand": ("lidar_mitsuba.vegetation.stand", "Stand"),
     # the renderer
     "load_scene": ("lidar_mitsuba.trace.scene", "load_scene"),
     "inspect_materials": ("lidar_mitsuba.trace.materials", "inspect"),

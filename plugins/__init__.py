@@ -7,6 +7,8 @@ them, never the other way round.
   sampled, textures as albedo).
 - ``water.py``: ``<bsdf type="water">``, a wind-roughened water surface (Beckmann dielectric,
   Cox-Munk slopes from the wind speed, Quan-Fry refractive and group indices).
+- ``bilambertian.py``: ``<bsdf type="bilambertian">``, a thin leaf: Lambertian reflection
+  (R) back to the lit side and Lambertian transmission (T) to the other, two-sided.
 - ``pathlength.py``: ``<integrator type="pathlength">``, the lidar path-length integrator:
   per photon return, its shot, exact round-trip time and radiometric weight.
 - ``volpathlength.py``: ``<integrator type="volpathlength">``, the same with a participating
@@ -58,8 +60,8 @@ import pathlib
 import sys
 import types
 
-PLUGIN_FILES = ("ward", "water", "pathlength", "volpathlength", "snowkernel", "mediapathlength",
-                "canopy")
+PLUGIN_FILES = ("ward", "water", "bilambertian", "pathlength", "volpathlength", "snowkernel",
+                "mediapathlength", "canopy")
 """The plugin files, in load order (``volpathlength``, ``snowkernel`` and
 ``mediapathlength`` build on ``pathlength``)."""
 

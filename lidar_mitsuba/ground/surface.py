@@ -71,6 +71,11 @@ class Surface:
         """Where the middle of a default track goes [m]."""
         raise NotImplementedError
 
+    def default_bsdf(self) -> dict:
+        """The BSDF on the surface's mesh when the run gives none (a ready surface: the
+        paper's Ward snow; a forest: its floor's)."""
+        return ward_bsdf_dict()
+
     def fold(self, x_m: np.ndarray, y_m: np.ndarray, *, margin_m: float):
         """Shot positions in the traced mesh, and the height offset to add back.
 
@@ -496,4 +501,4 @@ def resolve(surface) -> tuple[Surface, dict | None, dict]:
     if not isinstance(surface, Surface):
         raise ParameterError("surface", f"must be a SurfaceSpec, Plane, Heightfield or "
                              f"SceneSurface (got {type(surface).__name__})")
-    return surface, (ward_bsdf_dict() if surface.takes_bsdf else None), surface.config()
+    return surface, (surface.default_bsdf() if surface.takes_bsdf else None), surface.config()
