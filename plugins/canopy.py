@@ -281,86 +281,11 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
         local = mi.warp.square_to_cosine_hemisphere(sampler.next_2d(active))
         return value, mi.Frame3f(n_leaf * side).to_world(local)
 
-    # ------------------------------------------------------------- the gap layer
+    # ------------------------------------------------------------- the two kernels
     def _gap(self, scene, sx, sy, paths_per_shot, seed, z_start):
         """Two slots per photon (canopy, ground): time [ns], weight, x, y, z, depth."""
-        n = dr.width(sx) * paths_per_shot
-        x0, y0, sampler, ray, t_emit_ns, si, leg_m, wo, seen = self._first_hit(
-            scene, sx, sy, paths_per_shot, seed, z_start)
-        t_g = dr.select(si.is_valid(), si.t, 0.0)
-        two_way = self.hot_spot
-        u = sampler.next_1d(seen)
-        t_c, p_gap = self._line(ray, t_g, u, seen)
-        w_ground = self._return_weight(si, wo, seen) * (p_gap if two_way else p_gap * p_gap)
-        q = (1.0 - p_gap) if two_way else 0.5 * (1.0 - p_gap * p_gap)
-        p_c = ray.o + ray.d * t_c
-        leg_c = self._leg_m(p_c, mi.Float64(x0), mi.Float64(y0))
-        w_canopy = dr.select(seen, q * self._table["leaf_nadir"], 0.0)
-        t_ground = mi.Float64(t_emit_ns) + (leg_m + leg_m) / C_M_PER_NS
-        t_canopy = mi.Float64(t_emit_ns) + (leg_c + leg_c) / C_M_PER_NS
-        lane = dr.arange(mi.UInt32, n)
-        out = [dr.zeros(mi.Float64 if k == 0 else mi.Float, 2 * n) for k in range(5)]
-        for slot, vals in ((2 * lane, (t_canopy, w_canopy, p_c.x, p_c.y, p_c.z)),
-                           (2 * lane + 1, (t_ground, w_ground, si.p.x, si.p.y, si.p.z))):
-            for target, v in zip(out, vals):
-                dr.scatter(target, v, slot)
-        return (*out, dr.full(mi.UInt32, 1, 2 * n))
+        return _gap_kernel(self, scene, sx, sy, paths_per_shot, seed, z_start)
 
-    @dr.syntax
-    def _line(self, ray, t_g, u, active):
-        """The vertical line of ``ray`` down to the ground at ``t_g``: ``(t_c, P_gap)``, the
-        gap probability and the distance of a canopy return drawn from the collision
-        density (``sigma e^-tau``, or ``sigma e^-2 tau`` without the hot spot) with the
-        uniform ``u``: where the optical depth reaches ``tau* = -ln(1 - u (1 - P))`` (or
-        half of ``-ln(1 - u (1 - P^2))``). The crowns' chords are kept in local memory; the
-        optical depth is piecewise linear between their ends, walked end by end (exact)."""
-        x0, y0, nx, ny, cell, off, trees = self._table["line"]
-        sigma = self._table["sigma_nadir"]
-        start, end = self._cells(self._table["line"], ray.o.x, ray.o.y, active)
-        a_buf = dr.alloc_local(mi.Float, self._table["max_per_cell"], mi.Float(0.0))
-        b_buf = dr.alloc_local(mi.Float, self._table["max_per_cell"], mi.Float(0.0))
-        length = mi.Float(0.0)
-        k = mi.UInt32(start)
-        while active & (k < end):
-            t0, t1 = self._chord(dr.gather(mi.UInt32, trees, k, active), ray.o, ray.d, active)
-            t0 = dr.maximum(t0, 0.0)
-            t1 = dr.minimum(t1, t_g)
-            keep = active & (t1 > t0)
-            # slot k - start (a crown the line misses: the empty chord [0, 0]); slots counted
-            # up only for the crowns hit put chords in the wrong slots (drjit 1.5, LLVM: a
-            # conditionally incremented index into local memory, in a loop)
-            a_buf[k - start] = dr.select(keep, t0, 0.0)
-            b_buf[k - start] = dr.select(keep, t1, 0.0)
-            length += dr.select(keep, t1 - t0, 0.0)
-            k += 1
-        count = end - start
-        p_gap = dr.exp(-sigma * length)
-        two_way = self.hot_spot
-        top = (1.0 - p_gap) if two_way else (1.0 - p_gap * p_gap)
-        tau_star = -dr.log(dr.maximum(1.0 - u * top, 1e-30)) * (1.0 if two_way else 0.5)
-        t = mi.Float(0.0)
-        acc = mi.Float(0.0)                  # the optical depth down to t
-        todo = active & (length > 0.0)
-        step = mi.UInt32(0)
-        while todo & (step < 2 * count + 1):
-            inside = mi.UInt32(0)
-            nxt = mi.Float(dr.inf)           # the next chord end beyond t
-            j = mi.UInt32(0)
-            while todo & (j < count):
-                a, b = a_buf[j], b_buf[j]
-                inside += dr.select((a <= t) & (t < b), 1, 0)
-                nxt = dr.minimum(nxt, dr.select(a > t, a, dr.select(b > t, b, dr.inf)))
-                j += 1
-            slope = sigma * mi.Float(inside)
-            gain = slope * (nxt - t)
-            here = (acc + gain >= tau_star) & (inside > 0)
-            t = dr.select(here, t + (tau_star - acc) / dr.maximum(slope, 1e-30), nxt)
-            acc += dr.select(here, 0.0, gain)
-            todo &= ~here & dr.isfinite(nxt)
-            step += 1
-        return t, p_gap
-
-    # ------------------------------------------------------------- the turbid medium
     def _turbid(self, scene, sx, sy, paths_per_shot, seed, z_start):
         """``max_depth`` slots per photon: time [ns], weight, vertex x, y, z."""
         return _walk(self, scene, sx, sy, paths_per_shot, seed, z_start)
@@ -425,6 +350,85 @@ def crown_chord(shape: str, o: mi.Point3f, d: mi.Vector3f, cx, cy, zb, zt, r):
     t0 = dr.maximum(e0, s0)
     t1 = dr.minimum(e1, s1)
     return dr.select(miss, dr.inf, t0), dr.select(miss, -dr.inf, t1)
+
+
+def _gap_kernel(integ, scene, sx, sy, paths_per_shot, seed, z_start):
+    """The gap layer (see the class): two slots per photon."""
+    n = dr.width(sx) * paths_per_shot
+    x0, y0, sampler, ray, t_emit_ns, si, leg_m, wo, seen = integ._first_hit(
+        scene, sx, sy, paths_per_shot, seed, z_start)
+    t_g = dr.select(si.is_valid(), si.t, 0.0)
+    two_way = integ.hot_spot
+    u = sampler.next_1d(seen)
+    t_c, p_gap = _line(integ, ray, t_g, u, seen)
+    w_ground = integ._return_weight(si, wo, seen) * (p_gap if two_way else p_gap * p_gap)
+    q = (1.0 - p_gap) if two_way else 0.5 * (1.0 - p_gap * p_gap)
+    p_c = ray.o + ray.d * t_c
+    leg_c = integ._leg_m(p_c, mi.Float64(x0), mi.Float64(y0))
+    w_canopy = dr.select(seen, q * integ._table["leaf_nadir"], 0.0)
+    t_ground = mi.Float64(t_emit_ns) + (leg_m + leg_m) / C_M_PER_NS
+    t_canopy = mi.Float64(t_emit_ns) + (leg_c + leg_c) / C_M_PER_NS
+    lane = dr.arange(mi.UInt32, n)
+    out = [dr.zeros(mi.Float64 if k == 0 else mi.Float, 2 * n) for k in range(5)]
+    for slot, vals in ((2 * lane, (t_canopy, w_canopy, p_c.x, p_c.y, p_c.z)),
+                       (2 * lane + 1, (t_ground, w_ground, si.p.x, si.p.y, si.p.z))):
+        for target, v in zip(out, vals):
+            dr.scatter(target, v, slot)
+    return (*out, dr.full(mi.UInt32, 1, 2 * n))
+
+@dr.syntax
+def _line(integ, ray, t_g, u, active):
+    """The vertical line of ``ray`` down to the ground at ``t_g``: ``(t_c, P_gap)``, the
+    gap probability and the distance of a canopy return drawn from the collision
+    density (``sigma e^-tau``, or ``sigma e^-2 tau`` without the hot spot) with the
+    uniform ``u``: where the optical depth reaches ``tau* = -ln(1 - u (1 - P))`` (or
+    half of ``-ln(1 - u (1 - P^2))``). The crowns' chords are kept in local memory; the
+    optical depth is piecewise linear between their ends, walked end by end (exact)."""
+    x0, y0, nx, ny, cell, off, trees = integ._table["line"]
+    sigma = integ._table["sigma_nadir"]
+    start, end = integ._cells(integ._table["line"], ray.o.x, ray.o.y, active)
+    a_buf = dr.alloc_local(mi.Float, integ._table["max_per_cell"], mi.Float(0.0))
+    b_buf = dr.alloc_local(mi.Float, integ._table["max_per_cell"], mi.Float(0.0))
+    length = mi.Float(0.0)
+    k = mi.UInt32(start)
+    while active & (k < end):
+        t0, t1 = integ._chord(dr.gather(mi.UInt32, trees, k, active), ray.o, ray.d, active)
+        t0 = dr.maximum(t0, 0.0)
+        t1 = dr.minimum(t1, t_g)
+        keep = active & (t1 > t0)
+        # slot k - start (a crown the line misses: the empty chord [0, 0]); slots counted
+        # up only for the crowns hit put chords in the wrong slots (drjit 1.5, LLVM: a
+        # conditionally incremented index into local memory, in a loop)
+        a_buf[k - start] = dr.select(keep, t0, 0.0)
+        b_buf[k - start] = dr.select(keep, t1, 0.0)
+        length += dr.select(keep, t1 - t0, 0.0)
+        k += 1
+    count = end - start
+    p_gap = dr.exp(-sigma * length)
+    two_way = integ.hot_spot
+    top = (1.0 - p_gap) if two_way else (1.0 - p_gap * p_gap)
+    tau_star = -dr.log(dr.maximum(1.0 - u * top, 1e-30)) * (1.0 if two_way else 0.5)
+    t = mi.Float(0.0)
+    acc = mi.Float(0.0)                  # the optical depth down to t
+    todo = active & (length > 0.0)
+    step = mi.UInt32(0)
+    while todo & (step < 2 * count + 1):
+        inside = mi.UInt32(0)
+        nxt = mi.Float(dr.inf)           # the next chord end beyond t
+        j = mi.UInt32(0)
+        while todo & (j < count):
+            a, b = a_buf[j], b_buf[j]
+            inside += dr.select((a <= t) & (t < b), 1, 0)
+            nxt = dr.minimum(nxt, dr.select(a > t, a, dr.select(b > t, b, dr.inf)))
+            j += 1
+        slope = sigma * mi.Float(inside)
+        gain = slope * (nxt - t)
+        here = (acc + gain >= tau_star) & (inside > 0)
+        t = dr.select(here, t + (tau_star - acc) / dr.maximum(slope, 1e-30), nxt)
+        acc += dr.select(here, 0.0, gain)
+        todo &= ~here & dr.isfinite(nxt)
+        step += 1
+    return t, p_gap
 
 
 @dr.syntax

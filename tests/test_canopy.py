@@ -232,3 +232,33 @@ def test_gap_layer_matches_numpy_over_a_stand():
     # every canopy return lies in a crown (drawn on its line's chords)
     canopy = ~ground & (ret.weight > 0)
     assert st.inside_crown(ret.x_m[canopy], ret.y_m[canopy], ret.z_m[canopy]).mean() > 0.999
+
+
+def test_forest_front_door_gap_and_turbid():
+    """``lm.forest(representation="gap" | "turbid")`` is traced by the ``canopy`` integrator
+    over the bare ground's scene (no crown shapes), with the forest's leaf optics; its returns
+    come from the crowns and the ground; a DEM's corridor tiles are refused by name."""
+    import lidar_mitsuba as lm
+    from lidar_mitsuba.constants import ParameterError
+    f = lm.forest(species="conifer", ground=lm.Plane(size_m=60.0), seed=1, representation="gap")
+    d = f.integrator_dict(lm.Instrument().integrator_dict(max_depth=1))
+    assert d["type"] == "canopy" and d["mode"] == "gap"
+    assert f.mitsuba_scene(bsdf=None, margin_m=10.0, bounds_m=None)[1] == 2   # the ground only
+    res = lm.simulate(surface=f, shots=40, seed=1, progress=False)
+    assert res.config["integrator"] == "canopy"
+    z = res.returns.z_m
+    assert (z > 3.0).any() and (np.abs(z) < 0.1).any()          # canopy and ground returns
+    t = dataclasses_replace(f, representation="turbid")
+    assert t.integrator_dict({"type": "pathlength", "max_depth": 2})["max_depth"] == 2
+
+    class Tiled(lm.Plane):
+        def tiles(self, *a, **k):                 # a ground with tiles of its own (a DEM's)
+            raise AssertionError
+    with pytest.raises(ParameterError) as e:
+        dataclasses_replace(f, ground=Tiled(size_m=60.0)).integrator_dict({"type": "pathlength"})
+    assert e.value.name == "representation"
+
+
+def dataclasses_replace(obj, **kw):
+    import dataclasses
+    return dataclasses.replace(obj, **kw)

@@ -432,6 +432,8 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False,
         charts.update({
             "track_length.png": lambda p: track_length.chart(doc["track_length"], p),
             "snow.png": lambda p: snow_bias.chart(doc["snow"], p)})
+        from . import canopy_representations
+        charts["canopy.png"] = lambda p: canopy_representations.chart(doc["canopy"], p)
     for name, draw in charts.items():
         draw(out / name)
     doc["charts"] = list(charts)         # the files written, for the caller to name

@@ -154,3 +154,33 @@ def format_rows(doc: dict) -> list[str]:
                      f"{r['canopy_weight']:.4f}/photon, RH50 {r.get('rh50_m', float('nan')):.1f}"
                      f" m, RH98 {r.get('rh98_m', float('nan')):.1f} m{extra}")
     return lines
+
+
+def chart(doc: dict, path) -> None:
+    """Speed against accuracy: each representation's time relative to bare ground against
+    its ground share's distance from the reference (explicit leaves where traced), and the
+    canopy returns' height profiles."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    rows = {k: r for k, r in doc["rows"].items() if k != "bare ground"}
+    ref = rows[doc["reference"]]
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4.2))
+    for i, (name, r) in enumerate(rows.items()):
+        err = abs(r["ground_share"] - ref["ground_share"])
+        ax[0].errorbar(r["time_vs_bare"], err, yerr=r["ground_share_se"], fmt="o",
+                       color=f"C{i}", capsize=2, label=name)
+        centres = 0.5 * (EDGES_M[1:] + EDGES_M[:-1])
+        ax[1].step(centres, r["profile"], where="mid", color=f"C{i}", label=name)
+    ax[0].set(xscale="log", xlabel="trace time / bare ground's",
+              ylabel=f"|ground share - {doc['reference']}'s|",
+              title=f"speed vs accuracy (ground share, closed form "
+                    f"{doc['closed_form_ground_share']:.3f})")
+    ax[0].legend(fontsize=7)
+    ax[1].set(xlabel="height above ground [m]", ylabel="share of the canopy return",
+              title=f"canopy returns ({doc['stand']['species']}, LAI {doc['stand']['lai']:.1f}"
+                    f", cover {doc['stand']['cover']:.2f})")
+    ax[1].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
