@@ -439,6 +439,8 @@ def _choose_model(run: _Run, *, progress: bool = False) -> None:
     lanes = {} if run.max_lanes is None else {"max_lanes": int(run.max_lanes)}
     d = run.material.integrator(inst.integrator_dict(max_depth=run.max_depth, **lanes),
                                 max_depth=run.max_depth)
+    if hasattr(run.surface, "integrator_dict"):      # a forest's turbid or gap canopy
+        d = run.surface.integrator_dict(d)
     run.integrator_dict, run.integrator = d, mi.load_dict(d)
     if ppp == "auto":
         t1 = time.perf_counter()

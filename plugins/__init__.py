@@ -20,6 +20,10 @@ them, never the other way round.
   (transmissive BSDFs, the group index delaying the light inside) and through participating
   media in the air (fog, cloud), with next-event returns by transmittance; it subclasses
   ``pathlength``.
+- ``canopy.py``: ``<integrator type="canopy">``, tree crowns as a turbid medium of leaves
+  (Ross's G, bi-Lambertian leaves, the monostatic hot spot) over the scene's ground, traced
+  by Monte Carlo (``mode="turbid"``) or as a gap-probability layer (``mode="gap"``); the
+  crowns come from a table (``canopy_table.py``); it subclasses ``pathlength``.
 
 Use from plain Mitsuba::
 
@@ -44,7 +48,8 @@ loads it.
 
 Shared, variant-independent modules: ``constants`` (c, the FWHM factor, the reference plate,
 the nominal geometry), ``returns`` (the integrators' output record), ``scene_utils`` (scene
-bounds and medium), ``kernel_table`` (the layout of a snow kernel's table), ``water_optics``
+bounds and medium), ``kernel_table`` (the layout of a snow kernel's table), ``canopy_table``
+(a stand's crowns and foliage, and the grids that find them), ``water_optics``
 (Cox & Munk's slopes and Quan & Fry's index, the ``water`` BSDF's closed forms).
 """
 from __future__ import annotations
@@ -55,7 +60,8 @@ import pathlib
 import sys
 import types
 
-PLUGIN_FILES = ("ward", "water", "bilambertian", "pathlength", "volpathlength", "snowkernel", "mediapathlength")
+PLUGIN_FILES = ("ward", "water", "bilambertian", "pathlength", "volpathlength", "snowkernel",
+                "mediapathlength", "canopy")
 """The plugin files, in load order (``volpathlength``, ``snowkernel`` and
 ``mediapathlength`` build on ``pathlength``)."""
 

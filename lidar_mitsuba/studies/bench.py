@@ -205,6 +205,14 @@ def bench_integrator(*, quick: bool) -> dict:
     return doc
 
 
+def bench_canopy(*, quick: bool) -> dict:
+    """One stand as bare ground, the gap layer, the turbid medium (1 and 3 vertices) and,
+    in the full run, explicit leaves: photon paths/s, the time against bare ground, the
+    ground's share and the canopy's height profile (:mod:`.canopy_representations`)."""
+    from . import canopy_representations
+    return canopy_representations.run(quick=quick)
+
+
 #: end-to-end cases: beam, max_depth, paths per shot ("auto", the default, or the fixed 128
 #: it replaced, measured in the same run for the ratio)
 END_TO_END_CASES = (("strong", "auto", "auto"), ("weak", "auto", "auto"), ("strong", 1, "auto"),
@@ -413,6 +421,7 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False,
         doc["cloud"] = cloud_cost.run(quick=quick)
         from . import sky_table
         doc["sky"] = sky_table.bench(quick=quick)
+        doc["canopy"] = bench_canopy(quick=quick)
     charts = {"throughput.png": lambda p: _chart(doc, p)}
     if not throughput_only:
         charts.update({
@@ -423,6 +432,8 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False,
         charts.update({
             "track_length.png": lambda p: track_length.chart(doc["track_length"], p),
             "snow.png": lambda p: snow_bias.chart(doc["snow"], p)})
+        from . import canopy_representations
+        charts["canopy.png"] = lambda p: canopy_representations.chart(doc["canopy"], p)
     for name, draw in charts.items():
         draw(out / name)
     doc["charts"] = list(charts)         # the files written, for the caller to name
@@ -519,6 +530,9 @@ def format_summary(doc: dict) -> str:
     if "sky" in doc:
         from . import sky_table
         lines.append(sky_table.format_bench(doc["sky"]))
+    if "canopy" in doc:
+        from . import canopy_representations
+        lines += canopy_representations.format_rows(doc["canopy"])
     for name, rows in doc.get("stability", {}).items():
         bad = [f"{r['value']:g}: {r['status']}" for r in rows
                if not str(r.get("status", "ok")).startswith("ok")]

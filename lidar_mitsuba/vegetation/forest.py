@@ -9,6 +9,9 @@ that builds its Mitsuba shapes, the one place a new representation plugs in:
 
 * ``"explicit"``: leaves and needles as instanced triangles, stems as bark frustums
   (:mod:`.explicit`), the bi-Lambertian leaf BSDF.
+* ``"turbid"``, ``"gap"``: the crowns as a turbid medium of leaves, traced by Monte Carlo or
+  as a gap-probability layer by the ``canopy`` integrator (:mod:`.turbid`); the scene is the
+  ground's.
 
 >>> import lidar_mitsuba as lm
 >>> f = lm.forest(species="conifer", height_m=18, cover=0.6, lai=3,
@@ -26,7 +29,7 @@ import numpy as np
 
 from ..constants import ParameterError, check
 from ..ground.surface import Plane, Surface, Tiling
-from . import explicit
+from . import explicit, turbid
 from .optics import OPTICS, Optics
 from .stand import Stand, stand as make_stand
 
@@ -64,7 +67,10 @@ def explicit_shapes(forest: "ForestSurface", *, bounds_xy_m, shift_m) -> tuple[d
 TILE_SHOTS = 500
 
 #: representation name -> function(forest, bounds_xy_m=..., shift_m=...) -> (shapes, triangles)
-REPRESENTATIONS: dict[str, Callable] = {"explicit": explicit_shapes}
+#: (``turbid`` and ``gap`` add no shapes: their crowns are the ``canopy`` integrator's table,
+#: :meth:`ForestSurface.integrator_dict`)
+REPRESENTATIONS: dict[str, Callable] = {"explicit": explicit_shapes, "turbid": turbid.no_shapes,
+                                        "gap": turbid.no_shapes}
 
 
 @dataclass(frozen=True, eq=False)
@@ -141,6 +147,14 @@ class ForestSurface(Surface):
         """The stand's shapes in the chosen representation (:data:`REPRESENTATIONS`)."""
         return REPRESENTATIONS[self.representation](self, bounds_xy_m=bounds_xy_m,
                                                      shift_m=shift_m)
+
+    def integrator_dict(self, base: dict) -> dict:
+        """The integrator the forest is traced with, from the material's dict ``base``:
+        explicit leaves the material's own; ``turbid`` and ``gap`` the ``canopy`` integrator
+        (:func:`.turbid.forest_integrator`)."""
+        if self.representation == "explicit":
+            return base
+        return turbid.forest_integrator(self, base)
 
     def with_vegetation(self, scene, *, shift_m=(0.0, 0.0, 0.0)):
         """A ground scene with the stand added over its extent: ``(scene, triangles)``

@@ -1,0 +1,130 @@
+"""The turbid and gap-probability representations of a stand: its crowns as a canopy table for
+the ``canopy`` integrator (``plugins/canopy.py``), and the integrator's parameters.
+
+Both representations trace the same table; they differ in the integrator's ``mode``:
+
+* ``turbid``: Monte Carlo through the crowns filled with a turbid medium of leaves
+  (extinction ``G Omega LAD``, bi-Lambertian leaves scattering, up to ``max_depth`` vertices);
+* ``gap``: per photon the gap probability of its vertical line through the crowns, a canopy
+  return at a height drawn from the collision density and the ground's return weighted by
+  the gap probability (single scattering; the cost of a ray cast to the ground).
+
+Both carry the monostatic hot spot (the way back is the way in): see ``plugins/canopy.py``
+and docs/physics/canopy.md.
+
+A periodic stand (a torus over its bounds) lists, besides its crowns, their images shifted
+by the bounds' size wherever a crown lies within ``pad_m`` of an edge, so that the lines of
+a track folded into the tile (up to a footprint's 5 sigma and a field of view outside it)
+see the crowns across the edge.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import pathlib
+import tempfile
+
+import numpy as np
+
+from ..constants import ParameterError, check
+from . import ross
+
+#: nodes of the G table handed to the integrator (mu = k / (G_NODES - 1); linear between
+#: them: G varies smoothly, < 1e-4 between nodes)
+G_NODES = 129
+MODES = ("turbid", "gap")
+
+
+def canopy_table(stand, *, rho: float, tau: float, pad_m: float = 40.0) -> dict:
+    """The canopy table (``lidar_mitsuba_plugins.canopy_table``) of ``stand`` (a
+    :class:`~lidar_mitsuba.vegetation.stand.Stand`): crowns as absolute heights, with the
+    periodic images within ``pad_m`` [m] of the bounds when the stand is periodic; leaves
+    of reflectance ``rho`` and transmittance ``tau``; Ross's G on :data:`G_NODES` nodes."""
+    check("rho", rho, 0 <= rho <= 1, "must be in [0, 1]")
+    check("tau", tau, 0 <= tau <= 1 - rho, "must be in [0, 1 - rho]")
+    cx, cy = np.asarray(stand.x_m, float), np.asarray(stand.y_m, float)
+    zb = np.asarray(stand.ground_z_m, float) + np.asarray(stand.crown_base_m, float)
+    zt = np.asarray(stand.ground_z_m, float) + np.asarray(stand.height_m, float)
+    r = np.asarray(stand.crown_radius_m, float)
+    if getattr(stand, "periodic", False) and cx.size:
+        (x0, y0), (x1, y1) = stand.bounds_m
+        lx, ly = x1 - x0, y1 - y0
+        idx, qx, qy = [], [], []
+        for dx in (-lx, 0.0, lx):
+            for dy in (-ly, 0.0, ly):
+                keep = ((cx + dx + r > x0 - pad_m) & (cx + dx - r < x1 + pad_m)
+                        & (cy + dy + r > y0 - pad_m) & (cy + dy - r < y1 + pad_m))
+                k = np.arange(cx.size) if dx == dy == 0.0 else np.flatnonzero(keep)
+                idx.append(k)
+                qx.append(cx[k] + dx)
+                qy.append(cy[k] + dy)
+        idx, cx, cy = np.concatenate(idx), np.concatenate(qx), np.concatenate(qy)
+        zb, zt, r = zb[idx], zt[idx], r[idx]
+    mu = np.linspace(0.0, 1.0, G_NODES)
+    g = ross.g_function(mu, stand.leaf_angle)
+    g[-1] = ross.G_NADIR[stand.leaf_angle]
+    return {"cx": cx, "cy": cy, "zb": zb, "zt": zt, "r": r, "shape": stand.crown_shape,
+            "leaf_angle": stand.leaf_angle, "g": g,
+            "lad": float(stand.leaf_area_density_m2_m3), "clumping": float(stand.clumping),
+            "rho": float(rho), "tau": float(tau)}
+
+
+def table_file(table: dict) -> pathlib.Path:
+    """Write ``table`` once to the cache (``LIDAR_MITSUBA_CACHE`` or the temporary folder),
+    named by its content's hash, and return the path (an XML scene or a dict names it)."""
+    from lidar_mitsuba_plugins import canopy_table as ct
+    checked = ct.check(table)
+    h = hashlib.sha256()
+    for k in sorted(checked):
+        h.update(k.encode())
+        h.update(np.asarray(checked[k]).tobytes() if isinstance(checked[k], np.ndarray)
+                 else repr(checked[k]).encode())
+    folder = pathlib.Path(os.environ.get("LIDAR_MITSUBA_CACHE")
+                          or pathlib.Path(tempfile.gettempdir()) / "lidar_mitsuba")
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"canopy_{h.hexdigest()[:20]}.npz"
+    if not path.exists():
+        tmp = path.with_suffix(f".{os.getpid()}.npz")
+        ct.save(tmp, checked)
+        os.replace(tmp, path)
+    return path
+
+
+def integrator_dict(stand, *, mode: str, base: dict, rho: float, tau: float,
+                    hot_spot: bool = True, max_depth: int | None = None) -> dict:
+    """The ``canopy`` integrator's Mitsuba dict for ``stand`` in representation ``mode``
+    (:data:`MODES`), over ``base`` (the instrument's ``pathlength`` parameters:
+    ``Instrument.integrator_dict()``). ``max_depth``: ``turbid``'s vertices per path
+    (default the plugin's, 3); ``gap`` has two records per photon."""
+    if mode not in MODES:
+        raise ParameterError("representation", f"must be one of explicit, {', '.join(MODES)}"
+                                               f" (got {mode!r})")
+    pad = float(base.get("fov_radius_m", 20.65)) + 20.0
+    d = {k: v for k, v in base.items() if k != "max_depth"}
+    d.update(type="canopy", mode=mode, hot_spot=bool(hot_spot),
+             filename=str(table_file(canopy_table(stand, rho=rho, tau=tau, pad_m=pad))))
+    if mode == "turbid" and max_depth is not None:
+        d["max_depth"] = int(max_depth)
+    return d
+
+
+def no_shapes(forest, *, bounds_xy_m, shift_m) -> tuple[dict, int]:
+    """The turbid and gap representations' Mitsuba shapes: none (the crowns are the
+    ``canopy`` integrator's table, :func:`forest_integrator`); the scene is the ground's."""
+    return {}, 0
+
+
+def forest_integrator(forest, base: dict) -> dict:
+    """The integrator a :class:`~lidar_mitsuba.vegetation.forest.ForestSurface` in the
+    ``turbid`` or ``gap`` representation is traced with: ``canopy`` over ``base`` (the
+    material's ``pathlength`` dict, whose ``max_depth`` the turbid medium keeps), the leaves'
+    optics the forest's. Its ground must be one scene in the stand's coordinates (a plane or
+    a heightfield): a DEM's corridor tiles, each shifted, are refused."""
+    from ..ground.surface import Surface
+    if type(forest.ground).tiles is not Surface.tiles:
+        raise ParameterError("representation", f"{forest.representation} needs a plane or "
+                             f"heightfield ground (a DEM's corridor tiles are not supported "
+                             f"yet); use representation='explicit'")
+    return integrator_dict(forest.stand, mode=forest.representation, base=base,
+                           rho=forest.leaf.reflectance, tau=forest.leaf.transmittance,
+                           max_depth=base.get("max_depth"))
