@@ -11,6 +11,13 @@ mi = lidar_mitsuba.ensure_renderer()     # the renderer, set up as a first run w
 VARIANT = mi.variant()
 
 
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto`` (the default, pyproject.toml): one worker per core, at most 4 (each holds
+    its own renderer, ~1.5 GB)."""
+    import os
+    return max(1, min(4, len(os.sched_getaffinity(0))))
+
+
 @pytest.fixture
 def rng():
     """A seeded numpy generator: every test that draws numbers is reproducible."""
@@ -24,12 +31,17 @@ def variant():
 
 @pytest.fixture(autouse=True, scope="session")
 def _kernel_cache(tmp_path_factory):
-    """Snow kernel tables (lidar_mitsuba.ground.snow.kernel) go to a folder of this session's own:
-    every test that uses one builds it from the walk, never reads a table from an earlier
-    run (subprocesses inherit the setting)."""
+    """Snow kernel tables (lidar_mitsuba.ground.snow.kernel) go to a folder of this test run's
+    own, shared by its workers: each table is built from the walk once per run, never read
+    from an earlier run (subprocesses inherit the setting)."""
     import os
     old = os.environ.get("LIDAR_MITSUBA_CACHE")
-    os.environ["LIDAR_MITSUBA_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    if os.environ.get("PYTEST_XDIST_WORKER"):     # one folder for all workers of this run
+        cache = tmp_path_factory.getbasetemp().parent / "cache"   # (tables are locked while built)
+        cache.mkdir(exist_ok=True)
+    else:
+        cache = tmp_path_factory.mktemp("cache")
+    os.environ["LIDAR_MITSUBA_CACHE"] = str(cache)
     yield
     if old is None:
         os.environ.pop("LIDAR_MITSUBA_CACHE", None)

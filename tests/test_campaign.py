@@ -57,6 +57,18 @@ grain_levels_um = [150, 1000]
 """
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _small_kernel_tables():
+    """This module checks the campaign's plumbing (which tables, where, the same table to the
+    bit however it is run), not a table's precision (tests/test_snow_kernel.py does): its
+    tables, built here and read by the Dask workers it starts, have 2^13 walk photons a node."""
+    from lidar_mitsuba.ground.snow import kernel
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("LIDAR_MITSUBA_KERNEL_PHOTONS", str(1 << 13))
+        mp.setattr(kernel, "PHOTONS", 1 << 13)
+        yield
+
+
 @pytest.fixture(scope="module")
 def spec_path(tmp_path_factory):
     """A 20 x 6 km DEM (80 m posting, no hole) that four repeat-orbit tracks cross with both
@@ -805,3 +817,41 @@ def test_segments_are_labelled_by_the_task_s_section_bounds():
            "beam": np.array(["gt1l", "gt1r", "gt1l", "gt1r", "gt1l", "gt1r"], object)}
     got = _section_values(seg, p, {"gt1l": [1.0, 2.0], "gt1r": [3.0, 4.0]})
     np.testing.assert_array_equal(got, [1.0, 3.0, 2.0, 4.0, 2.0, 3.0])
+
+
+REAL_FOREST = pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "real"
+
+
+@pytest.mark.skipif(not (REAL_FOREST / "ATL03_gt1r_20220401_forest_wyoming.h5").exists(),
+                    reason="the real forest clip is not beside the repository")
+def test_icepyx_reads_our_atl08_offline(tmp_path, monkeypatch):
+    """icepyx (2.0.2; here, where the readers test has imported it) reads our ATL08 of the real
+    forest ATL03 clip from the disk with no network (any connection raises): the product and
+    release from METADATA, the orbit from orbit_info, the nested terrain group on the
+    segments' times (dimension scales, as in real granules), to the values h5py reads. NASA's
+    clip it cannot read: its subsetter dropped METADATA, where icepyx parses the release."""
+    import socket
+    import warnings
+    from lidar_mitsuba.products import atl08
+
+    def no_network(*args, **kwargs):
+        raise AssertionError(f"a reader went to the network: {args[1:]}")
+    monkeypatch.setattr(socket.socket, "connect", no_network)
+    monkeypatch.setattr(socket, "getaddrinfo", no_network)
+    import icepyx as ipx
+    beam = atl08.from_atl03(REAL_FOREST / "ATL03_gt1r_20220401_forest_wyoming.h5", "gt1r")
+    path = atl08.write(beam, tmp_path / "ATL08_ours.h5")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        reader = ipx.Read(str(path))
+        assert reader.product == "ATL08"
+        reader.variables.append(var_list=["h_te_best_fit", "terrain_slope"])
+        ds = reader.load()
+        with pytest.raises(Exception, match="version"):
+            ipx.Read(str(REAL_FOREST / "ATL08_gt1r_20220401_forest_wyoming.h5"))\
+                .variables.append(var_list=["h_te_best_fit"])
+    with h5py.File(path) as f:
+        want = f["gt1r/land_segments/terrain/h_te_best_fit"][()]
+    got = ds["h_te_best_fit"].values.ravel()
+    np.testing.assert_array_equal(got[np.isfinite(got)], want[want < atl08.fields.F4_FILL])
+    assert int(ds["rgt"].values[0]) == 150

@@ -33,7 +33,7 @@ import offline_assets  # noqa: E402
 BUILD = [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html"]
 COMMANDS = documented_commands(ROOT)
 #: the subcommands run here, with --shots capped at SHOTS
-RUN_HERE = {"simulate", "make-dem", "stats", "segments", "terrain"}
+RUN_HERE = {"simulate", "make-dem", "stats", "segments", "terrain", "atl08", "export-las"}
 SHOTS = 200
 #: documented commands too slow to run here, each run (at its own sizes) by the test named,
 #: whose source holds the subcommand and every option the page gives: (subcommand, an option

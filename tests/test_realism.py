@@ -212,6 +212,8 @@ def test_validate_real_over_every_real_file(tmp_path, capsys):
     assert (tmp_path / "realism_background.png").stat().st_size > 10_000
     md = (tmp_path / "realism.md").read_text()
     assert all(f in md for f in files)
+    # the forest clip's ATL03 and NASA's ATL08: our ATL08 beside it (studies.atl08_real)
+    assert "h_te_best_fit" in (tmp_path / "atl08_real.md").read_text()
     out = capsys.readouterr().out
     assert "ATL06_20190420093051" in out and "wrote" in out
 

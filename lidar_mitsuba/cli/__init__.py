@@ -1,7 +1,7 @@
 """Command-line interface ``lidar-mitsuba`` (simulate, stats, segments, terrain, make-dem, bench,
-reproduce, validate, sweep, campaign, make-raster). ``simulate`` and its options are
-:mod:`.simulate`, ``campaign`` and ``make-raster`` :mod:`.campaign`; the shared argparse pieces
-:mod:`.args`.
+reproduce, validate, sweep, campaign, make-raster, atl08, export-las). ``simulate`` and its
+options are :mod:`.simulate`, ``campaign`` and ``make-raster`` :mod:`.campaign`, ``atl08`` and
+``export-las`` :mod:`.export`; the shared argparse pieces :mod:`.args`.
 
 Bad input is reported as one line naming the option, with exit code 2 and no output file.
 The options of ``simulate`` and ``terrain`` are generated from the API (:mod:`.options`):
@@ -19,7 +19,8 @@ import pathlib
 import sys
 import time
 
-from . import campaign as cli_campaign, options as opts, simulate as cli_simulate
+from . import campaign as cli_campaign, export as cli_export, options as opts, \
+    simulate as cli_simulate
 from .args import (PROG, Parser, UsageError, connect_scheduler, finite, nonnegative_int,
                    out_dir, out_path, positive_int, rates_line, read_input, spec_error,
                    variant_list, version_text)
@@ -36,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_study_parsers(sub)
     _add_sweep_parser(sub)
     cli_campaign.add_parsers(sub)
+    cli_export.add_parsers(sub)
     _add_terrain_parsers(sub)
     return p
 
@@ -260,6 +262,9 @@ def _cmd_validate(a) -> int:
                     cloud=_cloud(a.cloud))
         print(f"wrote {out / 'realism.md'}, {out / 'realism.json'} and "
               f"{out / 'realism_background.png'}")
+        from ..studies import atl08_real          # ATL03 + NASA's ATL08 pairs among them
+        if atl08_real.run(a.real, out, progress=print):
+            print(f"wrote {out / 'atl08_real.md'} and {out / 'atl08_real.json'}")
         return 0
     for flag, given in (("--signal-shots", a.signal_shots != 200), ("--cloud", a.cloud)):
         if given:
@@ -398,7 +403,8 @@ def main(argv: list[str] | None = None) -> int:
                     "reproduce": _cmd_reproduce, "sweep": _cmd_sweep,
                     "campaign": cli_campaign.cmd_campaign,
                     "make-raster": cli_campaign.cmd_make_raster,
-                    "validate": _cmd_validate}[args.command](args)
+                    "validate": _cmd_validate, "atl08": cli_export.cmd_atl08,
+                    "export-las": cli_export.cmd_export_las}[args.command](args)
         except ParameterError as e:
             raise UsageError(opts.option_name(e.name), e.message) from None
     except UsageError as e:

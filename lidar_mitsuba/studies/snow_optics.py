@@ -21,7 +21,6 @@ published numbers it is set beside are in :data:`PUBLISHED`.
 """
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 
@@ -66,18 +65,6 @@ PUBLISHED = (
 )
 
 
-@contextlib.contextmanager
-def _table_photons(n: int | None):
-    """Build kernel tables with ``n`` walk photons per node inside (None: the default)."""
-    old = snow_kernel.PHOTONS
-    if n is not None:
-        snow_kernel.PHOTONS = int(n)
-    try:
-        yield
-    finally:
-        snow_kernel.PHOTONS = old
-
-
 def _volume(changes: dict) -> snow.SnowVolume:
     opts = {**BASELINE, **changes}
     scale = opts.pop("ice_absorption_scale", 1.0)
@@ -108,7 +95,7 @@ def run(*, quick: bool = False) -> dict:
     """The sensitivity table (:data:`ROWS`; quick: :data:`QUICK_ROWS`, 2000 shots and
     kernel tables of 2^14 photons per node)."""
     rows = [(n, c) for n, c in ROWS if not quick or n in QUICK_ROWS]
-    with _table_photons(1 << 14 if quick else None):
+    with snow_kernel.photons_per_node(1 << 14 if quick else None):
         out = [{"name": n, **one(c, shots=2000 if quick else 20000)} for n, c in rows]
     return {"baseline": BASELINE, "site": SITE.to_dict(), "rows": out,
             "published": [list(p) for p in PUBLISHED], "quick": quick}

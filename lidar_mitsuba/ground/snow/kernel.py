@@ -23,6 +23,8 @@ tests hold it below a tenth of the elevation error of the runs that use it.
 """
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import json
 import math
@@ -41,13 +43,43 @@ VERSION = 3
 N_NODES = 18
 """Nodes at 0, 5, ..., 85 deg of incidence (steeper facets use the last)."""
 N_QUANTILES = 1024
-PHOTONS = 1 << 17
+
+
+def _photons_from_env(default: int = 1 << 17) -> int:
+    raw = os.environ.get("LIDAR_MITSUBA_KERNEL_PHOTONS", "").strip()
+    if not raw:
+        return default
+    if not raw.isdigit() or int(raw) < 1024:
+        from ...constants import ParameterError
+        raise ParameterError("LIDAR_MITSUBA_KERNEL_PHOTONS",
+                             f"must be a whole number of walk photons >= 1024 (got {raw!r})")
+    return int(raw)
+
+
+PHOTONS = _photons_from_env()
 """Walk photons per node up to :data:`STEEP_DEG` (the facets a terrain mostly has); a
-quarter of that beyond."""
+quarter of that beyond. ``$LIDAR_MITSUBA_KERNEL_PHOTONS`` sets it for a process and the
+processes it starts (a campaign's workers): fewer photons build a table faster, with a larger
+``mean_path_se_m``, under another key."""
 STEEP_DEG = 30.0
 ALTITUDE_M = 1000.0
 """Height of the tabulating trace's receiver above the plane [m] (any: only the extra path
 is kept)."""
+
+
+@contextlib.contextmanager
+def photons_per_node(n: int | None):
+    """Build tables with ``n`` walk photons per node inside the block (None: :data:`PHOTONS`
+    unchanged). The photon count is part of a table's key, so a smaller table never stands in
+    for a full one; quick studies use it where their numbers are a smoke run."""
+    global PHOTONS
+    old = PHOTONS
+    if n is not None:
+        PHOTONS = int(n)
+    try:
+        yield
+    finally:
+        PHOTONS = old
 
 
 def cache_dir() -> pathlib.Path:
@@ -176,6 +208,30 @@ def table(vol, *, photons: int | None = None, seed: int = 0, progress: bool = Tr
     photons = PHOTONS if photons is None else int(photons)
     k = key(vol, photons=photons, seed=seed)
     path = cache_dir() / f"{k}.npz"
+    with _building(path):           # processes sharing the cache build each table once
+        return _read_or_build(vol, path, k, photons=photons, seed=seed, progress=progress)
+
+
+@contextlib.contextmanager
+def _building(path: pathlib.Path):
+    """An exclusive lock on ``path``'s ``.lock`` file while a table is read or built: a second
+    process (a campaign's or a test run's workers) waits for the first one's table instead of
+    walking the same photons again. Without a writable cache folder, no lock."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path.with_name(f".{path.name}.lock"), os.O_CREAT | os.O_RDWR, 0o644)
+    except OSError:
+        yield
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)                # closing releases the lock
+
+
+def _read_or_build(vol, path: pathlib.Path, k: str, *, photons: int, seed: int,
+                   progress: bool) -> tuple[pathlib.Path, dict]:
     if path.is_file():
         try:
             return path, kernel_table.load(path)
