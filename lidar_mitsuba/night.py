@@ -20,8 +20,9 @@ that span, ``bckgrd_counts_reduced`` the counts left) and divides::
 3. **the laser's light scattered back by the air** over the part of the band above the surface
    (Rayleigh and aerosol; below the surface the band holds no air):
    ``N T0^2 (A / R^2) eta_rx * integral beta(z) T(z)^2 dz / (2 H / c)``;
-4. **cloud backscatter** where a cloud layer is given (:class:`CloudLayer`), which also dims
-   everything below it by ``exp(-2 eta tau)``;
+4. **cloud backscatter** where a cloud layer is given
+   (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`), which also dims everything below it
+   by ``exp(-2 eta tau)``;
 5. **the laser's own surface photons that the signal span misses**: a signal of ``S`` detected
    photons per shot of which a fraction ``f`` falls outside the removed span adds
    ``S f c / (2 H)`` (the pulse's tails, echoes and afterpulses: whatever the detected
@@ -56,11 +57,6 @@ AEROSOL_LIDAR_RATIO_SR = 50.0
 range: 40-70 sr for most aerosol types, Mueller et al. 2007, J. Geophys. Res. 112, D16202;
 Arctic haze ~50-60 sr)."""
 
-CLOUD_LIDAR_RATIO_SR = {"water": 18.8, "ice": 29.0}
-"""Extinction-to-backscatter ratio of clouds [sr]: liquid water 18.8 (O'Connor, Illingworth &
-Hogan 2004, J. Atmos. Oceanic Technol. 21, 777), ice (cirrus) 29 +- 12 (Chen, Chiang & Nee
-2002, Appl. Opt. 41, 6470)."""
-
 BAND_HEIGHT_M = 5006.5
 """Height of the altimetric histogram's band where a file does not give it [m]: ATL03's
 ``bckgrd_int_height`` over polar surfaces (5006.5 m in the shipped subset; ATL07's
@@ -85,58 +81,11 @@ def dark_count_per_channel_hz(*, anodes: int, channels: int) -> float:
     return DARK_COUNT_PER_ANODE_HZ * anodes / channels
 
 
-@dataclass(frozen=True)
-class CloudLayer:
-    """A uniform cloud layer for the background's cloud term.
-
-    Attributes:
-        optical_depth: the layer's extinction optical depth at 532 nm (>= 0).
-        base_m, top_m: its base and top above the surface [m].
-        phase: ``water`` or ``ice`` (sets the lidar ratio, :data:`CLOUD_LIDAR_RATIO_SR`).
-        multiple_scattering_eta: the factor on the optical depth for the attenuation of a
-            lidar beam (Platt 1973: < 1 where forward-scattered light stays in the field of
-            view; 1 = single scattering, the default).
-    """
-    optical_depth: float
-    base_m: float
-    top_m: float
-    phase: str = "water"
-    multiple_scattering_eta: float = 1.0
-
-    def __post_init__(self):
-        check("cloud_optical_depth", self.optical_depth,
-              math.isfinite(self.optical_depth) and self.optical_depth >= 0, "must be >= 0")
-        check("cloud_base_m", self.base_m, 0 <= self.base_m < self.top_m,
-              "must be >= 0 and below the top")
-        check("cloud_phase", self.phase, self.phase in CLOUD_LIDAR_RATIO_SR,
-              f"must be one of {', '.join(CLOUD_LIDAR_RATIO_SR)}")
-        check("multiple_scattering_eta", self.multiple_scattering_eta,
-              0 < self.multiple_scattering_eta <= 1, "must be in (0, 1]")
-
-    @property
-    def two_way_transmission(self) -> float:
-        """``exp(-2 eta tau)``: what the layer leaves of a return from below it."""
-        return math.exp(-2.0 * self.multiple_scattering_eta * self.optical_depth)
-
-    def integrated_backscatter_sr(self) -> float:
-        """``integral beta T_c^2 dz`` through the layer [1/sr]: for a uniform layer
-        ``(1 - exp(-2 eta tau)) / (2 eta S)`` (S its lidar ratio; the closed form of the
-        layer's attenuated backscatter)."""
-        eta, tau = self.multiple_scattering_eta, self.optical_depth
-        s = CLOUD_LIDAR_RATIO_SR[self.phase]
-        return (1.0 - math.exp(-2.0 * eta * tau)) / (2.0 * eta * s)
-
-
 def cloud_backscatter(cloud) -> tuple[float, float]:
-    """``(two-way transmission, integrated attenuated backscatter [1/sr])`` of a cloud layer:
-    a :class:`CloudLayer` or a run's :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`
-    (its own lidar ratio; single scattering)."""
-    if isinstance(cloud, CloudLayer):
-        return cloud.two_way_transmission, cloud.integrated_backscatter_sr()
-    tau = float(cloud.optical_depth)
-    s = getattr(cloud, "lidar_ratio_sr", None) or CLOUD_LIDAR_RATIO_SR.get(
-        getattr(cloud, "phase", "water"), CLOUD_LIDAR_RATIO_SR["water"])
-    return math.exp(-2.0 * tau), (1.0 - math.exp(-2.0 * tau)) / (2.0 * s)
+    """``(two-way transmission, integrated attenuated backscatter [1/sr])`` of a cloud layer
+    (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`: its lidar ratio and Platt's eta,
+    :meth:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud.integrated_backscatter_sr`)."""
+    return cloud.lidar_two_way_transmission, cloud.integrated_backscatter_sr()
 
 
 def air_backscatter_integral_sr(atmosphere, *, z_lo_m: float, z_hi_m: float,
@@ -181,7 +130,7 @@ class HistogramBand:
 def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elevation_deg,
                      solar_azimuth_deg, band: HistogramBand | None = None,
                      signal_per_shot: float = 0.0, outside_fraction=None,
-                     cloud: CloudLayer | None = None) -> dict:
+                     cloud=None) -> dict:
     """The detected background rate the product reports, term by term [Hz, medians over the
     shots or segments given], for an ATLAS ``instrument`` (with a link budget).
 
@@ -193,8 +142,8 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
         signal_per_shot: detected surface photons per shot (the leak term's ``S``).
         outside_fraction: the fraction of them outside the removed span (default: the
             instrument's Gaussian pulse, :func:`gaussian_outside_fraction`).
-        cloud: a :class:`CloudLayer` or a run's
-            :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud` (default: clear sky).
+        cloud: a :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud` (default: clear
+            sky).
 
     Returns ``{"dark", "solar", "air", "cloud", "leak", "total"}`` [Hz, detected].
     """
@@ -203,7 +152,10 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
     link = instrument.link_budget
     keep = instrument.fill_factor * instrument.pde
     z = np.atleast_1d(np.asarray(z_m, np.float64))
-    rad = shot_radiometry(instrument, delta_time_s=delta_time_s, z_m=z, albedo=albedo,
+    # under a cloud the sun sees the cloud over the surface (its two-stream system albedo,
+    # as a run's radiometry: atmosphere.cloud_layer.clouded_radiometry)
+    sunlit = albedo if cloud is None else cloud.system_albedo(albedo)
+    rad = shot_radiometry(instrument, delta_time_s=delta_time_s, z_m=z, albedo=sunlit,
                           solar_elevation_deg=solar_elevation_deg,
                           solar_azimuth_deg=solar_azimuth_deg)
     h = float(np.nanmedian(np.atleast_1d(band.height_m)))
@@ -242,7 +194,7 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
     f_out = float(np.nanmedian(np.atleast_1d(outside_fraction)))
     leak_hz = signal_per_shot * f_out / band_s          # detected photons already
     out = {"dark": instrument.dark_count_hz * instrument.channels,
-           # sunlight as the sky model gives it (clear sky: a cloud's sunlit top is not here)
+           # sunlight as the sky model gives it, the surface's albedo the cloud's system's
            "solar": float(np.median(rad.solar_mhz)) * 1e6 * keep,
            "air": air_hz * keep, "cloud": cloud_hz * keep, "leak": leak_hz}
     out["total"] = sum(out.values())

@@ -139,6 +139,9 @@ class RunPlan:
             first chunk's.
         cloud: the cloud over the track (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`), or
             None (clear sky).
+        cloud_table: its kernel's table at this instrument's geometry
+            (:class:`~lidar_mitsuba.atmosphere.cloud_kernel.CloudTable`, made once by
+            :func:`plan`), or None.
     """
     instrument: Instrument
     surface: surfaces.Surface
@@ -175,6 +178,7 @@ class RunPlan:
     radiometry: radiometry.ShotRadiometry | None
     tiling: object
     cloud: object = None
+    cloud_table: object = None
 
     @property
     def scene(self):
@@ -202,8 +206,7 @@ class RunPlan:
                    + f", {self.paths_per_shot} paths per shot"
                    + (" (the scout's choice)" if self.path_budget is not None else ""))
         if self.cloud is not None:
-            from .atmosphere import cloud_kernel
-            tab = cloud_kernel.table_for(self.cloud, inst)
+            tab = self.cloud_table
             out.append(f"cloud: {self.cloud.describe()}; forward-scattered light in the field "
                        f"of view {tab.forward:.3g} of the clear ground's (mean delay "
                        f"{tab.mean_delay_ns:.3g} ns), tabulated once by mediapathlength")
@@ -265,7 +268,7 @@ def plan(*, instrument: Instrument | None = None, surface=None, scene=None,
                    params=params, bsdf=bsdf, shots=shots, seed=seed,
                    paths_per_shot=paths_per_shot, max_depth=max_depth, variant=variant,
                    chunk_shots=chunk_shots, snow=snow, snow_model=snow_model)
-    run.cloud = _cloud(cloud, run)
+    run.cloud, run.cloud_table = _cloud(cloud, run)
     _lay_out(run, track or Track(), crop_to_track=crop_to_track)
     _choose_model(run, progress=progress)
     _place_on_earth(run, site or Site())
@@ -273,21 +276,22 @@ def plan(*, instrument: Instrument | None = None, surface=None, scene=None,
 
 
 def _cloud(cloud, run: _Run):
-    """The run's cloud checked (None or optical depth 0: clear sky), its kernel tabulated
-    (:mod:`.atmosphere.cloud_kernel`, cached: a later section or beam reuses it)."""
+    """``(cloud, table)``: the run's cloud checked (None or optical depth 0: clear sky:
+    ``(None, None)``) and its kernel's table (:mod:`.atmosphere.cloud_kernel`, cached: a
+    later plan of the same cloud and geometry reuses it; the plan holds it)."""
     from .atmosphere import cloud_layer as clouds
     cloud = clouds.as_cloud(cloud)
     if cloud is None or cloud.clear:
-        return None
+        return None, None
     from .trace import materials
     if isinstance(run.material, materials.SceneMaterials) and run.material.air_layers:
         raise ParameterError("cloud", "the scene holds its own layer in the air: give the "
                              "cloud in one place")
     from .atmosphere import cloud_kernel
     t1 = time.perf_counter()
-    cloud_kernel.table_for(cloud, run.instrument)
+    table = cloud_kernel.table_for(cloud, run.instrument)
     run.timings_s["cloud_kernel_s"] = time.perf_counter() - t1
-    return cloud
+    return cloud, table
 
 
 def _check_snow(snow, snow_model, *, surf, bsdf, max_depth) -> None:

@@ -215,7 +215,7 @@ def stream(run: RunPlan, *, keep_returns: bool | None = None,
     if run.cloud is not None:     # the cloud on every traced return (atmosphere.cloud_kernel)
         from .atmosphere import cloud_kernel
         source = cloud_kernel.CloudSource(
-            source, run.cloud, cloud_kernel.table_for(run.cloud, run.instrument),
+            source, run.cloud, run.cloud_table,
             instrument=run.instrument,
             gate_center_ns=chunks.gate_center_ns(run.instrument, run.z_ref_m))
     rad = run.radiometry
@@ -272,9 +272,7 @@ def assemble(run: RunPlan, chunked: chunks.ChunkedRun) -> SimulationResult:
               "site": run.site.to_dict(),
               "radiometry": None if run.radiometry is None else run.radiometry.summary()}
     if run.cloud is not None:        # (a clear run's config is as it was)
-        from .atmosphere import cloud_kernel
-        config["cloud"] = {**run.cloud.to_dict(), "kernel": cloud_kernel.table_for(
-            run.cloud, inst).summary()}
+        config["cloud"] = {**run.cloud.to_dict(), "kernel": run.cloud_table.summary()}
     return SimulationResult(instrument=inst, config=config, along_track_m=run.along_m,
                             shot_x_m=run.x_m, shot_y_m=run.y_m, surface_z_m=run.surface_z_m,
                             z_ref_m=run.z_ref_m, detections=det, h_m=h, signal_conf=conf,

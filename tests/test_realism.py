@@ -6,6 +6,7 @@ Rayleigh's 8 pi / 3), a uniform cloud's integrated backscatter, a Gaussian's mas
 span (against seeded sampling, tolerance five binomial standard errors)."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import pathlib
@@ -14,6 +15,8 @@ import numpy as np
 import pytest
 
 from lidar_mitsuba import night, twin
+from lidar_mitsuba.atmosphere import cloud_layer
+from lidar_mitsuba.atmosphere.cloud_layer import Cloud
 from lidar_mitsuba.cli import main
 from lidar_mitsuba.instrument import Instrument, atlas_pulse_energy_uj
 from lidar_mitsuba.products import real
@@ -41,14 +44,17 @@ def test_the_airs_backscatter_integral_is_its_closed_form(monkeypatch):
 
 
 def test_a_clouds_integrated_backscatter_is_its_closed_form():
-    c = night.CloudLayer(optical_depth=1.3, base_m=800.0, top_m=1800.0, phase="ice",
-                         multiple_scattering_eta=0.7)
+    c = dataclasses.replace(Cloud.ice(1.3, 800.0, 1800.0), multiple_scattering_eta=0.7)
     z = np.linspace(0.0, 1000.0, 200001)                   # depth into the layer from its top
     sigma = c.optical_depth / 1000.0
-    y = sigma / night.CLOUD_LIDAR_RATIO_SR["ice"] * np.exp(-2 * 0.7 * sigma * z)
+    y = sigma / cloud_layer.LIDAR_RATIO_SR["ice"] * np.exp(-2 * 0.7 * sigma * z)
     numeric = float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(z)))
     assert c.integrated_backscatter_sr() == pytest.approx(numeric, rel=1e-8)
-    assert c.two_way_transmission == pytest.approx(math.exp(-2 * 0.7 * 1.3))
+    assert night.cloud_backscatter(c) == (c.lidar_two_way_transmission,
+                                          c.integrated_backscatter_sr())
+    assert c.lidar_two_way_transmission == pytest.approx(math.exp(-2 * 0.7 * 1.3))
+    assert c.two_way_transmission == pytest.approx(math.exp(-2 * 1.3))   # a traced run's
+    assert "multiple_scattering_eta" not in Cloud.water(1.0, 500, 1500).to_dict()
 
 
 def test_a_gaussians_mass_outside_a_span_against_sampling():
@@ -200,15 +206,23 @@ def test_validate_real_over_every_real_file(tmp_path, capsys):
     for r in doc["rows"]:
         by_file.setdefault(r["file"], []).append(r)
         lo, hi = realism.BACKGROUND_AGREES
-        if r["verdict"] == "agrees":
-            assert lo <= r["background_ratio"] <= hi
+        if r["verdict"] == "agrees":      # clear segments', or with the cloud the cloudy ones'
+            ratio = r["background_ratio"]
+            assert lo <= (ratio if ratio is not None else r["background_cloudy_ratio"]) <= hi
         if r["product"] == "ATL08":
             assert r["verdict"] == "surface missing"
         assert r["predicted"]["background_hz"] == pytest.approx(
             sum(v for k, v in r["predicted"]["background_terms_hz"].items() if k != "total"))
     assert set(by_file) == set(files)
+    # every segment cloudy: the cloud the file's own r_eff implies, where it gives one
     pine = [r for r in doc["rows"] if "pine_island" in r["file"]]
-    assert pine and all(r["verdict"] == "cloud missing" for r in pine)   # every segment cloudy
+    assert pine and all(r["measured"]["clear_fraction"] == 0 for r in pine)
+    for r in pine:
+        if r["cloud"] is None:            # gt3l: neither r_eff nor a background on any segment
+            assert r["verdict"] == "not measured"
+        else:
+            assert r["cloud"]["from"] == "the file's reflectance" and r["cloud"]["optical_depth"] > 0
+    assert sum(r["cloud"] is not None for r in pine) >= 4
     assert (tmp_path / "realism_background.png").stat().st_size > 10_000
     md = (tmp_path / "realism.md").read_text()
     assert all(f in md for f in files)
@@ -268,8 +282,11 @@ def test_a_subset_without_photons_or_attributes_is_still_read(tmp_path):
 def test_a_cloud_given_predicts_the_cloudy_segments(tmp_path, capsys):
     night_file = realism.PACKAGE_DATA / "ATL06_20181226035130_13520105_001_01_greenland_night.h5"
     bare = realism.run([night_file], None, signal_shots=0)
-    assert {r["verdict"] for r in bare["rows"]} == {"cloud missing"}
-    layer = night.CloudLayer(optical_depth=1.0, base_m=500.0, top_m=1500.0)
+    for r in bare["rows"]:       # the file's own cloud: r_eff's depth, msw_flag 1 (above 3 km)
+        assert r["cloud"]["from"] == "the file's reflectance" and r["cloud"]["base_m"] == 4000.0
+        assert "reflectance implies" in r["reason"]
+        assert r["predicted"]["background_cloudy_terms_hz"]["cloud"] == 0.0   # above the band
+    layer = Cloud.water(1.0, 500.0, 1500.0)
     doc = realism.run([night_file], None, signal_shots=0, cloud=layer)
     for r, b in zip(doc["rows"], bare["rows"]):
         assert r["verdict"] in ("agrees", "disagrees") and "cloud given" in r["reason"]
@@ -278,10 +295,44 @@ def test_a_cloud_given_predicts_the_cloudy_segments(tmp_path, capsys):
         assert p["signal_cloudy"] == pytest.approx(p["signal_per_shot"] * math.exp(-2.0))
         # the air below the cloud dimmed, the air above it kept: less air than clear sky
         assert p["background_cloudy_terms_hz"]["air"] < b["predicted"]["background_terms_hz"]["air"]
-    from lidar_mitsuba.atmosphere.cloud_layer import Cloud      # a run's cloud: the same
-    same = realism.run([night_file], None, signal_shots=0, cloud=Cloud.water(1.0, 500, 1500))
-    assert [r["predicted"]["background_cloudy_hz"] for r in same["rows"]] == pytest.approx(
-        [r["predicted"]["background_cloudy_hz"] for r in doc["rows"]], rel=1e-12)
     assert main(["validate", "--real", str(night_file), "--cloud", "1,1500,500",
                  "--out", str(tmp_path)]) == 2
     assert "--cloud" in capsys.readouterr().err
+
+
+def _beam(reflectance, clear, layer_class=None):
+    n = len(reflectance)
+    return real.RealBeam(name="gt1l", spot=1, strength="strong", strength_from="test",
+                         delta_time_s=np.arange(n, dtype=float), lat_deg=np.zeros(n),
+                         lon_deg=np.zeros(n), surface_h_m=np.zeros(n),
+                         reflectance=np.asarray(reflectance, float), clear=np.asarray(clear),
+                         layer_class=None if layer_class is None else np.asarray(layer_class))
+
+
+def test_the_cloud_a_files_reflectance_and_layer_flag_imply():
+    """tau = -ln(r / r_clear) / 2 with the beam's clear segments as r_clear (snow's 0.9
+    without any), the layer's height from msw_flag's most frequent class."""
+    r_clear, tau = 0.8, 0.7
+    b = _beam([r_clear, r_clear * math.exp(-2 * tau), r_clear * math.exp(-2 * tau)],
+              [True, False, False], [0, 2, 2])
+    c = realism.implied_cloud(b)
+    assert c.optical_depth == pytest.approx(tau, abs=1e-3) and (c.base_m, c.top_m) == (
+        2000.0, 3000.0)
+    c = realism.implied_cloud(_beam([0.9 * math.exp(-2.0)] * 2, [False, False]))
+    assert c.optical_depth == pytest.approx(1.0, abs=1e-3) and c.base_m == 500.0   # no flag
+    assert realism.layer_heights_m([1, 1, 3]) == (4000.0, 5000.0)
+    assert realism.layer_heights_m([5, 4, 4, 0]) == (0.0, realism.BLOWING_SNOW_TOP_M)
+    assert realism.implied_cloud(_beam([0.9, 0.9], [True, True])) is None    # all clear
+    assert realism.implied_cloud(_beam([0.9, 0.95], [True, False])) is None  # not dimmed
+
+
+def test_the_sun_sees_the_files_ice_concentration():
+    """On sea ice the sunlit albedo is the area mean c 0.9 + (1 - c) 0.06 with c ATL07's
+    ice_conc (the median over the beam's segments); elsewhere the surface's own."""
+    b = _beam([0.9] * 3, [True] * 3)
+    b.ice_fraction = np.array([0.92, 0.90, np.nan])
+    sea, ice = realism.PRODUCT_SURFACES["sea ice"], realism.PRODUCT_SURFACES["land ice"]
+    assert realism.sunlit_albedo(b, sea) == pytest.approx(0.91 * 0.9 + 0.09 * 0.06)
+    assert realism.sunlit_albedo(b, ice) == 0.9
+    b.ice_fraction = None
+    assert realism.sunlit_albedo(b, sea) == 0.9

@@ -31,7 +31,14 @@ Published values used (each also where it is used):
   ~18.8 sr for the droplet sizes of stratocumulus; recalled);
 * ice crystals: ``g = 0.75`` and lidar ratio 25 sr (recalled: ice-cloud asymmetry 0.74-0.80
   at visible wavelengths, Baum et al. 2011 J. Appl. Meteor. Climatol. 50, 1037; CALIOP's
-  ice-cloud lidar ratio ~25 sr, Garnier et al. 2015 J. Appl. Meteor. Climatol. 54, 1063);
+  ice-cloud lidar ratio ~25 sr, Garnier et al. 2015 J. Appl. Meteor. Climatol. 54, 1063;
+  ground-based cirrus lidars give 29 +- 12 sr, Chen, Chiang & Nee 2002, Appl. Opt. 41, 6470:
+  CALIOP's is kept, a spaceborne 532 nm lidar's view of the clouds ATLAS sees, and inside
+  Chen et al.'s range);
+* Platt's multiple-scattering factor ``eta`` (Platt 1973, J. Atmos. Sci. 30, 1191): a lidar's
+  closed-form attenuation through a cloud is ``exp(-2 eta tau)``, ``eta < 1`` where light
+  scattered forward stays in the field of view (:attr:`Cloud.multiple_scattering_eta`,
+  default 1: single scattering; the traced runs carry the forward scattering themselves);
 * Henyey-Greenstein's backscatter ``p(pi) = (1 - g^2) / (4 pi (1 + g)^3)`` is ~20 times
   below a droplet's (its forward peak is too weak and its back too dark), so the backscatter
   uses the lidar ratio: ``beta = sigma_ext / S``.
@@ -54,6 +61,8 @@ ICE_G = 0.75
 """Asymmetry of ice crystals at visible wavelengths (Baum et al. 2011: 0.74-0.80)."""
 ICE_LIDAR_RATIO_SR = 25.0
 """Extinction-to-backscatter ratio of ice clouds [sr] (CALIOP's, Garnier et al. 2015)."""
+LIDAR_RATIO_SR = {"water": WATER_LIDAR_RATIO_SR, "ice": ICE_LIDAR_RATIO_SR}
+"""The lidar ratio of each phase [sr]: the one table (module sources)."""
 MAX_OPTICAL_DEPTH = 20.0
 """Above this the ground's unscattered light is exp(-40): nothing of the surface is left."""
 MAX_TOP_M = 20000.0
@@ -77,6 +86,11 @@ class Cloud:
         lidar_ratio_sr: extinction-to-backscatter ratio S [sr] setting the cloud's own
             backscatter ``beta = sigma_ext / S``; ``None``: Henyey-Greenstein's ``p(pi)``.
         phase: a label (``"water"``, ``"ice"``, ``"hg"``): where ``g`` and ``S`` come from.
+        multiple_scattering_eta: Platt's factor on the optical depth in the closed-form lidar
+            attenuation ``exp(-2 eta tau)`` (0 < eta <= 1; 1: single scattering). Used by the
+            closed forms (:meth:`lidar_two_way_transmission`,
+            :meth:`integrated_backscatter_sr`); traced runs carry forward scattering
+            themselves and ignore it.
     """
     optical_depth: float
     base_m: float
@@ -85,6 +99,7 @@ class Cloud:
     single_scattering_albedo: float = 1.0
     lidar_ratio_sr: float | None = WATER_LIDAR_RATIO_SR
     phase: str = "water"
+    multiple_scattering_eta: float = 1.0
 
     def __post_init__(self):
         tau = self.optical_depth
@@ -106,6 +121,9 @@ class Cloud:
         if s is not None and not (_finite(s) and 1 <= s <= 200):
             raise ParameterError("cloud_lidar_ratio_sr", f"must be in [1, 200] sr or None "
                                  f"(got {s!r})")
+        eta = self.multiple_scattering_eta
+        if not (_finite(eta) and 0 < eta <= 1):
+            raise ParameterError("multiple_scattering_eta", f"must be in (0, 1] (got {eta!r})")
 
     @classmethod
     def water(cls, optical_depth: float, base_m: float, top_m: float) -> "Cloud":
@@ -136,6 +154,21 @@ class Cloud:
     def two_way_transmission(self) -> float:
         """exp(-2 tau): the ground's unscattered light after the way down and up."""
         return math.exp(-2.0 * self.optical_depth)
+
+    @property
+    def lidar_two_way_transmission(self) -> float:
+        """``exp(-2 eta tau)``: what the closed-form lidar equation leaves of a return from
+        below the layer (Platt's eta; = :attr:`two_way_transmission` at eta = 1)."""
+        return math.exp(-2.0 * self.multiple_scattering_eta * self.optical_depth)
+
+    def integrated_backscatter_sr(self) -> float:
+        """``integral beta T_c^2 dz`` through the whole layer [1/sr], ``beta = s_s p(pi)``:
+        for a uniform layer ``(1 - exp(-2 eta tau)) albedo p(pi) / (2 eta)`` (``= (1 -
+        exp(-2 eta tau)) / (2 eta S)`` with a lidar ratio S; the closed form of the layer's
+        attenuated backscatter)."""
+        eta, tau = self.multiple_scattering_eta, self.optical_depth
+        return ((1.0 - math.exp(-2.0 * eta * tau)) * self.single_scattering_albedo
+                * self.backscatter_phase_per_sr / (2.0 * eta))
 
     @property
     def backscatter_phase_per_sr(self) -> float:
@@ -192,7 +225,11 @@ class Cloud:
 
     # ---------------------------------------------------------------- records
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """The fields (Platt's eta only where it is not 1: a run's record stays as it was)."""
+        d = dataclasses.asdict(self)
+        if d["multiple_scattering_eta"] == 1.0:
+            del d["multiple_scattering_eta"]
+        return d
 
     def describe(self) -> str:
         s = "" if self.lidar_ratio_sr is None else f", lidar ratio {self.lidar_ratio_sr:g} sr"

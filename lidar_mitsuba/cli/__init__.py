@@ -118,7 +118,8 @@ def _add_study_parsers(sub) -> None:
                     help="with --real: a cloud layer (optical depth, base and top above the "
                     "surface [m], liquid water) given to the cloudy segments: their background "
                     "(its backscatter, the air below dimmed) and signal (dimmed by exp(-2 tau)) "
-                    "are then predicted instead of called missing")
+                    "are then predicted with it instead of the cloud each beam's own "
+                    "reflectance and msw_flag imply")
     va.add_argument("--signal-shots", type=nonnegative_int, default=200, metavar="N",
                     help="with --real: shots simulated per beam for its signal through dead "
                     "time (200; 0: the lidar equation alone, no rendering)")

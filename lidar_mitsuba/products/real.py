@@ -58,6 +58,14 @@ class RealBeam:
         background_hz: the product's background rate [Hz], or None.
         signal_per_shot: signal photons per shot the product measured, or None.
         clear: True where the sky is clear by the product's cloud flags, or None (no flag).
+        reflectance: the apparent surface reflectance the product measured (ATL06 ``r_eff``,
+            ATL07 ``asr_25``), or None: with the clear segments', the cloud's optical depth
+            (:func:`~lidar_mitsuba.products.cloud_flags.implied_optical_depth`).
+        ice_fraction: the sea-ice concentration where the product gives it (ATL07
+            ``stats/ice_conc`` [%] / 100, from passive microwave), or None.
+        layer_class: ATL09's multiple-scattering warning ``msw_flag`` copied by ATL06 and
+            ATL07 (the height class of the lowest layer's base: 3 below 1 km, 2 1-3 km, 1
+            above 3 km, 4-5 blowing snow, 0 none, -1 unknown), or None.
         band_height_m, band_top_above_surface_m, signal_span_m: the background histogram's
             band (ATL03 ``bckgrd_atlas``; ATL07 ``background_int_height``), or None.
         full_sat_fract, near_sat_fract: ATL03's saturation fractions, or None.
@@ -79,6 +87,9 @@ class RealBeam:
     background_hz: np.ndarray | None = None
     signal_per_shot: np.ndarray | None = None
     clear: np.ndarray | None = None
+    reflectance: np.ndarray | None = None
+    layer_class: np.ndarray | None = None
+    ice_fraction: np.ndarray | None = None
     band_height_m: np.ndarray | None = None
     band_top_above_surface_m: np.ndarray | None = None
     signal_span_m: np.ndarray | None = None
@@ -375,7 +386,8 @@ def _atl06(g, **beam) -> RealBeam | None:
                     lon_deg=_num(s, "longitude"), surface_h_m=_num(s, "h_li"),
                     solar_elevation_deg=_num(gp, "solar_elevation"),
                     solar_azimuth_deg=_num(gp, "solar_azimuth"), background_hz=bg,
-                    signal_per_shot=sig, clear=clear, surface="land ice",
+                    signal_per_shot=sig, clear=clear, reflectance=r_eff,
+                    layer_class=_num(gp, "msw_flag"), surface="land ice",
                     notes={"background": "geophysical/bckgrd",
                            "signal": "(n_fit_photons - background in the window) / "
                            "n_seg_pulses, quality 0",
@@ -409,12 +421,14 @@ def _atl07(g, **beam) -> RealBeam | None:
                         else asr >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE,
                         _num(st, "cloud_flag_asr"), _num(st, "cloud_flag_atm"))
     band = _num(st, "background_int_height")
+    conc = _num(st, "ice_conc")
     return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),
                     lon_deg=_num(s, "longitude"), surface_h_m=h,
                     solar_elevation_deg=_num(geo, "solar_elevation"),
                     solar_azimuth_deg=_num(geo, "solar_azimuth"),
                     background_hz=_num(st, "backgr_r_200"), signal_per_shot=rate, clear=clear,
-                    band_height_m=band, surface="sea ice",
+                    reflectance=asr, layer_class=_num(st, "msw_flag"), band_height_m=band,
+                    ice_fraction=None if conc is None else conc / 100.0, surface="sea ice",
                     notes={"background": "stats/backgr_r_200 (ATL03's 50-shot rate)",
                            "signal": "stats/photon_rate on snow-covered ice (type 1)",
                            "clear": "asr_25 >= 0.45, cloud_flag_asr <= 2, cloud_flag_atm == 0"})
@@ -451,14 +465,17 @@ READ_DATASETS = {
     "ATL06": tuple("land_ice_segments/" + k for k in (
         "delta_time", "latitude", "longitude", "h_li", "atl06_quality_summary",
         "geophysical/bckgrd", "geophysical/r_eff", "geophysical/cloud_flg_asr",
-        "geophysical/cloud_flg_atm", "geophysical/solar_elevation", "geophysical/solar_azimuth",
+        "geophysical/cloud_flg_atm", "geophysical/msw_flag", "geophysical/solar_elevation",
+        "geophysical/solar_azimuth",
         "fit_statistics/n_fit_photons", "fit_statistics/n_seg_pulses",
         "fit_statistics/w_surface_window_final")),
     "ATL07": tuple("sea_ice_segments/" + k for k in (
         "delta_time", "latitude", "longitude", "heights/height_segment_height",
         "heights/height_segment_type", "geophysical/height_segment_mss",
         "geolocation/solar_elevation", "geolocation/solar_azimuth", "stats/photon_rate",
-        "stats/asr_25", "stats/cloud_flag_asr", "stats/cloud_flag_atm", "stats/backgr_r_200",
+        "stats/asr_25", "stats/cloud_flag_asr", "stats/cloud_flag_atm", "stats/msw_flag",
+        "stats/ice_conc",
+        "stats/backgr_r_200",
         "stats/background_int_height")),
     "ATL08": tuple("land_segments/" + k for k in (
         "delta_time", "latitude", "longitude", "terrain/h_te_best_fit",

@@ -9,8 +9,9 @@ photons per shot on clear segments against a short simulation of the file's own 
 the surface a user would choose knowing only the product (:data:`PRODUCT_SURFACES`) through
 the detector's dead time (or, with ``signal_shots=0``, the lidar equation alone), the
 strong:weak ratios of each beam pair, the spread and tails of ATL03's surface photons, the
-saturation fractions, and a verdict with its reason. Cloudy segments are compared with the
-clear-sky model and their verdict says the cloud is missing (no cloud is given to a file).
+saturation fractions, and a verdict with its reason. Cloudy segments are predicted with the
+cloud the file's own flags imply (:func:`~lidar_mitsuba.studies.realism_inputs.implied_cloud`:
+its apparent reflectance's optical depth, ATL09's ``msw_flag``'s height) or the one given.
 
 The model is the package's: :meth:`~lidar_mitsuba.instrument.Instrument.atlas` with the
 beam's energy (the file's ``tx_pulse_energy`` or ATLAS's history), the sun from the file,
@@ -39,20 +40,17 @@ TAIL_M = 0.20
 """ATL03 tails: the fraction of surface photons farther than this below / above their
 segment's median [m]."""
 
-PRODUCT_SURFACES = {
-    "land ice": {"name": "ice-sheet snow (flat, Ward snow)", "albedo": 0.9, "water": None},
-    "sea ice": {"name": "snow-covered sea ice (flat, Ward snow)", "albedo": 0.9, "water": None},
-    "ocean": {"name": "open water (water BSDF, 5 m/s wind)", "albedo": 0.06, "water": 5.0},
-    "inland water": {"name": "open water (water BSDF, 5 m/s wind)", "albedo": 0.06,
-                     "water": 5.0},
-    "land": {"name": "land / forest: MISSING (the forest issue)", "albedo": 0.1, "water": None,
-             "missing": True},
-}
-"""The surface a user would choose knowing only the product (ATL06: land ice, ATL07: sea
-ice, ATL08: land, ATL03: its ``surf_type``) and its Lambertian albedo for sunlight: snow 0.9
-(the reference plate), open water 0.06 (Payne 1972, J. Atmos. Sci. 29, 959: the sea's
-albedo at moderate sun) at an ESTIMATE 5 m/s wind, land 0.1 (ESTIMATE: conifer canopy in the
-green, with its surface missing)."""
+from .realism_inputs import (BLOWING_SNOW_TOP_M, LAYER_BASE_M, LAYER_THICKNESS_M,  # noqa: F401
+                             PRODUCT_SURFACES, equation_outside_fraction, ice_sheet_snow,
+                             implied_cloud, layer_heights_m, sea_ice_snow, snow_delay,
+                             sunlit_albedo)
+
+TAIL_WINDOW_M = 1.0
+"""The predicted tails count the simulated surface photons within this distance [m] of their
+median, as ATL03's ``signal_conf_ph >= 3`` photons lie over flat ice (ESTIMATE: the reach of
+the product's signal finder, not a physical parameter; the shipped night subset's
+high-confidence photons lie within -1.0 .. +0.7 m of their segment's median): photons the
+snow returns from deeper down are low-confidence there, and background here."""
 
 
 def real_files(paths=None) -> list[pathlib.Path]:
@@ -180,8 +178,11 @@ def simulated(twin_granule, name: str, *, surface: dict, shots: int, seed: int,
               spans_m) -> dict:
     """A short simulation of the beam's first ``shots`` shots over a flat surface (the
     product's, :data:`PRODUCT_SURFACES`): detected signal per shot through dead time, the
-    spread and tails of its surface photons, saturation as our ATL03 writes it, and the
-    fraction of signal photons outside each of ``spans_m`` (the leak term)."""
+    spread and tails of its surface photons (within :data:`TAIL_WINDOW_M`), saturation as our
+    ATL03 writes it, and the fraction of signal photons outside each of ``spans_m`` (the leak
+    term). Over snow, the surface's diffuse share of its photons is lowered by the pack's
+    volume return (:func:`~lidar_mitsuba.ground.snow.delay.delay_heights`, seeded
+    ``seed + 1``) before both."""
     import warnings
     from .. import twin
     from ..ground.surface import SurfaceSpec
@@ -194,6 +195,10 @@ def simulated(twin_granule, name: str, *, surface: dict, shots: int, seed: int,
     det = res.detections
     sig = det.is_signal
     dh = res.dh_m[sig]
+    pack, share = snow_delay(surface)
+    if pack is not None:                 # the snow's volume return, later (ground.snow.delay)
+        from ..ground.snow import delay
+        dh = delay.delay_heights(dh, pack, share=share, rng=np.random.default_rng(seed + 1))
     n = res.n_shots
     surface_events = np.bincount(det.shot[res.signal_conf >= 2], minlength=n)
     ch = res.instrument.channels
@@ -201,7 +206,8 @@ def simulated(twin_granule, name: str, *, surface: dict, shots: int, seed: int,
            "full_sat_fract": float(np.mean(surface_events >= ch)),
            "near_sat_fract": float(np.mean((surface_events >= np.ceil(0.75 * ch))
                                            & (surface_events < ch)))}
-    out.update(shape_stats(dh - np.median(dh)) if dh.size else {})
+    res_m = dh - np.median(dh) if dh.size else dh
+    out.update(shape_stats(res_m[np.abs(res_m) <= TAIL_WINDOW_M]) if dh.size else {})
     out["outside_fraction"] = outside_fraction(dh, spans_m)
     return out
 
@@ -218,7 +224,7 @@ def outside_fraction(dh_m, spans_m) -> np.ndarray:
 def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> dict:
     """The model's background (term by term), signal and shape for one beam (``twin_granule``:
     the file's twin, for ``signal_shots > 0``); with a ``cloud``
-    (:class:`~lidar_mitsuba.night.CloudLayer`), also its cloudy segments' background and
+    (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`), also its cloudy segments' background and
     signal (ESTIMATE: the clear signal dimmed by the cloud's two-way transmission; through dead
     time that overstates the loss dead time takes from the dimmer return, without it, with
     ``signal_shots=0``, it ignores dead time; the cloud's forward scattering is the cloud
@@ -247,6 +253,7 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> 
     else:
         out["signal_per_shot"] = radiometric_signal(inst, z_m=z, surface=surface)
         out["signal_from"] = "lidar equation (no dead time)"
+        f_out = equation_outside_fraction(inst, band.signal_span_m, surface=surface)
     t = rb.delta_time_s
     sun = rb.solar_elevation_deg
     if sun is None:
@@ -255,7 +262,8 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> 
     else:
         az = rb.solar_azimuth_deg if rb.solar_azimuth_deg is not None else np.zeros(t.size)
     ok = np.isfinite(sun) & np.isfinite(t)
-    kw = dict(delta_time_s=t[ok], z_m=np.full(ok.sum(), z), albedo=surface["albedo"],
+    out["sunlit_albedo"] = albedo = sunlit_albedo(rb, surface)
+    kw = dict(delta_time_s=t[ok], z_m=np.full(ok.sum(), z), albedo=albedo,
               solar_elevation_deg=sun[ok], solar_azimuth_deg=np.nan_to_num(az[ok]), band=band,
               outside_fraction=f_out)
     terms = night.background_terms(inst, signal_per_shot=out["signal_per_shot"], **kw)
@@ -284,17 +292,23 @@ def verdict(row: dict) -> tuple[str, str]:
     bg = _ratio(p["background_hz"], m["background_clear_hz"])
     sig = _ratio(p["signal_per_shot"], m["signal_clear"])
     row["background_ratio"], row["signal_ratio"] = bg, sig
-    row["background_cloudy_ratio"] = _ratio(p["background_hz"], m["background_cloudy_hz"])
+    row["background_cloudy_ratio"] = _ratio(p.get("background_cloudy_hz", p["background_hz"]),
+                                            m["background_cloudy_hz"])
+    if "signal_cloudy" in p:
+        row["signal_cloudy_ratio"] = _ratio(p["signal_cloudy"], m["signal_cloudy"])
     cloudy = m["cloud_flags"] and m["clear_fraction"] == 0
     if p["surface_missing"]:
         return "surface missing", ("the product's surface (land, forest) is not modelled here"
                                    + ("; every segment is cloudy and no cloud is given"
                                       if cloudy else "") + "; beam, energy and sky as given")
+    if cloudy and m["background_cloudy_hz"] is None and m["signal_cloudy"] is None:
+        return "not measured", "the file gives neither a background nor a signal rate"
     if cloudy and "background_cloudy_hz" in p:
         return _cloudy_verdict(row)
     if cloudy:
-        return "cloud missing", ("every segment is cloudy by the product's flags: the model is "
-                                 "clear-sky and no cloud is given (background x"
+        return "cloud missing", ("every segment is cloudy by the product's flags, the file "
+                                 "gives no reflectance to read its cloud from and none is given "
+                                 "(clear-sky background x"
                                  f"{_fmt(row['background_cloudy_ratio'])} of the cloudy one)")
     lo, hi = BACKGROUND_AGREES
     slo, shi = SIGNAL_AGREES
@@ -313,15 +327,26 @@ def verdict(row: dict) -> tuple[str, str]:
 
 
 def _cloudy_verdict(row: dict) -> tuple[str, str]:
-    """A beam whose segments are all cloudy, against the model with the cloud given."""
+    """A beam whose segments are all cloudy, against the model with the cloud given or the one
+    its reflectance implies (:func:`implied_cloud`). ATL06's ``r_eff`` is its fitted photons'
+    rate, so with the cloud it implies only the background is a prediction; ATL07's
+    ``asr_25`` comes from ATL09's atmospheric profile, not the altimetric photons that make
+    ``photon_rate``."""
     m, p = row["measured"], row["predicted"]
     bg = _ratio(p["background_cloudy_hz"], m["background_cloudy_hz"])
     sig = _ratio(p["signal_cloudy"], m["signal_cloudy"])
     row["background_cloudy_ratio"], row["signal_cloudy_ratio"] = bg, sig
+    c = row.get("cloud") or {}
+    implied = c.get("from") == "the file's reflectance"
+    given = ("with the cloud given" if not implied else
+             f"with the cloud its reflectance implies (tau {c['optical_depth']:g})") + \
+        ", on cloudy segments"
+    if implied and row["product"] == "ATL06":         # r_eff is the fitted photons' own rate
+        sig = None
+        given += " (signal not compared: r_eff is made from it)"
     bad = [f"{k} x{v:.2f}" for k, v, (lo, hi) in (("background", bg, BACKGROUND_AGREES),
                                                   ("signal", sig, SIGNAL_AGREES))
            if v is not None and not lo <= v <= hi]
-    given = "with the cloud given, on cloudy segments"
     if bad:
         return "disagrees", f"{given}: " + ", ".join(bad)
     return "agrees", f"{given}: background x{_fmt(bg)}, signal x{_fmt(sig)}"
@@ -349,6 +374,8 @@ def pair_ratios(rows: list[dict]) -> list[dict]:
             q[f"{key}_predicted"] = _ratio(r["predicted"][pk], other["predicted"][pk])
         q["background_cloudy_measured"] = _ratio(r["measured"]["background_cloudy_hz"],
                                                  other["measured"]["background_cloudy_hz"])
+        q["background_cloudy_predicted"] = _ratio(r["predicted"].get("background_cloudy_hz"),
+                                                  other["predicted"].get("background_cloudy_hz"))
         q["solar_elevation_deg"] = r["measured"]["solar_elevation_deg"]
         out.append(q)
     return out
@@ -361,8 +388,8 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
     files): ``realism.json``, ``realism.md`` and ``realism_background.png`` in ``out_dir``
     (when given). ``signal_shots``: shots simulated per beam for its signal (0: the lidar
     equation, no rendering). ``progress``: a callable given one line per beam. ``cloud``: a
-    :class:`~lidar_mitsuba.night.CloudLayer` for the cloudy segments (default: none given,
-    their verdict says the cloud is missing)."""
+    :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud` for the cloudy segments (default: each
+    beam's own, :func:`~lidar_mitsuba.studies.realism_inputs.implied_cloud`)."""
     from .. import twin
     from ..products.real import read_product
     t0 = time.perf_counter()
@@ -375,10 +402,14 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
         for rb in rf.beams:
             if tg is not None and rb.name not in {b.beam.name for b in tg.beams}:
                 continue                          # no two segments in a row: no shots
+            sky = cloud if cloud is not None else implied_cloud(rb)
             row = {"file": path.name, "product": rf.product, "beam": rb.name,
                    "strength": rb.strength, "measured": measured(rf, rb),
+                   "cloud": None if sky is None else {
+                       **sky.to_dict(), "from": "given" if cloud is not None else
+                       "the file's reflectance"},
                    "predicted": predicted(rb, tg, signal_shots=signal_shots,
-                                          seed=seed + 7 * k, cloud=cloud)}
+                                          seed=seed + 7 * k, cloud=sky)}
             row["verdict"], row["reason"] = verdict(row)
             rows.append(row)
             if progress is not None:
@@ -401,9 +432,9 @@ def background_curve(*, elevations_deg=None, z_m: float = 0.0) -> dict:
     """The model's background [Hz, detected] against solar elevation for ATLAS's strong and
     weak beams over clear snow (albedo 0.9) at sea level, the 2018 energy, 21 March at 70 N
     (Earth-Sun distance ~1 au), the polar band defaults and the lidar-equation signal for the
-    leak term, whose outside fraction is the Gaussian pulse's (no afterpulses: the beams'
-    own predictions, from a simulation, have them): ``{"elevation_deg": [...], "strong": [...],
-    "weak": [...]}``."""
+    leak term, whose outside fraction is the Gaussian pulse's and the ice sheet's snow's
+    (:func:`equation_outside_fraction`; no afterpulses: the beams' own predictions, from a
+    simulation, have them): ``{"elevation_deg": [...], "strong": [...], "weak": [...]}``."""
     from .. import night
     from ..instrument import Instrument
     el = np.linspace(-10.0, 35.0, 46) if elevations_deg is None else np.asarray(elevations_deg)
@@ -412,10 +443,12 @@ def background_curve(*, elevations_deg=None, z_m: float = 0.0) -> dict:
     for kind in ("strong", "weak"):
         inst = Instrument.atlas(kind)
         s = radiometric_signal(inst, z_m=z_m, surface=PRODUCT_SURFACES["land ice"])
+        f = equation_outside_fraction(inst, night.SIGNAL_SPAN_M,
+                                      surface=PRODUCT_SURFACES["land ice"])
         out[kind] = [night.background_terms(
             inst, delta_time_s=t, z_m=np.array([z_m]), albedo=0.9,
             solar_elevation_deg=np.array([e]), solar_azimuth_deg=np.zeros(1),
-            signal_per_shot=s)["total"] for e in el]
+            signal_per_shot=s, outside_fraction=f)["total"] for e in el]
     return out
 
 

@@ -23,7 +23,7 @@ def plot(doc: dict, path) -> None:
     fig, ax = plt.subplots(figsize=(9, 5.5))
     for kind in ("strong", "weak"):
         ax.plot(c["elevation_deg"], c[kind], color=colour[kind], lw=2,
-                label=f"model, {kind} beam (clear snow, sea level; leak: Gaussian pulse)")
+                label=f"model, {kind} beam (clear snow, sea level; leak: pulse and snow)")
     lo, hi = ELEVATION_RANGE_DEG
     for r in doc["rows"]:
         m, p = r["measured"], r["predicted"]
@@ -37,9 +37,12 @@ def plot(doc: dict, path) -> None:
             if v is not None and v > 0:
                 ax.plot(x, v, "<" if el < lo else "o", ms=7, mfc=fill, mec=col, alpha=0.8)
         ax.plot(x, p["background_hz"], "x", color=col, ms=6, alpha=0.8)
+        if p.get("background_cloudy_hz"):                   # with the file's own cloud
+            ax.plot(x, p["background_cloudy_hz"], "+", color=col, ms=8, alpha=0.8)
     ax.plot([], [], "o", color="gray", label="real beam, clear segments (median)")
     ax.plot([], [], "o", mfc="none", mec="gray", label="real beam, cloudy segments")
-    ax.plot([], [], "x", color="gray", label="our prediction for that beam")
+    ax.plot([], [], "x", color="gray", label="our prediction for that beam (clear sky)")
+    ax.plot([], [], "+", color="gray", label="our prediction with the cloud its file implies")
     ax.plot([], [], "<", color="gray", label="sun below -10 deg (drawn at -10)")
     ax.set_yscale("log")
     ax.set_xlim(lo - 1, hi + 1)
@@ -70,33 +73,42 @@ def report_md(doc: dict) -> str:
              + (f"from {doc['signal_shots']} simulated shots per beam (through dead time)"
                 if doc["signal_shots"] else "from the lidar equation (no dead time)") + ".",
              "Nothing is fitted to a file. Background: measured median on clear / cloudy "
-             "segments against the model (clear sky); signal: photons per shot on clear "
-             "segments.", "", "## Files", ""]
+             "segments against the model (clear sky; with the cloud the file implies or the "
+             "one given, for the cloudy segments); signal: photons per shot.", "",
+             "## Files", ""]
     lines += [f"- {f['missing']} (release {f['release'] or '?'})" for f in doc["files"]]
     lines += ["", "## Beams", "",
               "| file | beam | sun [deg] | clear | background clear / cloudy [kHz] | "
-              "predicted [kHz] (dark, sun, air, leak) | ratio | signal measured | predicted | "
-              "ratio | energy [uJ] | surface | verdict | reason |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "predicted [kHz] (dark, sun, air, leak) | with the cloud [kHz] (cloud) | ratio | "
+              "signal measured | predicted | ratio | energy [uJ] | surface | verdict | reason |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in doc["rows"]:
         m, p = r["measured"], r["predicted"]
         t = p["background_terms_hz"]
         parts = ", ".join(_k(t[x]) for x in ("dark", "solar", "air", "leak"))
+        cl = p.get("background_cloudy_terms_hz")
+        cloudy = "-" if cl is None else (f"{_k(cl['total'])} (tau "
+                                         f"{r['cloud']['optical_depth']:g}, "
+                                         f"{r['cloud']['base_m']:g}-{r['cloud']['top_m']:g} m: "
+                                         f"{_k(cl['cloud'])})")
+        ratio = r["background_ratio"] if r["background_ratio"] is not None else \
+            r.get("background_cloudy_ratio")
         lines.append(
             f"| {r['file']} | {r['beam']} ({r['strength']}) | {_f(m['solar_elevation_deg'], '.1f')} "
             f"| {m['clear_fraction']:.2f}{'' if m['cloud_flags'] else ' (no flag)'} | "
             f"{_k(m['background_clear_hz'])} / {_k(m['background_cloudy_hz'])} | "
-            f"{_k(p['background_hz'])} ({parts}) | {_f(r['background_ratio'])} | "
+            f"{_k(p['background_hz'])} ({parts}) | {cloudy} | {_f(ratio)} | "
             f"{_f(m['signal_clear'])} | {_f(p['signal_per_shot'])} | {_f(r['signal_ratio'])} | "
             f"{p['pulse_energy_uj']:.1f} ({'file' if p['energy_source'] == 'tx_pulse_energy' else 'history'}) "
             f"| {p['surface']} | **{r['verdict']}** | {r['reason']} |")
     lines += ["", "## Strong:weak", "", "| file | pair | sun [deg] | background measured, "
-              "clear / cloudy | predicted (clear) | signal measured | predicted |",
+              "clear / cloudy | predicted, clear / with the cloud | signal measured | predicted |",
               "|---|---|---|---|---|---|---|"]
     for q in doc["pairs"]:
         lines.append(f"| {q['file']} | {q['pair']} | {_f(q['solar_elevation_deg'], '.1f')} | "
                      f"{_f(q['background_measured'])} / {_f(q['background_cloudy_measured'])} | "
-                     f"{_f(q['background_predicted'])} | "
+                     f"{_f(q['background_predicted'])} / "
+                     f"{_f(q.get('background_cloudy_predicted'))} | "
                      f"{_f(q['signal_measured'])} | {_f(q['signal_predicted'])} |")
     shape = [r for r in doc["rows"] if "spread_robust_m" in r["measured"]]
     if shape:

@@ -117,19 +117,28 @@ def closed_form(*, aerosol_optical_depth: float, albedo: float, elevations_deg,
                    multiple_scattering=multiple_scattering).toa_radiance
 
 
+def _grid(render_fn, albedos, *, label: str, **kw) -> tuple[np.ndarray, np.ndarray]:
+    """``(values, standard errors)``, each (aerosol, albedo, elevation): ``render_fn(col=,
+    elevation_deg=, albedo=, **kw)`` over :data:`AEROSOL_DEPTHS` x ``albedos`` x
+    :data:`ELEVATIONS_DEG`, one line printed per entry."""
+    shape = (len(AEROSOL_DEPTHS), len(albedos), len(ELEVATIONS_DEG))
+    val, err = np.zeros(shape), np.zeros(shape)
+    for i, aod in enumerate(AEROSOL_DEPTHS):
+        col = column(aod)
+        for j, alb in enumerate(albedos):
+            for k, e in enumerate(ELEVATIONS_DEG):
+                val[i, j, k], err[i, j, k] = render_fn(col=col, elevation_deg=e, albedo=alb,
+                                                       **kw)
+                print(f"{label}aod {aod} albedo {alb} elev {e:+5.1f}: {val[i, j, k]:.4e} "
+                      f"+- {err[i, j, k]:.1e}", flush=True)
+    return val, err
+
+
 def build(*, path: pathlib.Path = TABLE) -> dict:
     """Render every entry and write the table (JSON: the grid, the radiances, their standard
     errors, how it was made)."""
     t0 = time.perf_counter()
-    shape = (len(AEROSOL_DEPTHS), len(ALBEDOS), len(ELEVATIONS_DEG))
-    rad, err = np.zeros(shape), np.zeros(shape)
-    for i, aod in enumerate(AEROSOL_DEPTHS):
-        col = column(aod)
-        for j, alb in enumerate(ALBEDOS):
-            for k, e in enumerate(ELEVATIONS_DEG):
-                rad[i, j, k], err[i, j, k] = render(col=col, elevation_deg=e, albedo=alb)
-                print(f"aod {aod} albedo {alb} elev {e:+5.1f}: {rad[i, j, k]:.4e} "
-                      f"+- {err[i, j, k]:.1e}", flush=True)
+    rad, err = _grid(render, ALBEDOS, label="")
     from ..trace.lazy import mi
     doc = {"about": __doc__.strip().splitlines()[0] + " See lidar_mitsuba/studies/sky_table.py.",
            "quantity": "radiance toward a nadir-looking receiver above the atmosphere per unit "
@@ -174,16 +183,7 @@ def build_irradiance(*, path: pathlib.Path = TABLE) -> dict:
     """Add the diffuse irradiance at the surface (albedos 0 and 0.9, both aerosol depths,
     every elevation) to the table."""
     doc = json.loads(pathlib.Path(path).read_text())
-    shape = (len(AEROSOL_DEPTHS), len(IRRADIANCE_ALBEDOS), len(ELEVATIONS_DEG))
-    val, err = np.zeros(shape), np.zeros(shape)
-    for i, aod in enumerate(AEROSOL_DEPTHS):
-        col = column(aod)
-        for j, alb in enumerate(IRRADIANCE_ALBEDOS):
-            for k, e in enumerate(ELEVATIONS_DEG):
-                val[i, j, k], err[i, j, k] = render_irradiance(col=col, elevation_deg=e,
-                                                               albedo=alb, spp=SPP // 2)
-                print(f"irradiance aod {aod} albedo {alb} elev {e:+5.1f}: {val[i, j, k]:.4e} "
-                      f"+- {err[i, j, k]:.1e}", flush=True)
+    val, err = _grid(render_irradiance, IRRADIANCE_ALBEDOS, label="irradiance ", spp=SPP // 2)
     doc.update(irradiance_albedos=list(IRRADIANCE_ALBEDOS), irradiance_spp=SPP // 2,
                diffuse_irradiance=val.tolist(), diffuse_irradiance_standard_error=err.tolist())
     pathlib.Path(path).write_text(json.dumps(doc, indent=1))

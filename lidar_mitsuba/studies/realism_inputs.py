@@ -1,0 +1,154 @@
+"""What the realism matrix (:mod:`lidar_mitsuba.studies.realism`) gives the model of a real
+file besides its shots, sun and energy: the surface a user would choose knowing only the
+product (its albedo, and for snow the pack whose volume return comes back late:
+:mod:`lidar_mitsuba.ground.snow.delay`), and the cloud the file's own flags imply for its
+cloudy segments (the optical depth from its apparent surface reflectance, the height from
+ATL09's ``msw_flag``). Inputs read or chosen before any comparison; nothing here is fitted.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+def sea_ice_snow():
+    """The snow on sea ice: the floe's pack of :mod:`lidar_mitsuba.studies.sea_ice` (a 5 cm
+    wind slab of 130 um grains at 350 kg/m^3 over depth hoar of 330 um at 250 kg/m^3, 18 cm
+    deep; each value with its source there), as one half-space of the layers'
+    depth-averaged optics (:func:`~lidar_mitsuba.ground.snow.delay.averaged_pack`)."""
+    from ..ground.snow import delay
+    from .sea_ice import floe_snow
+    return delay.averaged_pack(floe_snow())
+
+
+def ice_sheet_snow():
+    """The snow on an ice sheet: wind-packed surface snow as the floe's slab (130 um, 350
+    kg/m^3: Sturm et al. 2002, Macfarlane et al. 2023, via
+    :data:`~lidar_mitsuba.studies.sea_ice.FLOE`), a half-space (ESTIMATE: dry firn below it,
+    seasonally and regionally varying; the grain sizes of Greenland's surface snow, 50-300
+    um, bracket it)."""
+    from ..ground import snow
+    from .sea_ice import FLOE
+    slab = FLOE["slab"]
+    return snow.snow_from_grains(grain_radius_um=slab["grain_radius_um"],
+                                 density_kg_m3=slab["density_kg_m3"])
+
+
+PRODUCT_SURFACES = {
+    "land ice": {"name": "ice-sheet snow (flat, Ward snow, wind-packed snow's delay)",
+                 "albedo": 0.9, "water": None, "snow": ice_sheet_snow},
+    "sea ice": {"name": "snow-covered sea ice (flat, Ward snow, the floe's snow's delay)",
+                "albedo": 0.9, "water": None, "snow": sea_ice_snow},
+    "ocean": {"name": "open water (water BSDF, 5 m/s wind)", "albedo": 0.06, "water": 5.0},
+    "inland water": {"name": "open water (water BSDF, 5 m/s wind)", "albedo": 0.06,
+                     "water": 5.0},
+    "land": {"name": "land / forest: MISSING (the forest issue)", "albedo": 0.1, "water": None,
+             "missing": True},
+}
+"""The surface a user would choose knowing only the product (ATL06: land ice, ATL07: sea
+ice, ATL08: land, ATL03: its ``surf_type``) and its Lambertian albedo for sunlight: snow 0.9
+(the reference plate), open water 0.06 (Payne 1972, J. Atmos. Sci. 29, 959: the sea's
+albedo at moderate sun) at an ESTIMATE 5 m/s wind, land 0.1 (ESTIMATE: conifer canopy in the
+green, with its surface missing). Snow surfaces also delay the share of their return that
+their volume scatters back (``snow``: the pack, :mod:`lidar_mitsuba.ground.snow.delay`)."""
+
+
+def sunlit_albedo(rb, surface: dict) -> float:
+    """The albedo the sun sees around a beam: the product surface's, or on sea ice with the
+    file's ice concentration ``c`` (ATL07 ``ice_conc``) the area mean ``c A_ice + (1 - c)
+    A_water`` with open water's 0.06 (:data:`PRODUCT_SURFACES`' ``ocean``; the sky's light
+    is reflected over kilometres, the concentration's passive-microwave cells are 25 km)."""
+    c = getattr(rb, "ice_fraction", None)
+    if surface is not PRODUCT_SURFACES["sea ice"] or c is None:
+        return float(surface["albedo"])
+    c = _median(c)
+    if c is None:
+        return float(surface["albedo"])
+    c = min(max(c, 0.0), 1.0)
+    return c * surface["albedo"] + (1.0 - c) * PRODUCT_SURFACES["ocean"]["albedo"]
+
+
+def snow_delay(surface: dict):
+    """``(pack, share)``: the surface's snow (a half-space) and the share of its nadir return
+    the volume carries (the flat Ward surface's diffuse lobe), or ``(None, 0)``."""
+    if surface.get("snow") is None:
+        return None, 0.0
+    from ..ground.snow import delay
+    from ..ground.surface import SurfaceSpec
+    w = SurfaceSpec(kind="flat")
+    return surface["snow"](), delay.volume_share(rho_d=w.rho_d, rho_s=w.rho_s, alpha=w.alpha)
+
+
+LAYER_BASE_M = {3: 500.0, 2: 2000.0, 1: 4000.0}
+"""The base [m above the surface] of the cloud a file implies, from ATL09's ``msw_flag`` that
+ATL06 and ATL07 copy (its description in the files: the lowest layer's base below 1 km: 3,
+1-3 km: 2, above 3 km: 1): the middle of each class, 4 km for the open one (ESTIMATE; the
+flag's heights taken above the surface)."""
+LAYER_THICKNESS_M = 1000.0
+"""The implied cloud's thickness [m] (ESTIMATE: no product here carries the layer's top; a
+kilometre is the order of Arctic stratus and of the polar cirrus the flag's upper classes
+hold)."""
+BLOWING_SNOW_TOP_M = 100.0
+"""The top [m] of a blowing-snow layer (``msw_flag`` 4-5) where the file gives no ``bsnow_h``
+(ESTIMATE: ATL09's blowing snow lies in the lowest few hundred metres)."""
+
+
+def implied_cloud(rb):
+    """The cloud a real beam's own cloudy segments imply, or None. Its optical depth: the
+    median ``tau = -ln(r / r_clear) / 2`` of the cloudy segments' apparent reflectance ``r``
+    (:func:`~lidar_mitsuba.products.cloud_flags.implied_optical_depth`: the two-way
+    attenuation of the surface's return, a slight underestimate where forward-scattered light
+    comes back too), ``r_clear`` the median of the beam's clear segments' (its own
+    calibration) or snow's 0.9 (:data:`~lidar_mitsuba.products.real.SNOW_REFLECTANCE`) where
+    it has none. Its height: the most frequent ``msw_flag`` class of those segments
+    (:data:`LAYER_BASE_M`, :data:`LAYER_THICKNESS_M`; blowing snow from the ground to
+    :data:`BLOWING_SNOW_TOP_M`); without the flag, a low cloud (class 3: Arctic low cloud is
+    the most frequent, Shupe et al. 2011, J. Appl. Meteor. Climatol. 50, 626, recalled).
+    A liquid-water layer (its lidar ratio; ESTIMATE for the higher classes, often ice)."""
+    from ..atmosphere.cloud_layer import MAX_OPTICAL_DEPTH, Cloud
+    from ..products.cloud_flags import implied_optical_depth
+    from ..products.real import SNOW_REFLECTANCE
+    r, clear = rb.reflectance, rb.clear
+    if r is None or clear is None or clear.all():
+        return None
+    r_clear = _median(r[clear]) if clear.any() else None
+    tau = _median(implied_optical_depth(r[~clear], r_clear or SNOW_REFLECTANCE))
+    if tau is None or not tau > 0:
+        return None
+    base, top = layer_heights_m(None if rb.layer_class is None else rb.layer_class[~clear])
+    return Cloud.water(round(min(tau, MAX_OPTICAL_DEPTH), 3), base, top)
+
+
+def layer_heights_m(layer_class) -> tuple[float, float]:
+    """``(base, top)`` [m above the surface] of the implied layer from the ``msw_flag`` values
+    of the cloudy segments (their most frequent class among 1-5; class 3 without any)."""
+    k = np.asarray([] if layer_class is None else layer_class, np.float64)
+    k = k[np.isfinite(k) & (k >= 1) & (k <= 5)].astype(int)
+    mode = int(np.bincount(k).argmax()) if k.size else 3
+    if mode >= 4:
+        return 0.0, BLOWING_SNOW_TOP_M
+    base = LAYER_BASE_M[mode]
+    return base, base + LAYER_THICKNESS_M
+
+
+def equation_outside_fraction(inst, span_m, *, surface: dict):
+    """Without a simulation, the share of the surface photons outside the removed span(s)
+    ``span_m`` [m]: the Gaussian pulse's (:func:`~lidar_mitsuba.night.gaussian_outside_fraction`)
+    and the snow's volume return below half the span, as independent
+    (``1 - (1 - f_pulse) (1 - share SF(w / 2))``; the pulse's width, 0.1 m, is small beside
+    the snow's tail)."""
+    from .. import night
+    from ..constants import C_M_PER_NS
+    f = night.gaussian_outside_fraction(span_m, C_M_PER_NS * inst.pulse_sigma_ns / 2.0)
+    pack, share = snow_delay(surface)
+    if pack is None:
+        return f
+    from ..ground.snow import delay
+    return 1.0 - (1.0 - f) * (1.0 - share * delay.apparent_depth_sf(
+        pack, np.asarray(span_m, np.float64) / 2.0))
+
+
+
+
+def _median(a) -> float | None:
+    a = np.asarray(a, np.float64)
+    a = a[np.isfinite(a)]
+    return float(np.median(a)) if a.size else None
