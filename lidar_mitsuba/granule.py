@@ -452,6 +452,7 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                    max_depth: int | str = "auto",
                    progress: bool = True, section_shots: int = SECTION_SHOTS,
                    segment_options: dict | None = None, orbit_info: dict | None = None,
+                   atl08_path: str | os.PathLike | None = None,
                    **simulate_options) -> list[BeamSummary]:
     """Simulate a granule section by section straight into its ATL03 (and ATL06) files, so
     memory is bounded by a section (``section_shots`` shots) for a track of any length.
@@ -470,7 +471,9 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     plan). Likewise ``roughness(beam, k)``: the roughness heightfield (or None) of the
     section, on ``surface`` (``replace(surface, roughness=...)``), planned anew where it is
     not the same object as the one before. ``orbit_info``: the files' ``orbit_info`` labels of
-    a repeat-orbit track (``rgt``, ``cycle_number``, ``orbit_number``). Returns each beam's
+    a repeat-orbit track (``rgt``, ``cycle_number``, ``orbit_number``). ``atl08_path``: also
+    our ATL08 of every beam, made from the finished ATL03 file
+    (:func:`lidar_mitsuba.products.atl08.granule.write_from_atl03`). Returns each beam's
     running statistics.
     """
     import contextlib
@@ -520,6 +523,10 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     finally:
         if bar is not None:
             bar.close()
+    if atl08_path is not None:                   # the land product, from the ATL03 file
+        from .products.atl08.granule import write_from_atl03
+        write_from_atl03(atl03_path, atl08_path,
+                         instrument=instruments[0][1] if ctx.preset == "atlas" else None)
     return [st.summary for st in streams]
 
 
