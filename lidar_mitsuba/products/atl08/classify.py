@@ -55,6 +55,7 @@ import numpy as np
 from scipy import spatial, stats
 
 from ...constants import C_M_PER_NS
+from .ground import final_ground
 
 NOISE, GROUND, CANOPY, TOP_OF_CANOPY = 0, 1, 2, 3
 """ATL08 ``classed_pc_flag`` values (ATL08 data dictionary: 0 noise, 1 ground, 2 canopy,
@@ -122,9 +123,12 @@ class Classification:
         is_signal: (n,) bool: passed the noise filter (ATL08's ``d_flag``).
         ground_h_m: (n,) the ground surface at each photon [m] (NaN where none was found).
         toc_h_m: (n,) the top-of-canopy surface at each photon [m] (NaN where none).
-        ground_buffer_m: the ground buffer half width [m].
+        ground_buffer_m: the ground band's depth below the ground surface [m].
         background_per_m2: (n,) the background density used at each photon [1/(m m)].
         h_m: (n,) the photon heights classified [m].
+        ground_top_m: (n,) the ground band's height above the ground surface [m]
+            (:func:`lidar_mitsuba.products.atl08.ground.final_ground`); NaN where no ground.
+        ground_sigma_m: the ground return's fitted spread [m] (0 where no ground).
     """
     classes: np.ndarray
     is_signal: np.ndarray
@@ -133,6 +137,8 @@ class Classification:
     ground_buffer_m: float
     background_per_m2: np.ndarray
     h_m: np.ndarray
+    ground_top_m: np.ndarray | float = np.nan
+    ground_sigma_m: float = 0.0
 
     @property
     def h_rel_m(self) -> np.ndarray:
@@ -364,47 +370,6 @@ def _outer_sigma(r: np.ndarray, *, upper: bool, strict: bool = True) -> float:
     return float(np.median(outer) / MAD_PER_SIGMA)
 
 
-def _bin_medians(x: np.ndarray, h: np.ndarray, bin_m: float):
-    """:func:`_polyline` through the median position and height of the photons in each
-    ``bin_m`` along-track bin."""
-    b = np.floor((x - x.min()) / bin_m).astype(np.int64)
-    order = np.argsort(b, kind="stable")
-    b, xs, hs = b[order], x[order], h[order]
-    cuts = np.flatnonzero(np.r_[True, b[1:] != b[:-1], True])
-    xm = np.array([np.median(xs[i:j]) for i, j in zip(cuts[:-1], cuts[1:])])
-    hm = np.array([np.median(hs[i:j]) for i, j in zip(cuts[:-1], cuts[1:])])
-    return _polyline(xm, hm)
-
-
-def _final_ground(x, h, sig, gf, g_sigma: float, s: Settings) -> tuple[np.ndarray, float]:
-    """The ground surface at every photon and its buffer [m]: the lower envelope ``gf`` is
-    biased low (each candidate is its bin's lowest photon), so the line is refitted
-    through all signal photons within the buffer (ATBD 4.10's final ground), until the
-    selection stops changing. The buffer is ``outlier_sigmas`` times the ground's spread
-    measured below the surface only (vegetation lies above it), over a first buffer ``b0``
-    (measured inside the current buffer instead, the spread would shrink with it), never
-    wider than ``b0``: the envelope's ``outlier_sigmas`` spreads, at least the ground
-    window's half height (the envelope's candidates are bin minima, whose scatter
-    understates the ground's own)."""
-    g = gf(x)
-    flat_h = min(w[1] for w in s.windows)
-    b0 = buf = max(s.outlier_sigmas * g_sigma, s.min_buffer_m, flat_h)
-    sel = sig & (np.abs(h - g) <= buf)
-    for _ in range(s.max_iterations):
-        if sel.sum() < 2:
-            break
-        f = _bin_medians(x[sel], h[sel], s.envelope_bin_m)
-        g = f(x)
-        wide = sig & (np.abs(h - g) <= b0)
-        buf = min(b0, max(s.outlier_sigmas * _outer_sigma(h[wide] - g[wide], upper=False),
-                          s.min_buffer_m))
-        new = sig & (np.abs(h - g) <= buf)
-        if np.array_equal(new, sel):
-            break
-        sel = new
-    return g, buf
-
-
 def classify_photons(*, x_m: np.ndarray, h_m: np.ndarray,
                      background_per_m2: np.ndarray | float | None = None,
                      settings: Settings | None = None) -> Classification:
@@ -436,16 +401,21 @@ def classify_photons(*, x_m: np.ndarray, h_m: np.ndarray,
                               skip=expected_passing(rho, s, height_m=flat_h))
     if gf is None:
         return out
-    ground[:], g_buf = _final_ground(x, h, sig, gf, g_sigma, s)
-    out.ground_buffer_m = g_buf
+    fit = final_ground(x, h, sig, gf(x), None, min_sigma_m=s.min_buffer_m / s.outlier_sigmas,
+                       min_bin_m=s.envelope_bin_m,
+                       max_bin_m=s.envelope_bin_m * max(s.envelope_levels), depth0_m=flat_h)
+    ground[:] = fit.surface_m
+    out.ground_buffer_m = fit.lower_m
+    out.ground_top_m = fit.upper_m
+    out.ground_sigma_m = fit.sigma_m
     dz = h - ground
-    is_ground = sig & (np.abs(dz) <= g_buf)
+    is_ground = sig & (dz >= -fit.lower_m) & (dz <= fit.upper_m)
     classes[is_ground] = GROUND
-    above = sig & (dz > g_buf)
+    above = sig & (dz > fit.upper_m)
     tf, t_sigma, _ = envelope(x[above], h[above], s, upper=True)
     if tf is None:
         return out
-    toc[:] = np.maximum(tf(x), ground + g_buf)
+    toc[:] = np.maximum(tf(x), ground + fit.upper_m)
     dt = h - toc
     canopy = above & (dt <= s.outlier_sigmas * t_sigma)
     classes[canopy] = CANOPY

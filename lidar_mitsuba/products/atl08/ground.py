@@ -1,0 +1,208 @@
+"""The final ground surface and ground band of the ATL08-like classifier: the ground's centre
+found from its lower side, so that vegetation just above the ground cannot pull it up.
+
+The lower envelope (:func:`lidar_mitsuba.products.atl08.classify.envelope`) follows the lowest
+photon of each along-track bin: it lies below the ground's centre (a bin's minimum), or, where a
+bin returned no ground photon, on the lowest vegetation. The ATL08 ATBD (Neuenschwander & Pitts,
+release 002, 2019, secs. 4.8-4.10) refines such a first surface iteratively: photons far above
+the fitted surface are dropped, the surface refitted, the threshold shrunk. Refitting through
+the median of *all* photons within a symmetric band fails under dense low vegetation: where the
+vegetation starting half a metre above the ground holds more photons per metre of height than
+the ground's return (the forest clip, docs/guide/atl08.md), the band's median climbs into the
+vegetation, the band widens with it, and the ground is lost in the understorey.
+
+Here the ground's return is taken as what the instrument makes it: heights normal about the
+surface with spread ``sigma`` (the pulse, 0.1 m for ATLAS, widened by slope and roughness over
+the footprint), and vegetation only *above* it. So:
+
+1. **Fit window, asymmetric** (:data:`LOWER_SIGMAS` below, :data:`UPPER_SIGMAS` above the
+   current surface): only the lower part of the ground's return and one spread above it, where
+   vegetation beginning more than ``sigma`` above the ground does not reach.
+2. **Surface**: in along-track bins holding ~:data:`GROUND_PER_BIN` ground photons, the median
+   residual in the window less the median a normal variable has in that window
+   (:func:`truncated_normal_median`, ``-0.199 sigma`` for ``[-3, 1] sigma``), joined by lines
+   and added to the surface: a fixed point where the surface is the ground's centre, whatever
+   lies above the window.
+3. **Spread** from the photons below the surface only (the median of their depth over that of
+   a half-normal truncated at :data:`LOWER_SIGMAS`), floored at the pulse's.
+4. Repeat from the lower envelope until the surface moves by less than 1 % of ``sigma``.
+5. **Ground band**: from ``LOWER_SIGMAS sigma`` below the surface to ``u`` above, where ``u``
+   is where the ground's own height density ``G / (sigma sqrt(2 pi)) exp(-u^2 / 2 sigma^2)``
+   (``G`` ground photons per metre of track) falls to the density of what lies just above the
+   ground (vegetation and background, photons per metre of track per metre of height, measured
+   in :data:`VEGETATION_PROBE_M` above the band): the equal-odds (Bayes) boundary between a
+   ground photon and a canopy one, bounded to ``[UPPER_SIGMAS, LOWER_SIGMAS] sigma``. Over bare
+   ground it reaches the 3-sigma band; under a dense understorey it closes to one spread.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+LOWER_SIGMAS = 3.0
+"""Fit window and ground band below the surface, in ground spreads: the usual 3-sigma tail
+(0.13 % of ground photons beyond it); below the ground there is only background."""
+UPPER_SIGMAS = 1.0
+"""Fit window above the surface, in ground spreads. ESTIMATE: the ground's return reaches one
+spread above its centre for 84 % of its photons, while vegetation must begin within one spread
+(0.1-0.4 m) of the ground to enter; wider lets a dense understorey at 0.5 m into a 0.4 m
+ground's fit, narrower leaves fewer ground photons per bin (the median's sampling error grows
+as 1/sqrt(n))."""
+GROUND_PER_BIN = 9.0
+"""Ground photons wanted per along-track bin of the fit. ESTIMATE: the median of n normal
+photons scatters by ~1.25 sigma / sqrt(n), 0.42 sigma for 9; bins stay between the envelope's
+finest and coarsest (5-40 m)."""
+VEGETATION_PROBE_M = 2.0
+"""Height above the 3-sigma ground band over which the density of what lies above the ground is
+measured for the band's upper edge [m]. ESTIMATE: the lowest two metres, where an understorey
+begins; taller, a sparse canopy's crowns would dilute it."""
+MAX_ITERATIONS = 40
+"""Refits at most (each moves the surface by at most ~1.2 sigma towards the ground's centre,
+so 40 bring a start 3 m low to a 0.1 m ground)."""
+
+
+def truncated_normal_median(lo: float, hi: float) -> float:
+    """Median of a standard normal variable restricted to ``[-lo, hi]`` [standard deviations]."""
+    a, b = stats.norm.cdf(-lo), stats.norm.cdf(hi)
+    return float(stats.norm.ppf(0.5 * (a + b)))
+
+
+def truncated_half_normal_median(lo: float) -> float:
+    """Median of ``|Z|`` for a standard normal ``Z`` restricted to ``[-lo, 0]``."""
+    return float(-stats.norm.ppf(0.5 * (stats.norm.cdf(-lo) + 0.5)))
+
+
+@dataclass
+class GroundFit:
+    """The final ground (:func:`final_ground`).
+
+    Attributes:
+        surface_m: (n,) the ground's centre at each photon [m].
+        sigma_m: the ground return's spread (one standard deviation) [m].
+        lower_m: the ground band's depth below the surface [m] (``LOWER_SIGMAS sigma``).
+        upper_m: (n,) the ground band's height above the surface at each photon [m].
+        bin_m: the along-track bin of the fit [m].
+    """
+    surface_m: np.ndarray
+    sigma_m: float
+    lower_m: float
+    upper_m: np.ndarray
+    bin_m: float
+
+
+def _bins(x: np.ndarray, bin_m: float, x0: float) -> np.ndarray:
+    return np.floor((x - x0) / bin_m).astype(np.int64)
+
+
+def _bin_medians(x: np.ndarray, v: np.ndarray, bin_m: float, x0: float):
+    """``(ids, x_med, v_med)``: the bins of ``bin_m`` [m] holding points, each's median ``x``
+    and median ``v``."""
+    b = _bins(x, bin_m, x0)
+    order = np.argsort(b, kind="stable")
+    b, xs, vs = b[order], x[order], v[order]
+    cuts = np.flatnonzero(np.r_[True, b[1:] != b[:-1], True])
+    ids = b[cuts[:-1]]
+    xm = np.array([np.median(xs[i:j]) for i, j in zip(cuts[:-1], cuts[1:])])
+    vm = np.array([np.median(vs[i:j]) for i, j in zip(cuts[:-1], cuts[1:])])
+    return ids, xm, vm
+
+
+def _line(xm: np.ndarray, vm: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Lines through ``(xm, vm)`` (held flat beyond the ends) at ``at``."""
+    keep = np.r_[True, np.diff(xm) > 0]
+    return np.interp(at, xm[keep], vm[keep])
+
+
+def _line_without_own_bin(ids, xm, vm, at, bin_m: float, x0: float) -> np.ndarray:
+    """The line of :func:`_line` at each of ``at`` drawn through the bins either side of the
+    point's own bin only (leave-one-bin-out): a point's residual from it measures the
+    ground's scatter, where a surface drawn through the point's own bin would shrink it
+    (with few photons a bin, the median is one of them)."""
+    b = _bins(at, bin_m, x0)
+    k = np.searchsorted(ids, b)
+    own = (k < ids.size) & (ids[np.minimum(k, ids.size - 1)] == b)
+    left, right = k - 1, np.where(own, k + 1, k)
+    lo_ok, hi_ok = left >= 0, right < ids.size
+    li, ri = np.clip(left, 0, ids.size - 1), np.clip(right, 0, ids.size - 1)
+    xl, xr, vl, vr = xm[li], xm[ri], vm[li], vm[ri]
+    w = np.where(lo_ok & hi_ok & (xr > xl), (at - xl) / np.where(xr > xl, xr - xl, 1.0), 0.0)
+    both = vl + w * (vr - vl)
+    return np.where(lo_ok & hi_ok, both, np.where(lo_ok, vl, vr))
+
+
+def final_ground(x: np.ndarray, h: np.ndarray, sig: np.ndarray, start_m: np.ndarray,
+                 sigma0_m: float, *, min_sigma_m: float, min_bin_m: float,
+                 max_bin_m: float, depth0_m: float) -> GroundFit:
+    """The ground's centre, spread and band (module docstring).
+
+    Args:
+        x, h: (n,) along-track distance [m] and height [m] of every photon.
+        sig: (n,) bool, the photons that passed the noise filter.
+        start_m: (n,) the first surface at each photon (the lower envelope) [m].
+        sigma0_m: first guess of the ground's spread [m].
+        min_sigma_m: the spread's floor [m] (the pulse's, in height).
+        min_bin_m, max_bin_m: bounds of the fit's along-track bin [m].
+        depth0_m: the least depth below the surface over which the spread is measured [m]
+            (a window that does not shrink with the spread, so that a surface fitted low,
+            which sees only the ground's lower tail, cannot talk itself into a narrow
+            spread).
+    """
+    start = np.asarray(start_m, np.float64)
+    g = start.copy()
+    sigma = min_sigma_m if sigma0_m is None else max(float(sigma0_m), min_sigma_m)
+    m0 = truncated_normal_median(LOWER_SIGMAS, UPPER_SIGMAS)
+    mass = stats.norm.cdf(UPPER_SIGMAS) - stats.norm.cdf(-LOWER_SIGMAS)
+    span = max(float(np.ptp(x[sig])) if sig.any() else 0.0, min_bin_m)
+    x0 = float(x.min()) if x.size else 0.0
+    bin_m = max_bin_m
+    for _ in range(MAX_ITERATIONS):
+        r = h - g
+        keep = sig & (r >= -LOWER_SIGMAS * sigma) & (r <= UPPER_SIGMAS * sigma)
+        if keep.sum() < 2:
+            break
+        per_m = keep.sum() / mass / span                  # ground photons per metre
+        bin_m = float(np.clip(GROUND_PER_BIN / per_m, min_bin_m, max_bin_m))
+        # the first surface smoothed at this bin (the lower envelope passes through single
+        # photons), the window's median offset from it in each bin, less a normal's
+        ref = _line(*_bin_medians(x[sig], start[sig], bin_m, x0)[1:], x)
+        ids, xm, vm = _bin_medians(x[keep], (h - ref - m0 * sigma)[keep], bin_m, x0)
+        g_new = ref + _line(xm, vm, x)
+        corr = g_new - g
+        # the spread from residuals against the surface drawn without the photon's own bin
+        r = h - ref - (_line_without_own_bin(ids, xm, vm, x, bin_m, x0) if ids.size > 2
+                       else _line(xm, vm, x))
+        g = g_new
+        depth_m = max(LOWER_SIGMAS * sigma, depth0_m)
+        below = sig & (r < 0) & (r >= -depth_m)
+        if below.sum() >= 2:
+            sigma = max(float(np.median(-r[below])) /
+                        truncated_half_normal_median(depth_m / sigma), min_sigma_m)
+
+        if np.max(np.abs(corr[sig])) < 0.01 * sigma:
+            break
+    upper = _upper_edge(x, h - g, sig, sigma, bin_m, x0)
+    return GroundFit(g, sigma, LOWER_SIGMAS * sigma, upper, bin_m)
+
+
+def _upper_edge(x: np.ndarray, r: np.ndarray, sig: np.ndarray, sigma: float, bin_m: float,
+                x0: float) -> np.ndarray:
+    """(n,) the ground band's upper edge above the surface [m] at each photon: the equal-odds
+    height (module docstring, step 5) in each fit bin, joined by lines."""
+    b = _bins(x, bin_m, x0)
+    nb = int(b.max()) + 1 if b.size else 0
+    below = sig & (r < 0) & (r >= -LOWER_SIGMAS * sigma)
+    probe = sig & (r > LOWER_SIGMAS * sigma) & (r <= LOWER_SIGMAS * sigma + VEGETATION_PROBE_M)
+    # ground photons per bin: twice those below the centre (a half normal truncated at 3 sigma
+    # holds 0.4987 of the return); density above the ground per metre of height
+    n_ground = 2.0 * np.bincount(b[below], minlength=nb) / (2 * stats.norm.cdf(0) -
+                                                              2 * stats.norm.cdf(-LOWER_SIGMAS))
+    n_above = np.bincount(b[probe], minlength=nb) / VEGETATION_PROBE_M
+    peak = n_ground / (sigma * np.sqrt(2 * np.pi))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(n_above > 0, peak / np.maximum(n_above, 1e-300), np.inf)
+        u = sigma * np.sqrt(2.0 * np.log(np.maximum(ratio, 1.0)))
+    u = np.clip(np.where(np.isfinite(u), u, np.inf), UPPER_SIGMAS * sigma, LOWER_SIGMAS * sigma)
+    centres = x0 + (np.arange(nb) + 0.5) * bin_m
+    return np.interp(x, centres, u) if nb else np.zeros(x.size)
