@@ -22,8 +22,8 @@ solstice's midnight. The stand: the conifer preset (:data:`~lidar_mitsuba.vegeta
 ``gap`` representation (the forest twin's reasons, :mod:`~lidar_mitsuba.studies.forest_twin`),
 the 2018 pulse energies of ATLAS.
 
-Run: ``python -m lidar_mitsuba.studies.canopy_cover [--quick] [OUT_DIR]``: ``canopy_cover.json``
-and ``canopy_cover.png``.
+Run: ``python -m lidar_mitsuba.studies.canopy_cover [--quick] [--strong|--weak] [OUT_DIR]``:
+``canopy_cover.json`` and ``canopy_cover.png``.
 """
 from __future__ import annotations
 
@@ -153,13 +153,14 @@ def b08_shots_per_m(res) -> float:
     return float((a.size - 1) / np.ptp(a)) if a.size > 1 and np.ptp(a) > 0 else 1.0 / 0.7
 
 
-def run(out_dir=None, *, quick: bool = False, seed: int = 1, progress=print) -> dict:
-    """The study: every cover x strength x light (``quick``: covers 0.4 and 0.8, the strong
-    beam by night, 300 shots: a test's seconds); ``canopy_cover.json`` and ``.png`` in
-    ``out_dir`` when given."""
+def run(out_dir=None, *, quick: bool = False, seed: int = 1, progress=print,
+        strengths=("strong", "weak")) -> dict:
+    """The study: every cover x strength (of ``strengths``) x light (``quick``: covers 0.4
+    and 0.8, the strong beam by night, 300 shots: a test's seconds); ``canopy_cover.json``
+    and ``.png`` in ``out_dir`` when given."""
     t0 = time.perf_counter()
     covers = (0.4, 0.8) if quick else COVERS
-    combos = [("strong", "night")] if quick else [(s, ll) for s in ("strong", "weak")
+    combos = [("strong", "night")] if quick else [(s, ll) for s in strengths
                                                 for ll in ("day", "night")]
     shots = 300 if quick else 1000
     rows = []
@@ -191,6 +192,21 @@ def format_row(r: dict) -> str:
             f"{_fmt(r['canopy_bias_m'])}/{_fmt(r['canopy_rmse_m'])} m (truth RH98 "
             f"{_fmt(r['truth_rh98_m'])}) ground/canopy per shot {_fmt(r['ground_per_shot'], '.3f')}"
             f"/{_fmt(r['canopy_per_shot'], '.3f')}")
+
+
+def table_md(doc: dict) -> str:
+    """The study's rows as a Markdown table."""
+    lines = ["| cover | beam | light | P(ground) | terrain bias / RMSE [m] | canopy segments "
+             "| h_canopy - true RH98, mean / RMSE [m] | ground / canopy photons per shot |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in doc["rows"]:
+        lines.append(f"| {100 * r['cover']:.0f} % | {r['strength']} | {r['light']} | "
+                     f"{_fmt(r['p_ground'])} | {_fmt(r['terrain_bias_m'])} / "
+                     f"{_fmt(r['terrain_rmse_m'])} | {r['canopy_segments']}/{r['segments']} | "
+                     f"{_fmt(r['canopy_bias_m'])} / {_fmt(r['canopy_rmse_m'])} | "
+                     f"{_fmt(r['ground_per_shot'], '.3f')} / "
+                     f"{_fmt(r['canopy_per_shot'], '.3f')} |")
+    return "\n".join(lines)
 
 
 def plot(doc: dict, path) -> None:
@@ -233,8 +249,9 @@ def plot(doc: dict, path) -> None:
 def main(argv=None) -> None:
     args = list(sys.argv[1:] if argv is None else argv)
     quick = "--quick" in args
-    args = [a for a in args if a != "--quick"]
-    run(args[0] if args else "canopy_cover_out", quick=quick)
+    strengths = [a[2:] for a in args if a in ("--strong", "--weak")] or ["strong", "weak"]
+    args = [a for a in args if not a.startswith("--")]
+    run(args[0] if args else "canopy_cover_out", quick=quick, strengths=tuple(strengths))
 
 
 if __name__ == "__main__":
