@@ -36,6 +36,7 @@ import numpy as np
 
 from . import __version__, geotrack, precompile as warmup
 from .products import atl06, cloud_flags, h5write as h5chunks
+from .products.atl08 import granule as atl08_granule
 from .ground.snow import kernel as snow_kernel
 from .products.atl03 import _ds, atomic_h5file
 from .products.atl03.beam import (BCKGRD_SHOTS, PULSES_PER_MAJOR_FRAME, SEGMENT_M,
@@ -449,10 +450,9 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                    beams: str | list[Beam] = "all", sc_orient: int = 0,
                    instrument_options: dict | None = None, instrument: str = "paper",
                    seed: int = 0, paths_per_shot: int | str = "auto",
-                   max_depth: int | str = "auto",
+                   max_depth: int | str = "auto", atl08_path: str | os.PathLike | None = None,
                    progress: bool = True, section_shots: int = SECTION_SHOTS,
                    segment_options: dict | None = None, orbit_info: dict | None = None,
-                   atl08_path: str | os.PathLike | None = None,
                    **simulate_options) -> list[BeamSummary]:
     """Simulate a granule section by section straight into its ATL03 (and ATL06) files, so
     memory is bounded by a section (``section_shots`` shots) for a track of any length.
@@ -472,9 +472,8 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     section, on ``surface`` (``replace(surface, roughness=...)``), planned anew where it is
     not the same object as the one before. ``orbit_info``: the files' ``orbit_info`` labels of
     a repeat-orbit track (``rgt``, ``cycle_number``, ``orbit_number``). ``atl08_path``: also
-    our ATL08 of every beam, made from the finished ATL03 file
-    (:func:`lidar_mitsuba.products.atl08.granule.write_from_atl03`). Returns each beam's
-    running statistics.
+    our ATL08 of the finished ATL03 (:mod:`lidar_mitsuba.products.atl08.granule`). Returns
+    each beam's running statistics.
     """
     import contextlib
     simulate_options.pop("keep_returns", None)     # sections keep no traced returns
@@ -524,9 +523,7 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
         if bar is not None:
             bar.close()
     if atl08_path is not None:                   # the land product, from the ATL03 file
-        from .products.atl08.granule import write_from_atl03
-        write_from_atl03(atl03_path, atl08_path,
-                         instrument=instruments[0][1] if ctx.preset == "atlas" else None)
+        atl08_granule.write_from_atl03(atl03_path, atl08_path, instrument=instruments[0][1])
     return [st.summary for st in streams]
 
 
