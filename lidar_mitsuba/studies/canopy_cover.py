@@ -234,6 +234,7 @@ def plot(doc: dict, path) -> None:
     for a, t in zip(ax, ("P(ground found) per 100 m segment", "terrain RMSE [m]",
                          "h_canopy - true RH98 [m]")):
         a.set_xlabel("canopy cover [%]")
+        a.set_xlim(-3, 100)
         a.set_title(t, fontsize=10)
         a.grid(alpha=0.3)
     ax[0].legend(fontsize=8)
