@@ -108,7 +108,7 @@ def test_leaf_sampler_chi2_and_backscatter():
     angle distribution the backscatter estimate (a sampled leaf's pi f_L cos / 0.9 toward
     the way back) averages pi Gamma_b / (G 0.9) within 4 standard errors."""
     from scipy import stats
-    n = 200_000
+    n = 100_000
     d = mi.Vector3f(0.0, 0.0, -1.0)
     for leaf_angle in ross.LEAF_ANGLES:
         integ = _integrator(_table(leaf_angle=leaf_angle))

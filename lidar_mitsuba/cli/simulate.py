@@ -41,6 +41,12 @@ def _add_scene_options(s) -> None:
                      "and field of view")
     src.add_argument("-D", dest="define", action="append", type=define, metavar="NAME=VALUE",
                      help="set the XML's <default name=\"NAME\"> parameter (repeatable)")
+    src.add_argument("--forest", metavar="SPECIES[:KEY=VALUE,...]",
+                     help="a forest stand (conifer, broadleaf or shrub) over the built-in "
+                     "surface (flat SIZE m without --surface), its leaves explicit, e.g. "
+                     "conifer:height=18,cover=0.6,lai=4; keys: height, cover or stems (per "
+                     "ha), lai, leaf_angle, clumping, crown_ratio, crown_radius, crown_shape, "
+                     "leaf_width, size, seed (docs/guide/forests.md)")
     g = s.add_argument_group("built-in surface (--surface; slope if --slope-deg is given)")
     surface_opts = opts.add_options(g, SurfaceSpec, metavars={"kind": None})
     s.set_defaults(_surface_opts=surface_opts)
@@ -210,6 +216,7 @@ def run(a) -> int:
                 "--roughness-relief-m": a.roughness_relief_m}
     if a.dem is not None and a.water_wind_mps is not None:
         raise UsageError("--water-wind-mps", "does not apply to --dem")
+    _forest_only_on_built_in(a)
     if a.like is not None:
         return _simulate_like(a, out, plot)
     if a.dem is not None:
@@ -220,7 +227,6 @@ def run(a) -> int:
     from ..products import atl03
     from ..products.retrieval import format_report
     from ..run import simulate
-    from ..ground.surface import SurfaceSpec
 
     surface_given = opts.given(a, a._surface_opts)
     params = dict(a.define or [])
@@ -241,9 +247,10 @@ def run(a) -> int:
         raise UsageError("--snow-grain-um", "does not apply to --scene: put a <medium> inside "
                          "its terrain shape")
     water = _water_bsdf(a)
+    surface = _forest(a, surface_given, water)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SimulationWarning)     # printed below, our way
-        res = simulate(instrument=inst, surface=None if a.scene else SurfaceSpec(**surface_given),
+        res = simulate(instrument=inst, surface=surface,
                        bsdf=water,
                        scene_file=a.scene, params=params or None,
                        track=Track(**opts.given(a, a._track_opts)),
@@ -278,6 +285,30 @@ def run(a) -> int:
                            f"precision {100 * rep.overall.std_m:.1f} cm")
         print(f"wrote {plot}")
     return 0
+
+
+def _forest_only_on_built_in(a) -> None:
+    """``--forest`` is refused with ``--dem`` and ``--like``."""
+    if a.forest is not None and (a.dem is not None or a.like is not None):
+        raise UsageError("--forest", "applies to a built-in surface only (over a DEM: "
+                         "lm.forest(ground=lm.DEMSurface(...), bounds_m=...) in Python)")
+
+
+def _forest(a, surface_given: dict, water):
+    """The run's surface: the ``--surface`` options' :class:`SurfaceSpec` (None with
+    ``--scene``), or with ``--forest`` a
+    :class:`~lidar_mitsuba.vegetation.forest.ForestSurface` over it (flat without
+    ``--surface`` options)."""
+    from ..ground.surface import SurfaceSpec
+    if a.forest is None:
+        return None if a.scene else SurfaceSpec(**surface_given)
+    for flag, value in (("--scene", a.scene), ("--snow-grain-um", a.snow_grain_um),
+                        ("--water-wind-mps", water)):
+        if value is not None:
+            raise UsageError(flag, "does not apply to --forest")
+    from ..vegetation.forest import forest_from_spec
+    return forest_from_spec(a.forest, ground=(SurfaceSpec(**surface_given).build()
+                                              if surface_given else None))
 
 
 def _instrument(a) -> Instrument:

@@ -1,7 +1,8 @@
 """The explicit representation of a stand: every leaf a facet, every stem a bark frustum.
 
-A :class:`~.stand.Stand`'s trees are drawn as instances of a few prototype trees (Mitsuba
-``shapegroup`` + ``instance``): the trees are sorted into ``classes`` height classes; each
+A :class:`~.stand.Stand`'s trees are copies of a few prototype trees, merged into one leaf
+mesh and one stem mesh per scene (Mitsuba instancing was measured slower: Dr.Jit traces each
+``instance`` into every kernel): the trees are sorted into ``classes`` height classes; each
 class has one prototype (the class's mean height, the crown base and radius in the class's
 mean proportion to height) holding
 
@@ -21,19 +22,26 @@ the stand's exactly (``LAD * sum(V_crown)`` over the class), so the stand's LAI 
 single tree's leaf area is off by ``s^2 / s^3``-scaling, at most the class's height spread
 (a few percent with 8 classes).
 
-Within-crown clumping: leaves are placed independently (Omega = 1 inside a crown); the stand's
-clumping index is what the turbid and gap representations apply, and the crowns' own
-grouping of foliage (between-crown gaps) comes out of the geometry here.
+Within-crown clumping: with the stand's clumping index Omega < 1 the facets come in clusters
+(shoots) of :data:`CLUSTER_LEAVES`, uniform in balls whose centres are uniform in the crown;
+the balls' radius is solved so that the clusters' mean vertical silhouette is Omega times
+their facets' summed projection (:func:`cluster_radius`): Nilson's gap probability with
+that Omega through the crown at nadir. With Omega 1 the facets are independent. The crowns'
+own grouping of foliage (the between-crown gaps) comes out of the geometry either way.
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
 
-from ..constants import check
+from ..constants import ParameterError, check
 from .stand import Stand, sample_leaf_inclination
 
+#: facets per cluster (a shoot, a leaf cluster) when the stand's clumping index is below 1
+#: (ESTIMATE: a conifer shoot holds tens of needles; 16 facets of 10 cm make a ~30-40 cm shoot)
+CLUSTER_LEAVES = 16
 #: the stem is sunk this far below the ground at its foot [m] (ESTIMATE: covers the ground's
 #: rise across a stem of radius 0.3 m on slopes up to ~60 degrees)
 STEM_SINK_M = 0.5
@@ -73,10 +81,12 @@ def leaf_normals(leaf_angle: str, n: int, rng: np.random.Generator) -> np.ndarra
 
 
 def leaf_triangles(centres: np.ndarray, normals: np.ndarray, *, area_m2: float,
-                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                   rng: np.random.Generator, turn: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Equilateral triangles of area ``area_m2`` [m^2] about ``centres`` (n, 3), in the planes
-    of ``normals`` (n, 3), each turned at random in its plane. Returns ``(vertices (3n, 3),
-    faces (n, 3))``, faces wound counter-clockwise about the normal."""
+    of ``normals`` (n, 3), each turned at random in its plane (``turn``: the turns as
+    fractions of a full turn, (n,), instead). Returns ``(vertices (3n, 3), faces (n, 3))``,
+    faces wound counter-clockwise about the normal."""
     n = centres.shape[0]
     side = math.sqrt(4.0 * area_m2 / math.sqrt(3.0))
     circ = side / math.sqrt(3.0)                      # centroid to vertex
@@ -84,7 +94,7 @@ def leaf_triangles(centres: np.ndarray, normals: np.ndarray, *, area_m2: float,
     u = np.cross(normals, helper)
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     v = np.cross(normals, u)
-    a0 = 2.0 * np.pi * rng.random(n)
+    a0 = 2.0 * np.pi * (rng.random(n) if turn is None else turn)
     verts = np.empty((n, 3, 3))
     for k in range(3):
         a = a0 + k * 2.0 * np.pi / 3.0
@@ -106,6 +116,83 @@ def stem_frustum(*, radius_m: float, height_m: float, sides: int = STEM_SIDES
     return verts, faces
 
 
+# --------------------------------------------------------------------------- clumping
+def _unit_ball(n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) points uniform in the unit ball."""
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return d * rng.random((n, 1)) ** (1.0 / 3.0)
+
+
+def _silhouette_ratio(verts: np.ndarray, *, grid: int = 32) -> float:
+    """Vertical silhouette area of clusters of triangles / the sum of their vertical
+    projections: ``verts`` (clusters, m, 3, 3). The silhouette by point sampling on a
+    ``grid`` x ``grid`` lattice over each cluster's box (a point is covered when inside
+    any triangle's projection)."""
+    xy = verts[..., :2]                                       # (c, m, 3, 2)
+    lo, hi = xy.min(axis=(1, 2)), xy.max(axis=(1, 2))         # (c, 2)
+    u = (np.arange(grid) + 0.5) / grid
+    px = np.repeat(lo[:, None, 0] + (hi - lo)[:, None, 0] * u[None, :], grid, axis=1)
+    py = np.tile(lo[:, None, 1] + (hi - lo)[:, None, 1] * u[None, :], (1, grid))
+
+    def side(p, q, x, y):              # cross((q - p), (point - p)) for each lattice point
+        return ((q[:, 0] - p[:, 0])[:, None] * (y - p[:, 1][:, None])
+                - (q[:, 1] - p[:, 1])[:, None] * (x - p[:, 0][:, None]))
+    covered = np.zeros(px.shape, bool)
+    proj = 0.0
+    for j in range(xy.shape[1]):
+        a, b, c = xy[:, j, 0], xy[:, j, 1], xy[:, j, 2]
+        s1, s2, s3 = side(a, b, px, py), side(b, c, px, py), side(c, a, px, py)
+        covered |= ((s1 >= 0) & (s2 >= 0) & (s3 >= 0)) | ((s1 <= 0) & (s2 <= 0) & (s3 <= 0))
+        proj += 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1])
+                             - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])).sum()
+    sil = covered.mean(axis=1) * np.prod(hi - lo, axis=1)
+    return float(sil.sum() / proj)
+
+
+def cluster_radius(stand: Stand) -> float:
+    """The radius [m] of ball-shaped clusters (shoots) of :data:`CLUSTER_LEAVES` facets that
+    gives the stand's within-crown clumping index at nadir (:func:`cluster_radius_per_width`
+    times the facet size); 0 for Omega 1 (independent facets)."""
+    if stand.clumping >= 1.0:
+        return 0.0
+    return stand.leaf_width_m * cluster_radius_per_width(stand.leaf_angle,
+                                                         float(stand.clumping))
+
+
+@functools.lru_cache(maxsize=64)
+def cluster_radius_per_width(leaf_angle: str, clumping: float, *,
+                             leaves: int = CLUSTER_LEAVES, samples: int = 64) -> float:
+    """Cluster radius / facet size giving the clumping index ``clumping`` (< 1) at nadir.
+
+    For clusters placed independently, P_gap = exp(-n_c E[S] L), so Omega = E[silhouette S]
+    / (``leaves`` x the mean vertical projection of a facet) (Nilson 1971; the shoot's
+    silhouette to total area ratio of Oker-Blom & Smolander 1988, Forest Sci. 34, 894).
+    E[S] by Monte Carlo over ``samples`` clusters with common random numbers (a fixed seed:
+    one answer per leaf angle distribution and Omega, ~1-2 % Monte Carlo error in Omega),
+    the radius by bisection on it (monotone in the radius). Scale-free: the ratio holds for
+    any facet size."""
+    rng = np.random.default_rng(np.random.SeedSequence([13, leaves, samples]))
+    n = samples * leaves
+    offsets = _unit_ball(n, rng)
+    normals = leaf_normals(leaf_angle, n, rng)
+    turn = rng.random(n)
+
+    def omega(radius: float) -> float:
+        v, _ = leaf_triangles(radius * offsets, normals, area_m2=1.0,
+                              rng=np.random.default_rng(1), turn=turn)
+        return _silhouette_ratio(v.reshape(samples, leaves, 3, 3))
+
+    lo, hi = 0.05, 50.0
+    if omega(lo) > clumping or omega(hi) < clumping:
+        raise ParameterError("clumping", f"{clumping:g} cannot be realised by clusters of "
+                             f"{leaves} leaves")
+    for _ in range(16):                          # bisection in log radius: 1e-4 relative
+        mid = math.sqrt(lo * hi)
+        lo, hi = (mid, hi) if omega(mid) < clumping else (lo, mid)
+    return math.sqrt(lo * hi)
+
+
 # --------------------------------------------------------------------------- prototypes
 def height_classes(stand: Stand, classes: int) -> np.ndarray:
     """Each tree's class (n,) int: quantile bins of height (fewer when trees are few)."""
@@ -125,6 +212,7 @@ def prototypes(stand: Stand, *, classes: int = 8, seed: int = 0) -> list[dict]:
     cls = height_classes(stand, classes)
     rng = np.random.default_rng(np.random.SeedSequence([int(stand.seed or 0), int(seed), 42]))
     leaf_area = stand.leaf_area_m2()
+    cluster_m = cluster_radius(stand)
     out = []
     for k in range(int(cls.max()) + 1 if stand.n_trees else 0):
         members = np.flatnonzero(cls == k)
@@ -138,13 +226,30 @@ def prototypes(stand: Stand, *, classes: int = 8, seed: int = 0) -> list[dict]:
         a = stand.leaf_width_m ** 2
         # the class's leaf area exactly: n a sum(s^2) = sum(LAD V)
         n = int(round(leaf_area[members].sum() / (a * float(np.sum(scale ** 2)))))
-        centres = sample_in_crown(stand, n, height_m=h, base_m=base, radius_m=radius, rng=rng)
+        centres = _leaf_centres(stand, n, height_m=h, base_m=base, radius_m=radius,
+                                cluster_m=cluster_m, rng=rng)
         leaves = leaf_triangles(centres, leaf_normals(stand.leaf_angle, n, rng), area_m2=a,
                                 rng=rng)
         out.append({"height_m": h, "leaves": leaves, "members": members, "scale": scale,
                     "radius_m": radius,
                     "stem": stem_frustum(radius_m=stem_r, height_m=h)})
     return out
+
+
+def _leaf_centres(stand: Stand, n: int, *, height_m: float, base_m: float, radius_m: float,
+                  cluster_m: float, rng: np.random.Generator) -> np.ndarray:
+    """``(n, 3)`` leaf centres in one crown: uniform (``cluster_m`` 0), or in clusters of
+    :data:`CLUSTER_LEAVES` uniform in balls of radius ``cluster_m`` [m] whose centres are
+    uniform in the crown."""
+    if cluster_m <= 0 or n == 0:
+        return sample_in_crown(stand, n, height_m=height_m, base_m=base_m,
+                               radius_m=radius_m, rng=rng)
+    k = -(-n // CLUSTER_LEAVES)
+    centres = sample_in_crown(stand, k, height_m=height_m, base_m=base_m, radius_m=radius_m,
+                              rng=rng)
+    pts = np.repeat(centres, CLUSTER_LEAVES, axis=0)
+    pts = pts + cluster_m * _unit_ball(pts.shape[0], rng)
+    return pts[:n]
 
 
 def trees_near(stand: Stand, bounds_xy_m: tuple[float, float, float, float] | None
@@ -170,3 +275,37 @@ def trees_near(stand: Stand, bounds_xy_m: tuple[float, float, float, float] | No
         xs.append(x[ok])
         ys.append(y[ok])
     return np.concatenate(idx), np.concatenate(xs), np.concatenate(ys)
+
+
+def placed_meshes(protos: list[dict], idx: np.ndarray, place_m: np.ndarray, *,
+                  turn_deg: np.ndarray) -> tuple[tuple, tuple]:
+    """The trees ``idx`` (stand indices, (m,)) as copies of their prototypes, each scaled,
+    turned by ``turn_deg`` (m,) about the vertical and moved to ``place_m`` (m, 3) [m]:
+    ``((leaf vertices, leaf faces), (stem vertices, stem faces))``, float32 / uint32."""
+    out = {"leaves": ([], []), "stem": ([], [])}
+    count = {"leaves": 0, "stem": 0}
+    member_of = {}
+    for k, p in enumerate(protos):
+        for j, t in enumerate(p["members"]):
+            member_of[int(t)] = (k, float(p["scale"][j]))
+    which = np.array([member_of[int(t)][0] for t in idx], int)
+    scale = np.array([member_of[int(t)][1] for t in idx])
+    a = np.radians(turn_deg)
+    for k, p in enumerate(protos):
+        sel = np.flatnonzero(which == k)
+        if sel.size == 0:
+            continue
+        c, s_ = np.cos(a[sel]) * scale[sel], np.sin(a[sel]) * scale[sel]
+        for part in ("leaves", "stem"):
+            v, f = p[part]
+            v = v.astype(np.float32)
+            xs = c[:, None] * v[None, :, 0] - s_[:, None] * v[None, :, 1]
+            ys = s_[:, None] * v[None, :, 0] + c[:, None] * v[None, :, 1]
+            zs = scale[sel, None] * v[None, :, 2]
+            verts = np.stack([xs, ys, zs], axis=-1) + place_m[sel, None, :]
+            faces = (f[None, :, :] + (count[part] + len(v) * np.arange(sel.size))[:, None, None])
+            out[part][0].append(verts.reshape(-1, 3).astype(np.float32))
+            out[part][1].append(faces.reshape(-1, 3).astype(np.uint32))
+            count[part] += len(v) * sel.size
+    return tuple(tuple(np.concatenate(x) if x else np.zeros((0, 3)) for x in out[part])
+                 for part in ("leaves", "stem"))

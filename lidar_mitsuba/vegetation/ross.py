@@ -14,16 +14,15 @@ Myneni, Ross & Asrar 1989, *Agric. For. Meteorol.* 45, 1-153, Sec. 2):
 
 with ``Omega_c`` the clumping index (Nilson 1971) and the normalisation
 ``(1/2pi) int g_L dOmega_L = 1``. The leaf normals' inclination ``theta_L`` has the pdf
-``f(theta_L)`` on ``[0, pi/2]`` (azimuth uniform): the de Wit (1965) types as in Bonan
-(2019, *Climate Change and Terrestrial Ecosystem Modeling*, Table 14.1) and Myneni et al.
-(1989, Eq. 2.4):
+``f(theta_L)`` on ``[0, pi/2]`` (azimuth uniform): de Wit's (1965, *Photosynthesis of Leaf
+Canopies*, Agric. Res. Rep. 663) types, as reviewed by Myneni et al. (1989, Sec. 2):
 
-========== ======================================
-spherical  ``sin theta_L``
-planophile ``(2/pi) (1 + cos 2 theta_L)``
+=========== ======================================
+spherical   ``sin theta_L``
+planophile  ``(2/pi) (1 + cos 2 theta_L)``
 erectophile ``(2/pi) (1 - cos 2 theta_L)``
-uniform    ``2/pi``
-========== ======================================
+uniform     ``2/pi``
+=========== ======================================
 
 The azimuthal average of ``|Omega . Omega_L|`` is Ross's kernel :func:`psi`; ``G`` integrates it
 against ``f`` (:func:`g_function`, Gauss-Legendre split at the kernel's kink). Closed forms
@@ -101,8 +100,8 @@ def inclination_pdf(theta_l: np.ndarray, leaf_angle: str) -> np.ndarray:
 
 
 def psi(mu: np.ndarray, theta_l: np.ndarray) -> np.ndarray:
-    """Ross's kernel: the mean of ``|Omega . Omega_L|`` over the leaf azimuth, for a direction
-    of cosine ``mu`` to the vertical and leaf inclination ``theta_l`` [rad] (broadcast).
+    """Ross's kernel, the leaf-azimuth mean of ``|Omega dot Omega_L|``, for a direction of
+    cosine ``mu`` to the vertical and leaf inclination ``theta_l`` [rad] (broadcast).
     With ``a = |mu| cos theta_l``, ``b = sin theta sin theta_l``: ``a`` where ``a >= b``, else
     ``a (2 phi/pi - 1) + (2/pi) b sin phi``, ``cos phi = -a/b`` (Ross 1981, ch. 2)."""
     mu = np.abs(np.asarray(mu, float))
@@ -162,7 +161,9 @@ def phase_spherical(gamma_rad: np.ndarray, *, rho: float, tau: float) -> np.ndar
 def gap_probability(*, lai: float, leaf_angle: str, clumping: float = 1.0,
                     mu: float = 1.0) -> float:
     """Gap probability through a horizontally homogeneous layer of leaf area index ``lai``
-    along a direction of cosine ``mu`` to the vertical: ``exp(-G(mu) Omega LAI / mu)``
-    (Nilson 1971, *Agric. Meteorol.* 8, 25-38; Ross 1981)."""
+    along a direction of cosine ``mu`` to the vertical, ``exp(-G(mu) Omega LAI / mu)``
+    (Nilson 1971; Ross 1981).
+
+    Nilson 1971: *Agric. Meteorol.* 8, 25-38."""
     g = G_NADIR[leaf_angle] if mu == 1.0 else float(g_function(np.array(mu), leaf_angle))
     return math.exp(-g * clumping * lai / mu)

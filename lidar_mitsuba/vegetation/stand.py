@@ -34,27 +34,8 @@ Environ. 34, 153-166, eq. for the gap between crowns):
 so a requested cover sets ``lambda = -ln(1 - cover) / E[pi r^2]``. A requested LAI sets the
 leaf area density of the realised crowns exactly: ``LAD = LAI * area / sum(V_crown)``.
 
-Leaf angle distributions (de Wit 1965, "Photosynthesis of leaf canopies", Agric. Res. Rep.
-663, Pudoc, Wageningen; the forms of Goel & Strebel 1984 / Bunnik 1978), densities of the
-leaf inclination theta_L in [0, pi/2]:
-
-* spherical  f = sin theta_L (leaf normals uniform over the hemisphere);
-* planophile f = 2/pi (1 + cos 2 theta_L);
-* erectophile f = 2/pi (1 - cos 2 theta_L);
-* uniform    f = 2/pi.
-
-Ross's G-function (Ross 1981, "The Radiation Regime and Architecture of Plant Stands", Junk,
-The Hague; ch. on the projection function): the mean projection of unit leaf area on a plane
-normal to the direction at zenith theta, for azimuthally uniform leaves,
-
-    G(theta) = int_0^{pi/2} f(theta_L) psi(theta, theta_L) dtheta_L,
-    psi = cos theta cos theta_L                                  (theta + theta_L <= pi/2)
-    psi = cos theta cos theta_L [1 + 2/pi (tan phi_t - phi_t)],  cos phi_t = cot theta cot theta_L
-
-and G = 0.5 at every angle for the spherical distribution. Gap probability through a random
-(Poisson) foliage of leaf area index LAI, clumping index Omega (Nilson 1971, "A theoretical
-analysis of the frequency of gaps in plant stands", Agric. Meteorol. 8, 25-38):
-``P_gap(theta) = exp(-G(theta) Omega LAI / cos theta)``.
+Leaf angles, Ross's G-function and the gap probability: :mod:`.leaf_angles` (re-exported
+here).
 """
 from __future__ import annotations
 
@@ -64,9 +45,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..constants import ParameterError, check
+from .leaf_angles import (LEAF_ANGLES, gap_probability, leaf_angle_pdf,  # noqa: F401
+                          ross_g, sample_leaf_inclination)           # (re-exported here)
 
 CROWN_SHAPES = ("cone", "ellipsoid", "cylinder")
-LEAF_ANGLES = ("spherical", "planophile", "erectophile", "uniform")
 SPECIES = ("conifer", "broadleaf", "shrub")
 
 
@@ -101,14 +83,16 @@ class SpeciesPreset:
 
 
 #: Species presets. Sources:
+#:
 #: * lai: biome means of Asner, Scurlock & Hicke 2003 ("Global synthesis of leaf area index
-#:   observations", Global Ecol. Biogeogr. 12, 191-205, Table 2): evergreen needleleaf forest
-#:   5.5, deciduous broadleaf 5.1, shrubland 2.1. We take the lower quartile-ish values
+#:   observations", Global Ecol. Biogeogr. 12, 191-205): evergreen needleleaf forest 5.5,
+#:   deciduous broadleaf 5.1, shrubland 2.1 (as we recall them; not re-read here). We take
 #:   3.0 / 4.0 / 2.0 for conifer / broadleaf / shrub: ESTIMATE (the means include dense
 #:   plantations; a stand's own LAI should be passed when known).
 #: * clumping: He, Chen, Pisek, Schaaf & Strahler 2012 ("Global clumping index map derived from
-#:   the MODIS BRDF product", Remote Sens. Environ. 119, 118-130, Table 3), per-biome means:
-#:   evergreen needleleaf 0.62 ~ 0.6, deciduous broadleaf 0.70 ~ 0.7, shrubs 0.71 ~ 0.7 (rounded).
+#:   the MODIS BRDF product", Remote Sens. Environ. 119, 118-130): per-biome means of about
+#:   0.6 for evergreen needleleaf forests and 0.7 for broadleaf forests and shrubs (as we
+#:   recall them, rounded; not re-read here).
 #: * leaf_angle: needles and shrubs spherical (the usual assumption, Ross 1981); broadleaf
 #:   planophile (Pisek, Sonnentag, Richardson & Mottus 2013, "Is the spherical leaf inclination
 #:   angle distribution a valid assumption for temperate and boreal broadleaf tree species?",
@@ -116,91 +100,25 @@ class SpeciesPreset:
 #:   plagiophile, few spherical).
 #: * crown_shape: conifers cones, broadleaf ellipsoids (the shapes of the geometric-optical
 #:   models, Li & Strahler 1992, IEEE TGRS 30, 276-292); shrubs ellipsoids.
-#: * height_m, cover, crown_ratio, radius_ratio, height_cv, leaf_width_m: ESTIMATE (typical
+#: * height_m, cover, crown_ratio, radius_ratio, height_cv: ESTIMATE (typical
 #:   values: a conifer crown 1/10 of its height in radius over half its height, as lodgepole
 #:   pine; a broadleaf crown 1/4 of its height in radius over 60 %; a shrub as wide as tall;
-#:   10 % height variation in an even-aged stand; leaf facets of 5-8 cm, needle shoots drawn
-#:   as 3 cm facets). Pass the stand's own values when known.
+#:   10 % height variation in an even-aged stand). Pass the stand's own values when known.
+#: * leaf_width_m: ESTIMATE, a cost choice: a facet stands for a leaf or a shoot of needles
+#:   (10 cm conifer shoots, 15 cm broadleaf leaf clusters, 8 cm shrub leaves); the gaps an 11 m
+#:   footprint sees are a Poisson foliage's as long as facets are much smaller than crowns,
+#:   and a 350 m corridor tile stays at 3-6 million triangles.
 PRESETS = {
     "conifer": SpeciesPreset(height_m=18.0, cover=0.6, lai=3.0, crown_shape="cone",
                              crown_ratio=0.5, radius_ratio=0.1, leaf_angle="spherical",
-                             clumping=0.6, leaf_width_m=0.03, height_cv=0.1),
+                             clumping=0.6, leaf_width_m=0.1, height_cv=0.1),
     "broadleaf": SpeciesPreset(height_m=20.0, cover=0.7, lai=4.0, crown_shape="ellipsoid",
                                crown_ratio=0.6, radius_ratio=0.25, leaf_angle="planophile",
-                               clumping=0.7, leaf_width_m=0.06, height_cv=0.1),
+                               clumping=0.7, leaf_width_m=0.15, height_cv=0.1),
     "shrub": SpeciesPreset(height_m=1.5, cover=0.5, lai=2.0, crown_shape="ellipsoid",
                            crown_ratio=0.9, radius_ratio=0.5, leaf_angle="spherical",
-                           clumping=0.7, leaf_width_m=0.03, height_cv=0.2),
+                           clumping=0.7, leaf_width_m=0.08, height_cv=0.2),
 }
-
-
-# --------------------------------------------------------------------------- leaf angles
-def leaf_angle_pdf(leaf_angle: str, theta_l_rad) -> np.ndarray:
-    """de Wit's density of the leaf inclination ``theta_l_rad`` [rad] in [0, pi/2] (module
-    docstring); each integrates to 1 over [0, pi/2]."""
-    t = np.asarray(theta_l_rad, float)
-    if leaf_angle == "spherical":
-        return np.sin(t)
-    if leaf_angle == "planophile":
-        return 2.0 / np.pi * (1.0 + np.cos(2.0 * t))
-    if leaf_angle == "erectophile":
-        return 2.0 / np.pi * (1.0 - np.cos(2.0 * t))
-    if leaf_angle == "uniform":
-        return np.full(t.shape, 2.0 / np.pi)
-    raise ParameterError("leaf_angle", f"must be one of {', '.join(LEAF_ANGLES)} "
-                         f"(got {leaf_angle!r})")
-
-
-def _quadrature(n: int = 2000) -> tuple[np.ndarray, np.ndarray]:
-    """Midpoint nodes and weights over [0, pi/2] (n nodes)."""
-    h = 0.5 * np.pi / n
-    return (np.arange(n) + 0.5) * h, np.full(n, h)
-
-
-def sample_leaf_inclination(leaf_angle: str, u) -> np.ndarray:
-    """Leaf inclinations [rad] for uniform variates ``u`` in [0, 1), by inverting the CDF of
-    :func:`leaf_angle_pdf` (closed forms: spherical ``arccos(1 - u)``, uniform ``u pi/2``,
-    planophile / erectophile by Newton's method on ``(2t +- sin 2t) / pi = u``)."""
-    u = np.asarray(u, float)
-    if leaf_angle == "spherical":
-        return np.arccos(1.0 - u)
-    if leaf_angle == "uniform":
-        return 0.5 * np.pi * u
-    sign = {"planophile": 1.0, "erectophile": -1.0}.get(leaf_angle)
-    if sign is None:
-        leaf_angle_pdf(leaf_angle, 0.0)                 # raises the ParameterError
-    t = 0.5 * np.pi * u
-    for _ in range(40):   # CDF(t) = (2t + sign sin 2t) / pi, monotone; Newton from the line
-        cdf = (2.0 * t + sign * np.sin(2.0 * t)) / np.pi
-        pdf = np.maximum(leaf_angle_pdf(leaf_angle, t), 1e-9)
-        t = np.clip(t - (cdf - u) / pdf, 0.0, 0.5 * np.pi)
-    return t
-
-
-def ross_g(leaf_angle: str, theta_rad) -> np.ndarray:
-    """Ross's G-function [-] at view zenith ``theta_rad`` [rad] (module docstring), by
-    midpoint quadrature over the leaf inclination (2000 nodes: 1e-6 of the closed forms)."""
-    th = np.atleast_1d(np.asarray(theta_rad, float))
-    tl, w = _quadrature()
-    f = leaf_angle_pdf(leaf_angle, tl) * w
-    ct, tt = np.cos(th)[:, None], np.tan(th)[:, None]
-    cl = np.cos(tl)[None, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x = 1.0 / (tt * np.tan(tl)[None, :])           # cot theta cot theta_L
-        phi = np.arccos(np.clip(x, -1.0, 1.0))
-        psi = np.where(x >= 1.0, ct * cl,
-                       ct * cl * (1.0 + 2.0 / np.pi * (np.tan(phi) - phi)))
-    psi = np.where(np.isfinite(psi), psi, ct * cl)
-    g = (psi * f[None, :]).sum(1)
-    return g.reshape(np.shape(theta_rad)) if np.ndim(theta_rad) else g[0]
-
-
-def gap_probability(*, leaf_angle: str, lai: float, clumping: float = 1.0,
-                    theta_rad: float = 0.0) -> float:
-    """Nilson's gap probability ``exp(-G(theta) Omega LAI / cos theta)`` through a
-    horizontally homogeneous foliage layer (module docstring)."""
-    return float(np.exp(-ross_g(leaf_angle, theta_rad) * clumping * lai
-                        / math.cos(theta_rad)))
 
 
 # --------------------------------------------------------------------------- the stand
@@ -241,7 +159,7 @@ class Stand:
     stem_radius_m: np.ndarray | None = None
     periodic: bool = True
     seed: int | None = None
-    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+    _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         arrays = ("x_m", "y_m", "ground_z_m", "height_m", "crown_base_m", "crown_radius_m")
