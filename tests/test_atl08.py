@@ -89,20 +89,22 @@ def test_sparse_ground_under_a_dense_understorey(seed):
     exponential heights of mean 2 m: 0.46 photons a shot per metre of height at its base, more
     than the ground's 0.3 spread over its +-0.15 m), the forest clip's 1.9 MHz background. The
     ground must be found at its centre, not in the understorey. Tolerance: the surface is the
-    median of ~9 ground photons per bin (the fit's GROUND_PER_BIN) less a known offset, whose
+    median of ~9 ground photons per bin (ground.GROUND_PER_BIN) less a known offset, whose
     sampling error is 1.25 x 0.15 / sqrt(9) = 0.06 m a bin; the median over the track's ~40
     bins is within ~0.01 m of the centre, and the background within the fit window (~0.2
-    photons a bin, uniform) moves each bin's median by up to ~0.03 m: 0.1 m allowed (the
-    code before the lower-side fit: 0.15-0.28 m high on these seeds, and 22-27 % of the
-    vegetation classed ground on two others). Vegetation classed ground: the ground band ends at most 3 x 0.15 = 0.45 m above
-    the surface, below the vegetation's base, so only the surface's error lets any in: < 10 %
-    (measured 0.2-0.3 %)."""
+    photons a bin, uniform) moves each bin's median by up to ~0.03 m: 0.1 m allowed.
+    Vegetation classed ground: the band ends at most 3 x 0.15 = 0.45 m above the surface,
+    below the vegetation's base, so only the surface's error lets any in: < 10 %. Ground
+    photons kept: the band holds 84 % (-3 to +1 sigma) to 99.7 % of a normal return: > 80 %.
+    Measured: ground -0.015 and -0.003 m, vegetation classed ground 0.0 and 0.1 %, ground
+    kept 92 and 91 %; the code before the lower-flank fit (session 19): +0.28 and +0.15 m,
+    33 and 23 % of the vegetation classed ground."""
     x, h, lab = cloud(seed=seed, slope=0.1, mu_ground=0.3, mu_canopy=0.8, canopy_lo_m=0.5,
                       canopy_mean_m=2.0, rho_per_m2=0.018, sigma_ground_m=0.15)
     c = C.classify_photons(x_m=x, h_m=h, background_per_m2=0.018)
     assert abs(np.nanmedian(c.ground_h_m - (100 + 0.1 * x))) < 0.1
     assert np.mean(c.classes[lab == 2] == C.GROUND) < 0.10
-    assert np.mean(c.classes[lab == 1] == C.GROUND) > 0.8       # 3 sigma below, >= 1 above
+    assert np.mean(c.classes[lab == 1] == C.GROUND) > 0.8
 
 
 def test_background_estimates_agree():
@@ -141,11 +143,12 @@ def test_segments_terrain_and_canopy_heights():
     assert n == 8 and list(s["land_segments/segment_id_beg"][:2]) == [100, 105]
     mid = 50.0 + 100.0 * np.arange(n)
     te = s["land_segments/terrain/h_te_best_fit"]
-    inner = slice(0, n - 1)     # the track's last 100 m: the envelopes' end (0.9 m off, seed 7)
-    assert np.all(np.abs(te - (100 + 0.1 * mid))[inner] < 0.25)
-    assert np.all(np.abs(s["land_segments/terrain/terrain_slope"] - 0.1)[inner] < 0.01)
+    # every segment, the track's ends included (measured within 0.13 m; before the ground's
+    # lower-flank fit the last 100 m was 0.9 m off)
+    assert np.all(np.abs(te - (100 + 0.1 * mid)) < 0.25)
+    assert np.all(np.abs(s["land_segments/terrain/terrain_slope"] - 0.1) < 0.01)
     hc = s["land_segments/canopy/h_canopy"]
-    # measured: 12.4-17.3 m, median 13.4 m against 14.7 m. NOT within the sampling error
+    # measured: 12.5-16.0 m, median 13.6 m against 14.7 m. NOT within the sampling error
     # (~0.2 m): the noise filter drops canopy-top photons (half their window is empty air)
     # and lets background just above the top in; a systematic of the density filter
     # (docs/guide/atl08.md). This bounds it, so a change that worsens it fails.

@@ -33,16 +33,18 @@ as along-track distance and height. The steps (:func:`classify_photons`):
    where no vegetation is (:func:`_outer_sigma`), are dropped (canopy minima of bins the
    ground did not return from lie above; noise that passed the filter, below) and the rest
    joined by lines (:func:`_polyline`: the ATBD's smoothing spline overshoots between close
-   candidates and across gaps). The final ground (:func:`_final_ground`): the line through
-   the medians of the signal photons within the buffer in 5 m bins, refitted until the
-   selection settles; ground photons lie within ``g_buf = max(outlier_sigmas * sigma_g,
-   min_buffer_m)`` of it, ``sigma_g`` the spread below it.
+   candidates and across gaps). The final ground
+   (:func:`lidar_mitsuba.products.atl08.ground.final_ground`): the ground's centre fitted from
+   its lower side (a window 3 spreads below and 1 above the surface, less a normal's
+   median in it), its spread from the curvature of its lower flank, climbing from the
+   pulse's; ground photons lie from 3 spreads below the centre to the height where the
+   ground's density falls to that of the vegetation above it (1 to 3 spreads).
 4. **Top of canopy** (ATBD 4.11, upper envelope): the same on the highest photon above the
-   ground buffer in each bin, the spread measured above it. Photons above it by more than ``outlier_sigmas``
-   robust spreads are noise; canopy photons within one robust spread below it (or above it
-   up to the noise cut) are top of canopy.
-5. **Classes** (``classed_pc_flag``): 0 noise (filtered out, below the ground buffer or
-   above the canopy), 1 ground, 2 canopy (between the ground buffer and the top-of-canopy
+   ground band in each bin, the spread measured above it. Photons above it by more than
+   ``outlier_sigmas`` robust spreads are noise; canopy photons within one robust spread
+   below it (or above it up to the noise cut) are top of canopy.
+5. **Classes** (``classed_pc_flag``): 0 noise (filtered out, below the ground band or
+   above the canopy), 1 ground, 2 canopy (between the ground band and the top-of-canopy
    band), 3 top of canopy.
 
 Constants not from a source are marked ESTIMATE in :class:`Settings`.
@@ -97,9 +99,9 @@ class Settings:
             a 40 m bin of ~57 shots misses the ground with probability e^-5.7 ~ 0.3 %).
         outlier_sigmas: envelope outlier cut and buffer, in robust standard deviations
             (3: the usual normal-tail cut, 0.27 % of good points).
-        min_buffer_m: floor of the ground buffer [m]: 3 x ATLAS's pulse sigma in height
-            (1.5 ns FWHM -> 0.64 ns -> 0.096 m; ATLAS as flown, docs/guide/atlas.md), so a
-            flat bare surface keeps its own returns.
+        min_buffer_m: floor of the ground band's depth [m]: 3 x ATLAS's pulse sigma in
+            height (1.5 ns FWHM -> 0.64 ns -> 0.096 m; ATLAS as flown, docs/guide/atlas.md);
+            the ground's spread starts from, and never falls below, a third of it.
         max_iterations: envelope refits at most.
     """
     trend_block_m: float = 20.0
@@ -403,7 +405,8 @@ def classify_photons(*, x_m: np.ndarray, h_m: np.ndarray,
         return out
     fit = final_ground(x, h, sig, gf(x), None, min_sigma_m=s.min_buffer_m / s.outlier_sigmas,
                        min_bin_m=s.envelope_bin_m,
-                       max_bin_m=s.envelope_bin_m * max(s.envelope_levels), depth0_m=flat_h)
+                       max_bin_m=s.envelope_bin_m * max(s.envelope_levels), depth0_m=flat_h,
+                       background_per_m2=float(np.median(rho)))
     ground[:] = fit.surface_m
     out.ground_buffer_m = fit.lower_m
     out.ground_top_m = fit.upper_m

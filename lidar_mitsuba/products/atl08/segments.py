@@ -21,9 +21,14 @@ MIN_GROUND_PHOTONS = 5
 least three; five keep one outlier from deciding the slope (the ATBD reports no terrain
 'if too few ground photons', change history 2016 Nov, without a number we could check)."""
 MIN_CANOPY_PHOTONS = 50
-"""Fewest canopy + top-of-canopy photons for canopy metrics: 50, ATL08's own threshold for
-reporting canopy heights of a 100 m segment (ATL08 ATBD, as we read it; RH98 of 50 photons is
-the 49th: with fewer the percentile rests on the single highest photon)."""
+"""Fewest canopy + top-of-canopy photons for canopy metrics. ESTIMATE, kept from the first
+version ("ATL08's own threshold as we read the ATBD"), NOT checked: in session 19 the ATBD's
+text on it (release 002, sec. 4.15) could not be reached; what could be read are its change
+history ("do not report segment statistics if too few ground photons", sec. 4.15 (3)) and the
+data dictionary's ``canopy_rh_conf``, which grades a segment by its *fraction* of canopy
+photons (0: under 5 % canopy; 1: over 5 % canopy, under 5 % ground; 2: both over 5 %), a
+different kind of criterion (5 % of a 100 m segment's ~150-300 signal photons is 8-15). RH98
+of 50 photons is the 49th: with fewer the percentile rests on the single highest photon."""
 
 
 def _empty(n: int) -> dict:
