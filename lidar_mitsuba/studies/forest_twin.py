@@ -7,8 +7,10 @@ again from what is known of the site, without fitting the photons.
   ground), its median over the segments; the stand's mean tree height is set so that the
   98th percentile of its tree heights is that value (heights normal with the conifer
   preset's coefficient of variation ``cv``: ``h_mean = h_canopy / (1 + 2.054 cv)``);
-* the canopy cover: ATL08's ``segment_cover`` (the Copernicus Global Land Service fractional
-  canopy cover, percent, that the product copies in; ATL08 ATBD release 005 onward), median;
+* the canopy cover: ATL08's ``segment_cover`` (percent; the fractional tree cover of an
+  external map the product copies in, Copernicus Global Land Service from release 005,
+  MODIS VCF before: recalled from the ATL08 data dictionary, the clip carries no
+  attributes), median;
   ``segment_landcover`` (Copernicus classes 111 closed / 121 open evergreen needle-leaf
   forest) says the stand is a conifer one;
 * the terrain slope: ATL08's ``dem_h`` (the reference DEM under each segment) fitted against
