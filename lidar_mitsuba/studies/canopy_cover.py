@@ -155,11 +155,11 @@ def b08_shots_per_m(res) -> float:
 
 def run(out_dir=None, *, quick: bool = False, seed: int = 1, progress=print,
         strengths=("strong", "weak")) -> dict:
-    """The study: every cover x strength (of ``strengths``) x light (``quick``: covers 0.4
+    """The study: every cover x strength (of ``strengths``) x light (``quick``: covers 0
     and 0.8, the strong beam by night, 300 shots: a test's seconds); ``canopy_cover.json``
     and ``.png`` in ``out_dir`` when given."""
     t0 = time.perf_counter()
-    covers = (0.4, 0.8) if quick else COVERS
+    covers = (0.0, 0.8) if quick else COVERS
     combos = [("strong", "night")] if quick else [(s, ll) for s in strengths
                                                 for ll in ("day", "night")]
     shots = 300 if quick else 1000
