@@ -240,7 +240,8 @@ def test_forest_front_door_gap_and_turbid():
     come from the crowns and the ground; a DEM's corridor tiles are refused by name."""
     import lidar_mitsuba as lm
     from lidar_mitsuba.constants import ParameterError
-    f = lm.forest(species="conifer", ground=lm.Plane(size_m=60.0), seed=1, representation="gap")
+    f = lm.forest(species="conifer", height_m=10.0, ground=lm.Plane(size_m=60.0), seed=1,
+                  representation="gap")             # under the range gate (+-15 m)
     d = f.integrator_dict(lm.Instrument().integrator_dict(max_depth=1))
     assert d["type"] == "canopy" and d["mode"] == "gap"
     assert f.mitsuba_scene(bsdf=None, margin_m=10.0, bounds_m=None)[1] == 2   # the ground only

@@ -29,12 +29,12 @@ import time
 import numpy as np
 
 from ..vegetation import gap, turbid
+from ..vegetation.optics import OPTICS
 from ..vegetation.stand import stand as make_stand
 
 #: the canopy return's height bins above the ground [m]
 EDGES_M = np.arange(0.0, 26.0, 1.0)
 GROUND_ALBEDO = 0.3       # ESTIMATE: a litter floor at 532 nm, any value serves the ratios
-LEAF_RHO, LEAF_TAU = 0.11, 0.12     # issue 42: PROSPECT green leaf R 0.11-0.13, T 0.12-0.13
 
 
 def _stand(size_m: float):
@@ -84,11 +84,14 @@ def run(*, quick: bool = False) -> dict:
     xs = 10.0 + (np.arange(n_shots) * 0.7) % (size - 20.0)
     ys = np.full(n_shots, size / 2)
     base = Instrument().integrator_dict(max_depth=1)
+    # the foliage's optics as the explicit forest's (ForestSurface's default: needles for a
+    # conifer), so that the representations differ in geometry only
+    leaf = OPTICS["needle" if st.species == "conifer" else "leaf"]
     cases = {"bare ground": (mi.load_dict(base), scene)}
     kinds = [("gap", "gap", None), ("turbid, 1 vertex", "turbid", 1)]
     for name, mode, depth in kinds + ([] if quick else [("turbid, 3 vertices", "turbid", 3)]):
-        d = turbid.integrator_dict(st, mode=mode, base=base, rho=LEAF_RHO, tau=LEAF_TAU,
-                                   max_depth=depth)
+        d = turbid.integrator_dict(st, mode=mode, base=base, rho=leaf.reflectance,
+                                   tau=leaf.transmittance, max_depth=depth)
         cases[name] = (mi.load_dict(d), scene)
     if not quick:
         cases.update(_explicit_cases(st, base))
@@ -114,12 +117,13 @@ def run(*, quick: bool = False) -> dict:
         if "profile" in r and r is not rows["bare ground"]:
             r["profile_l1_vs_" + ref.split(",")[0]] = float(
                 np.abs(np.subtract(r["profile"], rows[ref]["profile"])).sum())
-    table = turbid.canopy_table(st, rho=LEAF_RHO, tau=LEAF_TAU)
+    table = turbid.canopy_table(st, rho=leaf.reflectance, tau=leaf.transmittance)
     rng = np.random.default_rng(5)
     lx = np.repeat(xs, 64) + 2.5 * rng.standard_normal(n_shots * 64)
     ly = np.repeat(ys, 64) + 2.5 * rng.standard_normal(n_shots * 64)
     _, pred = gap.return_profile(table, lx, ly, 0.0, np.array([0.0, 1.0]))
-    return {"stand": {"species": st.species, "trees": st.n_trees, "lai": st.lai(),
+    return {"leaf": {"name": leaf.name, "R": leaf.reflectance, "T": leaf.transmittance},
+            "stand": {"species": st.species, "trees": st.n_trees, "lai": st.lai(),
                       "cover": st.canopy_cover(), "clumping": st.clumping,
                       "leaf_angle": st.leaf_angle, "crown_shape": st.crown_shape},
             "shots": n_shots, "paths_per_shot": k, "reference": ref,
@@ -137,7 +141,10 @@ def _explicit_cases(st, base: dict) -> dict:
     size = st.bounds_m[1][0] - st.bounds_m[0][0]
     f = ForestSurface(ground=Plane(size_m=size), stand=st, representation="explicit")
     bsdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": GROUND_ALBEDO}}
-    scene, _ = f.mitsuba_scene(bsdf=bsdf, margin_m=60.0, bounds_m=None)
+    # the track's corridor (y = size/2 +- the field of view): the whole tile's leaves are
+    # too many to trace
+    scene, _ = f.mitsuba_scene(bsdf=bsdf, margin_m=0.0,
+                               bounds_m=(0.0, size, size / 2 - 21.0, size / 2 + 21.0))
     return {"explicit": (mi.load_dict(base), scene),
             "explicit, 3 vertices": (mi.load_dict({**base, "max_depth": 3}), scene)}
 
