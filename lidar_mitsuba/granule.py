@@ -36,6 +36,7 @@ import numpy as np
 
 from . import __version__, geotrack, granule_writer, precompile as warmup
 from .products import atl06, cloud_flags, h5write as h5chunks
+from .products.atl08 import granule as atl08_granule
 from .ground.snow import kernel as snow_kernel
 from .products.atl03 import _ds, atomic_h5file
 from .products.atl03.beam import (BCKGRD_SHOTS, PULSES_PER_MAJOR_FRAME, SEGMENT_M,
@@ -449,7 +450,7 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
                    beams: str | list[Beam] = "all", sc_orient: int = 0,
                    instrument_options: dict | None = None, instrument: str = "paper",
                    seed: int = 0, paths_per_shot: int | str = "auto",
-                   max_depth: int | str = "auto",
+                   max_depth: int | str = "auto", atl08_path: str | os.PathLike | None = None,
                    progress: bool = True, section_shots: int = SECTION_SHOTS,
                    segment_options: dict | None = None, orbit_info: dict | None = None,
                    writer: str | None = None, **simulate_options) -> list[BeamSummary]:
@@ -473,7 +474,8 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     a repeat-orbit track (``rgt``, ``cycle_number``, ``orbit_number``). ``writer``: where the
     files are written (:func:`lidar_mitsuba.granule_writer.writer`: ``"process"``, a process
     of its own beside the simulation, the default on POSIX; ``"inline"``, this thread; the
-    same files either way). Returns each beam's running statistics.
+    same files either way). ``atl08_path``: also our ATL08 of the finished ATL03
+    (:mod:`lidar_mitsuba.products.atl08.granule`). Returns each beam's running statistics.
     """
     simulate_options.pop("keep_returns", None)     # sections keep no traced returns
     if isinstance(beams, str):
@@ -523,6 +525,8 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     finally:
         if bar is not None:
             bar.close()
+    if atl08_path is not None:                   # the land product, from the ATL03 file
+        atl08_granule.write_from_atl03(atl03_path, atl08_path, instrument=instruments[0][1])
     return [st.summary for st in streams]
 
 

@@ -122,7 +122,8 @@ def _add_study_parsers(sub) -> None:
                     "reflectance and msw_flag imply")
     va.add_argument("--signal-shots", type=nonnegative_int, default=200, metavar="N",
                     help="with --real: shots simulated per beam for its signal through dead "
-                    "time (200; 0: the lidar equation alone, no rendering)")
+                    "time (200; 0: the lidar equation alone, no rendering; > 0 also simulates each "
+                    "ATL03 + ATL08 forest pair's twin over all its shots: studies.forest_twin)")
 
 
 def _add_terrain_parsers(sub) -> None:
@@ -266,6 +267,10 @@ def _cmd_validate(a) -> int:
         from ..studies import atl08_real          # ATL03 + NASA's ATL08 pairs among them
         if atl08_real.run(a.real, out, progress=print):
             print(f"wrote {out / 'atl08_real.md'} and {out / 'atl08_real.json'}")
+        if a.signal_shots > 0:                    # the forest pairs' twins: all their shots
+            from ..studies import forest_twin
+            if forest_twin.run(a.real, out, progress=print):
+                print(f"wrote {out / 'forest_twin.md'} and {out / 'forest_twin.json'}")
         return 0
     for flag, given in (("--signal-shots", a.signal_shots != 200), ("--cloud", a.cloud)):
         if given:

@@ -1,0 +1,355 @@
+"""The twin of the real forest clip (issue 42): the Medicine Bow ATL03 + ATL08 pair simulated
+again from what is known of the site, without fitting the photons.
+
+**Inputs** (read before any comparison, as a DEM is an input; :func:`site_inputs`):
+
+* the canopy height: the clip's own ATL08 ``h_canopy`` (RH98 of the canopy photons above the
+  ground), its median over the segments; the stand's mean tree height is set so that the
+  98th percentile of its tree heights is that value (heights normal with the conifer
+  preset's coefficient of variation ``cv``: ``h_mean = h_canopy / (1 + 2.054 cv)``);
+* the canopy cover: ATL08's ``segment_cover`` (percent; the fractional tree cover of an
+  external map the product copies in, Copernicus Global Land Service from release 005,
+  MODIS VCF before: recalled from the ATL08 data dictionary, the clip carries no
+  attributes), median;
+  ``segment_landcover`` (Copernicus classes 111 closed / 121 open evergreen needle-leaf
+  forest) says the stand is a conifer one;
+* the terrain slope: ATL08's ``dem_h`` (the reference DEM under each segment) fitted against
+  the along-track distance: the along-track slope of the DEM, the ground a plane with it;
+* the sun, the spacecraft range, the beam (weak: the file's ``atlas_beam_type``;
+  ``sc_orient`` 0, backward, makes the left beams strong) and its energy (the file's
+  ``tx_pulse_energy``): the twin's (:mod:`lidar_mitsuba.twin`), as the realism matrix uses.
+
+**The stand**: the package's conifer preset (:data:`~lidar_mitsuba.vegetation.stand.PRESETS`:
+narrow cones, crown radius 1/10 of the height over half of it, as lodgepole pine; spherical
+needle angles; clumping 0.6, He et al. 2012's evergreen needle-leaf mean) with LAI
+:data:`SITE_LAI` (see there). Medicine Bow's forests at 2 450 m are lodgepole pine with
+spruce-fir higher up; the clip's 7-10 m canopy is young lodgepole.
+
+**Representation**: ``gap`` (:mod:`lidar_mitsuba.vegetation.turbid`, the ``canopy``
+integrator's gap mode): an 11 m footprint holds on the order of a hundred of these crowns,
+so what the photons see is the gap probability of the lines through them and the height at
+which each line first meets a needle, with the monostatic hot spot; needles scatter little
+at 532 nm (single-scattering albedo R + T = 0.14), so light scattered twice in the crowns is
+a few percent of the canopy return, the error the gap layer makes (the turbid representation
+traces it, at several times the cost; explicit needles would need millions of facets per
+footprint for the same answer).
+
+**Compared** (what the inputs do not give away; :func:`compare`): ground and canopy photons
+per shot (NASA's ``n_te_photons`` and ``n_ca_photons + n_toc_photons`` per 100 m segment over
+its shots, and our ATL08 classifier run on the real and on the twin's ATL03 alike), the
+photon heights above the ground through the canopy (per shot, in height bins), and the
+background rate. Run: ``python -m lidar_mitsuba.studies.forest_twin``; ``validate --real``
+runs it for every ATL03/ATL08 forest pair it is given.
+"""
+from __future__ import annotations
+
+import math
+import pathlib
+import tempfile
+
+import numpy as np
+
+from .atl08_real import ATL03, ATL08, F4_FILL
+from .realism import BACKGROUND_AGREES
+
+SITE_LAI = 3.0
+"""Leaf area index of the stand (one-sided; half the needles' total area). ESTIMATE: the
+conifer preset's value (a lower-quartile figure of Asner et al. 2003's evergreen needle-leaf
+biome, 5.5 on average); lodgepole pine stands of the central Rocky Mountains carry a
+projected LAI of about 2-4 (Kaufmann, Edminster & Troendle 1982, USDA For. Serv. Res. Pap.
+RM-238, recalled, not checked), young ones at the lower end."""
+
+HEIGHT_BINS_M = (-1.0, 1.0, 3.0, 5.0, 7.0, 9.0, 11.0, 15.0)
+"""Edges [m above the ground] of the height distribution compared: the ground's band
+(+-1 m) and the canopy in 2 m layers up to 11 m, then the top."""
+
+AGREES = (0.7, 1.4)
+"""A twin / real ratio within this range agrees (the realism matrix's signal criterion,
+:data:`~lidar_mitsuba.studies.realism.SIGNAL_AGREES`)."""
+
+Z_98 = 2.054
+"""The standard normal's 98th percentile (RH98 of normal tree heights is mean (1 + z cv))."""
+
+
+def _along_m(lat_deg, lon_deg) -> np.ndarray:
+    """Along-track distance [m] of points from the first one (geodesic on WGS84)."""
+    from pyproj import Geod
+    g = Geod(ellps="WGS84")
+    lat, lon = np.asarray(lat_deg, float), np.asarray(lon_deg, float)
+    _, _, d = g.inv(np.full(lat.size, lon[0]), np.full(lat.size, lat[0]), lon, lat)
+    return np.asarray(d, float)
+
+
+def site_inputs(atl08_path=ATL08, beam: str = "gt1r") -> dict:
+    """What the twin takes from the clip's ATL08 (module docstring): ``h_canopy_m``,
+    ``cover`` (fraction), ``landcover`` (Copernicus classes), ``slope`` (dz/d along, DEM),
+    ``track_azimuth_deg`` (from north, clockwise), ``strength``, the segments' count."""
+    import h5py
+    from pyproj import Geod
+    with h5py.File(atl08_path) as f:
+        ls = f[f"{beam}/land_segments"]
+        h = ls["canopy/h_canopy"][()].astype(float)
+        cover = ls["canopy/segment_cover"][()].astype(float)
+        dem = ls["dem_h"][()].astype(float)
+        lat, lon = ls["latitude"][()], ls["longitude"][()]
+        land = ls["segment_landcover"][()]
+        strength = f[beam].attrs.get("atlas_beam_type", [b"?"])
+        orient = int(f["orbit_info/sc_orient"][0]) if "orbit_info/sc_orient" in f else None
+    strength = np.atleast_1d(strength)[0]
+    strength = strength.decode() if isinstance(strength, bytes) else str(strength)
+    ok_h = h < F4_FILL
+    ok_c = (cover >= 0) & (cover <= 100)
+    along = _along_m(lat, lon)
+    ok_d = np.abs(dem) < 1e4
+    slope = float(np.polyfit(along[ok_d], dem[ok_d], 1)[0]) if ok_d.sum() >= 2 else 0.0
+    az = Geod(ellps="WGS84").inv(lon[0], lat[0], lon[-1], lat[-1])[0]
+    return {"h_canopy_m": float(np.median(h[ok_h])), "cover": float(np.median(cover[ok_c])) / 100,
+            "landcover": sorted({int(v) for v in land}), "slope": slope,
+            "track_azimuth_deg": float(az), "strength": strength, "sc_orient": orient,
+            "segments": int(h.size)}
+
+
+def twin_forest(inputs: dict, *, tile_m: float = 256.0, seed: int = 1,
+                representation: str = "gap", floor: str = "litter"):
+    """The twin's :class:`~lidar_mitsuba.vegetation.forest.ForestSurface`: the conifer
+    preset's stand of the clip's height and cover (module docstring) over a plane of the
+    DEM's along-track slope, a ``tile_m`` periodic tile (the track folds into it: 256 m
+    gives footprints 20 m apart across the tile at each wrap of this track). ``floor``: the
+    forest floor's optics (:func:`~lidar_mitsuba.vegetation.optics.optics`: ``litter``, the
+    prediction; ``snow`` only as a what-if, the product saying snow-free)."""
+    from ..ground.surface import Plane
+    from ..vegetation.forest import forest
+    from ..vegetation.optics import optics
+    from ..vegetation.stand import PRESETS
+    cv = PRESETS["conifer"].height_cv
+    slope = inputs["slope"]
+    # Plane azimuth: from +x (east) counter-clockwise; the track heads track_azimuth_deg
+    # clockwise from north; the ground rises along it when slope > 0
+    heading = 90.0 - inputs["track_azimuth_deg"] + (0.0 if slope >= 0 else 180.0)
+    ground = Plane(slope_deg=math.degrees(math.atan(abs(slope))), azimuth_deg=heading % 360,
+                   size_m=tile_m)
+    return forest(species="conifer", ground=ground, representation=representation,
+                  height_m=inputs["h_canopy_m"] / (1 + Z_98 * cv),
+                  cover=min(inputs["cover"], 0.99), lai=SITE_LAI, seed=seed,
+                  floor=optics(floor))
+
+
+# ------------------------------------------------------------------------------ measuring
+def atl08_counts(beam08, shots_per_m: float) -> dict:
+    """Ground and canopy photons per shot of an :class:`~lidar_mitsuba.products.atl08.Atl08Beam`
+    (ours, of any ATL03): per 100 m segment ``n_te / shots`` and ``(n_ca + n_toc) / shots``
+    with ``shots = shots_per_m * 100 m``, their medians; the height distribution of its
+    signal photons above its ground (photons per shot in :data:`HEIGHT_BINS_M`), and the
+    canopy height ``h_canopy`` and terrain ``h_te_best_fit`` medians."""
+    s = beam08.segments
+    shots = 100.0 * shots_per_m
+    n_te = s["land_segments/terrain/n_te_photons"].astype(float)
+    n_ca = (s["land_segments/canopy/n_ca_photons"].astype(float)
+            + s["land_segments/canopy/n_toc_photons"].astype(float))
+    c = beam08.classification
+    rel = c.h_rel_m[c.classes > 0]
+    n_shots_all = shots * max(len(beam08), 1)
+    hist = np.histogram(rel[np.isfinite(rel)], bins=HEIGHT_BINS_M)[0] / n_shots_all
+    h_can = s["land_segments/canopy/h_canopy"].astype(float)
+    return {"ground_per_shot": float(np.median(n_te / shots)),
+            "canopy_per_shot": float(np.median(n_ca / shots)),
+            "height_per_shot": hist.tolist(),
+            "h_canopy_m": _median_valid(h_can), "segments": len(beam08)}
+
+
+def _median_valid(a) -> float | None:
+    a = np.asarray(a, float)
+    a = a[np.isfinite(a) & (a < F4_FILL)]
+    return float(np.median(a)) if a.size else None
+
+
+def nasa_counts(atl08_path, beam: str, shots_per_m: float) -> dict:
+    """NASA's ATL08 of the clip, the same quantities as :func:`atl08_counts` (heights above
+    the ground: its ``signal_photons/ph_h`` of the classed photons)."""
+    import h5py
+    with h5py.File(atl08_path) as f:
+        ls, sp = f[f"{beam}/land_segments"], f[f"{beam}/signal_photons"]
+        n_te = ls["terrain/n_te_photons"][()].astype(float)
+        n_ca = ls["canopy/n_ca_photons"][()].astype(float) + ls["canopy/n_toc_photons"][()]
+        h_can = ls["canopy/h_canopy"][()]
+        flag, ph_h = sp["classed_pc_flag"][()], sp["ph_h"][()].astype(float)
+    shots = 100.0 * shots_per_m
+    rel = ph_h[(flag > 0) & (ph_h < F4_FILL)]
+    hist = np.histogram(rel, bins=HEIGHT_BINS_M)[0] / (shots * n_te.size)
+    return {"ground_per_shot": float(np.median(n_te / shots)),
+            "canopy_per_shot": float(np.median(n_ca / shots)),
+            "height_per_shot": hist.tolist(), "h_canopy_m": _median_valid(h_can),
+            "segments": int(n_te.size)}
+
+
+def background_hz(atl03_path, beam: str) -> float:
+    """The median of an ATL03 beam's ``bckgrd_atlas/bckgrd_rate`` [Hz] (the twin's file
+    holds the model's rate there)."""
+    import h5py
+    with h5py.File(atl03_path) as f:
+        return float(np.median(f[f"{beam}/bckgrd_atlas/bckgrd_rate"][()]))
+
+
+def simulate_twin(atl03_path=ATL03, atl08_path=ATL08, beam: str = "gt1r", *,
+                  shots: int | None = None, seed: int = 1, out_path=None,
+                  representation: str = "gap", floor: str = "litter") -> dict:
+    """The twin (module docstring): the clip's shots over :func:`twin_forest` of
+    :func:`site_inputs`, written as ATL03 to ``out_path`` (default a temporary file),
+    our ATL08 of it. Returns ``{"inputs", "forest", "atl03", "result", "atl08"}``."""
+    import warnings
+    from .. import twin
+    from ..granule import write_atl03
+    from ..products import atl08
+    inputs = site_inputs(atl08_path, beam)
+    forest = twin_forest(inputs, seed=seed, representation=representation, floor=floor)
+    tg = twin.read(atl03_path, beams=beam)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        g = twin.simulate_over_surface(tg, surface=forest, beams=beam, shots=shots, seed=seed,
+                                       progress=False)
+    if out_path is None:
+        out_path = pathlib.Path(tempfile.mkdtemp(prefix="forest_twin_")) / "ATL03_twin.h5"
+    write_atl03(g, out_path)
+    return {"inputs": inputs, "forest": forest, "atl03": pathlib.Path(out_path),
+            "result": g.beams[0].result, "atl08": atl08.from_atl03(out_path, beam)}
+
+
+def _truth_counts(res) -> dict:
+    """The twin's own truth: its signal photons' heights above the footprint's mean ground
+    (``dh_m``) per shot in :data:`HEIGHT_BINS_M`, and those within 1 m of the ground."""
+    sig = res.detections.is_signal
+    dh = res.dh_m[sig]
+    n = max(res.n_shots, 1)
+    return {"signal_per_shot": float(sig.sum() / n),
+            "ground_band_per_shot": float(np.sum(np.abs(dh) < 1.0) / n),
+            "above_band_per_shot": float(np.sum(dh >= 1.0) / n),
+            "height_per_shot": (np.histogram(dh, bins=HEIGHT_BINS_M)[0] / n).tolist()}
+
+
+def _ratio(a, b) -> float | None:
+    return None if a is None or b is None or not b > 0 else float(a / b)
+
+
+def _verdict(r: float | None, agrees=AGREES) -> str:
+    if r is None:
+        return "not measured"
+    lo, hi = agrees
+    return "agrees" if lo <= r <= hi else "disagrees"
+
+
+def compare(atl03_path=ATL03, atl08_path=ATL08, beam: str = "gt1r", *,
+            shots: int | None = None, seed: int = 1, out_path=None,
+            floor: str = "litter") -> dict:
+    """The twin against the real clip (module docstring): rows of ``quantity``, ``real``,
+    ``twin``, ``ratio``, ``verdict``, the inputs and the measurements behind them
+    (``floor``: :func:`twin_forest`'s)."""
+    from ..products import atl08
+    from ..products.atl08 import read_atl03_beam
+    tw = simulate_twin(atl03_path, atl08_path, beam, shots=shots, seed=seed,
+                       out_path=out_path, floor=floor)
+    spm = read_atl03_beam(atl03_path, beam)["shots_per_m"]
+    spm_twin = read_atl03_beam(tw["atl03"], beam)["shots_per_m"]
+    real_ours = atl08_counts(atl08.from_atl03(atl03_path, beam), spm)
+    twin_ours = atl08_counts(tw["atl08"], spm_twin)
+    nasa = nasa_counts(atl08_path, beam, spm)
+    bg = {"real": background_hz(atl03_path, beam), "twin": background_hz(tw["atl03"], beam)}
+    rows = []
+
+    def row(quantity, real, twin_v, note, agrees=AGREES):
+        r = _ratio(twin_v, real)
+        rows.append({"quantity": quantity, "real": real, "twin": twin_v, "ratio": r,
+                     "verdict": _verdict(r, agrees), "note": note})
+    row("ground photons per shot (NASA's ATL08 on real; ours on twin)",
+        nasa["ground_per_shot"], twin_ours["ground_per_shot"], "n_te_photons / shots")
+    row("ground photons per shot (our ATL08 on both)", real_ours["ground_per_shot"],
+        twin_ours["ground_per_shot"], "same classifier")
+    row("canopy photons per shot (NASA's ATL08 on real; ours on twin)",
+        nasa["canopy_per_shot"], twin_ours["canopy_per_shot"],
+        "(n_ca + n_toc) / shots, background photons in the canopy included")
+    row("canopy photons per shot (our ATL08 on both)", real_ours["canopy_per_shot"],
+        twin_ours["canopy_per_shot"], "same classifier")
+    row("background rate [MHz]", bg["real"] / 1e6, bg["twin"] / 1e6,
+        "bckgrd_atlas/bckgrd_rate median (the twin's: the model's, the sun over the "
+        "forest floor's albedo); agrees within the realism matrix's 0.5-2",
+        agrees=BACKGROUND_AGREES)
+    row("canopy height h_canopy [m] (our ATL08 on both)", real_ours["h_canopy_m"],
+        twin_ours["h_canopy_m"], "NASA's h_canopy median is an input: "
+        f"{tw['inputs']['h_canopy_m']:.2f} m")
+    for k in range(len(HEIGHT_BINS_M) - 1):
+        lo, hi = HEIGHT_BINS_M[k], HEIGHT_BINS_M[k + 1]
+        row(f"photons per shot {lo:g} to {hi:g} m above the ground (our ATL08 on both)",
+            real_ours["height_per_shot"][k], twin_ours["height_per_shot"][k],
+            f"NASA's ph_h on real: {nasa['height_per_shot'][k]:.3f}")
+    res = tw["result"]
+    return {"atl03": pathlib.Path(atl03_path).name, "atl08": pathlib.Path(atl08_path).name,
+            "beam": beam, "inputs": tw["inputs"], "floor": floor, "stand": {
+                "trees": tw["forest"].stand.n_trees, "lai": tw["forest"].stand.lai(),
+                "cover": tw["forest"].stand.canopy_cover(),
+                "mean_height_m": float(tw["forest"].stand.height_m.mean()),
+                "representation": tw["forest"].representation},
+            "shots": res.n_shots, "pulse_energy_uj": float(
+                res.instrument.link_budget.pulse_energy_uj),
+            "nasa": nasa, "ours_real": real_ours, "ours_twin": twin_ours,
+            "twin_truth": _truth_counts(res), "background_hz": bg, "rows": rows}
+
+
+def _f(v, spec=".3g") -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def report_md(doc: dict) -> str:
+    """The comparison as Markdown: inputs, stand, the table of rows with verdicts."""
+    i, s = doc["inputs"], doc["stand"]
+    lines = [f"## The forest twin: {doc['atl03']} {doc['beam']}", "",
+             f"Inputs from the clip's ATL08 (not fitted): h_canopy {i['h_canopy_m']:.2f} m "
+             f"(median), cover {100 * i['cover']:.0f} % (segment_cover), landcover "
+             f"{i['landcover']}, DEM slope {i['slope']:+.3f} along track; beam "
+             f"{i['strength']} (sc_orient {i['sc_orient']}), {doc['pulse_energy_uj']:.1f} uJ; "
+             f"forest floor: {doc.get('floor', 'litter')}. "
+             f"Stand: {s['trees']} conifers, mean height {s['mean_height_m']:.2f} m, LAI "
+             f"{s['lai']:.2f}, cover {100 * s['cover']:.0f} %, representation "
+             f"`{s['representation']}`; {doc['shots']} shots.", "",
+             "| quantity | real | twin | twin / real | verdict | note |",
+             "|---|---|---|---|---|---|"]
+    for r in doc["rows"]:
+        lines.append(f"| {r['quantity']} | {_f(r['real'])} | {_f(r['twin'])} | "
+                     f"{_f(r['ratio'], '.2f')} | **{r['verdict']}** | {r['note']} |")
+    t = doc["twin_truth"]
+    lines += ["", f"The twin's truth: {t['signal_per_shot']:.3f} signal photons per shot, "
+              f"{t['ground_band_per_shot']:.3f} within 1 m of the ground, "
+              f"{t['above_band_per_shot']:.3f} above it.", ""]
+    return "\n".join(lines)
+
+
+def run(paths, out_dir=None, *, shots: int | None = None, seed: int = 1,
+        progress=print) -> list[dict]:
+    """:func:`compare` on every ATL03/ATL08 pair among ``paths`` whose ATL08 says forest
+    (a canopy height on some segment), each beam both files have; ``forest_twin.md`` and
+    ``.json`` in ``out_dir`` when given."""
+    import json
+    import h5py
+    from .atl08_real import pairs
+    out = []
+    for a03, a08 in pairs(paths):
+        with h5py.File(a08) as f8, h5py.File(a03) as f3:
+            beams = [b for b in f8 if b.startswith("gt") and b in f3
+                     and (f8[f"{b}/land_segments/canopy/h_canopy"][()] < F4_FILL).any()]
+        for beam in beams:
+            progress(f"forest twin of {pathlib.Path(a03).name} {beam}")
+            out.append(compare(a03, a08, beam, shots=shots, seed=seed))
+    if out and out_dir is not None:
+        d = pathlib.Path(out_dir)
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "forest_twin.json").write_text(json.dumps(out, indent=1, default=float))
+        (d / "forest_twin.md").write_text("# The forest twin\n\n" + "\n".join(
+            report_md(r) for r in out))
+    return out
+
+
+def main() -> None:
+    doc = compare()
+    print(report_md(doc))
+
+
+if __name__ == "__main__":
+    main()
