@@ -42,7 +42,16 @@ def _kernel_cache(tmp_path_factory):
     else:
         cache = tmp_path_factory.mktemp("cache")
     os.environ["LIDAR_MITSUBA_CACHE"] = str(cache)
+    # Tables of 2^14 walk photons a node (the default is 2^17): the tests that use a table
+    # check what a run does with it, not its precision; tests/test_snow_kernel.py sets its own
+    # counts and checks the tables against the walk, and validate (tests/test_twin.py) builds
+    # the full table for its verdicts.
+    from lidar_mitsuba.ground.snow import kernel
+    old_photons, kernel.PHOTONS = kernel.PHOTONS, 1 << 14
+    os.environ["LIDAR_MITSUBA_KERNEL_PHOTONS"] = str(1 << 14)
     yield
+    kernel.PHOTONS = old_photons
+    os.environ.pop("LIDAR_MITSUBA_KERNEL_PHOTONS", None)
     if old is None:
         os.environ.pop("LIDAR_MITSUBA_CACHE", None)
     else:

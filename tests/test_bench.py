@@ -132,7 +132,7 @@ def test_bench_quick(bench_run):
     assert "| default (natural snow) |" in printed
     assert "of surface only" in printed
     assert (out / "snow.png").stat().st_size > 10_000
-    assert "track_length.png, snow.png in" in printed       # the CLI names every chart
+    assert "track_length.png, snow.png, canopy.png in" in printed       # the CLI names every chart
     if "rows" in doc["peer"]:     # mitransient installed (the test extra has it)
         assert (out / "peer.png").stat().st_size > 10_000
         assert all(math.isfinite(r["error"]) and r["seconds"] > 0 for r in doc["peer"]["rows"])

@@ -74,9 +74,11 @@ def test_like_over_a_dem_and_over_flat_snow(tmp_path):
 
 @pytest.fixture(scope="module")
 def validated(tmp_path_factory):
+    from lidar_mitsuba.ground.snow import kernel
     from lidar_mitsuba.studies import validate
     out = tmp_path_factory.mktemp("validate")
-    return validate.run(out, quick=True), out
+    with kernel.photons_per_node(1 << 17):       # the verdicts' own table (conftest: 2^14)
+        return validate.run(out, quick=True), out
 
 
 def test_validate_twin_signal_rate_is_within_the_real_spread(validated):
