@@ -123,12 +123,12 @@ def scheduler(tmp_path_factory):
         with Client(address, timeout="60s") as c:
             c.wait_for_workers(2, timeout=120)
         yield address, {p.pid for p in procs[1:]}
-    finally:
+    finally:      # a dask worker can take 20 s and more to stop on SIGTERM: then it is killed
         for p in reversed(procs):
             p.terminate()
         for p in reversed(procs):
             try:
-                p.wait(timeout=20)
+                p.wait(timeout=3)
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait(timeout=20)
