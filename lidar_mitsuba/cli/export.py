@@ -2,9 +2,8 @@
 ``atl08`` (our ATL08-like product of an ATL03 file, :mod:`lidar_mitsuba.products.atl08`)."""
 from __future__ import annotations
 
+from ..products.real import BEAM_NAMES as BEAMS
 from .args import UsageError, out_path, read_input
-
-BEAMS = ("gt1l", "gt1r", "gt2l", "gt2r", "gt3l", "gt3r")
 
 
 def add_parsers(sub) -> None:

@@ -47,8 +47,8 @@ POINT_FORMAT = 6
 
 
 def _beams_in(f) -> list[str]:
-    return [b for b in ("gt1l", "gt1r", "gt2l", "gt2r", "gt3l", "gt3r")
-            if b in f and "heights" in f[b]]
+    from .real import BEAM_NAMES
+    return [b for b in BEAM_NAMES if b in f and "heights" in f[b]]
 
 
 def photons(path: str | os.PathLike, *, beams: list[str] | None = None,
