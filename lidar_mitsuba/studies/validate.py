@@ -231,14 +231,28 @@ def verdicts(doc: dict) -> list[dict]:
 
 
 # ------------------------------------------------------------------------------ the report
-def run(out_dir, *, quick: bool = False) -> dict:
-    """Both checks, their figures, ``report.md`` and ``report.json`` in ``out_dir``."""
+#: the smoke run's snow kernel tables: walk photons per node (the default is
+#: kernel.PHOTONS = 2^17), the size the test suite builds its tables at (tests/conftest.py)
+SMOKE_KERNEL_PHOTONS = 1 << 14
+
+
+def run(out_dir, *, quick: bool = False, smoke: bool = False) -> dict:
+    """Both checks, their figures, ``report.md`` and ``report.json`` in ``out_dir``.
+
+    ``smoke`` (the tests' size; implies ``quick``): every check, row, figure and file of a
+    quick run, cheaper where no verdict turns on the size: snow kernel tables of
+    :data:`SMOKE_KERNEL_PHOTONS` walk photons a node, and the sea-ice ladder's two rungs that
+    have verdict rows (flat, floe; :func:`.validate_media.run`). The twin's shots and the
+    interior runs' stay at the quick size."""
+    from ..ground.snow import kernel
+    quick = quick or smoke
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    doc = {"quick": bool(quick), "twin": real_twin(out),
-           "interior": interior(shots=4000 if quick else 40000)}
-    doc["media"] = validate_media.run(out, quick=quick, twin_doc=doc["twin"])
+    with kernel.photons_per_node(SMOKE_KERNEL_PHOTONS if smoke else None):
+        doc = {"quick": bool(quick), "smoke": bool(smoke), "twin": real_twin(out),
+               "interior": interior(shots=4000 if quick else 40000)}
+        doc["media"] = validate_media.run(out, quick=quick, twin_doc=doc["twin"], smoke=smoke)
     doc["verdicts"] = verdicts(doc)
     doc["seconds"] = time.perf_counter() - t0
     plot(doc, out)
@@ -344,7 +358,8 @@ def report_md(doc: dict) -> str:
     """``report.md``: the verdict table and what each check ran."""
     t = doc["twin"]
     lines = ["# Does the simulator predict what ATLAS records?", "",
-             f"`lidar-mitsuba validate`{' --quick' if doc['quick'] else ''}: "
+             f"`lidar-mitsuba validate`{' --quick' if doc['quick'] else ''}"
+             f"{' (smoke run: its numbers only show that it runs)' if doc.get('smoke') else ''}: "
              f"{doc['seconds']:.0f} s.", "",
              f"1. **The twin of a real granule**: {t['file']} ({t['beam']}, {t['strength']} "
              f"beam, {t['real']['shots']} shots over snow-covered Arctic sea ice, sun "

@@ -23,11 +23,15 @@ from . import cloud, lake, sea_ice
 #: the high cloud of the Yang et al. comparison, and the optical depths validate runs
 CLOUD_HEIGHTS_M = cloud.HIGH
 CLOUD_TAUS = (0.0, 1.0)
+#: the sea-ice rungs with verdict rows (:func:`_sea_ice_rows`): all a smoke run traces
+REPORTED_SEA_ICE = ("flat", "floe")
 
 
-def run(out: pathlib.Path, *, quick: bool, twin_doc: dict) -> dict:
+def run(out: pathlib.Path, *, quick: bool, twin_doc: dict, smoke: bool = False) -> dict:
     """The four checks (``twin_doc``: validate's real-twin check, for the night background's
-    real and modelled rates). Figures ``lake.png``, ``cloud.png`` and ``sea_ice.png``."""
+    real and modelled rates). Figures ``lake.png``, ``cloud.png`` and ``sea_ice.png``.
+    ``smoke``: the sea-ice ladder's flat and floe rungs only (the two :func:`_sea_ice_rows`
+    reports), else all four."""
     t0 = time.perf_counter()
     doc = {"lake": lake.run(quick=quick)}
     shots, ppp = (1500, 128) if quick else (6000, 512)
@@ -35,7 +39,8 @@ def run(out: pathlib.Path, *, quick: bool, twin_doc: dict) -> dict:
                              taus=CLOUD_TAUS, shots=shots, paths_per_shot=ppp,
                              trace_shots=1000 if quick else 4000)
     doc["cloud"] = {"rows": rows, "yang_2011": cloud.compare_yang(rows)}
-    doc["sea_ice"] = sea_ice.run(quick=quick, out_dir=out / "sea_ice")
+    doc["sea_ice"] = sea_ice.run(quick=quick, out_dir=out / "sea_ice",
+                                 **({"models": REPORTED_SEA_ICE} if smoke else {}))
     doc["night"] = {"rows": cloud.night_background(kind="snow", taus=(0.05, 0.2, 0.5),
                                                    shots=1500 if quick else 6000),
                     "real_hz": twin_doc["real"].get("background_hz", {}).get("median"),
@@ -108,7 +113,7 @@ def _cloud_rows(y: dict, row) -> None:
 def _sea_ice_rows(si: dict, row) -> None:
     real = si["real"]["tails"]
     for r in si["rows"]:
-        if r["name"] not in ("flat", "floe"):
+        if r["name"] not in REPORTED_SEA_ICE:
             continue
         t = r["tails"]
         for side in ("below", "above"):
