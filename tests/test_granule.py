@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from pyproj import Geod, Transformer
 
+from cli_checks import bad_call
 from lidar_mitsuba.ground import dem as dems
 from lidar_mitsuba import geotrack, granule
 from lidar_mitsuba.constants import C_M_PER_NS, ParameterError
@@ -459,7 +460,9 @@ def test_tiling_changes_no_truth_and_no_statistic(dem_path):
     assert abs(na - nb) < 4 * np.sqrt(na + nb)
 
 
-def test_cli_granule_and_its_errors(dem_path, tmp_path):
+def test_cli_granule_and_its_errors(dem_path, tmp_path, capsys):
+    """The command in its own process; its refusals in this one (tests/cli_checks.py: one
+    line naming the option, exit 2, no traceback; a process each cost seconds of start-up)."""
     exe = [sys.executable, "-m", "lidar_mitsuba_cli", "simulate"]
     out, a6, png = tmp_path / "ATL03.h5", tmp_path / "ATL06.h5", tmp_path / "cloud.png"
     p = subprocess.run(exe + ["--dem", str(dem_path), "--track", "69.97,-45,0", "--beams",
@@ -478,14 +481,12 @@ def test_cli_granule_and_its_errors(dem_path, tmp_path):
                          (["--track", "69.97,-45,0", "--epoch", "soon"], "--epoch"),
                          (["--track", "69.97,-45,0", "--beam", "weak"], "--beam")):
         bad = tmp_path / "bad.h5"
-        p = subprocess.run(exe + ["--dem", str(dem_path), "--shots", "50", "--out", str(bad),
-                                  "--no-progress"] + args, capture_output=True, text=True)
-        assert p.returncode == 2, (args, p.stderr)
-        assert p.stderr.count("\n") == 1 and f"error: {option}:" in p.stderr, p.stderr
-        assert not bad.exists()
-    p = subprocess.run(exe + ["--track", "69.97,-45,0", "--out", str(tmp_path / "b.h5")],
-                       capture_output=True, text=True)
-    assert p.returncode == 2 and "--track: only applies to --dem" in p.stderr
+        err = bad_call(["simulate", "--dem", str(dem_path), "--shots", "50", "--out", str(bad),
+                        "--no-progress"] + args, capsys)
+        assert f"error: {option}:" in err and not bad.exists(), (args, err)
+    err = bad_call(["simulate", "--track", "69.97,-45,0", "--out", str(tmp_path / "b.h5")],
+                   capsys)
+    assert "--track: only applies to --dem" in err
 
 
 def test_streamed_granule_sections_join_exactly(dem_path, tmp_path):
@@ -609,7 +610,7 @@ def test_the_writer_process_writes_the_same_files_and_reports_failures(dem_path,
         _h5_objects(tmp_path / "inline" / "a3.h5")["gt2l/heights/h_ph"]
 
 
-def test_make_dem_writes_a_dem_that_opens_and_refuses_bad_sizes(tmp_path):
+def test_make_dem_writes_a_dem_that_opens_and_refuses_bad_sizes(tmp_path, capsys):
     exe = [sys.executable, "-m", "lidar_mitsuba_cli", "make-dem"]
     out = tmp_path / "d.tif"
     p = subprocess.run(exe + ["--out", str(out), "--width-m", "2000", "--length-m", "3000",
@@ -623,6 +624,6 @@ def test_make_dem_writes_a_dem_that_opens_and_refuses_bad_sizes(tmp_path):
     assert np.isfinite(surf.height_m(xs, ys)).all()          # no hole asked for
     for args, option in ((["--posting-m", "0"], "--posting-m"), (["--lat", "89"], "--lat"),
                          (["--width-m", "1e9"], "--width-m")):
-        bad = tmp_path / "bad.tif"
-        p = subprocess.run(exe + ["--out", str(bad)] + args, capture_output=True, text=True)
-        assert p.returncode == 2 and f"error: {option}:" in p.stderr and not bad.exists()
+        bad = tmp_path / "bad.tif"           # (in process: tests/cli_checks.py)
+        err = bad_call(["make-dem", "--out", str(bad)] + args, capsys)
+        assert f"error: {option}:" in err and not bad.exists()
