@@ -1,4 +1,5 @@
-"""`bench --quick` runs and writes finite numbers and its charts (speed is not asserted here);
+"""`bench --quick --smoke` (the quick run with its costliest repetitions cut: bench.run's
+docstring) runs and writes finite numbers and its charts (speed is not asserted here);
 each chart shows the numbers of bench.json: the Figures the run drew (captured as the chart
 functions return them) are read back, data and labels, and compared exactly with the
 JSON-loaded document (floats survive JSON exactly)."""
@@ -16,8 +17,8 @@ from lidar_mitsuba.studies import accuracy, bench, breaking_points, peer
 
 @pytest.fixture(scope="module")
 def bench_run(tmp_path_factory):
-    """One quick bench through the CLI; the chart functions are wrapped to keep the Figures
-    they return (same functions, same arguments: what the PNGs show)."""
+    """One quick bench at the smoke size through the CLI; the chart functions are wrapped to
+    keep the Figures they return (same functions, same arguments: what the PNGs show)."""
     out = tmp_path_factory.mktemp("bench") / "b"
     figs = {}
     mp = pytest.MonkeyPatch()
@@ -31,7 +32,7 @@ def bench_run(tmp_path_factory):
     printed = io.StringIO()
     try:
         with contextlib.redirect_stdout(printed):
-            code = main(["bench", "--out", str(out), "--quick"])
+            code = main(["bench", "--out", str(out), "--quick", "--smoke"])
     finally:
         mp.undo()
     assert code == 0
@@ -293,7 +294,7 @@ def test_two_variants_are_measured_apart_and_charted_side_by_side(tmp_path):
     mp.setattr(bench, "_chart", lambda *a, _fn=bench._chart, **kw: figs.setdefault("f", _fn(*a, **kw)))
     try:
         with contextlib.redirect_stdout(io.StringIO()) as printed:
-            code = main(["bench", "--out", str(out), "--quick", "--throughput-only",
+            code = main(["bench", "--out", str(out), "--smoke", "--throughput-only",
                          "--variant", "llvm_ad_mono,llvm_ad_rgb"])
     finally:
         mp.undo()
@@ -304,6 +305,7 @@ def test_two_variants_are_measured_apart_and_charted_side_by_side(tmp_path):
     for variant, d in doc["by_variant"].items():
         child = json.loads((out / variant / "bench.json").read_text())
         assert child["variant"] == variant and child["integrator"] == d["integrator"]
+        assert child["smoke"] and child["quick"]          # the sizes reach the child
         assert 0 <= d["integrator"]["host_share"] <= 1
         assert {r["traced_depth"] for r in d["end_to_end"]} == {1, 2}
     names, rates = bench.variant_rates(doc["by_variant"])

@@ -71,7 +71,10 @@ def _add_study_parsers(sub) -> None:
                        "comparison (pip install 'lidar_mitsuba[bench]'). Medians of repeats; "
                        "ratios within one run.")
     b.add_argument("--out", required=True, metavar="DIR", help="folder for bench.json and PNGs")
-    b.add_argument("--quick", action="store_true", help="small sizes (what the tests run)")
+    b.add_argument("--quick", action="store_true", help="small sizes (a first look)")
+    b.add_argument("--smoke", action="store_true",
+                   help="smaller than --quick: every row, chart and field, its numbers "
+                   "meaningless (what the tests run; implies --quick)")
     b.add_argument("--variant", type=variant_list, metavar="NAME[,NAME]",
                    help="Mitsuba variant(s) to measure, e.g. llvm_ad_mono,cuda_ad_mono: each "
                    "in its own process, charted side by side (default: the active one)")
@@ -201,7 +204,7 @@ def _cmd_segments(a) -> int:
 def _cmd_bench(a) -> int:
     out = out_dir(a.out)
     from ..studies import bench
-    doc = bench.run(out_dir=out, quick=a.quick, variants=a.variant,
+    doc = bench.run(out_dir=out, quick=a.quick, smoke=a.smoke, variants=a.variant,
                     throughput_only=a.throughput_only)
     print(bench.format_summary(doc))
     print(f"wrote {out / 'bench.json'} and the charts {', '.join(doc['charts'])} in {out}")

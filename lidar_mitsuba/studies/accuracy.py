@@ -70,11 +70,13 @@ def _run(track: dict, *, shots, paths_per_shot, grid_m, max_depth, chunk_shots, 
     return st.bias_m, st.std_m, sec
 
 
-def _setting(track, ref, *, ideal, **cfg) -> dict:
+def _setting(track, ref, *, ideal, smoke: bool = False, **cfg) -> dict:
     """Median time and RMS error over ``SEEDS`` (the Monte Carlo noise of one seed would
-    hide the trends), after a warm-up run (kernel compilation is not part of the cost)."""
-    _run(track, seed=0, ideal=ideal, **cfg)
-    runs = [_run(track, seed=s, ideal=ideal, **cfg) for s in SEEDS]
+    hide the trends), after a warm-up run (kernel compilation is not part of the cost).
+    ``smoke``: the first seed alone, no warm-up (every row and field, numbers meaningless)."""
+    if not smoke:
+        _run(track, seed=0, ideal=ideal, **cfg)
+    runs = [_run(track, seed=s, ideal=ideal, **cfg) for s in (SEEDS[:1] if smoke else SEEDS)]
     errs = [math.hypot(b - ref["bias_m"], sd - ref["std_m"]) for b, sd, _ in runs]
     return {"seconds": float(np.median([r[2] for r in runs])),
             "bias_m": float(np.mean([r[0] for r in runs])),
@@ -82,9 +84,11 @@ def _setting(track, ref, *, ideal, **cfg) -> dict:
             "error_m": float(np.sqrt(np.mean(np.square(errs))))}
 
 
-def run(*, quick: bool = False) -> dict:
+def run(*, quick: bool = False, smoke: bool = False) -> dict:
     """All tracks x knobs. Returns ``{track: {"reference": {...}, "rows": [...]}}``; each row:
-    knob, value, seconds, bias_m, std_m, error_m (against the reference)."""
+    knob, value, seconds, bias_m, std_m, error_m (against the reference). ``smoke`` (the
+    tests' size; implies ``quick``): each setting run once (:func:`_setting`)."""
+    quick = quick or smoke
     knobs = QUICK_KNOBS if quick else KNOBS
     default = dict(DEFAULT, shots=1000 if quick else DEFAULT["shots"])
     out = {}
@@ -108,7 +112,8 @@ def run(*, quick: bool = False) -> dict:
                 continue                        # a plane has no mesh spacing
             for v in values:
                 cfg = dict(default, **{knob: v})
-                rows.append({"knob": knob, "value": v, **_setting(track, ref, ideal=ideal, **cfg)})
+                rows.append({"knob": knob, "value": v,
+                             **_setting(track, ref, ideal=ideal, smoke=smoke, **cfg)})
         out[name] = {"reference": ref, "rows": rows}
     return out
 
@@ -169,7 +174,7 @@ SIMPLIFICATIONS = {   # name: (the simplified run, the fuller run), as changes t
 }
 
 
-def simplifications(*, quick: bool = False) -> dict:
+def simplifications(*, quick: bool = False, smoke: bool = False) -> dict:
     """Each simplification the simulator makes by default, against the full model, on the
     default run (the paper's: p = 1.8 fractal, weak beam, 1000 shots, real detector);
     and single bounce, which ``max_depth="auto"`` turns down on this terrain.
@@ -178,10 +183,12 @@ def simplifications(*, quick: bool = False) -> dict:
     difference (with its standard error over seeds) is the error the simplification adds,
     and the spread of the default run over seeds is its Monte Carlo error. Verdict "below"
     when ``|mean difference|`` + 2 SE is under the Monte Carlo error of bias and of precision,
-    "above" when ``|mean difference|`` - 2 SE exceeds it, else "comparable".
+    "above" when ``|mean difference|`` - 2 SE exceeds it, else "comparable". ``smoke`` (the
+    tests' size; implies ``quick``): two seeds, the fewest a spread needs, and no warm-up.
     """
     # 48 seeds: the tail of twice-scattered photons makes the precision of one run noisy
-    seeds = range(1, 5 if quick else 49)
+    quick = quick or smoke
+    seeds = range(1, 3 if smoke else 5 if quick else 49)
     shots = 500 if quick else 1000
     spec = SurfaceSpec()                            # the default surface, on a 0.5 m grid
     fine = fractal(p=spec.p, size_m=spec.size_m, grid_m=0.5, relief_m=spec.relief_m, seed=0)
@@ -198,7 +205,8 @@ def simplifications(*, quick: bool = False) -> dict:
             runs[key] = (st.bias_m, st.std_m, res.config["max_depth"])
         return runs[key]
 
-    one(0)                                          # warm-up (compilation)
+    if not smoke:
+        one(0)                                      # warm-up (compilation)
     base = np.array([one(s)[:2] for s in seeds])    # (seeds, 2): bias, std [m]
     chosen = sorted({one(s)[2] for s in seeds})
     mc = base.std(axis=0, ddof=1)

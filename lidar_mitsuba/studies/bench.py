@@ -56,15 +56,16 @@ def _synthetic_returns(rng, n_shots: int, k: int = 64) -> Returns:
     return Returns.at_times(t0 + 0.4247 * rng.standard_normal(n_shots * k), paths_per_shot=k)
 
 
-def bench_detector(*, quick: bool) -> list[dict]:
+def bench_detector(*, quick: bool, smoke: bool = False) -> list[dict]:
     """Detector stage throughput [photon events/s] on synthetic returns (no rendering).
+    ``smoke``: 5000 shots, one repetition after the warm-up.
 
     Events counted: the signal photons reaching the detector (Poisson arrivals, before fill
     factor and PDE, each drawn and thinned) plus the noise events generated (background after
     thinning, dark counts) — every photon the stage handles.
     """
     rng = np.random.default_rng(1)
-    n_shots = 20_000 if quick else 200_000
+    n_shots = 5_000 if smoke else 20_000 if quick else 200_000
     # paths per shot as a user should set them: about twice the photons per shot or more
     # (fewer paths than photons trigger the slower resampling fallback)
     returns = {k: _synthetic_returns(rng, n_shots, k=k) for k in (64, 256)}
@@ -91,7 +92,7 @@ def bench_detector(*, quick: bool) -> list[dict]:
         def run():
             out["det"] = pmt.detect(ret, inst, np.random.default_rng(2), gate_center_ns=gate)
 
-        times = _times(run, repeats=3 if quick else 7)
+        times = _times(run, repeats=1 if smoke else 3 if quick else 7)
         sec, best = statistics.median(times), min(times)
         det = out["det"]
         bg, dc = inst.noise_per_shot
@@ -359,59 +360,68 @@ def cast_bound(end_to_end: list[dict], rays_per_s: float) -> None:
         r["loop_of_cast_bound"] = r["loop_shots_per_s"] / bound
 
 
-def throughput(*, quick: bool) -> dict:
+def throughput(*, quick: bool, smoke: bool = False) -> dict:
     """The throughput part of the bench in the active variant: detector, integrator, end to
     end, with the variant and the device they ran on."""
     doc = {"variant": mi.variant(), "device": device_name(), "cpu_count": os.cpu_count(),
-           "detector": bench_detector(quick=quick), "integrator": bench_integrator(quick=quick),
+           "detector": bench_detector(quick=quick, smoke=smoke),
+           "integrator": bench_integrator(quick=quick),
            "end_to_end": bench_end_to_end(quick=quick)}
     cast_bound(doc["end_to_end"], doc["integrator"]["rays_per_s"])
     doc["paths_speedup"] = paths_speedup(doc["end_to_end"])
     return doc
 
 
-def _throughput_in_child(variant: str, out: pathlib.Path, quick: bool) -> dict:
+def _throughput_in_child(variant: str, out: pathlib.Path, quick: bool,
+                         smoke: bool = False) -> dict:
     """Run the throughput bench of ``variant`` in a process of its own (one variant per
     process) and read its bench.json."""
     sub = out / variant
     cmd = [sys.executable, "-m", "lidar_mitsuba_cli", "bench", "--variant", variant,
-           "--throughput-only", "--out", str(sub)] + (["--quick"] if quick else [])
+           "--throughput-only", "--out", str(sub)] + (["--quick"] if quick else []) + (
+               ["--smoke"] if smoke else [])
     subprocess.run(cmd, check=True)
     return json.loads((sub / "bench.json").read_text())
 
 
-def run(*, out_dir: str | os.PathLike, quick: bool = False,
+def run(*, out_dir: str | os.PathLike, quick: bool = False, smoke: bool = False,
         variants: list[str] | None = None, throughput_only: bool = False) -> dict:
     """Run every benchmark; write ``bench.json`` and ``throughput.png`` (and, unless
     ``throughput_only``, the study charts) into ``out_dir``.
+
+    ``smoke`` (the tests' size; implies ``quick``): the quick run with its costliest parts
+    cut where no row, chart or field depends on them: the detector's cases on 5000 shots
+    once, each accuracy setting once, two seeds for the simplifications, and fewer shots in
+    the snow walk (:func:`.snow_bias.run`). Its numbers only show that the bench runs.
 
     ``variants``: Mitsuba variants to measure (default: the active one). With several, each
     variant's throughput runs in a process of its own (``out_dir/<variant>/``), the studies
     run in the first, and ``bench.json["by_variant"]`` and the chart hold them side by side.
     """
+    quick = quick or smoke
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     variants = list(variants or [mi.variant()])
     if len(variants) == 1:
         set_variant(variants[0])
-        doc = throughput(quick=quick)
+        doc = throughput(quick=quick, smoke=smoke)
     else:
-        by = {v: _throughput_in_child(v, out, quick) for v in variants}
+        by = {v: _throughput_in_child(v, out, quick, smoke) for v in variants}
         set_variant(variants[0])
         doc = dict(by[variants[0]])
         doc["by_variant"] = {v: {k: d[k] for k in ("device", "cpu_count", "detector",
                                                    "integrator", "end_to_end")}
                              for v, d in by.items()}
-    doc.update(quick=quick, machine=platform.platform(), drjit=dr.__version__,
+    doc.update(quick=quick, smoke=smoke, machine=platform.platform(), drjit=dr.__version__,
                mitsuba=mi.__version__)
     if not throughput_only:
         doc["stability"] = breaking_points.run_all(quick=quick)
-        doc["accuracy_vs_time"] = accuracy.run(quick=quick)
-        doc["simplifications"] = accuracy.simplifications(quick=quick)
+        doc["accuracy_vs_time"] = accuracy.run(quick=quick, smoke=smoke)
+        doc["simplifications"] = accuracy.simplifications(quick=quick, smoke=smoke)
         doc["peer"] = peer.run(quick=quick)
         from . import snow_bias, track_length
         doc["track_length"] = track_length.run(out=out, quick=quick)
-        doc["snow"] = snow_bias.run(quick=quick)
+        doc["snow"] = snow_bias.run(quick=quick, smoke=smoke)
         doc["accuracy_vs_time"]["snow volume, 200 um"] = snow_bias.pareto_rows(doc["snow"])
         from . import media_accuracy, snow_optics
         doc["snow_optics"] = snow_optics.run(quick=quick)

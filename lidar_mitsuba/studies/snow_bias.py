@@ -83,20 +83,28 @@ def _kernel_vs_surface(*, grain_um: float, density: float, shots: int, reps: int
             "kernel_over_surface": float(np.median(t[:, 1] / t[:, 0]))}
 
 
-def run(*, quick: bool = False) -> dict:
+def run(*, quick: bool = False, smoke: bool = False) -> dict:
     """The snow study: the kernel's biases over grain size, density and beam; the walk at
     each grain size (the reference, strong beam, first density) and what each model costs;
     the kernel's time against the bare surface; the walk's accuracy knobs. Quick: two grain
     sizes, and kernel tables of 2^14 walk photons a node (a smoke run: building the full
-    tables was two thirds of its time)."""
-    with snow_kernel.photons_per_node(1 << 14 if quick else None):
-        return _run(quick=quick)
+    tables was two thirds of its time). ``smoke`` (the tests' size; implies ``quick``): the
+    quick run with :data:`SMOKE_WALK_SHOTS` shots in the walk's runs (the walk rows, the
+    ``max_events`` and similarity knobs; they were two thirds of a quick run's time); the
+    kernel's bias rows keep the quick run's shots."""
+    with snow_kernel.photons_per_node(1 << 14 if quick or smoke else None):
+        return _run(quick=quick or smoke, smoke=smoke)
 
 
-def _run(*, quick: bool) -> dict:
+#: the walk's shots in a smoke run (quick: 400): 200 shots are 140 m of track, five
+#: unflagged ATL06 segments for the walk rows' h_li
+SMOKE_WALK_SHOTS = 200
+
+
+def _run(*, quick: bool, smoke: bool = False) -> dict:
     grains = (200, 1000) if quick else (50, 100, 200, 500, 1000)   # (quick: no 50 um table)
     densities = (350,) if quick else (250, 400)
-    shots = 400 if quick else 2000
+    shots = SMOKE_WALK_SHOTS if smoke else 400 if quick else 2000
     kshots = 4000 if quick else 20000
     # the walk first: its rows give the reference and the cost; the kernel's first run at
     # each snowpack builds (or reads) its table, timed apart in "table_s"
