@@ -24,7 +24,7 @@ def pytest_xdist_auto_num_workers(config):
 #: with few tests, to the end of the run, where one worker finished them alone. Longest first
 #: (the LPT rule) ends the workers within about the last file's time of each other. A file
 #: not listed runs after these, in collection order; a new slow file belongs here.
-SLOW_FILES = {"test_twin.py": 110, "test_bench.py": 110, "test_docs.py": 100,
+SLOW_FILES = {"test_bench.py": 140, "test_twin.py": 110, "test_docs.py": 100,
               "test_snow_kernel.py": 100, "test_notebooks.py": 90, "test_campaign.py": 60,
               "test_fpb_matrix.py": 50, "test_granule.py": 50, "test_reproduce.py": 30}
 
