@@ -277,6 +277,21 @@ def trees_near(stand: Stand, bounds_xy_m: tuple[float, float, float, float] | No
     return np.concatenate(idx), np.concatenate(xs), np.concatenate(ys)
 
 
+def placed_trees(forest, bounds_xy_m) -> tuple[np.ndarray, ...]:
+    """The trees of ``forest`` (a :class:`~.forest.ForestSurface`) whose crowns reach into
+    ``bounds_xy_m`` (x0, x1, y0, y1) [m] (None: all), periodic images included
+    (:func:`trees_near`), each on the ground where it stands (an image's ground height is
+    the ground's there, its stem's own where that is off the ground): ``(index, x_m, y_m,
+    ground_z_m)``, each (m,)."""
+    idx, x, y = trees_near(forest.stand, bounds_xy_m)
+    z = forest.stand.ground_z_m[idx].copy()
+    moved = (x != forest.stand.x_m[idx]) | (y != forest.stand.y_m[idx])
+    if moved.any():                   # periodic images stand on the ground where they are
+        zg = np.asarray(forest.ground.height_m(x[moved], y[moved]), float)
+        z[moved] = np.where(np.isfinite(zg), zg, z[moved])
+    return idx, x, y, z
+
+
 def placed_meshes(protos: list[dict], idx: np.ndarray, place_m: np.ndarray, *,
                   turn_deg: np.ndarray) -> tuple[tuple, tuple]:
     """The trees ``idx`` (stand indices, (m,)) as copies of their prototypes, each scaled,
