@@ -153,7 +153,9 @@ class ForestSurface(Surface):
         (x0, y0), (x1, y1) = s.bounds_m
         stand = replace(s, x_m=s.x_m - dx, y_m=s.y_m - dy,
                         bounds_m=((x0 - dx, y0 - dy), (x1 - dx, y1 - dy)))
-        return replace(self, ground=self.ground.with_origin(origin_m), stand=stand)
+        moved = replace(self, ground=self.ground.with_origin(origin_m), stand=stand)
+        object.__setattr__(moved, "_cache", self._cache)    # prototypes, turns, cover: the
+        return moved                                        # same wherever the frame is
 
     # ------------------------------------------------------------ the vegetation
     def prototypes(self) -> list[dict]:
@@ -161,6 +163,13 @@ class ForestSurface(Surface):
         if "prototypes" not in self._cache:
             self._cache["prototypes"] = explicit.prototypes(self.stand, classes=self.classes)
         return self._cache["prototypes"]
+
+    def canopy_cover(self) -> float:
+        """The stand's canopy cover (:meth:`~.stand.Stand.canopy_cover`, computed once: ~1 s
+        for a 2 km stand, and every plan of a granule's sections says it)."""
+        if "cover" not in self._cache:
+            self._cache["cover"] = self.stand.canopy_cover()
+        return self._cache["cover"]
 
     def turns_deg(self) -> np.ndarray:
         """Each tree's turn about the vertical [deg] (n,), seeded by the stand."""
@@ -237,7 +246,7 @@ class ForestSurface(Surface):
     def config(self) -> dict:
         return {"kind": "forest", "representation": self.representation,
                 "ground": self.ground.config(), "stand": self.stand.config(),
-                "canopy_cover": self.stand.canopy_cover(),
+                "canopy_cover": self.canopy_cover(),
                 "optics_532nm": {name: {"R": o.reflectance, "T": o.transmittance,
                                         "source": o.source}
                                  for name, o in (("leaf", self.leaf), ("bark", self.bark),
@@ -287,7 +296,7 @@ class _ForestTiles(ChunkTiles):
         self.offsets_m = (x - np.asarray(x_local_m, np.float64),
                           y - np.asarray(y_local_m, np.float64),
                           np.broadcast_to(np.asarray(dz_m, np.float64), x.shape))
-        self.integrator = None
+        self.integrator, self._attached_first = None, False
         super().__init__(x, y, reach_m=reach_m, bsdf=bsdf, chunk_shots=chunk_shots)
         self._first_table = self._first[5]
 
@@ -297,10 +306,13 @@ class _ForestTiles(ChunkTiles):
         self.integrator = integrator
         if self._first_table is not None:
             integrator.set_table(self._first_table)
+            self._attached_first = True        # (the first tile's: not set again)
 
     def _use(self, built: tuple) -> None:
-        if built[5] is not None and self.integrator is not None:
+        if built[5] is not None and self.integrator is not None and not (
+                built[5] is self._first_table and self._attached_first):
             self.integrator.set_table(built[5])
+        self._attached_first = False
 
     def _build(self, a: int, b: int):
         """``(scene, x_local, y_local, offsets, triangles, table)`` of shots ``a`` .. ``b - 1``
