@@ -82,3 +82,32 @@ def test_cli_forest_over_a_dem_bad_spec_exit_2(small_dem, tmp_path, capsys, spec
                     "--forest", spec, "--out", str(tmp_path / "x.h5")], capsys)
     assert "--forest" in err
     assert not (tmp_path / "x.h5").exists()
+
+
+def test_a_campaign_over_a_forest_writes_atl08_and_its_numbers(small_dem, tmp_path):
+    """A campaign spec with ``[forest]`` (ATL08 by default): one spec track, one beam, 300
+    shots in this process; the granule's ATL08 is in ``granules/ATL08`` and the task table
+    holds its land segments' terrain error (within 0.25 m: as the CLI test above) and canopy
+    height (below the stand's tallest tree, ~12 m x 1.3 at 10 % height spread); a bad
+    ``[forest]`` key is one line naming it."""
+    from lidar_mitsuba import campaign
+    from lidar_mitsuba.sweep import SpecError
+    spec = {"campaign": {"name": "forest", "seed": 3},
+            "dem": {"path": str(small_dem)},
+            "instrument": {"preset": "atlas", "beams": "gt2l",
+                           "options": {"range_gate_m": 40.0}},
+            "run": {"shots": 300, "max_depth": 1},
+            "epochs": {"dates": ["2019-06-01T00:00:00Z"]},
+            "tracks": [{"start": [69.995, -45.0], "azimuth_deg": 0.0}],
+            "forest": {"species": "conifer", "representation": "turbid", "height_m": 12.0,
+                       "cover": 0.8, "lai": 4.0, "size_m": 300.0, "seed": 1}}
+    res = campaign.run(spec, out=tmp_path / "out", workers=0, plot=False)
+    row = res.tasks.iloc[0]
+    assert row["status"] == "ok", row["error"]
+    assert (tmp_path / "out" / "granules" / row["atl08"]).is_file()
+    assert row["n_land_segments"] >= 2 and row["n_terrain"] >= 2
+    assert abs(row["terrain_bias_m"]) < 0.25
+    assert row["n_canopy"] >= 1 and 0 < row["h_canopy_m"] < 1.3 * 12.0 + 1
+    with pytest.raises(SpecError) as e:
+        campaign.load_spec({**spec, "forest": {"species": "conifer", "cover": 2.0}})
+    assert "[forest] cover" in str(e.value)
