@@ -122,7 +122,7 @@ class _Context:
         lat0, lon0 = track.start_lat_lon(spacing_m=self.base.shot_spacing_m)
         x0, y0 = self.to_crs.transform(lon0, lat0)
         self.origin = (float(np.round(x0, -3)), float(np.round(y0, -3)))
-        self.surface = replace(surface, origin_m=self.origin)
+        self.surface = surface.with_origin(self.origin)     # a DEM, or a forest over one
 
     def instrument(self, beam: Beam | None) -> Instrument:
         """The instrument of ``beam`` (``None``: a strong beam, for what all beams share)."""

@@ -395,6 +395,8 @@ def _lay_out(run: _Run, track, *, crop_to_track: bool) -> None:
                             y_local_m=run.y_local_m, dz_m=run.dz_m, reach_m=run.reach_m,
                             bsdf=mat.mesh_bsdf, crop=crop_to_track, chunk_shots=run.chunk_shots)
     run.chunk_shots, run.triangles = run.tiling.chunk_shots, run.tiling.triangles
+    if run.integrator is not None:                  # a later section: the plan's integrator
+        run.tiling.attach(run.integrator)
     run.x_local_m, run.y_local_m = run.tiling.x_local_m, run.tiling.y_local_m  # pilot's shots
     top = float(scn.scene_bounds(run.scene)[1][2] + np.max(np.abs(run.dz_m), initial=0.0))
     if top + 1.0 >= inst.altitude_m:
@@ -442,6 +444,7 @@ def _choose_model(run: _Run, *, progress: bool = False) -> None:
     if hasattr(run.surface, "integrator_dict"):      # a forest's turbid or gap canopy
         d = run.surface.integrator_dict(d)
     run.integrator_dict, run.integrator = d, mi.load_dict(d)
+    run.tiling.attach(run.integrator)
     if ppp == "auto":
         t1 = time.perf_counter()
         per_path = d["type"] == "mediapathlength"

@@ -130,17 +130,23 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
         t = canopy_table.check(table)
         x0, y0, nx, ny, off, trees = canopy_table.grid(t["cx"], t["cy"], t["r"],
                                                        cell_m=self.CELL_M, pad_m=0.0)
-        line = (x0, y0, nx, ny, self.CELL_M, mi.UInt32(off), mi.UInt32(trees))
+        # the grid's place and size, and the crowns' top, as opaque values (kernel inputs,
+        # not constants): a new table of the same stand (a DEM's next corridor tile) reuses
+        # the compiled kernels
+        line = (dr.opaque(mi.Float, x0), dr.opaque(mi.Float, y0), dr.opaque(mi.Int32, nx),
+                dr.opaque(mi.Int32, ny), self.CELL_M, mi.UInt32(off), mi.UInt32(trees))
         omega = t["rho"] + t["tau"]
+        per_cell = max(1, int(np.diff(off).max())) if off.size > 1 else 1
         self._table = dict(
             crowns=[mi.Float(t[k]) for k in canopy_table.ARRAYS], shape=t["shape"],
             leaf_angle=canopy_table.LEAF_ANGLES.index(t["leaf_angle"]),
             sigma_g=mi.Float(t["g"] * np.float32(t["clumping"] * t["lad"])),
             n_g=int(t["g"].size), rho=t["rho"], tau=t["tau"], omega=omega,
             line=line, n=int(t["cx"].size),
-            max_per_cell=max(1, int(np.diff(off).max())) if off.size > 1 else 1,
+            # (a power of two: the gap kernel's local buffers, a compile-time size)
+            max_per_cell=1 << (per_cell - 1).bit_length(),
             sigma_nadir=float(t["g"][-1] * t["clumping"] * t["lad"]),
-            top=float(t["zt"].max()) + 1e-2 if t["cx"].size else -1e30,
+            top=dr.opaque(mi.Float, float(t["zt"].max()) + 1e-2 if t["cx"].size else -1e30),
             # the gap layer's leaf return: pi Gamma_b / (G 0.9) at nadir, from the table's G
             # and <cos^2> (Ross; lidar_mitsuba.vegetation.ross.leaf_return_weight)
             leaf_nadir=t["rho"] * _COS2[t["leaf_angle"]] / float(t["g"][-1]) / REFERENCE_ALBEDO)
@@ -229,7 +235,7 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
             # on while the next cell starts before the collision found and the ray's end,
             # and lies on the grid
             go &= ((t_exit < t_c) & (t_exit < t_max) & (ix >= 0) & (ix < nx) & (iy >= 0)
-                   & (iy < ny) & (visits < 4 * (nx + ny)))
+                   & (iy < ny) & (mi.Int32(visits) < 4 * (nx + ny)))
         return t_c
 
     @dr.syntax

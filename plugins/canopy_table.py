@@ -26,6 +26,8 @@ SHAPES = ("cone", "ellipsoid", "cylinder")
 LEAF_ANGLES = ("spherical", "planophile", "erectophile", "uniform")
 ARRAYS = ("cx", "cy", "zb", "zt", "r")
 SCALARS = ("lad", "clumping", "rho", "tau")
+#: crowns binned at once by :func:`grid` (bounds its memory: a block's boxes of cells)
+GRID_BLOCK = 8192
 
 
 def check(table: dict) -> dict:
@@ -69,23 +71,39 @@ def grid(cx: np.ndarray, cy: np.ndarray, r: np.ndarray, *, cell_m: float, pad_m:
     nx = int(math.floor(float((cx + reach).max() - x0) / cell_m)) + 1
     ny = int(math.floor(float((cy + reach).max() - y0) / cell_m)) + 1
     cells, trees = [], []
-    for k in range(cx.size):
-        i = np.arange(int((cx[k] - reach[k] - x0) // cell_m),
-                      int((cx[k] + reach[k] - x0) // cell_m) + 1)
-        j = np.arange(int((cy[k] - reach[k] - y0) // cell_m),
-                      int((cy[k] + reach[k] - y0) // cell_m) + 1)
-        # the nearest point of each cell to the axis
-        dx = np.clip(cx[k], x0 + i * cell_m, x0 + (i + 1) * cell_m) - cx[k]
-        dy = np.clip(cy[k], y0 + j * cell_m, y0 + (j + 1) * cell_m) - cy[k]
-        hit = dx[None, :] ** 2 + dy[:, None] ** 2 <= reach[k] ** 2
-        jj, ii = np.nonzero(hit)
-        cells.append(j[jj] * nx + i[ii])
-        trees.append(np.full(jj.size, k))
+    for k0 in range(0, cx.size, GRID_BLOCK):        # a block of crowns at a time
+        c, t = _cells_hit(cx[k0:k0 + GRID_BLOCK], cy[k0:k0 + GRID_BLOCK],
+                          reach[k0:k0 + GRID_BLOCK], x0=x0, y0=y0, nx=nx, cell_m=cell_m)
+        cells.append(c)
+        trees.append(t + k0)
     cells, trees = np.concatenate(cells), np.concatenate(trees)
     order = np.argsort(cells, kind="stable")
     counts = np.bincount(cells, minlength=nx * ny)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.uint32)
     return float(x0), float(y0), nx, ny, offsets, trees[order].astype(np.uint32)
+
+
+def _cells_hit(cx, cy, reach, *, x0: float, y0: float, nx: int, cell_m: float):
+    """``(cells, trees)``: every (cell, crown) pair whose disc of radius ``reach`` overlaps
+    the cell (exact: the cell's nearest point to the axis within ``reach``), crown by crown
+    (a crown's cells row by row): each crown's box of cells on one padded grid."""
+    i0 = ((cx - reach - x0) // cell_m).astype(np.int64)
+    i1 = ((cx + reach - x0) // cell_m).astype(np.int64)
+    j0 = ((cy - reach - y0) // cell_m).astype(np.int64)
+    j1 = ((cy + reach - y0) // cell_m).astype(np.int64)
+    if cx.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    di = np.arange(int((i1 - i0).max()) + 1)
+    dj = np.arange(int((j1 - j0).max()) + 1)
+    i = i0[:, None, None] + di[None, None, :]             # (n, 1, W)
+    j = j0[:, None, None] + dj[None, :, None]             # (n, H, 1)
+    # the nearest point of each cell to the axis
+    dx = np.clip(cx[:, None, None], x0 + i * cell_m, x0 + (i + 1) * cell_m) - cx[:, None, None]
+    dy = np.clip(cy[:, None, None], y0 + j * cell_m, y0 + (j + 1) * cell_m) - cy[:, None, None]
+    hit = ((dx ** 2 + dy ** 2 <= reach[:, None, None] ** 2)
+           & (i <= i1[:, None, None]) & (j <= j1[:, None, None]))
+    k, jj, ii = np.nonzero(hit)
+    return (j0[k] + jj) * nx + (i0[k] + ii), k
 
 
 def save(path, table: dict) -> None:

@@ -145,6 +145,10 @@ def test_bench_quick(bench_run):
     sky = doc["sky"]          # the sky model: closed form, table lookup, one render, as ratios
     assert sky["render_over_closed_form"] > 10 and sky["closed_form_over_lookup"] > 1
     assert "sky, one nadir radiance" in printed
+    fo = {r["representation"]: r for r in doc["forest"]}   # a turbid forest over the DEM
+    assert set(fo) == {"bare", "turbid"} and fo["turbid"]["over_bare"] > 0
+    assert fo["turbid"]["of_cast"] > 1 and fo["turbid"]["atl08_s"] > 0
+    assert "forest in a DEM granule" in printed
 
 
 def test_throughput_chart_shows_the_measured_rates(bench_run):

@@ -237,7 +237,8 @@ def test_gap_layer_matches_numpy_over_a_stand():
 def test_forest_front_door_gap_and_turbid():
     """``lm.forest(representation="gap" | "turbid")`` is traced by the ``canopy`` integrator
     over the bare ground's scene (no crown shapes), with the forest's leaf optics; its returns
-    come from the crowns and the ground; a DEM's corridor tiles are refused by name."""
+    come from the crowns and the ground; an unknown representation is refused by name (over
+    a DEM: tests/test_forest_dem.py)."""
     import lidar_mitsuba as lm
     from lidar_mitsuba.constants import ParameterError
     f = lm.forest(species="conifer", height_m=10.0, ground=lm.Plane(size_m=60.0), seed=1,
@@ -251,12 +252,8 @@ def test_forest_front_door_gap_and_turbid():
     assert (z > 3.0).any() and (np.abs(z) < 0.1).any()          # canopy and ground returns
     t = dataclasses_replace(f, representation="turbid")
     assert t.integrator_dict({"type": "pathlength", "max_depth": 2})["max_depth"] == 2
-
-    class Tiled(lm.Plane):
-        def tiles(self, *a, **k):                 # a ground with tiles of its own (a DEM's)
-            raise AssertionError
     with pytest.raises(ParameterError) as e:
-        dataclasses_replace(f, ground=Tiled(size_m=60.0)).integrator_dict({"type": "pathlength"})
+        dataclasses_replace(t, representation="voxels")
     assert e.value.name == "representation"
 
 

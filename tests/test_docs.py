@@ -41,6 +41,8 @@ SHOTS = 200
 ELSEWHERE = {
     ("simulate", "--snow-grain-um"): "tests/test_snow.py::test_cli_snow_options",
     ("simulate", "--cloud-od"): "tests/test_clouds.py::test_cli_cloud_runs",
+    ("simulate", "--atl08"): "tests/test_forest_dem.py::"
+                             "test_cli_forest_over_a_dem_writes_atl03_atl06_and_atl08",
     ("simulate", "--forest"): "tests/test_forest.py::test_cli_forest_runs",
     ("bench", None): "tests/test_bench.py::bench_run",
     ("sweep", None): "tests/test_sweep.py::test_cli_runs_resumes_and_plots",

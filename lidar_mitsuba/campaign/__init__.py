@@ -16,6 +16,7 @@ lidar_mitsuba and the spec's files at the same paths, and ``DIR`` on a shared fi
     version = 1               # vvv and rr of the file names
     revision = 1
     map_bin_m = 1000          # along-track bins of the map [m]
+    atl08 = false             # our ATL08 of every granule too (default: with a [forest])
     kernel_cache = "cache"    # snow kernel tables' root (default $LIDAR_MITSUBA_CACHE)
 
     [dem]
@@ -57,6 +58,14 @@ lidar_mitsuba and the spec's files at the same paths, and ``DIR`` on a shared fi
     density_kg_m3 = 350                  # likewise (density_levels_kg_m3)
     model = "auto"                       # kernel (auto) or walk
 
+    [forest]                  # a stand over every granule's DEM (off without this table):
+    species = "conifer"       #   lm.forest's keywords (height_m, cover, lai, leaf_angle,
+    representation = "turbid" #   clumping, ...), size_m: the side of its periodic square
+    height_m = 18             #   at the DEM's centre (2048); with it, [campaign] atl08
+    cover = 0.6               #   defaults to true: our ATL08 of every granule, and the
+    lai = 3                   #   task table's terrain error and canopy height
+    size_m = 2048
+
 **Tasks**: DEMs x tracks (the spec's, then the orbit's crossings: ascending, descending, by
 RGT) x epochs (:func:`lidar_mitsuba.campaign.tasks.expand`). Each is one granule; its
 ``task_id`` hashes what defines it (track and time, DEM, shots, instrument, surface, campaign
@@ -82,7 +91,9 @@ simulated, so the difference is visible. Shorter sections, or a finer grain of l
 the field better.
 
 **Outputs** (``out``): ``granules/ATL03/ATL03_[yyyymmdd][hhmmss]_[ttttccss]_[vvv]_[rr].h5``
-and ``granules/ATL06/ATL06_...``, as ICESat-2 names them (:func:`.tracks.product_name`;
+and ``granules/ATL06/ATL06_...`` (with ``atl08``: ``granules/ATL08/ATL08_...``, our land
+and canopy product, its numbers in the task table: :data:`.land.LAND_COLUMNS`), as ICESat-2
+names them (:func:`.tracks.product_name`;
 ``orbit_info/rgt`` and ``cycle_number`` filled in, ``METADATA`` with the name's release), a
 folder per product so that ``icepyx.Read("out/granules/ATL06")`` reads a product's granules,
 read by the same tools as any granule of ours;
@@ -97,7 +108,7 @@ error, and no files; the others go on.
 
 **Modules**: :mod:`.spec` (the TOML), :mod:`.tracks` (the repeat orbit, names, crossings),
 :mod:`.rasters` (property rasters), :mod:`.tasks` (expansion), :mod:`.granules` (what a worker
-runs), :mod:`.maps` (the figure); this file drives them.
+runs), :mod:`.land` (a forest and ATL08), :mod:`.maps` (the figure); this file drives them.
 """
 from __future__ import annotations
 

@@ -16,6 +16,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from ..sweep.task import _one_line, _set_threads, _versions
+from .land import LAND_COLUMNS, forest_over, land_statistics
 
 #: the segment table's columns (:func:`read_segments` and the task's properties)
 SEGMENT_COLUMNS: dict[str, str] = {
@@ -72,6 +73,7 @@ ROW_COLUMNS: dict[str, str] = {
     "finished_at": "UTC (ISO 8601)", "worker": "host:pid",
     "lidar_mitsuba_version": "versions of the worker's packages", "mitsuba_version": "",
     "drjit_version": "", "track_json": "the track (GeoTrack fields, JSON)",
+    **LAND_COLUMNS,
 }
 #: the properties a raster resolves per beam and granule section, and the task's field of
 #: their levels (``{beam: [level per section]}``, :class:`.tasks.Task`)
@@ -176,21 +178,26 @@ def _surface(p: dict) -> tuple[object, dict]:
     dem = DEM.open(p["dem"])
     levels = p.get("roughness_sections")
     if not levels:
-        return DEMSurface(dem, roughness=_roughness_tile(p, dem, p.get("roughness_relief_m"))), {}
+        surface = DEMSurface(dem, roughness=_roughness_tile(p, dem, p.get("roughness_relief_m")))
+        if p.get("forest"):                  # the spec's stand over it
+            surface = forest_over(surface, p["forest"])
+        return surface, {}
     tiles = {r: _roughness_tile(p, dem, r) for row in levels.values() for r in row}
     return DEMSurface(dem), {"roughness": lambda beam, k: tiles[levels[beam.name][k]]}
 
 
 def simulate(p: dict) -> tuple[dict, int, pathlib.Path, pathlib.Path]:
     """Stream the granule of task ``p`` to ``out/granules/ATL03/ATL03_*.h5`` and
-    ``out/granules/ATL06/ATL06_*.h5`` (a folder per product, as ``icepyx.Read(folder)`` reads
+    ``out/granules/ATL06/ATL06_*.h5`` (and with ``p["atl08"]`` our ATL08 to
+    ``out/granules/ATL08/ATL08_*.h5``; a folder per product, as ``icepyx.Read(folder)`` reads
     one product's granules; each written under a temporary name beginning with a dot, which
     such a reader's glob skips, then renamed) and read its segments back: ``(segments, signal
     photons, atl03, atl06)``."""
     from ..geotrack import GeoTrack
     from ..granule import stream_granule
     folder = pathlib.Path(p["out"]) / "granules"
-    final = [folder / f"ATL0{k}" / f"ATL0{k}_{p['granule']}.h5" for k in (3, 6)]
+    final = [folder / f"ATL0{k}" / f"ATL0{k}_{p['granule']}.h5"
+             for k in ((3, 6, 8) if p.get("atl08") else (3, 6))]
     for f in final:
         f.parent.mkdir(exist_ok=True)
     tmp = [f.with_name(f".{f.name}.part.h5") for f in final]
@@ -208,7 +215,7 @@ def simulate(p: dict) -> tuple[dict, int, pathlib.Path, pathlib.Path]:
             seed=p["seed"], paths_per_shot=run["paths_per_shot"], max_depth=run["max_depth"],
             progress=False, section_shots=run["section_shots"], variant=p.get("variant"),
             orbit_info={"cycle_number": p["cycle"], **({"rgt": p["rgt"]} if p["rgt"] else {})},
-            **kw)
+            atl08_path=tmp[2] if len(tmp) > 2 else None, **kw)
     except BaseException:
         for t in tmp:
             t.unlink(missing_ok=True)
@@ -321,6 +328,9 @@ def run_task(p: dict) -> dict:
             segments = _with_properties(seg, p)
         values.update(statistics(seg), photons=int(photons), atl03=_granule_file(a3),
                       atl06=_granule_file(a6))
+        if p.get("atl08"):                  # its land segments' numbers
+            a8 = a6.parent.parent / "ATL08" / a6.name.replace("ATL06", "ATL08", 1)
+            values.update(land_statistics(a8), atl08=_granule_file(a8))
     except Exception as e:                    # recorded, not raised: the campaign goes on
         values = {"status": "failed", "error": str(e) if isinstance(e, _Invalid)
                   else _one_line(e)}
@@ -342,7 +352,7 @@ def row(p: dict, **values) -> dict:
                                  "density_kg_m3", "roughness_relief_m")}
     out.update(medians_json=json.dumps(p.get("medians", {}), sort_keys=True),
                track_json=json.dumps(p.get("track"), sort_keys=True), status="ok", error="",
-               photons=0, n_segments=0, n_good=0, atl03="", atl06="")
+               photons=0, n_segments=0, n_good=0, atl03="", atl06="", atl08="")
     for k in ROW_COLUMNS:
         out.setdefault(k, math.nan)
     out.update(_versions())

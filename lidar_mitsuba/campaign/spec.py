@@ -12,9 +12,10 @@ from ..sweep.spec import FORMATS, SpecError, _read_source
 from .tracks import RepeatOrbit
 
 SECTIONS = ("campaign", "dem", "instrument", "run", "epochs", "orbit", "tracks", "surface",
-            "snow", "cloud")
+            "snow", "cloud", "forest")
 _KEYS = {
-    "campaign": ("name", "seed", "format", "version", "revision", "kernel_cache", "map_bin_m"),
+    "campaign": ("name", "seed", "format", "version", "revision", "kernel_cache", "map_bin_m",
+                 "atl08"),
     "dem": ("path", "paths"),
     "instrument": ("preset", "beams", "sc_orient", "options"),
     "run": ("shots", "max_depth", "paths_per_shot", "section_shots"),
@@ -26,6 +27,9 @@ _KEYS = {
     "snow": ("grain_um", "grain_levels_um", "density_kg_m3", "density_levels_kg_m3", "model"),
     "cloud": ("optical_depth", "base_m", "top_m", "phase", "fraction", "optical_depth_median",
               "optical_depth_log_sigma"),
+    "forest": ("species", "representation", "height_m", "cover", "stems_per_ha", "lai",
+               "leaf_angle", "clumping", "crown_ratio", "crown_radius_m", "crown_shape",
+               "leaf_width_m", "size_m", "seed"),
 }
 PASSES = ("ascending", "descending", "both")
 SNOW_MODELS = ("auto", "kernel", "walk")
@@ -68,6 +72,8 @@ class CampaignSpec:
     density: Property | None = None
     snow_model: str = "auto"
     cloud: dict | None = None
+    forest: dict | None = None
+    atl08: bool = False
     doc: dict = field(default_factory=dict)
     base_dir: str = "."
 
@@ -128,7 +134,12 @@ def load_spec(source, *, base_dir: str | None = None) -> CampaignSpec:
     kw.update(_dems(_table(doc, "dem"), base), **_instrument(_table(doc, "instrument")),
               run=_run(_table(doc, "run")), **_epochs(_table(doc, "epochs")),
               **_orbit(doc), tracks=_tracks(doc, base), **_surface(doc, base),
-              cloud=_cloud(doc))
+              cloud=_cloud(doc), forest=_forest(doc))
+    kw["atl08"] = _atl08(_table(doc, "campaign"), kw["forest"])
+    if kw["forest"] is not None and (kw.get("grain") is not None
+                                     or getattr(kw["roughness"], "raster", None)):
+        raise SpecError("[forest]", "a forest stands on the DEM alone: leave out [snow] and a "
+                        "roughness raster")
     if kw.get("grain") is not None and kw["run"]["max_depth"] != "auto":
         raise SpecError("[run] max_depth", "does not apply with [snow] (a snow volume traces "
                         "its own interactions per photon): leave it out")
@@ -381,3 +392,30 @@ def _surface(doc: dict, base: pathlib.Path) -> dict:
                 grain=_property(sn, "grain_um", "grain_levels_um", base, "snow", 5.0, 5000.0),
                 density=_property(sn, "density_kg_m3", "density_levels_kg_m3", base, "snow",
                                   10.0, 825.3))
+
+
+def _forest(doc: dict) -> dict | None:
+    """``[forest]``: a stand over every granule's DEM (:func:`lidar_mitsuba.forest`'s keywords,
+    ``size_m`` the side of its periodic square at the DEM's centre), checked, as given."""
+    if "forest" not in doc:
+        return None
+    t = dict(_table(doc, "forest"))
+    from ..ground.surface import Plane
+    from ..vegetation.forest import forest
+    kw = {k: v for k, v in t.items() if k != "size_m"}
+    size = _num("[forest] size_m", t.get("size_m", 2048.0), 10.0, 1e5)
+    try:                                   # the stand's values, on a small flat ground
+        forest(ground=Plane(size_m=min(size, 50.0)), **kw)
+    except ParameterError as e:
+        raise SpecError(f"[forest] {e.name}", e.message) from None
+    except TypeError as e:
+        raise SpecError("[forest]", str(e)) from None
+    return t
+
+
+def _atl08(t: dict, forest: dict | None) -> bool:
+    """``[campaign] atl08``: write our ATL08 of every granule (default: with a [forest])."""
+    v = t.get("atl08", forest is not None)
+    if not isinstance(v, bool):
+        raise SpecError("[campaign] atl08", f"must be true or false (got {v!r})")
+    return v

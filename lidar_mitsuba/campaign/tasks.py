@@ -248,7 +248,9 @@ def _task(spec, index, dem_path, base, track, rgt, asc, shots, t_s, cycle, regio
            "options": spec.instrument_options, "run": spec.run, "snow_model": spec.snow_model,
            "roughness_p": spec.roughness_p, "name": name, **used,
            **{f: v for f, v in sections.items() if v is not None or f == "grain_sections"},
-           **({} if spec.cloud is None else {"cloud": spec.cloud})}   # (clear: ids kept)
+           **({} if spec.cloud is None else {"cloud": spec.cloud}),   # (clear: ids kept)
+           **({} if spec.forest is None else {"forest": spec.forest}),   # (likewise bare)
+           **({"atl08": True} if spec.atl08 else {})}
     tid = task_id(doc)
     seed, rough = _seeds(spec.seed, tid)
     return Task(task_id=tid, task_index=index, granule=name, rgt=int(rgt), cycle=int(cycle),
@@ -278,7 +280,8 @@ def payload(task: Task, spec: CampaignSpec, *, out: str, kernel_cache: str,
             "instrument": spec.instrument, "instrument_options": spec.instrument_options,
             "run": spec.run, "snow_model": spec.snow_model, "roughness_p": spec.roughness_p,
             "rasters": rasters, "out": str(out), "kernel_cache": kernel_cache,
-            "variant": variant, "cloud": spec.cloud}
+            "variant": variant, "cloud": spec.cloud, "forest": spec.forest,
+            "atl08": spec.atl08}
 
 
 def check_tasks(tasks: list[Task]) -> None:

@@ -43,10 +43,12 @@ def _add_scene_options(s) -> None:
                      help="set the XML's <default name=\"NAME\"> parameter (repeatable)")
     src.add_argument("--forest", metavar="SPECIES[:KEY=VALUE,...]",
                      help="a forest stand (conifer, broadleaf or shrub) over the built-in "
-                     "surface (flat SIZE m without --surface), its leaves explicit, e.g. "
+                     "surface (flat SIZE m without --surface) or --dem (a periodic SIZE m "
+                     "square, 2048 by default), its leaves explicit, e.g. "
                      "conifer:height=18,cover=0.6,lai=4; keys: height, cover or stems (per "
                      "ha), lai, leaf_angle, clumping, crown_ratio, crown_radius, crown_shape, "
-                     "leaf_width, size, seed (docs/guide/forests.md)")
+                     "leaf_width, size, seed, representation (explicit, turbid, gap) "
+                     "(docs/guide/forests.md)")
     g = s.add_argument_group("built-in surface (--surface; slope if --slope-deg is given)")
     surface_opts = opts.add_options(g, SurfaceSpec, metavars={"kind": None})
     s.set_defaults(_surface_opts=surface_opts)
@@ -109,6 +111,9 @@ def _add_track_and_orbit_options(s) -> None:
                         "--roughness-relief-m, else the DEM's own pixels, split to 1 mm of its "
                         "bilinear surface)")
     d.add_argument("--atl06", metavar="FILE.h5", help="also write ATL06 land-ice segments")
+    d.add_argument("--atl08", metavar="FILE.h5",
+                   help="also write our ATL08 land and canopy segments (with --forest: by "
+                   "default, beside --out as NAME_ATL08.h5)")
 
 
 #: the ``--snow-*`` options after ``--snow-grain-um``: (flag, type, metavar, the keyword of
@@ -212,7 +217,7 @@ def run(a) -> int:
     """``lidar-mitsuba simulate``."""
     out = out_path(a.out, (".h5", ".hdf5"))
     plot = out_path(a.plot, (".png",), "--plot") if a.plot else None
-    dem_only = {"--track": a.track, "--atl06": a.atl06,
+    dem_only = {"--track": a.track, "--atl06": a.atl06, "--atl08": a.atl08,
                 "--roughness-relief-m": a.roughness_relief_m}
     if a.dem is not None and a.water_wind_mps is not None:
         raise UsageError("--water-wind-mps", "does not apply to --dem")
@@ -288,10 +293,9 @@ def run(a) -> int:
 
 
 def _forest_only_on_built_in(a) -> None:
-    """``--forest`` is refused with ``--dem`` and ``--like``."""
-    if a.forest is not None and (a.dem is not None or a.like is not None):
-        raise UsageError("--forest", "applies to a built-in surface only (over a DEM: "
-                         "lm.forest(ground=lm.DEMSurface(...), bounds_m=...) in Python)")
+    """``--forest`` is refused with ``--like`` (a twin's surface is the real granule's)."""
+    if a.forest is not None and a.like is not None:
+        raise UsageError("--forest", "applies to a built-in surface or --dem, not --like")
 
 
 def _forest(a, surface_given: dict, water):
@@ -381,6 +385,12 @@ def _simulate_dem(a, out, plot) -> int:
                          "only applies with --instrument atlas (a link budget)")
     inst_opts.update(link)
     surface = _dem_surface(a, run.get("seed", 0))
+    atl08_out = _atl08_out(a, out)
+    if a.forest is not None:                        # a stand over the DEM
+        if a.snow_grain_um is not None:
+            raise UsageError("--snow-grain-um", "does not apply to --forest")
+        from ..vegetation.forest import forest_from_spec
+        surface = forest_from_spec(a.forest, ground=surface)
     track = geotrack.GeoTrack.parse(a.track, **({} if a.epoch is None else
                                                {"epoch_utc": a.epoch}))
     beams = geotrack.select_beams(a.beams, a.sc_orient)
@@ -391,11 +401,26 @@ def _simulate_dem(a, out, plot) -> int:
             surface=surface, track=track, beams=beams, sc_orient=a.sc_orient,
             instrument_options=inst_opts, instrument=a.instrument or "paper",
             progress=not a.no_progress, shots=shots,
-            atl03_path=out, atl06_path=atl06_out, snow=_snow(a), snow_model=_snow_model(a),
-            **_cloud_kw(a), **run)
+            atl03_path=out, atl06_path=atl06_out, atl08_path=atl08_out, snow=_snow(a),
+            snow_model=_snow_model(a), **_cloud_kw(a), **run)
     where = f"{surface.dem.path.name} ({surface.dem.crs.to_string()})"
+    if a.forest is not None:
+        where = f"a {surface.representation} {surface.stand.species} forest over {where}"
     print(f"{len(summaries)} beam(s), {shots} shots each ({shots * 0.7e-3:.1f} km), over {where}")
-    return _granule_report(a, summaries, out, atl06_out, plot)
+    code = _granule_report(a, summaries, out, atl06_out, plot)
+    if atl08_out is not None:
+        print(f"wrote {atl08_out}")
+    return code
+
+
+def _atl08_out(a, out):
+    """``--atl08``'s file; with ``--forest`` and no ``--atl08``, ``NAME_ATL08.h5`` beside
+    ``--out``; else None."""
+    if a.atl08:
+        return out_path(a.atl08, (".h5", ".hdf5"), "--atl08")
+    if a.forest is not None:
+        return out.with_name(f"{out.stem}_ATL08{out.suffix}")
+    return None
 
 
 def _dem_surface(a, seed: int):

@@ -398,6 +398,10 @@ class Tiling:
         """What the tiles cost (for the run's config), after the stream."""
         return {}
 
+    def attach(self, integrator) -> None:
+        """The loaded integrator every chunk is traced with (a tiling that sets a tile's own
+        state on it, as a forest's canopy table over a DEM, keeps it)."""
+
 
 class OneTile(Tiling):
     """One scene for every chunk (planes, heightfield tiles, Mitsuba scenes)."""
@@ -411,6 +415,62 @@ class OneTile(Tiling):
     def tile(self, a: int, b: int):
         return (self.scene, self.x_local_m[a:b], self.y_local_m[a:b],
                 tuple(d[a:b] for d in self.offsets_m))
+
+
+class ChunkTiles(Tiling):
+    """A tile per chunk of shots, built when the chunk is launched and dropped with its trace
+    (memory: one or two tiles for any track): a DEM's corridor tiles
+    (:class:`~lidar_mitsuba.ground.dem.CorridorTiles`) and a forest's
+    (:mod:`lidar_mitsuba.vegetation.forest`). A subclass says how one chunk's tile is built
+    (:meth:`_build`); the first chunk's is built here (the pilot and the scout trace it) and
+    handed to the stream once.
+
+    Attributes: ``x_m``, ``y_m`` (n,) the track's footprint centres [m] (float64),
+    ``reach_m`` the corridor meshed about them [m], ``bsdf`` the ground's BSDF; ``count`` and
+    ``max_triangles``: the tiles the stream built and the largest (:meth:`stats`)."""
+
+    def __init__(self, x_m, y_m, *, reach_m: float, bsdf, chunk_shots: int):
+        self.reach_m, self.bsdf = float(reach_m), bsdf
+        self.x_m = np.asarray(x_m, np.float64)
+        self.y_m = np.asarray(y_m, np.float64)
+        self.chunk_shots = n = max(1, int(chunk_shots))
+        self._first = self._build(0, min(n, self.x_m.size))
+        self.scene, self.x_local_m, self.y_local_m, _, self.triangles = self._first[:5]
+        self.count, self.max_triangles = 0, 0
+
+    def _build(self, a: int, b: int) -> tuple:
+        """``(scene, x_local_m, y_local_m, offsets_m, triangles, ...)`` of shots ``a`` ..
+        ``b - 1`` (:meth:`Tiling.tile`'s four, the tile's triangles, and whatever a
+        subclass's :meth:`_use` needs)."""
+        raise NotImplementedError
+
+    def _use(self, built: tuple) -> None:
+        """Called with a tile's :meth:`_build` tuple as it is handed to the stream."""
+
+    def tile(self, a: int, b: int):
+        if a == 0 and self._first is not None:
+            out, self._first = self._first, None
+        else:
+            out = self._build(a, b)
+        self.count += 1
+        self.max_triangles = max(self.max_triangles, out[4])
+        self._use(out)
+        return out[:4]
+
+    def release(self) -> None:
+        self.scene = None
+
+    def narrow(self, reach_m: float) -> bool:
+        self.reach_m = float(reach_m)
+        return True
+
+    def first_scene(self):
+        if self.scene is not None:
+            return self.scene
+        return self._build(0, min(self.chunk_shots, self.x_m.size))[0]
+
+    def stats(self) -> dict:
+        return {"tiles": self.count, "max_tile_triangles": self.max_triangles}
 
 
 # --------------------------------------------------------------------------- built-in surfaces

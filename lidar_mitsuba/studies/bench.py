@@ -432,6 +432,8 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False, smoke: bool = False,
         from . import sky_table
         doc["sky"] = sky_table.bench(quick=quick)
         doc["canopy"] = bench_canopy(quick=quick)
+        from . import forest_cost             # a forest in a DEM granule against a bare one
+        doc["forest"] = forest_cost.run(quick=quick)
     charts = {"throughput.png": lambda p: _chart(doc, p)}
     if not throughput_only:
         charts.update({
@@ -543,6 +545,9 @@ def format_summary(doc: dict) -> str:
     if "canopy" in doc:
         from . import canopy_representations
         lines += canopy_representations.format_rows(doc["canopy"])
+    if "forest" in doc:
+        from . import forest_cost
+        lines += forest_cost.format_rows(doc["forest"])
     for name, rows in doc.get("stability", {}).items():
         bad = [f"{r['value']:g}: {r['status']}" for r in rows
                if not str(r.get("status", "ok")).startswith("ok")]

@@ -266,15 +266,50 @@ def trees_near(stand: Stand, bounds_xy_m: tuple[float, float, float, float] | No
         kx = range(int(math.floor((x0 - sx1) / w)), int(math.ceil((x1 - sx0) / w)) + 1)
         ky = range(int(math.floor((y0 - sy1) / hgt)), int(math.ceil((y1 - sy0) / hgt)) + 1)
         shifts = [(i * w, j * hgt) for i in kx for j in ky]
-    r = stand.crown_radius_m
+    # candidates from the stems sorted along the bounds' narrower side (a corridor tile is
+    # a strip: a few per cent of a stand), then the exact test in stand order
+    axis = "x" if x1 - x0 <= y1 - y0 else "y"
+    order, sorted_v = _sorted_stems(stand, axis)
+    reach = float(stand.crown_radius_m.max(initial=0.0))
+    lo, hi = (x0, x1) if axis == "x" else (y0, y1)
     idx, xs, ys = [], [], []
     for dx, dy in shifts:
-        x, y = stand.x_m + dx, stand.y_m + dy
+        d = dx if axis == "x" else dy
+        a = np.searchsorted(sorted_v, lo - reach - d - 1e-3, side="left")   # (a mm more:
+        b = np.searchsorted(sorted_v, hi + reach - d + 1e-3, side="right")  # no rounding)
+        cand = np.sort(order[a:b])
+        x, y, r = stand.x_m[cand] + dx, stand.y_m[cand] + dy, stand.crown_radius_m[cand]
         ok = (x + r >= x0) & (x - r <= x1) & (y + r >= y0) & (y - r <= y1)
-        idx.append(np.flatnonzero(ok))
+        idx.append(cand[ok])
         xs.append(x[ok])
         ys.append(y[ok])
     return np.concatenate(idx), np.concatenate(xs), np.concatenate(ys)
+
+
+def _sorted_stems(stand: Stand, axis: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(order, values)``: the stems sorted by their ``axis`` ("x" or "y") coordinate [m]
+    (kept in the stand's cache)."""
+    key = f"sorted_{axis}"
+    if key not in stand._cache:
+        v = stand.x_m if axis == "x" else stand.y_m
+        order = np.argsort(v, kind="stable")
+        stand._cache[key] = (order, v[order])
+    return stand._cache[key]
+
+
+def placed_trees(forest, bounds_xy_m) -> tuple[np.ndarray, ...]:
+    """The trees of ``forest`` (a :class:`~.forest.ForestSurface`) whose crowns reach into
+    ``bounds_xy_m`` (x0, x1, y0, y1) [m] (None: all), periodic images included
+    (:func:`trees_near`), each on the ground where it stands (an image's ground height is
+    the ground's there, its stem's own where that is off the ground): ``(index, x_m, y_m,
+    ground_z_m)``, each (m,)."""
+    idx, x, y = trees_near(forest.stand, bounds_xy_m)
+    z = forest.stand.ground_z_m[idx].copy()
+    moved = (x != forest.stand.x_m[idx]) | (y != forest.stand.y_m[idx])
+    if moved.any():                   # periodic images stand on the ground where they are
+        zg = np.asarray(forest.ground.height_m(x[moved], y[moved]), float)
+        z[moved] = np.where(np.isfinite(zg), zg, z[moved])
+    return idx, x, y, z
 
 
 def placed_meshes(protos: list[dict], idx: np.ndarray, place_m: np.ndarray, *,

@@ -22,16 +22,16 @@ that builds its Mitsuba shapes, the one place a new representation plugs in:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
 
 from ..constants import ParameterError, check
-from ..ground.surface import Plane, Surface, Tiling
+from ..ground.surface import ChunkTiles, Plane, Surface
 from . import explicit, turbid
 from .optics import OPTICS, Optics
-from .stand import Stand, stand as make_stand
+from .stand import DEM_STAND_M, Stand, stand as make_stand
 
 
 def explicit_shapes(forest: "ForestSurface", *, bounds_xy_m, shift_m) -> tuple[dict, int]:
@@ -43,14 +43,9 @@ def explicit_shapes(forest: "ForestSurface", *, bounds_xy_m, shift_m) -> tuple[d
     instances one by one into every kernel (measured: a 5-ray cast through 100 instances
     took 7.8 s, through 10 1.0 s; the merged mesh of the same 10 trees 0.2 s)."""
     from ..trace.scene import mitsuba_mesh
-    idx, x, y = explicit.trees_near(forest.stand, bounds_xy_m)
+    idx, x, y, z = explicit.placed_trees(forest, bounds_xy_m)
     if idx.size == 0:
         return {}, 0
-    z = forest.stand.ground_z_m[idx].copy()
-    moved = (x != forest.stand.x_m[idx]) | (y != forest.stand.y_m[idx])
-    if moved.any():                   # periodic images stand on the ground where they are
-        zg = np.asarray(forest.ground.height_m(x[moved], y[moved]), float)
-        z[moved] = np.where(np.isfinite(zg), zg, z[moved])
     place = np.column_stack([x - shift_m[0], y - shift_m[1], z - shift_m[2]])
     leaves, stems = explicit.placed_meshes(forest.prototypes(), idx, place,
                                            turn_deg=forest.turns_deg()[idx])
@@ -129,12 +124,52 @@ class ForestSurface(Surface):
     def default_bsdf(self) -> dict:
         return self.floor.bsdf_dict()
 
+    # ------------------------------------------------------------ over a DEM
+    @property
+    def dem(self):
+        """The ground's DEM (a forest over a :class:`~lidar_mitsuba.ground.dem.DEMSurface`:
+        what a granule asks for its CRS)."""
+        return self.ground.dem
+
+    @property
+    def roughness(self):
+        """The ground's roughness heightfield, or None."""
+        return getattr(self.ground, "roughness", None)
+
+    @property
+    def origin_m(self) -> tuple[float, float]:
+        """The ground's frame origin in its CRS [m] ((0, 0) for a plane or a heightfield)."""
+        return tuple(getattr(self.ground, "origin_m", (0.0, 0.0)))
+
+    def with_origin(self, origin_m: tuple[float, float]) -> "ForestSurface":
+        """The same forest in the frame whose origin is ``origin_m`` (the ground's CRS [m]):
+        the ground's :meth:`~lidar_mitsuba.ground.dem.DEMSurface.with_origin` and the stand
+        moved with it (the same trees on the same ground). A granule puts its frame near
+        the track's start."""
+        dx, dy = (float(n) - float(o) for n, o in zip(origin_m, self.origin_m))
+        if dx == 0.0 and dy == 0.0:
+            return self
+        s = self.stand
+        (x0, y0), (x1, y1) = s.bounds_m
+        stand = replace(s, x_m=s.x_m - dx, y_m=s.y_m - dy,
+                        bounds_m=((x0 - dx, y0 - dy), (x1 - dx, y1 - dy)))
+        moved = replace(self, ground=self.ground.with_origin(origin_m), stand=stand)
+        object.__setattr__(moved, "_cache", self._cache)    # prototypes, turns, cover: the
+        return moved                                        # same wherever the frame is
+
     # ------------------------------------------------------------ the vegetation
     def prototypes(self) -> list[dict]:
         """The explicit representation's prototype trees (built once)."""
         if "prototypes" not in self._cache:
             self._cache["prototypes"] = explicit.prototypes(self.stand, classes=self.classes)
         return self._cache["prototypes"]
+
+    def canopy_cover(self) -> float:
+        """The stand's canopy cover (:meth:`~.stand.Stand.canopy_cover`, computed once: ~1 s
+        for a 2 km stand, and every plan of a granule's sections says it)."""
+        if "cover" not in self._cache:
+            self._cache["cover"] = self.stand.canopy_cover()
+        return self._cache["cover"]
 
     def turns_deg(self) -> np.ndarray:
         """Each tree's turn about the vertical [deg] (n,), seeded by the stand."""
@@ -182,9 +217,16 @@ class ForestSurface(Surface):
         shots (a DEM's own corridor tiles with the trees over them); ``crop`` False
         (``--full-tile``) is refused: a forest's tile is too many leaves to trace whole. A
         representation that adds no shapes to the scene: the ground's own tiling (one scene
-        for a plane or a tile, folded positions; a DEM's corridor tiles)."""
+        for a plane or a tile, folded positions, the whole stand's canopy table); over a
+        DEM the DEM's corridor tiles, each handing the ``canopy`` integrator the table of
+        the trees over it (:func:`.turbid.tile_table`)."""
         kw = dict(x_local_m=x_local_m, y_local_m=y_local_m, dz_m=dz_m, reach_m=reach_m,
                   bsdf=bsdf, crop=crop, chunk_shots=chunk_shots)
+        tiled = hasattr(self.ground, "corridor_tile")
+        if self.representation != "explicit" and tiled:
+            # a DEM's corridor tiles, each with its own canopy table (the trees over it)
+            kw["chunk_shots"] = min(int(chunk_shots), self.ground.tile_shots)
+            return _ForestTiles(self, x_m, y_m, **{k: v for k, v in kw.items() if k != "crop"})
         if self.representation != "explicit":
             if type(self.ground).tiles is Surface.tiles:
                 return Surface.tiles(self, x_m, y_m, **kw)
@@ -204,7 +246,7 @@ class ForestSurface(Surface):
     def config(self) -> dict:
         return {"kind": "forest", "representation": self.representation,
                 "ground": self.ground.config(), "stand": self.stand.config(),
-                "canopy_cover": self.stand.canopy_cover(),
+                "canopy_cover": self.canopy_cover(),
                 "optics_532nm": {name: {"R": o.reflectance, "T": o.transmittance,
                                         "source": o.source}
                                  for name, o in (("leaf", self.leaf), ("bark", self.bark),
@@ -240,28 +282,41 @@ class ForestSurface(Surface):
         return out
 
 
-class _ForestTiles(Tiling):
+class _ForestTiles(ChunkTiles):
     """A forest's tiling: every chunk of shots traces its own corridor tile, built when the
-    chunk is launched: the ground's mesh over the chunk's shots ``reach_m`` about them (a
-    plane's or a heightfield's in the frame of the chunk's first shot, unwrapped; a DEM's own
-    corridor tile) and the stand's trees there (:meth:`ForestSurface.with_vegetation`). The
-    first chunk's tile is built here (the pilot and the scout trace it)."""
+    chunk is launched (:class:`~lidar_mitsuba.ground.surface.ChunkTiles`): the ground's mesh
+    over the chunk's shots ``reach_m`` about them (a plane's or a heightfield's in the frame
+    of the chunk's first shot, unwrapped; a DEM's own corridor tile) and the stand's trees
+    there (:meth:`ForestSurface.with_vegetation`)."""
 
     def __init__(self, forest: ForestSurface, x_m, y_m, *, x_local_m, y_local_m, dz_m,
                  reach_m: float, bsdf, chunk_shots: int):
-        self.forest, self.reach_m, self.bsdf = forest, float(reach_m), bsdf
-        self.x_m = np.asarray(x_m, np.float64)
-        self.y_m = np.asarray(y_m, np.float64)
-        self.offsets_m = (self.x_m - np.asarray(x_local_m, np.float64),
-                          self.y_m - np.asarray(y_local_m, np.float64),
-                          np.broadcast_to(np.asarray(dz_m, np.float64), self.x_m.shape))
-        self.chunk_shots = n = max(1, int(chunk_shots))
-        self._first = self._build(0, min(n, self.x_m.size))
-        self.scene, self.x_local_m, self.y_local_m, _, self.triangles = self._first
-        self.count, self.max_triangles = 0, 0
+        self.forest = forest
+        x, y = np.asarray(x_m, np.float64), np.asarray(y_m, np.float64)
+        self.offsets_m = (x - np.asarray(x_local_m, np.float64),
+                          y - np.asarray(y_local_m, np.float64),
+                          np.broadcast_to(np.asarray(dz_m, np.float64), x.shape))
+        self.integrator, self._attached_first = None, False
+        super().__init__(x, y, reach_m=reach_m, bsdf=bsdf, chunk_shots=chunk_shots)
+        self._first_table = self._first[5]
+
+    def attach(self, integrator) -> None:
+        """The ``canopy`` integrator of a turbid or gap forest over a DEM: handed each tile's
+        table as the tile is (the first one now: the scout traces it)."""
+        self.integrator = integrator
+        if self._first_table is not None:
+            integrator.set_table(self._first_table)
+            self._attached_first = True        # (the first tile's: not set again)
+
+    def _use(self, built: tuple) -> None:
+        if built[5] is not None and self.integrator is not None and not (
+                built[5] is self._first_table and self._attached_first):
+            self.integrator.set_table(built[5])
+        self._attached_first = False
 
     def _build(self, a: int, b: int):
-        """``(scene, x_local, y_local, offsets, triangles)`` of shots ``a`` .. ``b - 1``."""
+        """``(scene, x_local, y_local, offsets, triangles, table)`` of shots ``a`` .. ``b - 1``
+        (``table``: the tile's canopy table, turbid and gap over a DEM; else None)."""
         forest, x, y, n = self.forest, self.x_m[a:b], self.y_m[a:b], b - a
         if hasattr(forest.ground, "corridor_tile"):            # a DEM: its own tiles
             ground, (ox, oy), tri = forest.ground.corridor_tile(x, y, reach_m=self.reach_m,
@@ -276,32 +331,15 @@ class _ForestTiles(Tiling):
                 bounds_m=(float(xl.min()) - r, float(xl.max()) + r,
                           float(yl.min()) - r, float(yl.max()) + r))
             shift, offsets = (0.0, 0.0, 0.0), tuple(np.full(n, v) for v in d)
+        if forest.representation != "explicit":            # the crowns: a table
+            from ..trace.scene import scene_bounds
+            lo, hi = scene_bounds(ground)
+            bounds = (float(lo[0]) + shift[0], float(hi[0]) + shift[0],
+                      float(lo[1]) + shift[1], float(hi[1]) + shift[1])
+            table = turbid.tile_table(forest, bounds_xy_m=bounds, shift_m=shift)
+            return ground, x - offsets[0], y - offsets[1], offsets, int(tri), table
         scene, veg = forest.with_vegetation(ground, shift_m=shift)
-        return scene, x - offsets[0], y - offsets[1], offsets, int(tri) + veg
-
-    def tile(self, a: int, b: int):
-        if a == 0 and self._first is not None:
-            out, self._first = self._first, None
-        else:
-            out = self._build(a, b)
-        self.count += 1
-        self.max_triangles = max(self.max_triangles, out[4])
-        return out[:4]
-
-    def release(self) -> None:
-        self.scene = None
-
-    def narrow(self, reach_m: float) -> bool:
-        self.reach_m = float(reach_m)
-        return True
-
-    def first_scene(self):
-        if self.scene is not None:
-            return self.scene
-        return self._build(0, min(self.chunk_shots, self.x_m.size))[0]
-
-    def stats(self) -> dict:
-        return {"tiles": self.count, "max_tile_triangles": self.max_triangles}
+        return scene, x - offsets[0], y - offsets[1], offsets, int(tri) + veg, None
 
 
 def forest(*, species: str = "conifer", ground: Surface | None = None,
@@ -333,8 +371,10 @@ def forest_from_spec(spec: str, *, ground: Surface | None = None) -> ForestSurfa
     """The CLI's ``--forest SPECIES[:key=value,...]``, e.g. ``conifer:height=18,cover=0.6,
     lai=4``: keys ``height`` (m), ``cover``, ``stems`` (per ha), ``lai``, ``leaf_angle``,
     ``clumping``, ``crown_ratio``, ``crown_radius`` (m), ``crown_shape``, ``leaf_width`` (m),
-    ``size`` (the side of the flat ground when ``ground`` is None, m; default 1024),
-    ``seed``, ``representation``. Errors are ``ParameterError("forest", ...)``."""
+    ``size`` (the side of the flat ground when ``ground`` is None, m, default 1024; over a
+    DEM the side of the periodic stand, a square at the DEM's centre, default
+    :data:`~.stand.DEM_STAND_M`), ``seed``, ``representation``. Errors are
+    ``ParameterError("forest", ...)``."""
     species, _, rest = spec.partition(":")
     names = {"height": "height_m", "cover": "cover", "stems": "stems_per_ha", "lai": "lai",
              "leaf_angle": "leaf_angle", "clumping": "clumping", "crown_ratio": "crown_ratio",
@@ -358,12 +398,16 @@ def forest_from_spec(spec: str, *, ground: Surface | None = None) -> ForestSurfa
             raise ParameterError("forest", f"{key}={value!r} is not a number") from None
         kw[names[key]] = int(number) if key == "seed" and number == int(number) else number
     size = kw.pop("size", None)
-    if size is not None and ground is not None:
+    over_dem = ground is not None and hasattr(ground, "dem")
+    if size is not None and ground is not None and not over_dem:
         raise ParameterError("forest", "size only applies without --surface (the ground's "
                              "tile is the stand's)")
-    size = 1024.0 if size is None else size
+    size = (DEM_STAND_M if over_dem else 1024.0) if size is None else size
     check("forest", size, math.isfinite(size) and 1 <= size <= 1e5,
           "size must be in [1, 1e5] m")
+    if over_dem:                       # a periodic square of that side at the DEM's centre
+        (cx, cy) = ground.centre_xy_m()
+        kw["bounds_m"] = ((cx - size / 2, cy - size / 2), (cx + size / 2, cy + size / 2))
     try:
         return forest(species=species.strip(),
                       ground=Plane(size_m=size) if ground is None else ground, **kw)

@@ -49,6 +49,10 @@ from .leaf_angles import (LEAF_ANGLES, gap_probability, leaf_angle_pdf,  # noqa:
                           ross_g, sample_leaf_inclination)           # (re-exported here)
 
 CROWN_SHAPES = ("cone", "ellipsoid", "cylinder")
+#: side of a stand over a DEM when no bounds are given [m] (a square at the DEM's centre; the
+#: stand is periodic, so a track of any length over the DEM sees it repeat every 2 km).
+#: ESTIMATE, a cost choice: a 60 % conifer cover puts ~380 000 trees in it
+DEM_STAND_M = 2048.0
 SPECIES = ("conifer", "broadleaf", "shrub")
 
 
@@ -351,6 +355,9 @@ def _bounds_of(surface) -> tuple[tuple[float, float], tuple[float, float]]:
         if hf.periodic:
             return (0.0, 0.0), (hf.size_x_m, hf.size_y_m)
         return (0.0, 0.0), ((hf.nx - 1) * hf.grid_m, (hf.ny - 1) * hf.grid_m)
+    if hasattr(surface, "dem"):          # a DEM: a periodic square at its centre
+        (cx, cy), half = surface.centre_xy_m(), DEM_STAND_M / 2
+        return (cx - half, cy - half), (cx + half, cy + half)
     raise ParameterError("bounds_m", f"give the stand's bounds ((xmin, ymin), (xmax, ymax)) "
                          f"[m] over a {type(surface).__name__}")
 

@@ -60,6 +60,13 @@ def canopy_table(stand, *, rho: float, tau: float, pad_m: float = 40.0) -> dict:
                 qy.append(cy[k] + dy)
         idx, cx, cy = np.concatenate(idx), np.concatenate(qx), np.concatenate(qy)
         zb, zt, r = zb[idx], zt[idx], r[idx]
+    return crowns_table(stand, cx=cx, cy=cy, zb=zb, zt=zt, r=r, rho=rho, tau=tau)
+
+
+def crowns_table(stand, *, cx, cy, zb, zt, r, rho: float, tau: float) -> dict:
+    """A canopy table of the crowns (cx, cy) [m], bottoms and tops ``zb``, ``zt`` [m]
+    (absolute), radii ``r`` [m] (each (n,)), with ``stand``'s shape and foliage and leaves of
+    reflectance ``rho`` and transmittance ``tau``; Ross's G on :data:`G_NODES` nodes."""
     mu = np.linspace(0.0, 1.0, G_NODES)
     g = ross.g_function(mu, stand.leaf_angle)
     g[-1] = ross.G_NADIR[stand.leaf_angle]
@@ -67,6 +74,20 @@ def canopy_table(stand, *, rho: float, tau: float, pad_m: float = 40.0) -> dict:
             "leaf_angle": stand.leaf_angle, "g": g,
             "lad": float(stand.leaf_area_density_m2_m3), "clumping": float(stand.clumping),
             "rho": float(rho), "tau": float(tau)}
+
+
+def tile_table(forest, *, bounds_xy_m, shift_m) -> dict:
+    """The canopy table of one corridor tile of a forest over a DEM: the crowns that reach
+    into ``bounds_xy_m`` (x0, x1, y0, y1) [m, the forest's frame] with the periodic stand's
+    images, each standing on the ground where it is (:func:`.explicit.placed_trees`), in
+    the tile's coordinates (frame less ``shift_m`` (dx, dy, dz) [m])."""
+    from .explicit import placed_trees
+    s = forest.stand
+    idx, x, y, z = placed_trees(forest, bounds_xy_m)
+    z = z - shift_m[2]
+    return crowns_table(s, cx=x - shift_m[0], cy=y - shift_m[1], zb=z + s.crown_base_m[idx],
+                        zt=z + s.height_m[idx], r=s.crown_radius_m[idx],
+                        rho=forest.leaf.reflectance, tau=forest.leaf.transmittance)
 
 
 def table_file(table: dict) -> pathlib.Path:
@@ -91,18 +112,21 @@ def table_file(table: dict) -> pathlib.Path:
 
 
 def integrator_dict(stand, *, mode: str, base: dict, rho: float, tau: float,
-                    hot_spot: bool = True, max_depth: int | None = None) -> dict:
+                    hot_spot: bool = True, max_depth: int | None = None,
+                    table: bool = True) -> dict:
     """The ``canopy`` integrator's Mitsuba dict for ``stand`` in representation ``mode``
     (:data:`MODES`), over ``base`` (the instrument's ``pathlength`` parameters:
     ``Instrument.integrator_dict()``). ``max_depth``: ``turbid``'s vertices per path
-    (default the plugin's, 3); ``gap`` has two records per photon."""
+    (default the plugin's, 3); ``gap`` has two records per photon. ``table`` False: the
+    dict names no table (a DEM's corridor tiles set each tile's, :func:`tile_table`)."""
     if mode not in MODES:
         raise ParameterError("representation", f"must be one of explicit, {', '.join(MODES)}"
                                                f" (got {mode!r})")
     pad = float(base.get("fov_radius_m", 20.65)) + 20.0
     d = {k: v for k, v in base.items() if k != "max_depth"}
-    d.update(type="canopy", mode=mode, hot_spot=bool(hot_spot),
-             filename=str(table_file(canopy_table(stand, rho=rho, tau=tau, pad_m=pad))))
+    d.update(type="canopy", mode=mode, hot_spot=bool(hot_spot))
+    if table:
+        d["filename"] = str(table_file(canopy_table(stand, rho=rho, tau=tau, pad_m=pad)))
     if mode == "turbid" and max_depth is not None:
         d["max_depth"] = int(max_depth)
     return d
@@ -118,13 +142,10 @@ def forest_integrator(forest, base: dict) -> dict:
     """The integrator a :class:`~lidar_mitsuba.vegetation.forest.ForestSurface` in the
     ``turbid`` or ``gap`` representation is traced with: ``canopy`` over ``base`` (the
     material's ``pathlength`` dict, whose ``max_depth`` the turbid medium keeps), the leaves'
-    optics the forest's. Its ground must be one scene in the stand's coordinates (a plane or
-    a heightfield): a DEM's corridor tiles, each shifted, are refused."""
-    from ..ground.surface import Surface
-    if type(forest.ground).tiles is not Surface.tiles:
-        raise ParameterError("representation", f"{forest.representation} needs a plane or "
-                             f"heightfield ground (a DEM's corridor tiles are not supported "
-                             f"yet); use representation='explicit'")
+    optics the forest's. Over one scene in the stand's coordinates (a plane or a
+    heightfield) the table is the whole stand's; over a DEM's corridor tiles each tile sets
+    its own (:func:`tile_table`, the forest's tiling)."""
     return integrator_dict(forest.stand, mode=forest.representation, base=base,
                            rho=forest.leaf.reflectance, tau=forest.leaf.transmittance,
-                           max_depth=base.get("max_depth"))
+                           max_depth=base.get("max_depth"),
+                           table=not hasattr(forest.ground, "corridor_tile"))

@@ -30,6 +30,7 @@ import math
 import os
 import pathlib
 import threading
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,7 +40,7 @@ from .. import terrain
 from .heights import finite_at, footprint_mean, heights_at
 from ...constants import ParameterError, check
 from ...machine import check_memory
-from ..surface import Surface, Tiling
+from ..surface import ChunkTiles, Surface
 from ..terrain import Heightfield
 
 #: most shots per corridor tile (about 2.9 km at 0.7 m): bounds a tile's mesh
@@ -276,6 +277,10 @@ class DEMSurface(Surface):
                 or not math.isclose(self.roughness.grid_m, self.mesh_grid_m)):
             object.__setattr__(self, "mesh_grid_m", float(self.roughness.grid_m))
 
+    def with_origin(self, origin_m: tuple[float, float]) -> "DEMSurface":
+        """This surface in the frame whose origin is ``origin_m`` (CRS [m])."""
+        return dataclasses.replace(self, origin_m=(float(origin_m[0]), float(origin_m[1])))
+
     # ---------------------------------------------------------------- heights
     def _crs(self, x_m, y_m) -> tuple[np.ndarray, np.ndarray]:
         """The DEM CRS coordinates [m] of frame positions, broadcast to one shape (float64)."""
@@ -403,53 +408,24 @@ class DEMSurface(Surface):
                 f"footprint sigma ({instrument.footprint_sigma_m:g} m)"]
 
 
-class CorridorTiles(Tiling):
+class CorridorTiles(ChunkTiles):
     """A DEM's tiling: every chunk of shots traces its own corridor tile
     (:meth:`DEMSurface.corridor_tile`), meshed when the chunk is launched and dropped with
-    its trace, so memory is one or two tiles for any track. The first chunk's tile is built
-    here (the pilot and the scout trace it) and handed to the stream once."""
+    its trace, so memory is one or two tiles for any track (:class:`~lidar_mitsuba.ground.
+    surface.ChunkTiles`)."""
 
     def __init__(self, surface: DEMSurface, x_m, y_m, *, reach_m: float, bsdf,
                  chunk_shots: int):
-        self.surface, self.reach_m, self.bsdf = surface, reach_m, bsdf
-        self.x_m = np.asarray(x_m, np.float64)
-        self.y_m = np.asarray(y_m, np.float64)
-        self.chunk_shots = n = int(chunk_shots)
-        self._first = surface.corridor_tile(self.x_m[:n], self.y_m[:n], reach_m=reach_m,
-                                            bsdf=bsdf)
-        self.scene, (ox, oy), self.triangles = self._first
-        self.x_local_m, self.y_local_m = self.x_m[:n] - ox, self.y_m[:n] - oy
-        self.count, self.max_triangles = 0, 0
+        self.surface = surface
+        super().__init__(x_m, y_m, reach_m=reach_m, bsdf=bsdf, chunk_shots=chunk_shots)
 
-    def tile(self, a: int, b: int):
-        if a == 0 and self._first is not None:
-            out, self._first = self._first, None
-        else:
-            out = self.surface.corridor_tile(self.x_m[a:b], self.y_m[a:b],
-                                             reach_m=self.reach_m, bsdf=self.bsdf)
-        self.count += 1
-        self.max_triangles = max(self.max_triangles, out[2])
-        scene, (ox, oy), _ = out
+    def _build(self, a: int, b: int):
+        x, y = self.x_m[a:b], self.y_m[a:b]
+        scene, (ox, oy), triangles = self.surface.corridor_tile(x, y, reach_m=self.reach_m,
+                                                                bsdf=self.bsdf)
         n = b - a
-        return (scene, self.x_m[a:b] - ox, self.y_m[a:b] - oy,
-                (np.full(n, ox), np.full(n, oy), np.zeros(n)))
-
-    def release(self) -> None:
-        self.scene = None
-
-    def narrow(self, reach_m: float) -> bool:
-        self.reach_m = float(reach_m)
-        return True
-
-    def first_scene(self):
-        if self.scene is not None:
-            return self.scene
-        n = self.chunk_shots
-        return self.surface.corridor_tile(self.x_m[:n], self.y_m[:n], reach_m=self.reach_m,
-                                          bsdf=self.bsdf)[0]
-
-    def stats(self) -> dict:
-        return {"tiles": self.count, "max_tile_triangles": self.max_triangles}
+        return (scene, x - ox, y - oy, (np.full(n, ox), np.full(n, oy), np.zeros(n)),
+                triangles)
 
 
 def write_geotiff(path: str | os.PathLike, z_m: np.ndarray, *, x0_m: float, y1_m: float,
