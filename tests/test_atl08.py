@@ -262,3 +262,27 @@ def test_ground_spread_from_the_slope_and_roughness_from_the_lower_flank():
     xr, hr, _ = cloud(seed=3, slope=0.0, rho_per_m2=0.04, sigma_ground_m=0.5)
     c = C.classify_photons(x_m=xr, h_m=hr, background_per_m2=0.04)
     assert abs(np.nanmedian(c.ground_h_m - 100)) < 0.1 and c.ground_sigma_m > 0.4
+
+
+@have_real
+def test_cli_atl08_draws_the_classes(tmp_path):
+    """``lidar-mitsuba atl08 --plot`` (the gallery's forest picture) on the real clip writes
+    the PNG; ``classified_cloud`` draws one point series per class, labelled with its count,
+    every photon once, and the classifier's surfaces."""
+    import matplotlib
+    matplotlib.use("Agg")
+    from lidar_mitsuba.cli import main
+    from lidar_mitsuba.plotting import classified_cloud
+    png = tmp_path / "clip.png"
+    assert main(["atl08", str(REAL_ATL03), "--beams", "gt1r", "--out", str(tmp_path / "a.h5"),
+                 "--plot", str(png)]) == 0
+    assert png.stat().st_size > 10_000
+    classes = np.array([0, 1, 1, 2, 3, 3, 3])
+    x = np.arange(classes.size, dtype=float)
+    fig = classified_cloud(photon_along_m=x, photon_h_m=x, classes=classes, ground_h_m=x * 0,
+                           toc_h_m=x + 1, truth_along_m=x, truth_surface_z_m=x * 0)
+    lines = fig.axes[0].get_lines()
+    assert [ln.get_label() for ln in lines] == [
+        "noise (1)", "ground (2)", "canopy (1)", "top of canopy (3)", "classifier's ground",
+        "classifier's top of canopy", "true ground"]
+    assert sum(len(ln.get_xdata()) for ln in lines[:4]) == classes.size

@@ -34,7 +34,11 @@ a few percent of the canopy return, the error the gap layer makes (the turbid re
 traces it, at several times the cost; explicit needles would need millions of facets per
 footprint for the same answer).
 
-**Compared** (what the inputs do not give away; :func:`compare`): ground and canopy photons
+**Compared** (what the inputs do not give away; :func:`compare`): first like with like,
+signal photons per shot in layers above the ground (:data:`LAYERS_M`) from *all* the photons
+less the background the file's rate puts there, the real ones above NASA's ground
+(:func:`nasa_ground_dh`), the twin's above its true ground (:func:`layer_signal`): no
+classifier between the two; then ground and canopy photons
 per shot (NASA's ``n_te_photons`` and ``n_ca_photons + n_toc_photons`` per 100 m segment over
 its shots, and our ATL08 classifier run on the real and on the twin's ATL03 alike), the
 photon heights above the ground through the canopy (per shot, in height bins), and the

@@ -37,7 +37,9 @@ as along-track distance and height. The steps (:func:`classify_photons`):
    (:func:`lidar_mitsuba.products.atl08.ground.final_ground`): the ground's centre fitted from
    its lower side (a window 3 spreads below and 1 above the surface, less a normal's
    median in it), its spread from the curvature of its lower flank, climbing from the
-   pulse's; ground photons lie from 3 spreads below the centre to the height where the
+   pulse's, at most what the pulse and the footprint make of the track's slope unless the
+   photons below the surface ask for a rougher ground (a 3-sigma likelihood-ratio test);
+   ground photons lie from 3 spreads below the centre to the height where the
    ground's density falls to that of the vegetation above it (1 to 3 spreads).
 4. **Top of canopy** (ATBD 4.11, upper envelope): the same on the highest photon above the
    ground band in each bin, the spread measured above it. Photons above it by more than
