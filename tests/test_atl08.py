@@ -235,17 +235,19 @@ def test_the_real_comparison_study(real_run):
 
 
 def test_ground_spread_from_the_slope_and_roughness_from_the_lower_flank():
-    """The ground fit's cap and its test (ground.py step 6). ``slope_spread`` of a plane of
-    slope 0.15 is ``hypot(pulse, 0.15 x 10.9 / 4)`` = 0.42 m for a 0.1 m pulse (closed form;
-    the envelope here is the exact plane, so only the bins' medians enter: exact to 1e-9).
-    ``lower_flank_gain``: 400 residuals below the surface of a half-normal of 0.5 m over no
-    background; tested against its own spread the gain is half a chi-square(1) statistic
-    (P(gain > 4.5) = 0.27 %), against 0.2 m it is hundreds (the log-likelihood of 400 photons
-    each ~ln(2.5) more likely under the right spread). Then the forest-clip-like cloud of the
-    docs (0.4 m ground on a 15 % slope under an understorey from 0.5 m, 2.7x the ground's peak
-    density): the cap (0.42 m) keeps the spread from running into the understorey, measured
-    +0.46 m (seed 1; before the cap +0.65 m): it must stay within 0.55 m, and a rough ground
-    (0.5 m on flat ground, the open stand) must still be found as rough, within 0.1 m."""
+    """The optional slope-capped ground (``Settings.slope_capped_ground``, ground.py step 6).
+    ``slope_spread`` of a plane of slope 0.15 is ``hypot(pulse, 0.15 x 10.9 / 4)`` = 0.42 m
+    for a 0.1 m pulse (closed form; the envelope here is the exact plane, so only the bins'
+    medians enter: exact to 1e-9). ``lower_flank_gain``: 400 residuals below the surface of a
+    half-normal of 0.5 m over no background; tested against its own spread the gain is half a
+    chi-square(1) statistic (P(gain > 4.5) = 0.27 %), against 0.2 m it is hundreds (each of
+    the 400 photons ~ln(2.5) more likely under the right spread). Then the forest-clip-like
+    cloud of the docs (0.4 m ground on a 15 % slope under an understorey from 0.5 m holding
+    2.7x the ground's peak density): the cap (0.42 m) keeps the spread from running into the
+    understorey; measured over seeds 1-5 the capped ground is 0.19-0.67 m closer to the truth
+    than the free fit's (seed 1: +0.46 against +0.65 m), so on seed 1 it must be at least
+    0.1 m closer. (It is off by default: on a bare rough ground its test misses four seeds of
+    five, docs/guide/atl08.md.)"""
     from lidar_mitsuba.products.atl08 import ground as G
     x = np.linspace(0, 800, 4000)
     h = 100 + 0.15 * x
@@ -257,11 +259,13 @@ def test_ground_spread_from_the_slope_and_roughness_from_the_lower_flank():
     assert G.lower_flank_gain(r, sigma_m=0.2, background_per_m=0.0) > 100
     xc, hc, _ = cloud(seed=1, slope=0.15, mu_ground=0.15, mu_canopy=0.8, canopy_lo_m=0.5,
                       canopy_mean_m=2.0, rho_per_m2=0.019, sigma_ground_m=0.4)
-    c = C.classify_photons(x_m=xc, h_m=hc, background_per_m2=0.019)
-    assert abs(np.nanmedian(c.ground_h_m - (100 + 0.15 * xc))) < 0.55
-    xr, hr, _ = cloud(seed=3, slope=0.0, rho_per_m2=0.04, sigma_ground_m=0.5)
-    c = C.classify_photons(x_m=xr, h_m=hr, background_per_m2=0.04)
-    assert abs(np.nanmedian(c.ground_h_m - 100)) < 0.1 and c.ground_sigma_m > 0.4
+    truth = 100 + 0.15 * xc
+    err = {}
+    for capped in (False, True):
+        c = C.classify_photons(x_m=xc, h_m=hc, background_per_m2=0.019,
+                               settings=C.Settings(slope_capped_ground=capped))
+        err[capped] = abs(np.nanmedian(c.ground_h_m - truth))
+    assert err[True] < err[False] - 0.1
 
 
 @have_real
