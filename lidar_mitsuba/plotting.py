@@ -85,3 +85,52 @@ def granule_clouds(atl03_path, path, *, max_points: int = 200_000) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+#: ATL08 class -> (label, colour) of :func:`classified_cloud` (``classed_pc_flag`` 0-3)
+CLASS_STYLE = ((0, "noise", "0.7"), (1, "ground", "saddlebrown"), (2, "canopy", "forestgreen"),
+               (3, "top of canopy", "limegreen"))
+
+
+def classified_cloud(*, photon_along_m: np.ndarray, photon_h_m: np.ndarray,
+                     classes: np.ndarray, ground_h_m: np.ndarray | None = None,
+                     toc_h_m: np.ndarray | None = None, truth_along_m: np.ndarray | None = None,
+                     truth_surface_z_m: np.ndarray | None = None, title: str = "", path=None,
+                     ax=None):
+    """A photon cloud coloured by ATL08 class (:data:`CLASS_STYLE`; our classifier's
+    :class:`~lidar_mitsuba.products.atl08.classify.Classification` or NASA's
+    ``classed_pc_flag``), with the classifier's ground and top-of-canopy surfaces at the
+    photons (dashed, dotted) and the true ground along the track (blue) where known.
+
+    Args:
+        photon_along_m, photon_h_m, classes: (n,) along-track position [m], height [m] and
+            class (0 noise, 1 ground, 2 canopy, 3 top of canopy) of each photon.
+        ground_h_m, toc_h_m: (n,) the classifier's surfaces at each photon [m] (NaN: none).
+        truth_along_m, truth_surface_z_m: (shots,) the true ground along the track [m].
+        path: PNG to write (with no ``ax``). Returns the matplotlib Figure.
+    """
+    own = ax is None
+    fig, ax = plt.subplots(figsize=(10, 4), dpi=110) if own else (ax.figure, ax)
+    x, h, c = (np.asarray(a) for a in (photon_along_m, photon_h_m, classes))
+    for k, label, colour in CLASS_STYLE:
+        m = c == k
+        ax.plot(x[m], h[m], ".", ms=2.5 if k else 1.5, color=colour, label=f"{label} ({m.sum()})")
+    order = np.argsort(x, kind="stable")
+    for surf, style, label in ((ground_h_m, "--", "classifier's ground"),
+                               (toc_h_m, ":", "classifier's top of canopy")):
+        if surf is not None and np.isfinite(surf).any():
+            ax.plot(x[order], np.asarray(surf)[order], style, lw=1.0, color="k", label=label)
+    if truth_along_m is not None and truth_surface_z_m is not None:
+        ax.plot(truth_along_m, truth_surface_z_m, "-", lw=1.0, color="tab:blue",
+                label="true ground")
+    ax.set_xlabel("along-track distance [m]")
+    ax.set_ylabel("elevation [m]")
+    ax.set_title(title)
+    ax.legend(loc="upper left", fontsize=7, ncol=2, markerscale=3)
+    ax.grid(alpha=0.3)
+    if own:
+        fig.tight_layout()
+        if path is not None:
+            fig.savefig(path)
+            plt.close(fig)
+    return fig

@@ -95,3 +95,41 @@ def test_cover_study_quick_ground_follows_the_gap_probability():
     # not the hot spot itself (P_gap^2's mean, ``without_hot_spot``, lies within the
     # tolerance): tests/test_canopy's hot-spot tests check that on their own
     assert without_hot_spot < expected
+
+
+def test_layer_signal_is_the_count_less_the_background():
+    """``layer_signal`` on a synthetic cloud with a known answer: 2000 shots, ground photons
+    Poisson(0.2) within +-0.3 m, canopy Poisson(0.6) uniform over 3-9 m, background 0.0125
+    per m per shot (1.9 MHz) uniform over -30..30 m. Expected per shot: ground 0.2, the
+    understorey 0, canopy 0.6; the sampling sd of a layer's count per shot is sqrt(mean/2000):
+    canopy sqrt((0.6 + 0.16)/2000) = 0.02, so 0.08 (4 sd); ground and understorey 0.03."""
+    from lidar_mitsuba.studies import forest_twin as ft
+    rng = np.random.default_rng(7)
+    n, bg = 2000, 0.0125
+    dh = np.r_[rng.uniform(-0.3, 0.3, rng.poisson(0.2 * n)),
+               rng.uniform(3, 9, rng.poisson(0.6 * n)),
+               rng.uniform(-30, 30, rng.poisson(bg * 60 * n)), np.nan]
+    got = ft.layer_signal(dh, shots=n, background_per_m_shot=bg)
+    assert got["ground"] == pytest.approx(0.2, abs=0.03)
+    assert got["understorey"] == pytest.approx(0.0, abs=0.03)
+    assert got["canopy"] == pytest.approx(0.6, abs=0.08)
+
+
+@needs_real
+def test_nasa_ground_puts_its_ground_photons_at_the_ground():
+    """Heights above NASA's ground joined from its own classed photons: NASA's ground photons
+    lie within its ground band there (median |dh| < 0.5 m, the clip's slopes spreading them by
+    up to ~0.5 m), every listed photon maps (1610 of 1771 listed lie in the clip's ATL03), and
+    the background per metre per shot is the file's ~1.9 MHz x 2/c."""
+    import h5py
+    from lidar_mitsuba.studies import forest_twin as ft
+    r = ft.nasa_ground_dh(REAL_ATL03, REAL_ATL08, "gt1r")
+    assert r["mapped"] > 1500 and 1000 < r["shots"] < 1300
+    assert r["background_per_m_shot"] == pytest.approx(1.9e6 * 2 / 299792458.0, rel=0.1)
+    layers = ft.layer_signal(r["dh_m"], shots=r["shots"],
+                             background_per_m_shot=r["background_per_m_shot"])
+    assert layers["canopy"] > layers["ground"] > 0
+    with h5py.File(REAL_ATL08) as f:
+        n_te = f["gt1r/land_segments/terrain/n_te_photons"][()].sum()
+    # NASA's ground photons are within the +-1 m layer (their count over the span's shots)
+    assert layers["ground"] * r["shots"] > 0.9 * n_te

@@ -27,6 +27,9 @@ def add_parsers(sub) -> None:
     a.add_argument("file", metavar="ATL03.h5", help="ATL03 file (ours or NASA's)")
     a.add_argument("--out", required=True, metavar="FILE.h5", help="ATL08-like HDF5 to write")
     a.add_argument("--beams", metavar="LIST", help="comma-separated beams (default: all)")
+    a.add_argument("--plot", metavar="FILE.png", help="also draw each beam's photons coloured "
+                   "by class, with the ground and top of canopy found (and the true ground "
+                   "of our own files)")
 
 
 def _beams(text: str | None) -> list[str] | None:
@@ -57,4 +60,28 @@ def cmd_atl08(a) -> int:
     made = [read_input(a.file, lambda p, b=b: atl08.from_atl03(p, b)) for b in beams]
     atl08.write(made, out)
     print(f"wrote {out} ({', '.join(f'{m.beam}: {len(m)} segments' for m in made)})")
+    if a.plot:
+        plot = out_path(a.plot, (".png",), "--plot")
+        _plot_classes(a.file, made, plot)
+        print(f"wrote {plot}")
     return 0
+
+
+def _plot_classes(atl03_path, made, path) -> None:
+    """One :func:`~lidar_mitsuba.plotting.classified_cloud` panel per beam, to ``path``."""
+    import matplotlib.pyplot as plt
+    from ..plotting import classified_cloud
+    from ..products import atl08
+    fig, axes = plt.subplots(len(made), 1, figsize=(10, 3.6 * len(made)), dpi=110,
+                             squeeze=False)
+    for ax, m in zip(axes[:, 0], made):
+        d = atl08.read_atl03_beam(atl03_path, m.beam)
+        c = m.classification
+        classified_cloud(photon_along_m=d["x_m"][m.atl03_index], photon_h_m=c.h_m,
+                         classes=c.classes, ground_h_m=c.ground_h_m, toc_h_m=c.toc_h_m,
+                         truth_along_m=d.get("truth_along_m"),
+                         truth_surface_z_m=d.get("truth_surface_z_m"), ax=ax,
+                         title=f"{m.beam}: photons classed by our ATL08 classifier")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

@@ -20,12 +20,14 @@ F4_FILL = np.finfo(np.float32).max
 
 
 def compare(atl03_path: str = ATL03, atl08_path: str = ATL08, beam: str = "gt1r", *,
-            ours=None) -> dict:
+            ours=None, settings=None) -> dict:
     """The comparison (module docstring) as a JSON-able dict; ``ours``: our
-    :class:`~lidar_mitsuba.products.atl08.Atl08Beam` of the ATL03 beam, if already made."""
+    :class:`~lidar_mitsuba.products.atl08.Atl08Beam` of the ATL03 beam, if already made;
+    ``settings``: the classifier's (:class:`~lidar_mitsuba.products.atl08.Settings`, e.g.
+    ``Settings(slope_capped_ground=True)``; default its defaults)."""
     import h5py
     from ..products import atl08
-    ours = ours if ours is not None else atl08.from_atl03(atl03_path, beam)
+    ours = ours if ours is not None else atl08.from_atl03(atl03_path, beam, settings=settings)
     d = atl08.read_atl03_beam(atl03_path, beam)
     with h5py.File(atl08_path) as f:
         ls, sp = f[f"{beam}/land_segments"], f[f"{beam}/signal_photons"]

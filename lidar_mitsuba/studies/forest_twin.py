@@ -34,7 +34,11 @@ a few percent of the canopy return, the error the gap layer makes (the turbid re
 traces it, at several times the cost; explicit needles would need millions of facets per
 footprint for the same answer).
 
-**Compared** (what the inputs do not give away; :func:`compare`): ground and canopy photons
+**Compared** (what the inputs do not give away; :func:`compare`): first like with like,
+signal photons per shot in layers above the ground (:data:`LAYERS_M`) from *all* the photons
+less the background the file's rate puts there, the real ones above NASA's ground
+(:func:`nasa_ground_dh`), the twin's above its true ground (:func:`layer_signal`): no
+classifier between the two; then ground and canopy photons
 per shot (NASA's ``n_te_photons`` and ``n_ca_photons + n_toc_photons`` per 100 m segment over
 its shots, and our ATL08 classifier run on the real and on the twin's ATL03 alike), the
 photon heights above the ground through the canopy (per shot, in height bins), and the
@@ -69,6 +73,12 @@ AGREES = (0.7, 1.4)
 
 Z_98 = 2.054
 """The standard normal's 98th percentile (RH98 of normal tree heights is mean (1 + z cv))."""
+
+LAYERS_M = (("ground", -1.0, 1.0), ("understorey", 1.0, 2.0), ("canopy", 2.0, 15.0))
+"""Layers [m above the ground] of the like-with-like comparison (:func:`layer_signal`): the
+ground's band (+-1 m: ATLAS's pulse and the slope's spread across a footprint on the clip's
+slopes of up to 17 %, ~0.5 m), the first metre above it, and the canopy from 2 m up to 15 m
+(twice the clip's canopy height, inside the twin's +-15 m range gate)."""
 
 
 def _along_m(lat_deg, lon_deg) -> np.ndarray:
@@ -155,6 +165,50 @@ def atl08_counts(beam08, shots_per_m: float) -> dict:
             "canopy_per_shot": float(np.median(n_ca / shots)),
             "height_per_shot": hist.tolist(),
             "h_canopy_m": _median_valid(h_can), "segments": len(beam08)}
+
+
+def layer_signal(dh_m, *, shots: float, background_per_m_shot: float,
+                 layers=LAYERS_M) -> dict:
+    """Signal photons per shot in each layer of ``layers`` (name, bottom, top [m above the
+    ground]) from *all* the photons' heights ``dh_m`` above a ground (no classifier): the
+    count over ``shots`` less the background's expectation, ``background_per_m_shot`` (the
+    rate times 2/c) times the layer's thickness. The same estimator for a real file (heights
+    above NASA's ground) and for the twin (above its true ground): like with like."""
+    dh = np.asarray(dh_m, float)
+    dh = dh[np.isfinite(dh)]
+    n = max(float(shots), 1.0)
+    return {name: float(np.sum((dh >= lo) & (dh < hi)) / n - background_per_m_shot * (hi - lo))
+            for name, lo, hi in layers}
+
+
+def nasa_ground_dh(atl03_path, atl08_path, beam: str) -> dict:
+    """Every ATL03 photon's height above NASA's ground (``dh_m``; NaN outside the span of the
+    classed photons): the ground under each photon NASA classed is ``h_ph - ph_h`` (ATL08's
+    ``ph_h`` is the height above its interpolated ground), joined along track by lines; and
+    ``shots`` (the span's shots), ``background_per_m_shot`` (the median ``bckgrd_rate`` times
+    2/c). Photons are matched as :mod:`.atl08_real` does (``ph_segment_id``,
+    ``classed_pc_indx``, checked on ``delta_time``)."""
+    import h5py
+    from ..constants import C_M_PER_NS
+    from ..products.atl08 import read_atl03_beam
+    d = read_atl03_beam(atl03_path, beam)
+    with h5py.File(atl08_path) as f:
+        sp = f[f"{beam}/signal_photons"]
+        sid, indx, t8, ph_h = (sp[k][()] for k in ("ph_segment_id", "classed_pc_indx",
+                                                   "delta_time", "ph_h"))
+    pos = np.minimum(np.searchsorted(d["seg_id"], sid), d["seg_id"].size - 1)
+    ph = d["beg0"][pos] + indx.astype(np.int64) - 1
+    ok = (d["seg_id"][pos] == sid) & (ph >= 0) & (ph < d["h_m"].size) & (ph_h < F4_FILL)
+    ok[ok] &= np.abs(d["delta_time_s"][ph[ok]] - t8[ok]) < 1e-6
+    gx, gz = d["x_m"][ph[ok]], d["h_m"][ph[ok]] - ph_h[ok].astype(float)
+    order = np.argsort(gx)
+    gx, gz = gx[order], gz[order]
+    x = d["x_m"]
+    inside = np.isfinite(x) & (x >= gx[0]) & (x <= gx[-1])
+    dh = np.where(inside, d["h_m"] - np.interp(np.where(inside, x, gx[0]), gx, gz), np.nan)
+    rate = float(np.median(d["bckgrd_hz"])) if d["bckgrd_hz"] is not None else 0.0
+    return {"dh_m": dh, "shots": float(d["shots_per_m"] * (gx[-1] - gx[0])),
+            "background_per_m_shot": rate * 2.0 / (C_M_PER_NS * 1e9), "mapped": int(ok.sum())}
 
 
 def _median_valid(a) -> float | None:
@@ -259,6 +313,13 @@ def compare(atl03_path=ATL03, atl08_path=ATL08, beam: str = "gt1r", *,
         r = _ratio(twin_v, real)
         rows.append({"quantity": quantity, "real": real, "twin": twin_v, "ratio": r,
                      "verdict": _verdict(r, agrees), "note": note})
+    res = tw["result"]
+    lw = _like_with_like(atl03_path, atl08_path, beam, res, bg["twin"])
+    for name, lo, hi in LAYERS_M:
+        row(f"signal photons per shot {lo:g} to {hi:g} m above the ground ({name}; all "
+            f"photons less the background, no classifier)", lw["real"][name],
+            lw["twin"][name], "real: above NASA's ground (h_ph - ph_h, joined); twin: above "
+            f"its true ground; the twin's truth: {lw['twin_truth'][name]:.3f}")
     row("ground photons per shot (NASA's ATL08 on real; ours on twin)",
         nasa["ground_per_shot"], twin_ours["ground_per_shot"], "n_te_photons / shots")
     row("ground photons per shot (our ATL08 on both)", real_ours["ground_per_shot"],
@@ -280,7 +341,6 @@ def compare(atl03_path=ATL03, atl08_path=ATL08, beam: str = "gt1r", *,
         row(f"photons per shot {lo:g} to {hi:g} m above the ground (our ATL08 on both)",
             real_ours["height_per_shot"][k], twin_ours["height_per_shot"][k],
             f"NASA's ph_h on real: {nasa['height_per_shot'][k]:.3f}")
-    res = tw["result"]
     return {"atl03": pathlib.Path(atl03_path).name, "atl08": pathlib.Path(atl08_path).name,
             "beam": beam, "inputs": tw["inputs"], "floor": floor, "stand": {
                 "trees": tw["forest"].stand.n_trees, "lai": tw["forest"].stand.lai(),
@@ -290,7 +350,23 @@ def compare(atl03_path=ATL03, atl08_path=ATL08, beam: str = "gt1r", *,
             "shots": res.n_shots, "pulse_energy_uj": float(
                 res.instrument.link_budget.pulse_energy_uj),
             "nasa": nasa, "ours_real": real_ours, "ours_twin": twin_ours,
-            "twin_truth": _truth_counts(res), "background_hz": bg, "rows": rows}
+            "twin_truth": _truth_counts(res), "background_hz": bg, "like_with_like": lw,
+            "rows": rows}
+
+
+def _like_with_like(atl03_path, atl08_path, beam: str, res, twin_rate_hz: float) -> dict:
+    """:func:`layer_signal` of the real file above NASA's ground and of the twin's detections
+    above its true ground (and the twin's true signal photons in the same layers)."""
+    from ..constants import C_M_PER_NS
+    real = nasa_ground_dh(atl03_path, atl08_path, beam)
+    n = max(res.n_shots, 1)
+    sig = res.detections.is_signal
+    return {"real": layer_signal(real["dh_m"], shots=real["shots"],
+                                 background_per_m_shot=real["background_per_m_shot"]),
+            "twin": layer_signal(res.dh_m, shots=n, background_per_m_shot=twin_rate_hz * 2.0
+                                 / (C_M_PER_NS * 1e9)),
+            "twin_truth": layer_signal(res.dh_m[sig], shots=n, background_per_m_shot=0.0),
+            "real_shots": real["shots"], "real_mapped": real["mapped"]}
 
 
 def _f(v, spec=".3g") -> str:

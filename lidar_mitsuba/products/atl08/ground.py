@@ -44,6 +44,26 @@ the footprint), and vegetation only *above* it. So:
    in :data:`VEGETATION_PROBE_M` above the band): the equal-odds (Bayes) boundary between a
    ground photon and a canopy one, bounded to ``[UPPER_SIGMAS, LOWER_SIGMAS] sigma``. Over bare
    ground it reaches the 3-sigma band; under a dense understorey it closes to one spread.
+6. **Optionally** (``spread_cap``; the classifier's ``Settings.slope_capped_ground``, off
+   by default): **the spread the instrument gives, roughness where the flank demands it**
+   (session 20).
+   Steps 1-4 let the spread grow to whatever the flank fit asks. Under vegetation beginning
+   within a spread of the ground and denser per metre of height than the ground's return
+   (a weak beam by day under a young stand: the forest clip), that fixed point is unstable:
+   a surface a little high lets the vegetation's base into the window, the flank fit reads
+   it as a wider ground, the window widens and the surface climbs into the vegetation
+   (docs/guide/atl08.md). So the fit runs first with the spread capped at what the
+   instrument makes of a smooth ground on the track's slope (:func:`slope_spread`: the pulse
+   and the footprint over the slope, ``sigma^2 = sigma_pulse^2 + (s sigma_fp)^2``, the term
+   ATL08's own ``sigma_topo`` reports); then the residuals *below* that surface, where no
+   vegetation is, are tested for a wider ground (:func:`lower_flank_gain`: a half-normal
+   about the surface, its spread free against the cap, over the known background); only
+   where the likelihood ratio passes :data:`ROUGHNESS_GAIN` (a 3-sigma test) is the fit run
+   again with the spread free (steps 1-4 as before: a rough ground). The test lacks power
+   where the capped fit slides into a rough ground's lower flank (the capped spread makes the
+   ground's own upper half look like vegetation above the band, the band's top closes to one
+   spread and the surface sinks): on a bare 0.5 m rough ground it misses four seeds of five.
+   Hence off by default.
 """
 from __future__ import annotations
 
@@ -76,6 +96,16 @@ the pulse's and climbs to the ground's, the centre refitted at each step, so tha
 the first spread the lower flank agrees with; unbounded, one refit from a surface still off
 the centre can jump past it into the vegetation (measured on the synthetic clouds of
 tests/test_atl08.py: a rough 0.5 m ground's centre 0.11 m low without the bound, 0.01 m with)."""
+ATLAS_FOOTPRINT_SIGMA_M = 10.9 / 4.0
+"""Standard deviation of ATLAS's Gaussian footprint on the ground [m]: a quarter of its
+10.9 m 1/e^2 diameter (Magruder et al. 2021, Earth and Space Science,
+doi:10.1029/2020EA001414; :data:`lidar_mitsuba.instrument.ATLAS`). A slope ``s`` across it
+spreads a smooth ground's heights by ``s`` times this."""
+ROUGHNESS_GAIN = 4.5
+"""Log-likelihood gain (half the likelihood-ratio statistic) of a free spread over the capped
+one on the ground's lower flank above which the ground is taken as rougher than the slope
+makes it: 2 x 4.5 = 9, the chi-square (1 degree of freedom) of a 3-sigma test, the cut used
+throughout this classifier (the noise filter's and the envelopes' 3-sigma tails)."""
 MAX_ITERATIONS = 25
 """Refits at most: the spread climbs from the pulse's 0.1 m to a rough ground's 0.5 m in
 ln 5 / ln 1.25 ~ 7 refits, and the surface, starting on the lower envelope (within a spread or
@@ -99,12 +129,18 @@ class GroundFit:
         lower_m: the ground band's depth below the surface [m] (``LOWER_SIGMAS sigma``).
         upper_m: (n,) the ground band's height above the surface at each photon [m].
         bin_m: the along-track bin of the fit [m].
+        slope_sigma_m: the spread a smooth ground on the track's slope gives
+            (:func:`slope_spread`) [m], the first fit's cap.
+        rough: whether the lower flank asked for a wider spread (step 6) and the fit ran
+            with the spread free.
     """
     surface_m: np.ndarray
     sigma_m: float
     lower_m: float
     upper_m: np.ndarray
     bin_m: float
+    slope_sigma_m: float = 0.0
+    rough: bool = False
 
 
 def _bins(x: np.ndarray, bin_m: float, x0: float) -> np.ndarray:
@@ -152,9 +188,82 @@ def _line_without_own_bin(ids, xm, vm, at, bin_m: float, x0: float) -> np.ndarra
 
 def final_ground(x: np.ndarray, h: np.ndarray, sig: np.ndarray, start_m: np.ndarray,
                  sigma0_m: float | None, *, min_sigma_m: float, min_bin_m: float,
-                 max_bin_m: float, depth0_m: float,
-                 background_per_m2: float = 0.0) -> GroundFit:
-    """The ground's centre, spread and band (module docstring).
+                 max_bin_m: float, depth0_m: float, background_per_m2: float = 0.0,
+                 footprint_sigma_m: float = ATLAS_FOOTPRINT_SIGMA_M,
+                 spread_cap: bool = False) -> GroundFit:
+    """The ground's centre, spread and band (module docstring): steps 1-5 with the spread
+    free; with ``spread_cap`` (step 6), the fit with the spread capped at
+    :func:`slope_spread`, then, where its lower flank asks for more (:func:`lower_flank_gain`
+    above :data:`ROUGHNESS_GAIN`), with the spread free. Arguments as :func:`_refit`'s;
+    ``footprint_sigma_m``: the footprint's standard deviation [m] (default ATLAS's)."""
+    kw = dict(min_sigma_m=min_sigma_m, min_bin_m=min_bin_m, max_bin_m=max_bin_m,
+              depth0_m=depth0_m, background_per_m2=background_per_m2)
+    cap = slope_spread(x, start_m, sig, pulse_sigma_m=min_sigma_m,
+                       footprint_sigma_m=footprint_sigma_m)
+    if not spread_cap:
+        fit = _refit(x, h, sig, start_m, sigma0_m, cap_m=np.inf, **kw)
+        fit.slope_sigma_m = cap
+        return fit
+    fit = _refit(x, h, sig, start_m, sigma0_m, cap_m=cap, **kw)
+    fit.slope_sigma_m = cap
+    span = max(float(np.ptp(x[sig])) if sig.any() else 0.0, min_bin_m)
+    gain = lower_flank_gain((h - fit.surface_m)[sig], sigma_m=fit.sigma_m,
+                            background_per_m=background_per_m2 * span)
+    if gain > ROUGHNESS_GAIN:
+        fit = _refit(x, h, sig, start_m, sigma0_m, cap_m=np.inf, **kw)
+        fit.slope_sigma_m, fit.rough = cap, True
+    return fit
+
+
+def slope_spread(x: np.ndarray, start_m: np.ndarray, sig: np.ndarray, *, pulse_sigma_m: float,
+                 footprint_sigma_m: float, bin_m: float = 40.0) -> float:
+    """The spread [m] of a smooth ground's return on the track's slope:
+    ``sqrt(pulse^2 + (s footprint_sigma)^2)``, ``s`` the median absolute slope of the first
+    surface ``start_m`` (the lower envelope) between the medians of its ``bin_m`` along-track
+    bins (the envelope's coarsest level: the slope over a few footprints, not the scatter of
+    single photons). A Gaussian footprint of standard deviation ``w`` on a plane of slope
+    ``s`` spreads the heights it sees by ``s w`` (ATL08's ``sigma_topo`` is this term)."""
+    if not np.any(sig):
+        return float(pulse_sigma_m)
+    x0 = float(np.min(x[sig]))
+    ids, xm, hm = _bin_medians(x[sig], np.asarray(start_m, np.float64)[sig], bin_m, x0)
+    ok = np.diff(xm) > 0
+    s = float(np.median(np.abs(np.diff(hm)[ok] / np.diff(xm)[ok]))) if ok.sum() >= 1 else 0.0
+    return float(np.hypot(pulse_sigma_m, s * footprint_sigma_m))
+
+
+def lower_flank_gain(r: np.ndarray, *, sigma_m: float, background_per_m: float) -> float:
+    """How much a wider ground explains the residuals ``r`` [m] below the surface better than
+    spread ``sigma_m``: on ``[-(LOWER_SIGMAS + 1) sigma, 0]`` in quarter-spread bins, the
+    Poisson log-likelihood of the known background (``background_per_m`` photons per metre of
+    height over the track) plus a half-normal about 0 (amplitude profiled out) with its spread
+    free (at least ``sigma_m``), less that with ``sigma_m``. Below the surface there is no
+    vegetation: only the ground's lower half and background."""
+    from scipy import optimize, special
+    width = max(sigma_m / 4.0, 0.01)
+    edges = -width * np.arange(int(round(4 * (LOWER_SIGMAS + 1))), -1, -1)
+    counts = np.histogram(r, edges)[0].astype(np.float64)
+    if counts.sum() < 5:
+        return 0.0
+    b = background_per_m * width
+
+    def profiled(log_s: float) -> float:
+        shape = np.diff(special.ndtr(edges * np.exp(-log_s)))
+
+        def nll(log_a):
+            lam = b + np.exp(log_a) * shape + 1e-12
+            return float(np.sum(lam - counts * np.log(lam)))
+        return float(optimize.minimize_scalar(nll, bounds=(-10.0, 20.0), method="bounded").fun)
+    at_cap = profiled(np.log(sigma_m))
+    free = optimize.minimize_scalar(profiled, bounds=(np.log(sigma_m), np.log(sigma_m) + 3.0),
+                                    method="bounded")
+    return float(at_cap - min(free.fun, at_cap))
+
+
+def _refit(x: np.ndarray, h: np.ndarray, sig: np.ndarray, start_m: np.ndarray,
+           sigma0_m: float | None, *, cap_m: float, min_sigma_m: float, min_bin_m: float,
+           max_bin_m: float, depth0_m: float, background_per_m2: float = 0.0) -> GroundFit:
+    """Steps 1-5 of the module docstring, the spread at most ``cap_m`` [m].
 
     Args:
         x, h: (n,) along-track distance [m] and height [m] of every photon.
@@ -204,7 +313,8 @@ def final_ground(x: np.ndarray, h: np.ndarray, sig: np.ndarray, start_m: np.ndar
         fitted = _flank_fit(r[sig], sigma_m=sigma, depth0_m=depth0_m,
                             background_per_m=background_per_m2 * span)
         new = max(fitted / np.sqrt(1.0 + np.pi / 2 * (2.0 / 3.0) / n_bin), min_sigma_m)
-        new = float(np.clip(new, sigma / SIGMA_STEP, sigma * SIGMA_STEP))
+        new = float(min(np.clip(new, sigma / SIGMA_STEP, sigma * SIGMA_STEP),
+                        max(cap_m, min_sigma_m)))
         settled = abs(new - sigma) < 0.02 * sigma
         sigma = new
         if settled and np.max(np.abs(corr[sig])) < 0.05 * sigma:
