@@ -34,7 +34,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import __version__, geotrack, granule_writer, precompile as warmup
+from . import __version__, geotrack, granule_writer, machine, precompile as warmup
 from .products import atl06, cloud_flags, h5write as h5chunks
 from .products.atl08 import granule as atl08_granule
 from .ground.snow import kernel as snow_kernel
@@ -530,12 +530,15 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
 def _sections(streams, n_sections: int, ctx, files, bar, **kw) -> None:
     """Simulate every beam's sections, section by section (a section's beams in turn), into
     ``files`` (a :class:`~lidar_mitsuba.granule_writer.GranuleFiles` or the writer process),
-    the progress ``bar`` following."""
-    for k in range(n_sections):
-        for st in streams:
-            done = st.section(k, ctx, files, **kw)
-            if bar is not None:
-                bar.update(done)
+    the progress ``bar`` following, with Dr.Jit's pool one thread short of the cores
+    (:func:`lidar_mitsuba.machine.trace_threads`: its idle workers spin for the CPU that
+    this thread and the writer need)."""
+    with machine.trace_threads():
+        for k in range(n_sections):
+            for st in streams:
+                done = st.section(k, ctx, files, **kw)
+                if bar is not None:
+                    bar.update(done)
 
 
 class _BeamStream:

@@ -90,7 +90,9 @@ def put(group, name: str, data, units: str, description: str, *, append: bool = 
             entry.write(start, data)
             return entry.dset
         d, level = _create(group, name, data, CHUNK_ROWS, fillvalue)
-        entry = _open[key] = _Entry(d, level=level, key=(_file_key(group), d.name))
+        path = key[1] if not key[1].startswith("//") else key[1][1:]     # (d.name)
+        entry = _open[key] = _Entry(d, level=level, key=(_file_key(group), path),
+                                    shape=(0,) + data.shape[1:], dtype=data.dtype)
         entry.grow(data.shape[0])
         entry.write(0, data)
     else:
@@ -172,12 +174,12 @@ class _Entry:
 
     __slots__ = ("dset", "rows", "tail_shape", "dtype", "level", "key")
 
-    def __init__(self, dset, *, level=..., key=None):
+    def __init__(self, dset, *, level=..., key=None, shape=None, dtype=None):
         self.dset = dset
-        shape = dset.shape
+        shape = dset.shape if shape is None else shape     # (known for a dataset just made)
         self.rows = shape[0]
         self.tail_shape = shape[1:]
-        self.dtype = dset.dtype
+        self.dtype = dset.dtype if dtype is None else np.dtype(dtype)
         self.level = _level(dset) if level is ... else level
         self.key = (_file_key(dset), dset.name) if key is None else key
 
