@@ -265,6 +265,7 @@ def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_d
         li.require_group(sub)
     i = np.clip(np.searchsorted(along_m, table.x_atc), 0, max(along_m.size - 1, 0))
     _extend_extent(f, lat_deg[i], lon_deg[i])
+    first = "segment_id" not in li          # (the first section's: the attributes too)
     _put(li, "segment_id", np.asarray(table.segment_id, np.int32), "1",
          "segment number: the segment spans 20 m ATL03 segments segment_id and segment_id + 1")
     _put(li, "latitude", lat_deg[i], "degrees_north", "latitude of the segment centre")
@@ -279,8 +280,8 @@ def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_d
         if np.issubdtype(dtype, np.floating):
             v = np.where(np.isfinite(v), v, np.finfo(dtype).max)   # ATL06's fill value
         ds = _put(li[sub] if sub else li, name, v.astype(dtype), units, desc)
-        if np.issubdtype(dtype, np.floating):
-            h5chunks.set_attrs(ds, {"_FillValue": np.finfo(dtype).max.astype(dtype)})
+        if first and np.issubdtype(dtype, np.floating):
+            h5chunks.set_attrs(ds, {"_FillValue": np.finfo(dtype).max.astype(dtype)}, new=True)
     _put(li["ground_track"], "y_atc", np.full(len(table), beam.across_m, np.float32),
          "meters", "across-track offset of the beam from the reference ground track")
     if sky is not None:         # ATL09-style cloud flags (r_eff, cloud_flg_asr, cloud_flg_atm)

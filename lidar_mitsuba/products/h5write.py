@@ -99,7 +99,7 @@ def put(group, name: str, data, units: str, description: str, *, append: bool = 
         d, _ = _create(group, name, data, max(1, min(CHUNK_ROWS, data.shape[0])), fillvalue)
         d.resize(data.shape[0], axis=0)
         write_rows(d, 0, data)
-    set_attrs(d, {"units": units, "description": description})
+    set_attrs(d, {"units": units, "description": description}, new=True)
     return d
 
 
@@ -124,12 +124,13 @@ def _create(group, name, data, rows, fillvalue):
     return h5py.Dataset(h5d.create(group.id, name.encode(), tid, space, dcpl=dcpl)), level
 
 
-def set_attrs(obj, values: dict) -> None:
+def set_attrs(obj, values: dict, *, new: bool = False) -> None:
     """Set the attributes ``values`` (name -> value) of the HDF5 object ``obj``, as
     ``obj.attrs[name] = value`` does (an existing one replaced): a ``str`` as a scalar
     variable-length UTF-8 string, a numeric numpy array or scalar with its dtype and shape.
-    These two go straight to HDF5 with types made once (h5py's own path costs ~3x more per
-    attribute, and an ATL03 granule has ~4 600); any other value through h5py."""
+    These two go straight to HDF5 with types and dataspaces made once (h5py's own path costs
+    ~3x more per attribute, and an ATL03 granule has ~4 600); any other value through h5py.
+    ``new``: ``obj`` was just made and has none of them (none is looked for)."""
     oid = obj.id
     for name, value in values.items():
         if isinstance(value, str):
@@ -141,9 +142,12 @@ def set_attrs(obj, values: dict) -> None:
             obj.attrs[name] = value
             continue
         b = name.encode()
-        if h5a.exists(oid, b):
+        if not new and h5a.exists(oid, b):
             h5a.delete(oid, b)
-        attr = h5a.create(oid, b, htype, h5s.create_simple(data.shape))
+        space = _spaces.get(data.shape)
+        if space is None:
+            space = _spaces[data.shape] = h5s.create_simple(data.shape)
+        attr = h5a.create(oid, b, htype, space)
         try:
             attr.write(data, mtype=mtype)
         finally:
@@ -152,6 +156,7 @@ def set_attrs(obj, values: dict) -> None:
 
 _STR = h5py.string_dtype()
 _types: dict = {}
+_spaces: dict = {}          # shape -> HDF5 dataspace of an attribute (H5Acreate copies it)
 
 
 def _str_types():

@@ -399,7 +399,7 @@ def _field_attrs(ds, fld, note: str, coordinates: str, name: str) -> None:
         attrs["coordinates"] = coords
     if note:
         attrs["model_note"] = note
-    h5chunks.set_attrs(ds, attrs)
+    h5chunks.set_attrs(ds, attrs, new=True)     # (after put's units and description)
 
 
 def beam_attrs(beam, sc_orient: int) -> dict:
