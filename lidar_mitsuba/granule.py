@@ -36,7 +36,6 @@ import numpy as np
 
 from . import __version__, geotrack, granule_writer, machine, precompile as warmup
 from .products import atl06, cloud_flags, h5write as h5chunks
-from .products.atl08 import granule as atl08_granule
 from .ground.snow import kernel as snow_kernel
 from .products.atl03 import _ds, atomic_h5file
 from .products.atl03.beam import (BCKGRD_SHOTS, PULSES_PER_MAJOR_FRAME, SEGMENT_M,
@@ -524,8 +523,15 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
         if bar is not None:
             bar.close()
     if atl08_path is not None:                   # the land product, from the ATL03 file
-        atl08_granule.write_from_atl03(atl03_path, atl08_path, instrument=instruments[0][1])
+        _atl08().write_from_atl03(atl03_path, atl08_path, instrument=instruments[0][1])
     return [st.summary for st in streams]
+
+
+def _atl08():
+    """:mod:`lidar_mitsuba.products.atl08.granule`, imported when a granule asks for ATL08
+    (its classifier's scipy.stats would add ~0.5 s to every process's start)."""
+    from .products.atl08 import granule
+    return granule
 
 
 def _sections(streams, n_sections: int, ctx, files, bar, **kw) -> None:

@@ -70,14 +70,16 @@ _granted: list = [None]     # Dr.Jit's thread count before trace_threads() narro
 
 
 @contextlib.contextmanager
-def trace_threads(keep: int = HOST_CORES_KEPT):
-    """Dr.Jit's pool narrowed by ``keep`` threads (at least one left) for the block, then
-    restored; :func:`host_pool` keeps the count it had. Nested: the outer scope's count."""
+def trace_threads(keep: int | None = None):
+    """Dr.Jit's pool narrowed by ``keep`` threads (default :data:`HOST_CORES_KEPT`; at least
+    one left) for the block, then restored; :func:`host_pool` keeps the count it had. Nested:
+    the outer scope's count. (With one thread, Dr.Jit's LLVM backend runs each kernel in the
+    thread that launches it.)"""
     from .trace.variant import ensure_renderer
     ensure_renderer()
     import drjit as dr
     before = int(dr.thread_count())
-    n = max(1, before - int(keep))
+    n = max(1, before - int(HOST_CORES_KEPT if keep is None else keep))
     if _granted[0] is not None or n == before:
         yield
         return
