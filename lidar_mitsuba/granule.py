@@ -34,9 +34,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from . import __version__, geotrack, granule_writer, precompile as warmup
+from . import __version__, geotrack, granule_writer, machine, precompile as warmup
 from .products import atl06, cloud_flags, h5write as h5chunks
-from .products.atl08 import granule as atl08_granule
 from .ground.snow import kernel as snow_kernel
 from .products.atl03 import _ds, atomic_h5file
 from .products.atl03.beam import (BCKGRD_SHOTS, PULSES_PER_MAJOR_FRAME, SEGMENT_M,
@@ -265,6 +264,7 @@ def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_d
         li.require_group(sub)
     i = np.clip(np.searchsorted(along_m, table.x_atc), 0, max(along_m.size - 1, 0))
     _extend_extent(f, lat_deg[i], lon_deg[i])
+    first = "segment_id" not in li          # (the first section's: the attributes too)
     _put(li, "segment_id", np.asarray(table.segment_id, np.int32), "1",
          "segment number: the segment spans 20 m ATL03 segments segment_id and segment_id + 1")
     _put(li, "latitude", lat_deg[i], "degrees_north", "latitude of the segment centre")
@@ -279,8 +279,8 @@ def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_d
         if np.issubdtype(dtype, np.floating):
             v = np.where(np.isfinite(v), v, np.finfo(dtype).max)   # ATL06's fill value
         ds = _put(li[sub] if sub else li, name, v.astype(dtype), units, desc)
-        if np.issubdtype(dtype, np.floating):
-            h5chunks.set_attrs(ds, {"_FillValue": np.finfo(dtype).max.astype(dtype)})
+        if first and np.issubdtype(dtype, np.floating):
+            h5chunks.set_attrs(ds, {"_FillValue": np.finfo(dtype).max.astype(dtype)}, new=True)
     _put(li["ground_track"], "y_atc", np.full(len(table), beam.across_m, np.float32),
          "meters", "across-track offset of the beam from the reference ground track")
     if sky is not None:         # ATL09-style cloud flags (r_eff, cloud_flg_asr, cloud_flg_atm)
@@ -523,19 +523,29 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
         if bar is not None:
             bar.close()
     if atl08_path is not None:                   # the land product, from the ATL03 file
-        atl08_granule.write_from_atl03(atl03_path, atl08_path, instrument=instruments[0][1])
+        _atl08().write_from_atl03(atl03_path, atl08_path, instrument=instruments[0][1])
     return [st.summary for st in streams]
+
+
+def _atl08():
+    """:mod:`lidar_mitsuba.products.atl08.granule`, imported when a granule asks for ATL08
+    (its classifier's scipy.stats would add ~0.5 s to every process's start)."""
+    from .products.atl08 import granule
+    return granule
 
 
 def _sections(streams, n_sections: int, ctx, files, bar, **kw) -> None:
     """Simulate every beam's sections, section by section (a section's beams in turn), into
     ``files`` (a :class:`~lidar_mitsuba.granule_writer.GranuleFiles` or the writer process),
-    the progress ``bar`` following."""
-    for k in range(n_sections):
-        for st in streams:
-            done = st.section(k, ctx, files, **kw)
-            if bar is not None:
-                bar.update(done)
+    the progress ``bar`` following, with Dr.Jit's pool one thread short of the cores
+    (:func:`lidar_mitsuba.machine.trace_threads`: its idle workers spin for the CPU that
+    this thread and the writer need)."""
+    with machine.trace_threads():
+        for k in range(n_sections):
+            for st in streams:
+                done = st.section(k, ctx, files, **kw)
+                if bar is not None:
+                    bar.update(done)
 
 
 class _BeamStream:

@@ -3,8 +3,10 @@ before a run would exhaust it: a one-line error instead of a MemoryError or the 
 killer), and the versions of the packages that run it."""
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 from .constants import ParameterError
@@ -13,14 +15,26 @@ from .constants import ParameterError
 MEMORY_FRACTION = 0.8
 
 
+#: seconds a reading of /proc/meminfo is reused (a DEM granule checks ~1 000 windows and
+#: tiles: 0.15 ms a reading, ~0.15 s a granule). ESTIMATE: what runs here allocates far less
+#: than a machine's memory in a quarter of a second.
+MEMINFO_MAX_AGE_S = 0.25
+_meminfo: list = [-1.0, 0]          # (monotonic time, bytes) of the last reading
+
+
 def available_memory_bytes() -> int:
-    """Memory available to new allocations [bytes]: ``MemAvailable`` of /proc/meminfo, or the
-    free physical pages where that file does not exist."""
+    """Memory available to new allocations [bytes]: ``MemAvailable`` of /proc/meminfo (read
+    at most every :data:`MEMINFO_MAX_AGE_S`), or the free physical pages where that file does
+    not exist."""
+    now = time.monotonic()
+    if now - _meminfo[0] < MEMINFO_MAX_AGE_S:
+        return _meminfo[1]
     try:
         with open("/proc/meminfo") as f:
             for line in f:
                 if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
+                    _meminfo[:] = [now, int(line.split()[1]) * 1024]
+                    return _meminfo[1]
     except OSError:
         pass
     try:
@@ -35,12 +49,47 @@ _CORES = max(1, os.cpu_count() or 1)     # (asked once: a writer process asks pe
 
 def host_threads() -> int:
     """Threads the host may use: as many as Dr.Jit's own pool (``dr.thread_count()``: the
-    cores, or what a sweep task was given) once the renderer is loaded; before that (a pure
-    stage, e.g. reading a file and fitting ATL06 segments) the cores."""
+    cores, or what a sweep task was given) once the renderer is loaded, the pool's count
+    before :func:`trace_threads` narrowed it; before that (a pure stage, e.g. reading a file
+    and fitting ATL06 segments) the cores."""
+    if _granted[0] is not None:
+        return _granted[0]
     if "drjit" not in sys.modules:
         return _CORES
     import drjit as dr
     return max(1, int(dr.thread_count()))
+
+
+#: cores a streamed granule keeps from Dr.Jit's pool for its host work (:func:`trace_threads`).
+#: ESTIMATE from the per-thread accounting of issue 43 (docs/guide/campaigns.md): beside the
+#: trace, a granule keeps the simulating thread and its writer process busy; nanothread's
+#: idle workers spin for work between kernels (~2 s of CPU a six-beam 100 km granule on 2
+#: cores with 2 workers, ~0.1 s with 1), CPU those two threads need.
+HOST_CORES_KEPT = 1
+_granted: list = [None]     # Dr.Jit's thread count before trace_threads() narrowed it
+
+
+@contextlib.contextmanager
+def trace_threads(keep: int | None = None):
+    """Dr.Jit's pool narrowed by ``keep`` threads (default :data:`HOST_CORES_KEPT`; at least
+    one left) for the block, then restored; :func:`host_pool` keeps the count it had. Nested:
+    the outer scope's count. (With one thread, Dr.Jit's LLVM backend runs each kernel in the
+    thread that launches it.)"""
+    from .trace.variant import ensure_renderer
+    ensure_renderer()
+    import drjit as dr
+    before = int(dr.thread_count())
+    n = max(1, before - int(HOST_CORES_KEPT if keep is None else keep))
+    if _granted[0] is not None or n == before:
+        yield
+        return
+    _granted[0] = before
+    dr.set_thread_count(n)
+    try:
+        yield
+    finally:
+        dr.set_thread_count(before)
+        _granted[0] = None
 
 
 def host_pool() -> ThreadPoolExecutor:

@@ -64,6 +64,10 @@ class SimulationResult:
         radiometry: each shot's signal scale, background and sun
             (:class:`~lidar_mitsuba.radiometry.ShotRadiometry`) when the instrument has a link
             budget (``Instrument.atlas()``), else ``None``.
+        signal_test: the histogram test that gave ``signal_conf``
+            (:class:`~lidar_mitsuba.products.classify.HistogramTest`: per-photon tail
+            probabilities, per-block noise), which ATL03's writer reuses instead of running it
+            again; ``None`` where not kept.
     """
     instrument: Instrument
     config: dict
@@ -79,6 +83,7 @@ class SimulationResult:
     timings_s: dict = field(default_factory=dict)
     geolocation: Geolocation | None = None
     radiometry: radiometry.ShotRadiometry | None = None
+    signal_test: classify.HistogramTest | None = None
 
     @property
     def n_shots(self) -> int:
@@ -240,8 +245,8 @@ def assemble(run: RunPlan, chunked: chunks.ChunkedRun) -> SimulationResult:
     inst, det, mat, timings = run.instrument, chunked.detections["run"], run.material, run.timings_s
     t3 = time.perf_counter()
     h = retrieval.photon_heights_m(det.time_ns, altitude_m=inst.altitude_m)
-    conf = classify.signal_confidence(shot=det.shot, h_m=h, gate_center_h_m=run.gate_z_m,
-                                      range_gate_m=inst.range_gate_m)
+    test = classify.histogram_test(shot=det.shot, h_m=h, gate_center_h_m=run.gate_z_m,
+                                   range_gate_m=inst.range_gate_m)
     timings["detect_s"] += time.perf_counter() - t3
     timings["total_s"] = time.perf_counter() - run.t0
     cfg = run.surface_config
@@ -275,6 +280,7 @@ def assemble(run: RunPlan, chunked: chunks.ChunkedRun) -> SimulationResult:
         config["cloud"] = {**run.cloud.to_dict(), "kernel": run.cloud_table.summary()}
     return SimulationResult(instrument=inst, config=config, along_track_m=run.along_m,
                             shot_x_m=run.x_m, shot_y_m=run.y_m, surface_z_m=run.surface_z_m,
-                            z_ref_m=run.z_ref_m, detections=det, h_m=h, signal_conf=conf,
+                            z_ref_m=run.z_ref_m, detections=det, h_m=h, signal_conf=test.conf,
                             returns=chunked.returns, timings_s=timings,
-                            geolocation=run.geolocation, radiometry=run.radiometry)
+                            geolocation=run.geolocation, radiometry=run.radiometry,
+                            signal_test=test)

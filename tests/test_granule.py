@@ -610,6 +610,42 @@ def test_the_writer_process_writes_the_same_files_and_reports_failures(dem_path,
         _h5_objects(tmp_path / "inline" / "a3.h5")["gt2l/heights/h_ph"]
 
 
+def test_the_atl03_writer_reuses_simulate_s_histogram_test(six_beams):
+    """The histogram test runs once: ATL03's writer takes the one that gave the run's
+    signal_conf (the same object), which equals the test run afresh on the section; a result
+    whose signal_conf was replaced has the test run again."""
+    from dataclasses import replace
+    from lidar_mitsuba.products import classify
+    from lidar_mitsuba.products.atl03 import beam as atl03_beam
+    run = six_beams[0].beams[0]
+    res = run.result
+    s = atl03_beam._Section(run, 0)
+    assert res.signal_test.conf is res.signal_conf and s.test is res.signal_test
+    fresh = classify.histogram_test(shot=res.detections.shot, h_m=res.h_m,
+                                    gate_center_h_m=s.gate, range_gate_m=res.instrument.range_gate_m)
+    for name in ("conf", "tail_p", "noise_per_bin"):
+        np.testing.assert_array_equal(getattr(s.test, name), getattr(fresh, name))
+    other = atl03_beam._Section(replace(run, result=replace(res, signal_conf=res.signal_conf.copy())), 0)
+    assert other.test is not res.signal_test
+    np.testing.assert_array_equal(other.test.tail_p, fresh.tail_p)
+
+
+def test_trace_threads_narrows_dr_jit_s_pool_and_restores_it():
+    """A granule's sections run with Dr.Jit's pool one thread short (at least one), the host
+    pool keeping its count; nested scopes keep the outer one's; the count comes back after."""
+    import drjit as dr
+    from lidar_mitsuba import machine
+    from lidar_mitsuba.trace.variant import ensure_renderer
+    ensure_renderer()
+    before = dr.thread_count()
+    with machine.trace_threads(keep=1):
+        assert dr.thread_count() == max(1, before - 1)
+        assert machine.host_threads() == before
+        with machine.trace_threads(keep=5):
+            assert dr.thread_count() == max(1, before - 1)
+    assert dr.thread_count() == before and machine.host_threads() == before
+
+
 def test_make_dem_writes_a_dem_that_opens_and_refuses_bad_sizes(tmp_path, capsys):
     exe = [sys.executable, "-m", "lidar_mitsuba_cli", "make-dem"]
     out = tmp_path / "d.tif"

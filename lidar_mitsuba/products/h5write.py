@@ -90,14 +90,16 @@ def put(group, name: str, data, units: str, description: str, *, append: bool = 
             entry.write(start, data)
             return entry.dset
         d, level = _create(group, name, data, CHUNK_ROWS, fillvalue)
-        entry = _open[key] = _Entry(d, level=level, key=(_file_key(group), d.name))
+        path = key[1] if not key[1].startswith("//") else key[1][1:]     # (d.name)
+        entry = _open[key] = _Entry(d, level=level, key=(_file_key(group), path),
+                                    shape=(0,) + data.shape[1:], dtype=data.dtype)
         entry.grow(data.shape[0])
         entry.write(0, data)
     else:
         d, _ = _create(group, name, data, max(1, min(CHUNK_ROWS, data.shape[0])), fillvalue)
         d.resize(data.shape[0], axis=0)
         write_rows(d, 0, data)
-    set_attrs(d, {"units": units, "description": description})
+    set_attrs(d, {"units": units, "description": description}, new=True)
     return d
 
 
@@ -122,12 +124,13 @@ def _create(group, name, data, rows, fillvalue):
     return h5py.Dataset(h5d.create(group.id, name.encode(), tid, space, dcpl=dcpl)), level
 
 
-def set_attrs(obj, values: dict) -> None:
+def set_attrs(obj, values: dict, *, new: bool = False) -> None:
     """Set the attributes ``values`` (name -> value) of the HDF5 object ``obj``, as
     ``obj.attrs[name] = value`` does (an existing one replaced): a ``str`` as a scalar
     variable-length UTF-8 string, a numeric numpy array or scalar with its dtype and shape.
-    These two go straight to HDF5 with types made once (h5py's own path costs ~3x more per
-    attribute, and an ATL03 granule has ~4 600); any other value through h5py."""
+    These two go straight to HDF5 with types and dataspaces made once (h5py's own path costs
+    ~3x more per attribute, and an ATL03 granule has ~4 600); any other value through h5py.
+    ``new``: ``obj`` was just made and has none of them (none is looked for)."""
     oid = obj.id
     for name, value in values.items():
         if isinstance(value, str):
@@ -139,9 +142,12 @@ def set_attrs(obj, values: dict) -> None:
             obj.attrs[name] = value
             continue
         b = name.encode()
-        if h5a.exists(oid, b):
+        if not new and h5a.exists(oid, b):
             h5a.delete(oid, b)
-        attr = h5a.create(oid, b, htype, h5s.create_simple(data.shape))
+        space = _spaces.get(data.shape)
+        if space is None:
+            space = _spaces[data.shape] = h5s.create_simple(data.shape)
+        attr = h5a.create(oid, b, htype, space)
         try:
             attr.write(data, mtype=mtype)
         finally:
@@ -150,6 +156,7 @@ def set_attrs(obj, values: dict) -> None:
 
 _STR = h5py.string_dtype()
 _types: dict = {}
+_spaces: dict = {}          # shape -> HDF5 dataspace of an attribute (H5Acreate copies it)
 
 
 def _str_types():
@@ -172,12 +179,12 @@ class _Entry:
 
     __slots__ = ("dset", "rows", "tail_shape", "dtype", "level", "key")
 
-    def __init__(self, dset, *, level=..., key=None):
+    def __init__(self, dset, *, level=..., key=None, shape=None, dtype=None):
         self.dset = dset
-        shape = dset.shape
+        shape = dset.shape if shape is None else shape     # (known for a dataset just made)
         self.rows = shape[0]
         self.tail_shape = shape[1:]
-        self.dtype = dset.dtype
+        self.dtype = dset.dtype if dtype is None else np.dtype(dtype)
         self.level = _level(dset) if level is ... else level
         self.key = (_file_key(dset), dset.name) if key is None else key
 

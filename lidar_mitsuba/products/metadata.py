@@ -159,15 +159,18 @@ def extend_extent(f, lat_deg, lon_deg) -> None:
     across the antimeridian gets -180 to 180)."""
     if np.size(lat_deg) == 0:
         return
-    e = f.require_group("METADATA/Extent").attrs
+    from .h5write import set_attrs       # (h5py's attributes' types, at a third of the cost)
+    g = f.require_group("METADATA/Extent")
+    e = g.attrs
     bounds = {"southBoundLatitude": (np.min(lat_deg), min), "northBoundLatitude":
               (np.max(lat_deg), max), "westBoundLongitude": (np.min(lon_deg), min),
               "eastBoundLongitude": (np.max(lon_deg), max)}
-    for key, (v, pick) in bounds.items():
-        e[key] = float(pick(float(v), float(e[key])) if key in e else v)
-    f.attrs.update({"geospatial_lat_min": e["southBoundLatitude"],
-                    "geospatial_lat_max": e["northBoundLatitude"],
-                    "geospatial_lon_min": e["westBoundLongitude"],
-                    "geospatial_lon_max": e["eastBoundLongitude"],
-                    "geospatial_lat_units": "degrees_north",
-                    "geospatial_lon_units": "degrees_east"})
+    now = {key: np.float64(pick(float(v), float(e[key])) if key in e else v)
+           for key, (v, pick) in bounds.items()}
+    set_attrs(g, now)
+    set_attrs(f, {"geospatial_lat_min": now["southBoundLatitude"],
+                  "geospatial_lat_max": now["northBoundLatitude"],
+                  "geospatial_lon_min": now["westBoundLongitude"],
+                  "geospatial_lon_max": now["eastBoundLongitude"],
+                  "geospatial_lat_units": "degrees_north",
+                  "geospatial_lon_units": "degrees_east"})

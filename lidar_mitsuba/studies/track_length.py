@@ -131,6 +131,9 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
     included) and the second (``seconds``: warm), against the time its rays alone take to
     cast (:func:`cast_rate`)."""
     from ..trace.variant import ensure_renderer
+    if beams == "all":                 # as simulate --dem: the writer's imports beside ours
+        from .. import granule_writer
+        granule_writer.writer()
     ensure_renderer()                  # libLLVM, variant, plugins
     from ..ground import dem
     from .. import geotrack

@@ -65,8 +65,11 @@ class _Section:
         (self.seg_of_shot, self.first, self.count, self.ref_shot,
          self.k0) = _segments(res.along_track_m, self.shot)
         self.gate = gate_heights_m(res.z_ref_m)       # the gates simulate() centred
-        self.test = histogram_test(shot=det.shot, h_m=res.h_m, gate_center_h_m=self.gate,
-                                   range_gate_m=self.inst.range_gate_m)
+        self.test = getattr(res, "signal_test", None)
+        if self.test is None or self.test.conf is not res.signal_conf:
+            # (run once by simulate(), whose signal_conf it gave, with these arguments)
+            self.test = histogram_test(shot=det.shot, h_m=res.h_m, gate_center_h_m=self.gate,
+                                       range_gate_m=self.inst.range_gate_m)
 
 
 def _segments(along_m: np.ndarray, photon_shot: np.ndarray):
@@ -396,7 +399,7 @@ def _field_attrs(ds, fld, note: str, coordinates: str, name: str) -> None:
         attrs["coordinates"] = coords
     if note:
         attrs["model_note"] = note
-    h5chunks.set_attrs(ds, attrs)
+    h5chunks.set_attrs(ds, attrs, new=True)     # (after put's units and description)
 
 
 def beam_attrs(beam, sc_orient: int) -> dict:
