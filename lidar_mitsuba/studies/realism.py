@@ -255,13 +255,14 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> 
         out["signal_from"] = "lidar equation (no dead time)"
         f_out = equation_outside_fraction(inst, band.signal_span_m, surface=surface)
     t = rb.delta_time_s
-    sun = rb.solar_elevation_deg
-    if sun is None:
-        from ..radiometry import solar_angles
-        sun, az = solar_angles(rb.lat_deg, rb.lon_deg, t)
-    else:
-        az = rb.solar_azimuth_deg if rb.solar_azimuth_deg is not None else np.zeros(t.size)
-    ok = np.isfinite(sun) & np.isfinite(t)
+    # the geometric sun from the file's time and place (the file's solar_elevation is the
+    # apparent one: twin.model_sun)
+    ok = np.isfinite(t) & np.isfinite(rb.lat_deg) & np.isfinite(rb.lon_deg)
+    sun, az = np.full(t.size, np.nan), np.zeros(t.size)
+    if ok.any():
+        from ..twin import model_sun
+        sun[ok], az[ok] = model_sun(rb.lat_deg[ok], rb.lon_deg[ok], t[ok])
+    out["solar_elevation_deg"] = _median(sun)              # geometric (the file's: refracted)
     out["sunlit_albedo"] = albedo = sunlit_albedo(rb, surface)
     kw = dict(delta_time_s=t[ok], z_m=np.full(ok.sum(), z), albedo=albedo,
               solar_elevation_deg=sun[ok], solar_azimuth_deg=np.nan_to_num(az[ok]), band=band,
