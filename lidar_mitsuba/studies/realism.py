@@ -267,7 +267,12 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> 
     kw = dict(delta_time_s=t[ok], z_m=np.full(ok.sum(), z), albedo=albedo,
               solar_elevation_deg=sun[ok], solar_azimuth_deg=np.nan_to_num(az[ok]), band=band,
               outside_fraction=f_out)
-    terms = night.background_terms(inst, signal_per_shot=out["signal_per_shot"], **kw)
+    # clear segments in the gaps of the file's own broken deck: its shade (cloud_shade)
+    cover = 0.0 if cloud is None or rb.clear is None else float(1.0 - np.mean(rb.clear))
+    out["deck_cover"] = cover
+    terms = night.background_terms(inst, signal_per_shot=out["signal_per_shot"],
+                                   deck=cloud if 0.0 < cover < 1.0 else None,
+                                   deck_cover=cover if cover < 1.0 else 0.0, **kw)
     out["background_terms_hz"] = terms
     out["background_hz"] = terms["total"]
     if cloud is not None:
