@@ -359,3 +359,19 @@ def test_the_files_solar_elevation_is_the_apparent_one_and_the_model_uses_the_ge
     geo = b.geolocation
     ours, _ = solar_angles(geo.lat_deg, geo.lon_deg, geo.delta_time_s, every=1)
     np.testing.assert_allclose(geo.solar_elevation_deg, ours, atol=0.01)
+
+
+def test_a_pairs_weak_beam_takes_its_strong_partners_cloud():
+    """ATL09 profiles the strong beams only and the pair's beams are 90 m apart: the weak beam
+    of a pair gets its strong partner's implied cloud (Baffin night: gt3r's own flags put it
+    at 1-3 km, gt3l's below 1 km); a beam without a partner keeps its own."""
+    from lidar_mitsuba.studies.realism_inputs import implied_cloud, pair_clouds
+    path = SHARED / "ATL07-01_20190222003738_08490201_003_02_baffin_night.h5"
+    if not path.is_file():
+        pytest.skip(f"no {path.name} in {SHARED}")
+    beams = {rb.name: rb for rb in real.read_product(path).beams}
+    clouds = pair_clouds(beams.values())
+    assert implied_cloud(beams["gt3r"]).base_m != implied_cloud(beams["gt3l"]).base_m
+    assert clouds["gt3r"] == clouds["gt3l"] == implied_cloud(beams["gt3l"])
+    assert clouds["gt1r"] == implied_cloud(beams["gt1l"])
+    assert clouds["gt2l"] == implied_cloud(beams["gt2l"])          # gt2r is not in the file

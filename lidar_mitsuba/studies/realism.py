@@ -42,8 +42,8 @@ segment's median [m]."""
 
 from .realism_inputs import (BLOWING_SNOW_TOP_M, LAYER_BASE_M, LAYER_THICKNESS_M,  # noqa: F401
                              PRODUCT_SURFACES, equation_outside_fraction, ice_sheet_snow,
-                             implied_cloud, layer_heights_m, sea_ice_snow, snow_delay,
-                             sunlit_albedo)
+                             implied_cloud, layer_heights_m, pair_clouds, sea_ice_snow,
+                             snow_delay, sunlit_albedo)
 
 TAIL_WINDOW_M = 1.0
 """The predicted tails count the simulated surface photons within this distance [m] of their
@@ -405,10 +405,11 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
         tg = twin.read(path) if signal_shots > 0 else None
         files.append({"file": path.name, "product": rf.product, "release": rf.release,
                       "missing": rf.missing_line()})
+        implied = pair_clouds(rf.beams) if cloud is None else {}
         for rb in rf.beams:
             if tg is not None and rb.name not in {b.beam.name for b in tg.beams}:
                 continue                          # no two segments in a row: no shots
-            sky = cloud if cloud is not None else implied_cloud(rb)
+            sky = cloud if cloud is not None else implied[rb.name]
             row = {"file": path.name, "product": rf.product, "beam": rb.name,
                    "strength": rb.strength, "measured": measured(rf, rb),
                    "cloud": None if sky is None else {
