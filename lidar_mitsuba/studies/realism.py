@@ -327,6 +327,9 @@ def verdict(row: dict) -> tuple[str, str]:
         return "not measured", "the file gives neither a background nor a signal rate"
     cloud = ("" if m["cloud_flags"] else " (no cloud flag in the file: all segments taken as "
              "clear)")
+    if 0.0 < p.get("deck_cover", 0.0) < 1.0 and p["background_terms_hz"]["solar"] > 0:
+        cloud += (f"; clear segments in the gaps of the file's deck (cover "
+                  f"{p['deck_cover']:.2f}), shaded")
     if bad:
         return "disagrees", ", ".join(bad) + cloud
     return "agrees", (f"background x{_fmt(bg)}, signal x{_fmt(sig)}" + cloud)
