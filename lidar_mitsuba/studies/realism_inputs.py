@@ -121,8 +121,10 @@ def pair_clouds(beams) -> dict:
     """Each beam's implied cloud (:func:`implied_cloud`) by name, a weak beam taking its pair's
     strong beam's where that has one: the two beams of a pair are 90 m apart across the track
     and see one cloud, and ATL09, whose ``msw_flag`` and apparent reflectance ATL06 and ATL07
-    copy, profiles the atmosphere with the strong beams only (ATL09's three profiles), so a
-    weak beam's flags are its partner's, resampled at fewer, longer segments: without this a
+    copy (their attributes: "from the backscatter profile using the DDA layer finder", source
+    "Atmosphere ATBD"), profiles the atmosphere with the strong beams only (ATL09's three
+    profiles; recalled, not re-read here), so a weak beam's flags are its partner's, resampled
+    at fewer, longer segments. ESTIMATE that they are the better of the two. Without this a
     pair's beams got clouds of different heights (Baffin night gt3l below 1 km, gt3r at
     1-3 km) and the night's strong:weak ratio of the model 6.9 against 3.9 for the other
     pair."""
