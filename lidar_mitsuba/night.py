@@ -130,7 +130,7 @@ class HistogramBand:
 def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elevation_deg,
                      solar_azimuth_deg, band: HistogramBand | None = None,
                      signal_per_shot: float = 0.0, outside_fraction=None,
-                     cloud=None) -> dict:
+                     cloud=None, deck=None, deck_cover: float = 0.0) -> dict:
     """The detected background rate the product reports, term by term [Hz, medians over the
     shots or segments given], for an ATLAS ``instrument`` (with a link budget).
 
@@ -144,6 +144,8 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
             instrument's Gaussian pulse, :func:`gaussian_outside_fraction`).
         cloud: a :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud` (default: clear
             sky).
+        deck, deck_cover: clear segments in the gaps of a broken deck (a ``Cloud``) of this
+            cover [0, 1], ``cloud`` None: the sunlight shaded (:func:`shaded_solar_hz`).
 
     Returns ``{"dark", "solar", "air", "cloud", "leak", "total"}`` [Hz, detected].
     """
@@ -193,9 +195,40 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
         outside_fraction = gaussian_outside_fraction(band.signal_span_m, sigma_m)
     f_out = float(np.nanmedian(np.atleast_1d(outside_fraction)))
     leak_hz = signal_per_shot * f_out / band_s          # detected photons already
+    solar_hz = float(np.median(rad.solar_mhz)) * 1e6
+    if cloud is None and deck is not None and deck_cover > 0.0:
+        solar_hz = shaded_solar_hz(instrument, solar_hz, deck=deck, cover=deck_cover,
+                                   delta_time_s=delta_time_s, z_m=z0,
+                                   solar_elevation_deg=solar_elevation_deg)
     out = {"dark": instrument.dark_count_hz * instrument.channels,
            # sunlight as the sky model gives it, the surface's albedo the cloud's system's
-           "solar": float(np.median(rad.solar_mhz)) * 1e6 * keep,
+           "solar": solar_hz * keep,
            "air": air_hz * keep, "cloud": cloud_hz * keep, "leak": leak_hz}
     out["total"] = sum(out.values())
     return out
+
+
+def shaded_solar_hz(instrument, solar_hz: float, *, deck, cover: float, delta_time_s,
+                    z_m: float, solar_elevation_deg) -> float:
+    """The sunlight [Hz, before the PDE] a nadir receiver sees over a clear gap of a broken
+    deck (:mod:`lidar_mitsuba.atmosphere.cloud_shade`): the air above the deck's top lit as
+    in clear sky (the sky model's path radiance over a black surface at the top's height,
+    seen from the same range), everything below it (the surface and the lower air, whose
+    light is ``solar_hz`` less that) times the shade factor at the median sun. The surface's
+    light scattered back down by the upper air is counted with the lower part (ESTIMATE: a
+    few per cent of it)."""
+    from .atmosphere.cloud_shade import shade_factor
+    elev = np.atleast_1d(np.asarray(solar_elevation_deg, np.float64))
+    factor = shade_factor(cover=float(cover), optical_depth=deck.optical_depth, g=deck.g,
+                          solar_elevation_deg=float(np.nanmedian(elev)))
+    if factor >= 1.0:
+        return solar_hz
+    from .radiometry import earth_sun_distance_au
+    link = instrument.link_budget
+    t = np.atleast_1d(np.asarray(delta_time_s, np.float64))
+    above = link.solar_background_hz(
+        wavelength_nm=instrument.wavelength_nm, fov_diameter_m=instrument.fov_diameter_m,
+        range_m=instrument.altitude_m - z_m, z_m=np.full(elev.shape, z_m + deck.top_m),
+        solar_elevation_deg=elev, albedo=0.0, earth_sun_au=earth_sun_distance_au(t))
+    above_hz = min(float(np.median(above)), solar_hz)
+    return above_hz + (solar_hz - above_hz) * factor

@@ -9,8 +9,9 @@ ATL07's sea-ice or ATL08's land segments): per beam, runs of segments with no ga
 in time longer than ``GAP_S`` are *pieces* (a subset may hold several, e.g. two passes over the
 same latitude); in a piece the pulses fire at the PRF from half a segment before the first
 segment's reference time to half a segment after the last, and each pulse's footprint centre,
-spacecraft altitude and sun are interpolated in time between the segments' reference
-photons (positions through an azimuthal equidistant projection centred on the piece, so the
+spacecraft altitude and sun (geometric, from the segments' time and place: :func:`model_sun`;
+the file's own ``solar_elevation`` is the refracted one) are interpolated in time between the
+segments' reference photons (positions through an azimuthal equidistant projection centred on the piece, so the
 poles and the antimeridian are no trouble). The along-track distance runs on across pieces
 (each piece starts ``PIECE_GAP_M`` after the last), so a track folds into a tile as any other.
 """
@@ -33,6 +34,24 @@ GAP_S = 0.1
 """A time step between two geolocation segments longer than this starts a new piece [s]."""
 PIECE_GAP_M = 100.0
 """Along-track distance put between two pieces [m] (their shots never share a footprint)."""
+
+
+def model_sun(lat_deg, lon_deg, delta_time_s) -> tuple[np.ndarray, np.ndarray]:
+    """The sun [deg] the model lights a real file's shots with: ``(elevation, azimuth)``,
+    **geometric** (no refraction), from the file's own time and place by the NREL SPA
+    (:func:`~lidar_mitsuba.radiometry.solar_angles`, every point), as for any other run; the
+    sky model adds the refraction itself (:mod:`lidar_mitsuba.sky`).
+
+    Not the file's ``solar_elevation``: its attribute says "the effect of atmospheric
+    refraction is not included", but in the real files it is the **apparent** elevation. Above
+    the horizon it exceeds SPA's geometric one by Saemundsson's refraction to within 0.003
+    deg (Baffin Bay ATL07 at +4.0 deg: +0.187-0.191 deg, refraction 0.187-0.191; Jakobshavn
+    ATL06 at +12.1 deg: +0.076, refraction 0.075; the forest ATL03 at +33.5 deg: +0.023,
+    0.025; ``tests/test_twin.py``), and below it by 0.21 deg at -1.6 deg (Pine Island), 0.05
+    at -7.3, 0.01 at -26 to -41 (another rule there). Taking it as geometric refracted the sun
+    twice (+0.19 deg at +4 deg)."""
+    from .radiometry import solar_angles
+    return solar_angles(lat_deg, lon_deg, delta_time_s, every=1)
 
 
 def beam_energy_uj(own_strength: str, file_energy_uj: float | None, delta_time_s: float,
@@ -204,8 +223,7 @@ def _beam(rb, prf_hz: float) -> TwinBeam | None:
     alt_seg = (rb.altitude_m[order] if rb.altitude_m is not None
                else ALTITUDE_M + np.nan_to_num(h_seg, nan=float(np.nanmedian(h_seg))
                                                if np.isfinite(h_seg).any() else 0.0))
-    sun = [None if s is None else s[order] for s in (rb.solar_elevation_deg,
-                                                      rb.solar_azimuth_deg)]
+    sun = list(model_sun(lat_seg, lon_seg, t_seg))
     cuts = np.flatnonzero(np.diff(t_seg) > GAP_S) + 1
     bounds = list(zip(np.r_[0, cuts], np.r_[cuts, t_seg.size]))
     parts, pieces, along0 = [], [], 0.0

@@ -42,8 +42,8 @@ segment's median [m]."""
 
 from .realism_inputs import (BLOWING_SNOW_TOP_M, LAYER_BASE_M, LAYER_THICKNESS_M,  # noqa: F401
                              PRODUCT_SURFACES, equation_outside_fraction, ice_sheet_snow,
-                             implied_cloud, layer_heights_m, sea_ice_snow, snow_delay,
-                             sunlit_albedo)
+                             implied_cloud, layer_heights_m, pair_clouds, sea_ice_snow,
+                             snow_delay, sunlit_albedo)
 
 TAIL_WINDOW_M = 1.0
 """The predicted tails count the simulated surface photons within this distance [m] of their
@@ -255,18 +255,24 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> 
         out["signal_from"] = "lidar equation (no dead time)"
         f_out = equation_outside_fraction(inst, band.signal_span_m, surface=surface)
     t = rb.delta_time_s
-    sun = rb.solar_elevation_deg
-    if sun is None:
-        from ..radiometry import solar_angles
-        sun, az = solar_angles(rb.lat_deg, rb.lon_deg, t)
-    else:
-        az = rb.solar_azimuth_deg if rb.solar_azimuth_deg is not None else np.zeros(t.size)
-    ok = np.isfinite(sun) & np.isfinite(t)
+    # the geometric sun from the file's time and place (the file's solar_elevation is the
+    # apparent one: twin.model_sun)
+    ok = np.isfinite(t) & np.isfinite(rb.lat_deg) & np.isfinite(rb.lon_deg)
+    sun, az = np.full(t.size, np.nan), np.zeros(t.size)
+    if ok.any():
+        from ..twin import model_sun
+        sun[ok], az[ok] = model_sun(rb.lat_deg[ok], rb.lon_deg[ok], t[ok])
+    out["solar_elevation_deg"] = _median(sun)              # geometric (the file's: refracted)
     out["sunlit_albedo"] = albedo = sunlit_albedo(rb, surface)
     kw = dict(delta_time_s=t[ok], z_m=np.full(ok.sum(), z), albedo=albedo,
               solar_elevation_deg=sun[ok], solar_azimuth_deg=np.nan_to_num(az[ok]), band=band,
               outside_fraction=f_out)
-    terms = night.background_terms(inst, signal_per_shot=out["signal_per_shot"], **kw)
+    # clear segments in the gaps of the file's own broken deck: its shade (cloud_shade)
+    cover = 0.0 if cloud is None or rb.clear is None else float(1.0 - np.mean(rb.clear))
+    out["deck_cover"] = cover
+    terms = night.background_terms(inst, signal_per_shot=out["signal_per_shot"],
+                                   deck=cloud if 0.0 < cover < 1.0 else None,
+                                   deck_cover=cover if cover < 1.0 else 0.0, **kw)
     out["background_terms_hz"] = terms
     out["background_hz"] = terms["total"]
     if cloud is not None:
@@ -321,6 +327,9 @@ def verdict(row: dict) -> tuple[str, str]:
         return "not measured", "the file gives neither a background nor a signal rate"
     cloud = ("" if m["cloud_flags"] else " (no cloud flag in the file: all segments taken as "
              "clear)")
+    if 0.0 < p.get("deck_cover", 0.0) < 1.0 and p["background_terms_hz"]["solar"] > 0:
+        cloud += (f"; clear segments in the gaps of the file's deck (cover "
+                  f"{p['deck_cover']:.2f}), shaded")
     if bad:
         return "disagrees", ", ".join(bad) + cloud
     return "agrees", (f"background x{_fmt(bg)}, signal x{_fmt(sig)}" + cloud)
@@ -399,10 +408,11 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
         tg = twin.read(path) if signal_shots > 0 else None
         files.append({"file": path.name, "product": rf.product, "release": rf.release,
                       "missing": rf.missing_line()})
+        implied = pair_clouds(rf.beams) if cloud is None else {}
         for rb in rf.beams:
             if tg is not None and rb.name not in {b.beam.name for b in tg.beams}:
                 continue                          # no two segments in a row: no shots
-            sky = cloud if cloud is not None else implied_cloud(rb)
+            sky = cloud if cloud is not None else implied[rb.name]
             row = {"file": path.name, "product": rf.product, "beam": rb.name,
                    "strength": rb.strength, "measured": measured(rf, rb),
                    "cloud": None if sky is None else {

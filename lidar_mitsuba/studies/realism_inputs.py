@@ -117,6 +117,28 @@ def implied_cloud(rb):
     return Cloud.water(round(min(tau, MAX_OPTICAL_DEPTH), 3), base, top)
 
 
+def pair_clouds(beams) -> dict:
+    """Each beam's implied cloud (:func:`implied_cloud`) by name, a weak beam taking its pair's
+    strong beam's where that has one: the two beams of a pair are 90 m apart across the track
+    and see one cloud, and ATL09, whose ``msw_flag`` and apparent reflectance ATL06 and ATL07
+    copy (their attributes: "from the backscatter profile using the DDA layer finder", source
+    "Atmosphere ATBD"), profiles the atmosphere with the strong beams only (ATL09's three
+    profiles; recalled, not re-read here), so a weak beam's flags are its partner's, resampled
+    at fewer, longer segments. ESTIMATE that they are the better of the two. Without this a
+    pair's beams got clouds of different heights (Baffin night gt3l below 1 km, gt3r at
+    1-3 km) and the night's strong:weak ratio of the model 6.9 against 3.9 for the other
+    pair."""
+    own = {rb.name: (rb.strength, implied_cloud(rb)) for rb in beams}
+    out = {}
+    for name, (strength, c) in own.items():
+        partner = own.get(name[:3] + ("r" if name[3] == "l" else "l"))
+        if strength == "weak" and partner is not None and partner[0] == "strong" \
+                and partner[1] is not None and c is not None:
+            c = partner[1]
+        out[name] = c
+    return out
+
+
 def layer_heights_m(layer_class) -> tuple[float, float]:
     """``(base, top)`` [m above the surface] of the implied layer from the ``msw_flag`` values
     of the cloudy segments (their most frequent class among 1-5; class 3 without any)."""

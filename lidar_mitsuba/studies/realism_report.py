@@ -27,7 +27,7 @@ def plot(doc: dict, path) -> None:
     lo, hi = ELEVATION_RANGE_DEG
     for r in doc["rows"]:
         m, p = r["measured"], r["predicted"]
-        el = m["solar_elevation_deg"]
+        el = p.get("solar_elevation_deg", m["solar_elevation_deg"])   # geometric, as the curve
         if el is None:
             continue
         x = float(np.clip(el, lo, hi))
