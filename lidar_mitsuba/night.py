@@ -155,7 +155,8 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
     keep = instrument.fill_factor * instrument.pde
     z = np.atleast_1d(np.asarray(z_m, np.float64))
     # under a cloud the sun sees the cloud over the surface (its two-stream system albedo,
-    # as a run's radiometry: atmosphere.cloud_layer.clouded_radiometry)
+    # as a run's radiometry: atmosphere.cloud_layer.clouded_radiometry), the direct sun's
+    # share reflected with its nadir reflectance factor (atmosphere.cloud_reflection)
     sunlit = albedo if cloud is None else cloud.system_albedo(albedo)
     rad = shot_radiometry(instrument, delta_time_s=delta_time_s, z_m=z, albedo=sunlit,
                           solar_elevation_deg=solar_elevation_deg,
@@ -196,6 +197,11 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
     f_out = float(np.nanmedian(np.atleast_1d(outside_fraction)))
     leak_hz = signal_per_shot * f_out / band_s          # detected photons already
     solar_hz = float(np.median(rad.solar_mhz)) * 1e6
+    if cloud is not None:             # the direct sun reflected with the cloud's anisotropy
+        from .atmosphere.cloud_reflection import direct_sun_factor
+        solar_hz *= float(np.median(direct_sun_factor(
+            cloud, surface_albedo=albedo, solar_elevation_deg=solar_elevation_deg, z_m=z0,
+            atmosphere=link.atmosphere, wavelength_nm=lam)))
     if cloud is None and deck is not None and deck_cover > 0.0:
         solar_hz = shaded_solar_hz(instrument, solar_hz, deck=deck, cover=deck_cover,
                                    delta_time_s=delta_time_s, z_m=z0,
