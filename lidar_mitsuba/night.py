@@ -155,7 +155,8 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
     keep = instrument.fill_factor * instrument.pde
     z = np.atleast_1d(np.asarray(z_m, np.float64))
     # under a cloud the sun sees the cloud over the surface (its two-stream system albedo,
-    # as a run's radiometry: atmosphere.cloud_layer.clouded_radiometry)
+    # as a run's radiometry: atmosphere.cloud_layer.clouded_radiometry), the direct sun's
+    # share reflected with its nadir reflectance factor (atmosphere.cloud_reflection)
     sunlit = albedo if cloud is None else cloud.system_albedo(albedo)
     rad = shot_radiometry(instrument, delta_time_s=delta_time_s, z_m=z, albedo=sunlit,
                           solar_elevation_deg=solar_elevation_deg,
@@ -195,17 +196,35 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
         outside_fraction = gaussian_outside_fraction(band.signal_span_m, sigma_m)
     f_out = float(np.nanmedian(np.atleast_1d(outside_fraction)))
     leak_hz = signal_per_shot * f_out / band_s          # detected photons already
-    solar_hz = float(np.median(rad.solar_mhz)) * 1e6
-    if cloud is None and deck is not None and deck_cover > 0.0:
-        solar_hz = shaded_solar_hz(instrument, solar_hz, deck=deck, cover=deck_cover,
-                                   delta_time_s=delta_time_s, z_m=z0,
-                                   solar_elevation_deg=solar_elevation_deg)
+    solar_hz = _solar_hz(instrument, float(np.median(rad.solar_mhz)) * 1e6, cloud=cloud,
+                         albedo=albedo, deck=deck, deck_cover=deck_cover,
+                         delta_time_s=delta_time_s, z_m=z0,
+                         solar_elevation_deg=solar_elevation_deg)
     out = {"dark": instrument.dark_count_hz * instrument.channels,
            # sunlight as the sky model gives it, the surface's albedo the cloud's system's
            "solar": solar_hz * keep,
            "air": air_hz * keep, "cloud": cloud_hz * keep, "leak": leak_hz}
     out["total"] = sum(out.values())
     return out
+
+
+def _solar_hz(instrument, solar_hz: float, *, cloud, albedo: float, deck, deck_cover: float,
+              delta_time_s, z_m: float, solar_elevation_deg) -> float:
+    """The sky model's sunlight ``solar_hz`` [Hz] under ``cloud`` with the direct sun's share
+    reflected with the layer's nadir reflectance factor
+    (:func:`~lidar_mitsuba.atmosphere.cloud_reflection.direct_sun_factor`, at the median
+    factor over the shots), or clear in the gaps of a broken ``deck`` (:func:`shaded_solar_hz`)."""
+    if cloud is not None:
+        from .atmosphere.cloud_reflection import direct_sun_factor
+        link = instrument.link_budget
+        return solar_hz * float(np.median(direct_sun_factor(
+            cloud, surface_albedo=albedo, solar_elevation_deg=solar_elevation_deg, z_m=z_m,
+            atmosphere=link.atmosphere, wavelength_nm=instrument.wavelength_nm)))
+    if deck is not None and deck_cover > 0.0:
+        return shaded_solar_hz(instrument, solar_hz, deck=deck, cover=deck_cover,
+                               delta_time_s=delta_time_s, z_m=z_m,
+                               solar_elevation_deg=solar_elevation_deg)
+    return solar_hz
 
 
 def shaded_solar_hz(instrument, solar_hz: float, *, deck, cover: float, delta_time_s,

@@ -256,7 +256,9 @@ def clouded_radiometry(rad, cloud: Cloud, instrument, *, delta_time_s, z_m):
     """A run's :class:`~lidar_mitsuba.radiometry.ShotRadiometry` under ``cloud``: the solar
     background again with the surface's albedo replaced by the cloud-over-surface albedo
     (:meth:`Cloud.system_albedo`: a thin cloud dims the surface's reflected sunlight, a thick
-    one is brighter than dark ground), and the air's laser backscatter (from just above the
+    one is brighter than dark ground), the direct sun's share of it reflected with the
+    layer's nadir reflectance factor
+    (:func:`~lidar_mitsuba.atmosphere.cloud_reflection.direct_sun_factor`), and the air's laser backscatter (from just above the
     surface, under the cloud) times ``exp(-2 tau)``. The signal scale is unchanged (the
     cloud's attenuation is in the returns)."""
     from .. import radiometry
@@ -266,10 +268,15 @@ def clouded_radiometry(rad, cloud: Cloud, instrument, *, delta_time_s, z_m):
         instrument, delta_time_s=delta_time_s, z_m=z_m,
         albedo=cloud.system_albedo(rad.albedo), solar_elevation_deg=rad.solar_elevation_deg,
         solar_azimuth_deg=rad.solar_azimuth_deg)
+    from .cloud_reflection import direct_sun_factor
+    solar = sunny.solar_mhz * direct_sun_factor(
+        cloud, surface_albedo=rad.albedo, solar_elevation_deg=rad.solar_elevation_deg,
+        z_m=float(np.nanmedian(np.atleast_1d(z_m))),
+        atmosphere=instrument.link_budget.atmosphere, wavelength_nm=instrument.wavelength_nm)
     back = rad.backscatter_mhz * cloud.two_way_transmission
     other = rad.background_mhz - rad.solar_mhz - rad.backscatter_mhz   # the instrument's own
-    return dataclasses.replace(rad, solar_mhz=sunny.solar_mhz, backscatter_mhz=back,
-                               background_mhz=sunny.solar_mhz + back + other)
+    return dataclasses.replace(rad, solar_mhz=solar, backscatter_mhz=back,
+                               background_mhz=solar + back + other)
 
 
 def window_heights_m(instrument) -> tuple[float, float]:
