@@ -92,6 +92,24 @@ def trace_threads(keep: int | None = None):
         _granted[0] = None
 
 
+_launcher: list = [None]    # the thread trace_launcher() gives
+
+
+def trace_launcher() -> ThreadPoolExecutor | None:
+    """Within :func:`trace_threads` narrowed to one thread (Dr.Jit's LLVM backend then runs
+    each kernel in the thread that launches it), a thread of its own for launching and
+    fetching traces, so that they overlap the host's detection as the pool's workers would
+    (Dr.Jit releases the GIL while a kernel runs); else ``None``. One per process."""
+    if _granted[0] is None or "drjit" not in sys.modules:
+        return None
+    import drjit as dr
+    if int(dr.thread_count()) != 1:
+        return None
+    if _launcher[0] is None or _launcher[0][0] != os.getpid():
+        _launcher[0] = (os.getpid(), ThreadPoolExecutor(1, thread_name_prefix="lidar-trace"))
+    return _launcher[0][1]
+
+
 def host_pool() -> ThreadPoolExecutor:
     """A pool of :func:`host_threads` threads for host work that runs without the GIL (zlib,
     ``nogil`` numba kernels), made anew when that number changes or in a forked child."""

@@ -13,7 +13,8 @@ The six-beam granule row runs the granule twice in its process, as a campaign's 
 worker does: ``seconds`` is the second (warm: renderer, kernels, writer process and DEM
 already loaded), ``of_cast`` its ratio to casting the same rays alone, ``end_to_end_s`` the
 first granule's end counted from the interpreter's start (what a cold
-``lidar-mitsuba simulate`` pays) and ``end_to_end_over_warm`` the ratio of the two.
+``lidar-mitsuba simulate`` pays: its writer process started before the renderer's set-up, as
+``simulate --dem`` starts it) and ``end_to_end_over_warm`` the ratio of the two.
 """
 from __future__ import annotations
 

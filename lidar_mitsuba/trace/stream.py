@@ -19,6 +19,7 @@ from ..detector import pmt
 from ..detector.deadtime import serial_while
 from ..constants import C_M_PER_NS
 from ..instrument import Instrument
+from ..machine import trace_launcher
 from ..detector.records import Detections, Returns
 
 CHUNK_SHOTS = 65536
@@ -208,6 +209,9 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
     launch = getattr(source, "launch", None)
     if launch is None:
         launch = (lambda a, b, s: _Done(source(a, b, s)))
+    elif (launcher := trace_launcher()) is not None:     # a granule's one-thread trace
+        launch = _on(launcher, launch)
+    pending = None
     try:
         pending = launch(spans[0][1], spans[0][2], trace_seed(seed, 0)) if spans else None
         for i, (k, a, b) in enumerate(spans):
@@ -234,10 +238,20 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
     finally:
         if bar is not None:
             bar.close()
+        if pending is not None and hasattr(pending, "exception"):
+            pending.exception()        # (a trace still on the launcher thread: let it end)
     dets = {name: Detections.concatenate(p) for name, p in parts.items()}
     returns = Returns.concatenate(kept, n_shots=n_shots) if keep_returns else None
     return ChunkedRun(detections=dets, returns=returns, n_returns=n_returns,
                       timings_s={"trace_s": trace_s, "detect_s": detect_s})
+
+
+def _on(launcher, launch):
+    """``launch`` whose trace is launched and fetched on the ``launcher`` thread (the same
+    returns: each chunk's seed is its own)."""
+    def later(a: int, b: int, seed: int):
+        return launcher.submit(lambda: launch(a, b, seed).result())
+    return later
 
 
 class _Done:
