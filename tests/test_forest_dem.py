@@ -21,10 +21,11 @@ def small_dem(tmp_path_factory):
 
 def test_the_stand_wraps_along_the_corridor_on_the_ground_where_it_is(small_dem):
     """A 200 m periodic stand seen by a corridor tile 1.1 km away (tiles of a 100 km track
-    see the same stand): a window one period on a side, anywhere, holds exactly one image of
-    every tree (the count is exact, not statistical), and every image's crown stands on the
-    DEM where the image is (its base ``crown_base`` above the DEM's height at its axis, to
-    float32 rounding of ~2000 m heights: 1 mm), in the tile's coordinates."""
+    see the same stand): the tile's table over a window one period on a side, anywhere,
+    holds exactly one image of every tree (the count is exact, not statistical), and every
+    image's crown stands on the DEM where the image is (its base ``crown_base`` above the
+    DEM's height at its axis, to float32 rounding of ~2000 m heights: 1 mm), in the tile's
+    coordinates."""
     from lidar_mitsuba.vegetation import turbid
     ground = dems.DEMSurface(dems.DEM.open(small_dem))
     (cx, cy) = ground.centre_xy_m()
@@ -33,7 +34,9 @@ def test_the_stand_wraps_along_the_corridor_on_the_ground_where_it_is(small_dem)
                   bounds_m=((cx - 100.0, cy - 100.0), (cx + 100.0, cy + 100.0)))
     x0, y0 = cx + 1100.0 + 17.3, cy - 900.0 + 3.1         # not on the period's lattice
     shift = (x0 - 40.0, y0 + 25.0, 0.0)                    # the tile's origin in the frame
-    t = turbid.tile_table(f, bounds_xy_m=(x0, x0 + 200.0, y0, y0 + 200.0), shift_m=shift)
+    shots_y = y0 + np.linspace(0.0, 200.0, 50)       # a tile's shots, 100 m about them
+    t = turbid.tile_table(f, x_m=np.full(50, x0 + 100.0), y_m=shots_y, reach_m=100.0,
+                          shift_m=shift)
     ax, ay = t["cx"] + shift[0], t["cy"] + shift[1]
     inside = (ax >= x0) & (ax < x0 + 200.0) & (ay >= y0) & (ay < y0 + 200.0)
     assert inside.sum() == f.stand.n_trees > 100
@@ -47,10 +50,11 @@ def test_the_stand_wraps_along_the_corridor_on_the_ground_where_it_is(small_dem)
 
 
 def test_cli_forest_over_a_dem_writes_atl03_atl06_and_atl08(small_dem, tmp_path, capsys):
-    """``simulate --dem --forest`` (docs/guide/forests.md) at a small size: one weak beam, 300
-    shots (two 100 m land segments) over a turbid conifer stand (a 300 m periodic square at the
-    DEM's centre, 0.4 km north of the track: seen through its images); ATL03, ATL06 and our ATL08 are written, the ATL08 photons are classed ground and
-    canopy, and its terrain lies on the DEM's: within 0.25 m (~100 ground photons a segment
+    """``simulate --dem --forest`` (docs/guide/forests.md) at a small size: one strong beam,
+    300 shots (two 100 m land segments) over a turbid conifer stand (a 300 m periodic square
+    at the DEM's centre, 0.4 km north of the track: seen through its images); ATL03, ATL06
+    and our ATL08 are written, the ATL08 photons are classed ground and canopy, and its
+    terrain lies on the DEM's: within 0.25 m (~100 ground photons a segment
     spread ~0.2 m by the pulse and the footprint's slope: a mean good to ~2 cm; the bound
     leaves the ground classifier a decimetre or two of its own)."""
     from lidar_mitsuba.cli import main

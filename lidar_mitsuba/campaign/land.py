@@ -21,8 +21,9 @@ LAND_COLUMNS: dict[str, str] = {
 
 
 def forest_over(surface, forest: dict):
-    """The spec's ``[forest]`` (a dict of :func:`lidar_mitsuba.forest` keywords, ``size_m``
-    the side of the periodic stand [m] at the DEM's centre, default 2048) over the granule's
+    """The spec's ``[forest]`` (a dict of :func:`~lidar_mitsuba.vegetation.forest.forest`
+    keywords, ``size_m`` the side of the periodic stand [m] at the DEM's centre, default
+    2048) over the granule's
     :class:`~lidar_mitsuba.ground.dem.DEMSurface` ``surface``."""
     from ..vegetation.forest import forest as make_forest
     from ..vegetation.stand import DEM_STAND_M

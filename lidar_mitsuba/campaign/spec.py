@@ -395,8 +395,9 @@ def _surface(doc: dict, base: pathlib.Path) -> dict:
 
 
 def _forest(doc: dict) -> dict | None:
-    """``[forest]``: a stand over every granule's DEM (:func:`lidar_mitsuba.forest`'s keywords,
-    ``size_m`` the side of its periodic square at the DEM's centre), checked, as given."""
+    """``[forest]``: a stand over every granule's DEM (the keywords of
+    :func:`~lidar_mitsuba.vegetation.forest.forest`, ``size_m`` the side of its periodic
+    square at the DEM's centre), checked, as given."""
     if "forest" not in doc:
         return None
     t = dict(_table(doc, "forest"))

@@ -10,7 +10,8 @@ corridor tile sees through its images) in the ``gap`` and ``turbid`` representat
 of its length and beams. The runs of one length
 alternate (bare, gap, turbid, bare, ...) in one warm process, after a short warm-up of each
 (kernels compiled), and each row is the median of ``repeats``; a row's ``over_bare`` is its
-median over the bare median, ``of_cast`` its median over the time its rays take to cast
+median over the bare median, ``over_bare_paired`` the median of each round's ratio to the
+bare run of its round, ``of_cast`` its median over the time its rays take to cast
 alone (:func:`.track_length.cast_rate`). The forest's ATL08 (our classifier over the ATL03,
 :mod:`lidar_mitsuba.products.atl08.granule`) is timed apart (``atl08_s``): the product, not
 the trace. All runs: ``max_depth=1``, paths per shot by the scout, the range gate 60 m (the
@@ -97,7 +98,12 @@ def _alternated(cases: dict, track, *, km: float, beams: str, repeats: int, warm
         sec = statistics.median(times[name])
         rows.append({"representation": name, "length_km": km, "beams": len(out),
                      "shots": shots, "seconds": sec, "times_s": times[name],
-                     "over_bare": sec / bare, "rays": int(rays), "cast_s": rays / rate,
+                     "over_bare": sec / bare,
+                     # each round's run over the bare one beside it, the median (the load of
+                     # a shared machine drifts between rounds more than within one)
+                     "over_bare_paired": statistics.median(
+                         t / b for t, b in zip(times[name], times["bare"])),
+                     "rays": int(rays), "cast_s": rays / rate,
                      "of_cast": sec / (rays / rate),
                      "paths_per_shot": out[0].config["paths_per_shot"],
                      "atl08_s": atl08.get(name), "repeats": repeats,
@@ -148,7 +154,8 @@ def format_rows(rows: list[dict]) -> list[str]:
                 continue
             atl08 = "" if r["atl08_s"] is None else f", its ATL08 {r['atl08_s']:.1f} s"
             parts.append(f"{r['representation']} {r['seconds']:.1f} s = {r['over_bare']:.2f}x "
-                         f"bare ({r['of_cast']:.1f}x its rays cast alone, "
+                         f"bare (paired {r['over_bare_paired']:.2f}x; {r['of_cast']:.1f}x its "
+                         f"rays cast alone, "
                          f"{r['paths_per_shot']} paths a shot{atl08})")
         lines.append(f"forest in a DEM granule ({bare['beams']} beams x {km:g} km, conifer "
                      f"18 m, 60 % cover, LAI 3; medians of {bare['repeats']}): "

@@ -331,12 +331,9 @@ class _ForestTiles(ChunkTiles):
                 bounds_m=(float(xl.min()) - r, float(xl.max()) + r,
                           float(yl.min()) - r, float(yl.max()) + r))
             shift, offsets = (0.0, 0.0, 0.0), tuple(np.full(n, v) for v in d)
-        if forest.representation != "explicit":            # the crowns: a table
-            from ..trace.scene import scene_bounds
-            lo, hi = scene_bounds(ground)
-            bounds = (float(lo[0]) + shift[0], float(hi[0]) + shift[0],
-                      float(lo[1]) + shift[1], float(hi[1]) + shift[1])
-            table = turbid.tile_table(forest, bounds_xy_m=bounds, shift_m=shift)
+        if forest.representation != "explicit":       # the crowns over the shots: a table
+            table = turbid.tile_table(forest, x_m=x, y_m=y, reach_m=self.reach_m,
+                                      shift_m=shift)
             return ground, x - offsets[0], y - offsets[1], offsets, int(tri), table
         scene, veg = forest.with_vegetation(ground, shift_m=shift)
         return scene, x - offsets[0], y - offsets[1], offsets, int(tri) + veg, None

@@ -76,16 +76,28 @@ def crowns_table(stand, *, cx, cy, zb, zt, r, rho: float, tau: float) -> dict:
             "rho": float(rho), "tau": float(tau)}
 
 
-def tile_table(forest, *, bounds_xy_m, shift_m) -> dict:
+def tile_table(forest, *, x_m, y_m, reach_m: float, shift_m) -> dict:
     """The canopy table of one corridor tile of a forest over a DEM: the crowns that reach
-    into ``bounds_xy_m`` (x0, x1, y0, y1) [m, the forest's frame] with the periodic stand's
-    images, each standing on the ground where it is (:func:`.explicit.placed_trees`), in
-    the tile's coordinates (frame less ``shift_m`` (dx, dy, dz) [m])."""
+    within ``reach_m`` [m] of the band of the tile's shots (``x_m``, ``y_m`` (n,) [m, the
+    forest's frame]: the band about their chord, as the DEM's corridor, where every photon
+    of theirs stays), with the periodic stand's images, each standing on the ground where
+    it is (:func:`.explicit.placed_trees`), in the tile's coordinates (frame less
+    ``shift_m`` (dx, dy, dz) [m]). Only the band: a tile's mesh on a coarse DEM's pixels
+    spans hundreds of metres across, and its crowns cost the table's grid."""
+    from ..ground.dem.tiles import chord_frame
     from .explicit import placed_trees
     s = forest.stand
-    idx, x, y, z = placed_trees(forest, bounds_xy_m)
-    z = z - shift_m[2]
-    return crowns_table(s, cx=x - shift_m[0], cy=y - shift_m[1], zb=z + s.crown_base_m[idx],
+    x, y, r = np.asarray(x_m, np.float64), np.asarray(y_m, np.float64), float(reach_m)
+    idx, cx, cy, z = placed_trees(forest, (float(x.min()) - r, float(x.max()) + r,
+                                           float(y.min()) - r, float(y.max()) + r))
+    (ox, oy), (ux, uy), along, across = chord_frame(x, y)
+    a = (cx - ox) * ux + (cy - oy) * uy
+    c = (cx - ox) * -uy + (cy - oy) * ux
+    rc = s.crown_radius_m[idx] + r
+    keep = ((a >= along.min() - rc) & (a <= along.max() + rc)
+            & (c >= across.min() - rc) & (c <= across.max() + rc))
+    idx, cx, cy, z = idx[keep], cx[keep], cy[keep], z[keep] - shift_m[2]
+    return crowns_table(s, cx=cx - shift_m[0], cy=cy - shift_m[1], zb=z + s.crown_base_m[idx],
                         zt=z + s.height_m[idx], r=s.crown_radius_m[idx],
                         rho=forest.leaf.reflectance, tau=forest.leaf.transmittance)
 

@@ -330,7 +330,21 @@ def _neighbour_residuals(x: np.ndarray, h: np.ndarray, *, half: int = 3) -> np.n
     r = np.zeros(n)
     if n < 3:
         return r
-    for i in range(n):
+    # the points with ``half`` neighbours either side and distinct neighbour positions, all
+    # at once (the same medians of the same numbers: ~100x faster than one by one)
+    inner = np.arange(half, n - half)
+    offs = np.r_[-half:0, 1:half + 1]
+    a, b = np.triu_indices(offs.size, 1)
+    xj, hj = x[inner[:, None] + offs], h[inner[:, None] + offs]
+    dx = xj[:, b] - xj[:, a]
+    whole = (dx != 0).all(axis=1)
+    if whole.any():
+        k, xw, hw = inner[whole], xj[whole], hj[whole]
+        slope = np.median((hw[:, b] - hw[:, a]) / dx[whole], axis=1)
+        r[k] = h[k] - np.median(hw - slope[:, None] * (xw - x[k, None]), axis=1)
+    done = np.zeros(n, bool)
+    done[inner[whole]] = True
+    for i in np.flatnonzero(~done):               # the ends, and repeated positions
         j = np.r_[max(0, i - half):i, i + 1:min(n, i + half + 1)]
         xj, hj = x[j], h[j]
         a, b = np.triu_indices(j.size, 1)
