@@ -18,15 +18,16 @@ def pytest_xdist_auto_num_workers(config):
     return max(1, min(4, len(os.sched_getaffinity(0))))
 
 
-#: The test files that take longest (seconds on one of two busy workers, from a full run's
-#: --durations, session 20), started first: with ``--dist loadfile`` a file stays on one
-#: worker, and xdist's default order (files with the most tests first) left the heaviest,
-#: with few tests, to the end of the run, where one worker finished them alone. Longest first
-#: (the LPT rule) ends the workers within about the last file's time of each other. A file
-#: not listed runs after these, in collection order; a new slow file belongs here.
-SLOW_FILES = {"test_bench.py": 140, "test_twin.py": 110, "test_docs.py": 100,
-              "test_snow_kernel.py": 100, "test_notebooks.py": 90, "test_campaign.py": 60,
-              "test_fpb_matrix.py": 50, "test_granule.py": 50, "test_reproduce.py": 30}
+#: The test files that take longest (seconds on one of two busy workers: a full run's
+#: per-file sums, session 20, scaled to a quiet machine), started first: with
+#: ``--dist loadfile`` a file stays on one worker, and xdist's default order (files with the
+#: most tests first) left the heaviest, with few tests, to the end of the run, where one
+#: worker finished them alone. Longest first (the LPT rule) ends the workers within about
+#: the last file's time of each other. A file not listed runs after these, in collection
+#: order; a new slow file belongs here.
+SLOW_FILES = {"test_bench.py": 145, "test_snow_kernel.py": 105, "test_docs.py": 100,
+              "test_campaign.py": 85, "test_fpb_matrix.py": 60, "test_reproduce.py": 55,
+              "test_twin.py": 55, "test_notebooks.py": 50, "test_granule.py": 50}
 
 
 def pytest_collection_modifyitems(config, items):

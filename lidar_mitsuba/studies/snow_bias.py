@@ -96,8 +96,8 @@ def run(*, quick: bool = False, smoke: bool = False) -> dict:
         return _run(quick=quick or smoke, smoke=smoke)
 
 
-#: the walk's shots in a smoke run (quick: 400): 200 shots are 140 m of track, five
-#: unflagged ATL06 segments for the walk rows' h_li
+#: the walk's shots in a smoke run (quick: 400): 200 shots are 140 m of track, about five
+#: 40 m ATL06 segments for the walk rows' h_li
 SMOKE_WALK_SHOTS = 200
 
 
