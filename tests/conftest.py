@@ -27,7 +27,8 @@ def pytest_xdist_auto_num_workers(config):
 #: order; a new slow file belongs here.
 SLOW_FILES = {"test_bench.py": 145, "test_snow_kernel.py": 105, "test_docs.py": 100,
               "test_campaign.py": 85, "test_fpb_matrix.py": 60, "test_reproduce.py": 55,
-              "test_twin.py": 55, "test_notebooks.py": 50, "test_granule.py": 50}
+              "test_twin.py": 55, "test_notebooks.py": 60, "test_granule.py": 50,
+              "test_forest_dem.py": 20}
 
 
 def pytest_collection_modifyitems(config, items):
