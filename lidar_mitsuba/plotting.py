@@ -40,10 +40,18 @@ def photon_cloud(*, along_track_m: np.ndarray, surface_z_m: np.ndarray, z_ref_m:
             label="surface along track")
     ax.plot(along_track_m, z_ref_m, "-", lw=1.0, color="k", alpha=0.6,
             label="reference elevation (footprint mean)")
+    return _finish_cloud(fig, ax, title=title, path=path, own=own,
+                         loc="best", fontsize=8)
+
+
+def _finish_cloud(fig, ax, *, title: str, path, own: bool, **legend):
+    """A photon-cloud panel's axes labelled (along track [m], elevation [m]), titled, its
+    legend (``legend``: matplotlib's keywords) and grid drawn; a figure of its ``own`` laid
+    out, and saved to ``path`` and closed when one is given. Returns ``fig``."""
     ax.set_xlabel("along-track distance [m]")
     ax.set_ylabel("elevation [m]")
     ax.set_title(title)
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(**legend)
     ax.grid(alpha=0.3)
     if own:
         fig.tight_layout()
@@ -123,14 +131,5 @@ def classified_cloud(*, photon_along_m: np.ndarray, photon_h_m: np.ndarray,
     if truth_along_m is not None and truth_surface_z_m is not None:
         ax.plot(truth_along_m, truth_surface_z_m, "-", lw=1.0, color="tab:blue",
                 label="true ground")
-    ax.set_xlabel("along-track distance [m]")
-    ax.set_ylabel("elevation [m]")
-    ax.set_title(title)
-    ax.legend(loc="upper left", fontsize=7, ncol=2, markerscale=3)
-    ax.grid(alpha=0.3)
-    if own:
-        fig.tight_layout()
-        if path is not None:
-            fig.savefig(path)
-            plt.close(fig)
-    return fig
+    return _finish_cloud(fig, ax, title=title, path=path, own=own,
+                         loc="upper left", fontsize=7, ncol=2, markerscale=3)

@@ -255,7 +255,7 @@ class Column:
         return np.where(lit, np.exp(-np.minimum(tau, 700.0)), 0.0), h
 
 
-def _hg(cos_theta, g: float):
+def hg_phase(cos_theta, g: float):
     """Henyey-Greenstein phase function, normalised to 4 pi over the sphere."""
     return (1.0 - g * g) / (1.0 + g * g - 2.0 * g * cos_theta) ** 1.5
 
@@ -363,13 +363,13 @@ def _first_order(col: Column, t_mid, h_mid, below, above):
     m0 = mu0[:, :1]                                                      # (E, 1)
     ct = (np.sqrt(1.0 - m0 ** 2)[..., None] * np.sqrt(1.0 - _MU ** 2)[:, None] * np.cos(_PHI)
           + m0[..., None] * _MU[:, None])                                # (E, mu, phi)
-    p_a = _hg(ct, AEROSOL_ASYMMETRY).mean(axis=-1)                       # (E, mu)
+    p_a = hg_phase(ct, AEROSOL_ASYMMETRY).mean(axis=-1)                  # (E, mu)
     att = np.exp(-below[:, None] / _MU)                                  # (N, mu)
     f_a = 0.5 * (p_a * _W_MU) @ att.T                                    # (E, N)
     flux = np.sum(t_mid * (d_r * f_r + d_a * f_a), axis=-1)
     cos_up = -mu0            # the sun's ray (going down at mu0) turned straight up
-    radiance = np.sum(t_mid * (d_r * _rayleigh(cos_up) + d_a * _hg(cos_up, AEROSOL_ASYMMETRY))
-                      / (4.0 * np.pi) * np.exp(-above), axis=-1)
+    phase = d_r * _rayleigh(cos_up) + d_a * hg_phase(cos_up, AEROSOL_ASYMMETRY)
+    radiance = np.sum(t_mid * phase / (4.0 * np.pi) * np.exp(-above), axis=-1)
     return flux, radiance
 
 

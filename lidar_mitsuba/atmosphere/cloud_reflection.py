@@ -57,7 +57,8 @@ import math
 import numpy as np
 
 from ..constants import ParameterError
-from .cloud_shade import _hg_cosine, _turn
+from ..sky import hg_phase
+from .cloud_shade import _hg_cosine, _turn, check_layer
 
 PHOTONS = 1 << 15
 """Photons per :func:`nadir_reflectance_factor` estimate (standard error 0.005-0.01 at the
@@ -72,21 +73,9 @@ MU0_STEP = 0.02
 grazing sun, where it bends most)."""
 
 
-def hg_phase(cos_theta, g: float):
-    """The Henyey-Greenstein phase function normalised to 4 pi:
-    ``(1 - g^2) / (1 + g^2 - 2 g cos)^(3/2)``."""
-    c = np.asarray(cos_theta, np.float64)
-    return (1.0 - g * g) / (1.0 + g * g - 2.0 * g * c) ** 1.5
-
-
 def _check(optical_depth: float, g: float, mu0: float, surface_albedo: float,
            single_scattering_albedo: float) -> None:
-    if not (0.0 < mu0 <= 1.0):
-        raise ParameterError("mu0", f"must be in (0, 1] (got {mu0})")
-    if not (optical_depth >= 0.0 and math.isfinite(optical_depth)):
-        raise ParameterError("optical_depth", f"must be >= 0 (got {optical_depth})")
-    if not (-1.0 < g < 1.0):
-        raise ParameterError("g", f"must be in (-1, 1) (got {g})")
+    check_layer(optical_depth=optical_depth, g=g, mu0=mu0)
     if not (0.0 <= surface_albedo <= 1.0):
         raise ParameterError("surface_albedo", f"must be in [0, 1] (got {surface_albedo})")
     if not (0.0 < single_scattering_albedo <= 1.0):

@@ -41,6 +41,18 @@ MAX_EVENTS = 3000
 transmitted: at tau <= 10, g 0.85 fewer than 1e-4 of them)."""
 
 
+def check_layer(*, optical_depth: float, g: float, mu0: float) -> None:
+    """Refuses (:class:`~lidar_mitsuba.constants.ParameterError`) a plane-parallel layer's
+    ``optical_depth`` outside [0, inf), Henyey-Greenstein ``g`` outside (-1, 1) or a beam's
+    ``mu0`` outside (0, 1]."""
+    if not (0.0 < mu0 <= 1.0):
+        raise ParameterError("mu0", f"must be in (0, 1] (got {mu0})")
+    if not (optical_depth >= 0.0 and math.isfinite(optical_depth)):
+        raise ParameterError("optical_depth", f"must be >= 0 (got {optical_depth})")
+    if not (-1.0 < g < 1.0):
+        raise ParameterError("g", f"must be in (-1, 1) (got {g})")
+
+
 def _hg_cosine(g: float, u: np.ndarray) -> np.ndarray:
     """Henyey-Greenstein scattering-angle cosines from uniforms ``u`` (its inverse CDF;
     isotropic for ``g = 0``)."""
@@ -71,12 +83,7 @@ def layer_reflectance(*, optical_depth: float, g: float, mu0: float,
     Henyey-Greenstein phase function of asymmetry ``g`` reflects (leaves through its top),
     with nothing below it. Monte Carlo, ``photons`` photons, seeded: exact in expectation,
     binomial standard error ``sqrt(R (1 - R) / photons)``."""
-    if not (0.0 < mu0 <= 1.0):
-        raise ParameterError("mu0", f"must be in (0, 1] (got {mu0})")
-    if not (optical_depth >= 0.0 and math.isfinite(optical_depth)):
-        raise ParameterError("optical_depth", f"must be >= 0 (got {optical_depth})")
-    if not (-1.0 < g < 1.0):
-        raise ParameterError("g", f"must be in (-1, 1) (got {g})")
+    check_layer(optical_depth=optical_depth, g=g, mu0=mu0)
     if optical_depth == 0.0:
         return 0.0
     rng = np.random.default_rng(seed)
