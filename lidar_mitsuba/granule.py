@@ -463,7 +463,8 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     first tile); every later section is laid out with that model
     (:meth:`~lidar_mitsuba.planning.RunPlan.section`), each section an independent draw with
     its own seed. ATL06 segments are fitted across section boundaries (see
-    :class:`_SegmentStream`). Both files are written atomically: a failure leaves neither. ``snow`` may be a function ``snow(beam, k)`` giving
+    :class:`_SegmentStream`). Both files are written atomically: a failure leaves neither.
+    ``snow`` may be a function ``snow(beam, k)`` giving
     the :class:`~lidar_mitsuba.ground.snow.SnowVolume` (or None) of section ``k`` of ``beam``
     (``section_bounds`` gives the sections): snow that varies along and across the track, a
     section planned anew where its snow differs from the one before (equal snow: the same
