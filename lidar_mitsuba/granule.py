@@ -458,22 +458,21 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     memory is bounded by a section (``section_shots`` shots) for a track of any length.
 
     Arguments as :func:`simulate_granule`. Each beam is planned once, on its first section
-    (:func:`lidar_mitsuba.planning.plan`: the material, depth, paths per shot and integrator;
-    with ``max_depth="auto"`` and ``paths_per_shot="auto"``, its pilot and scout trace its
-    first tile); every later section is laid out with that model
-    (:meth:`~lidar_mitsuba.planning.RunPlan.section`), each section an independent draw with
-    its own seed. ATL06 segments are fitted across section boundaries (see
-    :class:`_SegmentStream`). Both files are written atomically: a failure leaves neither.
-    ``snow`` may be a function ``snow(beam, k)`` giving
-    the :class:`~lidar_mitsuba.ground.snow.SnowVolume` (or None) of section ``k`` of ``beam``
-    (``section_bounds`` gives the sections): snow that varies along and across the track, a
-    section planned anew where its snow differs from the one before (equal snow: the same
-    plan). Likewise ``roughness(beam, k)``: the roughness heightfield (or None) of the
-    section, on ``surface``, planned anew where it is not the same object as the one before.
+    (:func:`lidar_mitsuba.planning.plan`: the material, depth, paths per shot and integrator; with
+    ``max_depth="auto"`` and ``paths_per_shot="auto"``, its pilot and scout trace its first tile);
+    every later section is laid out with that model
+    (:meth:`~lidar_mitsuba.planning.RunPlan.section`), each section an independent draw with its
+    own seed. ATL06 segments are fitted across section boundaries (see :class:`_SegmentStream`).
+    Both files are written atomically: a failure leaves neither. ``snow`` may be a function
+    ``snow(beam, k)`` giving the :class:`~lidar_mitsuba.ground.snow.SnowVolume` (or None) of
+    section ``k`` of ``beam`` (``section_bounds`` gives the sections): snow that varies along and
+    across the track, a section planned anew where its snow differs from the one before (equal
+    snow: the same plan). Likewise ``roughness(beam, k)``: the roughness heightfield (or None) of
+    the section, on ``surface``, planned anew where it is not the same object as the one before.
     ``orbit_info``: the files' ``orbit_info`` labels. ``writer``: where the files are written
-    (:func:`lidar_mitsuba.granule_writer.writer`: ``"process"`` beside the simulation, the
-    POSIX default, or ``"inline"``; the same files). ``atl08_path``: also our ATL08 of the
-    ATL03 (:mod:`lidar_mitsuba.products.atl08.granule`). Returns each beam's statistics.
+    (:func:`lidar_mitsuba.granule_writer.writer`: ``"process"`` beside the simulation, the POSIX
+    default, or ``"inline"``; the same files). ``atl08_path``: also our ATL08 of the ATL03
+    (:mod:`lidar_mitsuba.products.atl08.granule`). Returns each beam's statistics.
     """
     simulate_options.pop("keep_returns", None)     # sections keep no traced returns
     if isinstance(beams, str):
