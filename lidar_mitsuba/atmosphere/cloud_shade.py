@@ -22,7 +22,9 @@ track's clouds are the only sample of the field the file gives), random in posit
 (:func:`layer_reflectance`): exact in expectation, unlike the delta-Eddington closed form
 (Joseph, Wiscombe & Weinman 1976, J. Atmos. Sci. 33, 2452), which is good at a high sun
 (within 0.01 of it at normal incidence for tau 1-10, ``tests/test_cloud_shade.py``) and 15-30 %
-low at grazing incidence (0.50 against 0.60 for tau 1.1, g 0.85 at mu0 0.07).
+low at grazing incidence (0.50 against 0.60 for tau 1.1, g 0.85 at mu0 0.07). The walk is
+:func:`.hg_walk.walk` (the one the nadir reflectance factor of :mod:`.cloud_reflection`
+takes), scored by counting the photons that leave the top (:class:`.hg_walk.Escape`).
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ import math
 import numpy as np
 
 from ..constants import ParameterError
+from .hg_walk import Escape, check_layer, collimated, walk
 
 PHOTONS = 1 << 15
 """Photons per :func:`layer_reflectance` estimate: a standard error of at most
@@ -39,40 +42,6 @@ PHOTONS = 1 << 15
 MAX_EVENTS = 3000
 """Scattering events followed per photon (a photon still inside after them is counted as
 transmitted: at tau <= 10, g 0.85 fewer than 1e-4 of them)."""
-
-
-def check_layer(*, optical_depth: float, g: float, mu0: float) -> None:
-    """Refuses (:class:`~lidar_mitsuba.constants.ParameterError`) a plane-parallel layer's
-    ``optical_depth`` outside [0, inf), Henyey-Greenstein ``g`` outside (-1, 1) or a beam's
-    ``mu0`` outside (0, 1]."""
-    if not (0.0 < mu0 <= 1.0):
-        raise ParameterError("mu0", f"must be in (0, 1] (got {mu0})")
-    if not (optical_depth >= 0.0 and math.isfinite(optical_depth)):
-        raise ParameterError("optical_depth", f"must be >= 0 (got {optical_depth})")
-    if not (-1.0 < g < 1.0):
-        raise ParameterError("g", f"must be in (-1, 1) (got {g})")
-
-
-def _hg_cosine(g: float, u: np.ndarray) -> np.ndarray:
-    """Henyey-Greenstein scattering-angle cosines from uniforms ``u`` (its inverse CDF;
-    isotropic for ``g = 0``)."""
-    if abs(g) < 1e-6:
-        return 2.0 * u - 1.0
-    s = (1.0 - g * g) / (1.0 - g + 2.0 * g * u)
-    return (1.0 + g * g - s * s) / (2.0 * g)
-
-
-def _turn(d: np.ndarray, cos_t: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """Unit directions ``d`` (n, 3) turned by polar angles of cosine ``cos_t`` and azimuths
-    ``phi`` about themselves."""
-    sin_t = np.sqrt(np.maximum(1.0 - cos_t * cos_t, 0.0))
-    helper = np.where(np.abs(d[:, 2:3]) < 0.9, np.array([[0.0, 0.0, 1.0]]),
-                      np.array([[1.0, 0.0, 0.0]]))
-    e1 = np.cross(d, helper)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(d, e1)
-    return (d * cos_t[:, None] + e1 * (sin_t * np.cos(phi))[:, None]
-            + e2 * (sin_t * np.sin(phi))[:, None])
 
 
 @functools.lru_cache(maxsize=256)
@@ -86,25 +55,10 @@ def layer_reflectance(*, optical_depth: float, g: float, mu0: float,
     check_layer(optical_depth=optical_depth, g=g, mu0=mu0)
     if optical_depth == 0.0:
         return 0.0
-    rng = np.random.default_rng(seed)
-    d = np.zeros((photons, 3))
-    d[:, 0], d[:, 2] = math.sqrt(1.0 - mu0 * mu0), -mu0          # z up, going down
-    depth = np.zeros(photons)                                    # optical depth below the top
-    alive = np.ones(photons, bool)
-    up = 0
-    for _ in range(MAX_EVENTS):
-        idx = np.flatnonzero(alive)
-        if idx.size == 0:
-            break
-        new = depth[idx] - np.log(rng.random(idx.size)) * (-d[idx, 2])
-        out_top, out_bottom = new < 0.0, new > optical_depth
-        up += int(out_top.sum())
-        alive[idx[out_top | out_bottom]] = False
-        inside = ~out_top & ~out_bottom
-        s = idx[inside]
-        depth[s] = new[inside]
-        d[s] = _turn(d[s], _hg_cosine(g, rng.random(s.size)), 2.0 * np.pi * rng.random(s.size))
-    return up / photons
+    escape = Escape()
+    walk(optical_depth=optical_depth, g=g, d=collimated(photons, mu0),
+         rng=np.random.default_rng(seed), scorings=(escape,), max_events=MAX_EVENTS)
+    return escape.top / photons
 
 
 def shade_factor(*, cover: float, optical_depth: float, g: float,
