@@ -51,9 +51,10 @@ times
 
 The walk is :func:`.hg_walk.walk`, the one :func:`.cloud_shade.layer_reflectance` also takes,
 scored with the local estimate (:class:`.hg_walk.LocalEstimate`). A run takes ``rho`` from a
-table made once by the same Monte Carlo (:mod:`.cloud_reflection_table`: water and ice
-clouds, the surface's albedo in closed form; 0.1 s a cloud against 6-8 s), and runs the Monte
-Carlo itself for other clouds.
+table made once by the same Monte Carlo
+(:mod:`~lidar_mitsuba.atmosphere.cloud_reflection_table`: water and ice clouds, the surface's
+albedo in closed form; 0.1 s a cloud against 6-8 s), and runs the Monte Carlo itself for
+other clouds.
 """
 from __future__ import annotations
 
@@ -152,8 +153,9 @@ def semi_infinite_isotropic_rho(*, mu: float, mu0: float,
 def _rho_on_grid(cloud, surface_albedo: float, mu0: np.ndarray, *,
                  tabulated: bool = True) -> np.ndarray:
     """``rho`` of ``cloud`` over ``surface_albedo`` at ``mu0``: from the table
-    (:mod:`.cloud_reflection_table`) where it holds the cloud and ``tabulated``, else by
-    Monte Carlo at the :data:`MU0_STEP` nodes that bracket them, linear between."""
+    (:mod:`~lidar_mitsuba.atmosphere.cloud_reflection_table`) where it holds the cloud and
+    ``tabulated``, else by Monte Carlo at the :data:`MU0_STEP` nodes that bracket them,
+    linear between."""
     tau, a_s = round(float(cloud.optical_depth), 3), round(float(surface_albedo), 3)
     g, ssa = float(cloud.g), float(cloud.single_scattering_albedo)
     if tabulated and cloud_reflection_table.covers(optical_depth=tau, g=g,
@@ -180,7 +182,8 @@ def direct_sun_factor(cloud, *, surface_albedo: float, solar_elevation_deg, z_m:
     albedo. ``solar_elevation_deg`` geometric [deg] (array), ``z_m`` the surface's height
     [m], ``atmosphere`` a :class:`~lidar_mitsuba.radiometry.Atmosphere`. 1 where the sun is
     down (no direct beam). ``rho`` from the table where it holds the cloud (``tabulated``,
-    the default: :mod:`.cloud_reflection_table`), else by Monte Carlo."""
+    the default: :mod:`~lidar_mitsuba.atmosphere.cloud_reflection_table`), else by Monte
+    Carlo."""
     from .. import sky
     from ..radiometry import isa_pressure_hpa, rayleigh_optical_depth
     elev = np.atleast_1d(np.asarray(solar_elevation_deg, np.float64))

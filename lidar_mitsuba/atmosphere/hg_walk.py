@@ -17,7 +17,7 @@ the hemispherical reflectance and transmittance; :class:`LocalEstimate`: the nad
 local estimate, :mod:`.cloud_reflection`). One walk can feed several scorings: they share the
 photons and the random stream. Users: :func:`.cloud_shade.layer_reflectance`,
 :func:`.cloud_reflection.nadir_reflectance_factor` and the table of the latter
-(:mod:`.cloud_reflection_table`).
+(:mod:`~lidar_mitsuba.atmosphere.cloud_reflection_table`).
 
 The random numbers are drawn in one fixed order per event (free paths; at the surface its
 roulette, then ``mu`` and azimuth of the re-emission; at collisions the roulette where
