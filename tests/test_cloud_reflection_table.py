@@ -14,6 +14,7 @@ from lidar_mitsuba.atmosphere.cloud_layer import Cloud
 from lidar_mitsuba.atmosphere.cloud_reflection import (direct_sun_factor,
                                                        nadir_reflectance_factor)
 from lidar_mitsuba.atmosphere.hg_walk import Escape, LocalEstimate, collimated, walk
+from lidar_mitsuba.constants import ParameterError
 from lidar_mitsuba.radiometry import Atmosphere
 
 
@@ -54,6 +55,8 @@ def test_table_limits_and_what_it_covers():
     assert table.covers(optical_depth=20.0, g=Cloud.ice(1, 0, 1).g, single_scattering_albedo=1)
     assert not table.covers(optical_depth=1.0, g=0.6, single_scattering_albedo=1.0)
     assert not table.covers(optical_depth=1.0, g=0.85, single_scattering_albedo=0.9)
+    with pytest.raises(ParameterError, match="cloud"):
+        table.rho(optical_depth=1.0, g=0.6, mu0=0.5, surface_albedo=0.5)
     odd = Cloud(optical_depth=1.1, base_m=4000.0, top_m=5000.0, g=0.8)
     kw = dict(surface_albedo=0.83, solar_elevation_deg=[12.0], z_m=0.0,
               atmosphere=Atmosphere())

@@ -36,6 +36,8 @@ import pathlib
 
 import numpy as np
 
+from ..constants import ParameterError
+
 TABLE = pathlib.Path(__file__).resolve().parents[1] / "data" / "cloud_reflection_table.json"
 """The table (:mod:`lidar_mitsuba.studies.cloud_reflection_table` writes it)."""
 
@@ -94,6 +96,10 @@ def rho(*, optical_depth: float, g: float, mu0, surface_albedo: float
     0.02-1) for a layer the table :func:`covers`; the standard error from the nodes' own
     (the local estimate's for ``rho_0``, binomial for ``t`` and ``s``), propagated to first
     order, before interpolation."""
+    if not covers(optical_depth=optical_depth, g=g, single_scattering_albedo=1.0):
+        raise ParameterError("cloud", f"the table holds g {list(load()['gs'])} and optical "
+                             f"depths 0-{load()['optical_depths'][-1]:g} (got g {g}, "
+                             f"tau {optical_depth})")
     tab = load()
     k = _g_index(g)
     i, j, w = _tau_weights(optical_depth)
