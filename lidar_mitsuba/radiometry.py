@@ -30,8 +30,9 @@ direct sun (curved-Earth air mass, refraction, the surface's height), the diffus
 attenuated on its way down, multiple scattering and the surface's light scattered back, and
 the twilight sky of the sunlit air above the Earth's shadow, to about -10 deg
 (``docs/physics/sky.md``); ``d_lambda`` the filter's equivalent width and ``Omega_fov`` the
-field of view's solid angle. Moon and airglow are not modelled (they add a few hundred Hz,
-see ``docs/guide/atlas.md``); ``Atmosphere.aerosol_forward_fraction`` is no longer used by
+field of view's solid angle. Moon and airglow are not modelled (a full moon adds ~4-13 Hz a
+beam over snow, airglow under 1 Hz: ``docs/physics/night-floor.md``);
+``Atmosphere.aerosol_forward_fraction`` is no longer used by
 the sun's part (the sky model's aerosol phase function is a Henyey-Greenstein one).
 
 Laser light scattered back by the air just above the surface is a background of its own, inside
