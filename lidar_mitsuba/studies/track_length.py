@@ -140,7 +140,9 @@ def cast_time(surface, track, *, rays: int, paths_per_shot: int, shots: int,
     ``k``-th launch of every tile: its seconds summed over the tiles, each launch timed
     between two ``dr.sync_thread()``. Returns ``cast_s`` (the median pass [s]),
     ``cast_rays_per_s``, ``cast_cv`` (the passes' coefficient of variation: standard
-    deviation over mean), ``cast_tiles`` and ``cast_lanes`` (per launch)."""
+    deviation over mean), ``cast_cpu_s`` (the median pass's CPU seconds, every thread of the
+    process: what other agents' load moves least), ``cast_tiles`` and ``cast_lanes`` (per
+    launch)."""
     import drjit as dr
     from .. import geotrack
     from ..ground.dem import TILE_SHOTS
@@ -153,7 +155,7 @@ def cast_time(surface, track, *, rays: int, paths_per_shot: int, shots: int,
     lanes = max(1, int(rays) // tiles)
     tile_shots = min(TILE_SHOTS, int(shots))
     rng = np.random.default_rng(seed)
-    seconds = np.zeros((tiles, int(passes)))
+    seconds, cpu_s = np.zeros((tiles, int(passes))), np.zeros((tiles, int(passes)))
     for k in range(tiles):
         first = int((k + 0.5) / tiles * (shots - tile_shots))
         p = ctx.plan(beams[k % len(beams)], tile_shots, first=first, seed=seed, max_depth=1,
@@ -166,19 +168,22 @@ def cast_time(surface, track, *, rays: int, paths_per_shot: int, shots: int,
         dr.eval(x, y, z)
         for j in range(int(passes) + 1):
             dr.sync_thread()
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             si = p.scene.ray_intersect(mi.Ray3f(mi.Point3f(x, y, z),
                                                 mi.Vector3f(0.0, 0.0, -1.0)))
             dr.eval(si.t)
             dr.sync_thread()
             if j:
                 seconds[k, j - 1] = time.perf_counter() - t0
+                cpu_s[k, j - 1] = time.process_time() - c0
             del si
         del p, x, y, z                              # one tile's scene alive at a time
-    per_pass = seconds.sum(axis=0) * (int(rays) / (lanes * tiles))   # the rays, to the ray
+    scale = int(rays) / (lanes * tiles)                     # the granule's rays, to the ray
+    per_pass, cpu_pass = seconds.sum(axis=0) * scale, cpu_s.sum(axis=0) * scale
     cast_s = float(np.median(per_pass))
     return {"cast_s": cast_s, "cast_rays_per_s": int(rays) / cast_s,
-            "cast_cv": float(per_pass.std() / per_pass.mean()), "cast_tiles": int(tiles),
+            "cast_cv": float(per_pass.std() / per_pass.mean()),
+            "cast_cpu_s": float(np.median(cpu_pass)), "cast_tiles": int(tiles),
             "cast_lanes": lanes}
 
 
@@ -206,12 +211,29 @@ def _writer_peak_rss_mb() -> float | None:
         return None
 
 
+def _cpu_s() -> float:
+    """CPU seconds [s] this process (every thread, ended ones too) and its writer process
+    have used since they started: what other agents' load on the machine moves far less
+    than wall time."""
+    t = os.times()
+    from .. import granule_writer
+    w = granule_writer._WRITER[0]
+    try:
+        with open(f"/proc/{w.proc.pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        writer = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (AttributeError, OSError, ValueError, IndexError):
+        writer = 0.0
+    return t.user + t.system + writer
+
+
 def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
     """Run one length of ``beams`` in this process (call in a fresh one); with every beam,
     the granule twice, as a long-lived worker runs granule after granule: the first (cold:
     ``end_to_end_s`` counts from the interpreter's start, imports and the renderer's set-up
     included) and the second (``seconds``: warm), against the time its rays alone take to
-    cast (:func:`cast_time`)."""
+    cast (:func:`cast_time`); the same in CPU seconds of both processes (``cpu_s``,
+    ``end_to_end_cpu_s``: from both processes' start)."""
     from ..trace.variant import ensure_renderer
     if beams == "all":                 # as simulate --dem: the writer's imports beside ours
         from .. import granule_writer
@@ -226,7 +248,8 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
     first = None
     if beams == "all":                 # a worker's first granule, then the one reported
         first = _granule(surf, track, shots, beams, count_kernels=False)
-        first.update(end_to_end_s=_process_age_s(), peak_rss_first_mb=_peak_rss_mb())
+        first.update(end_to_end_s=_process_age_s(), peak_rss_first_mb=_peak_rss_mb(),
+                     end_to_end_cpu_s=_cpu_s())
     res = _granule(surf, track, shots, beams,
                    count_kernels=length_km <= KERNELS_UP_TO_KM and first is None)
     seconds, out = res["seconds"], res["out"]
@@ -242,6 +265,8 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
                "of_cast": seconds / cast["cast_s"],
                "first_s": first["seconds"], "end_to_end_s": first["end_to_end_s"],
                "end_to_end_over_warm": first["end_to_end_s"] / seconds,
+               "cpu_s": res["cpu_s"], "end_to_end_cpu_s": first["end_to_end_cpu_s"],
+               "end_to_end_over_warm_cpu": first["end_to_end_cpu_s"] / res["cpu_s"],
                "peak_rss_first_mb": first["peak_rss_first_mb"],
                "writer_peak_rss_mb": _writer_peak_rss_mb()}
     return {**row, "length_km": float(length_km), "shots": shots, "seconds": seconds,
@@ -253,12 +278,13 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
 
 def _granule(surf, track, shots: int, beams: str, *, count_kernels: bool) -> dict:
     """One streamed granule into a temporary folder: its wall time [s] (Dr.Jit's queue
-    synced), summaries, files' size [MB] and distinct kernels (when counted)."""
+    synced), CPU [s] (both processes, :func:`_cpu_s`), summaries, files' size [MB] and
+    distinct kernels (when counted)."""
     import tempfile
     import drjit as dr
     with tempfile.TemporaryDirectory() as tmp:
         a3, a6 = pathlib.Path(tmp) / "ATL03.h5", pathlib.Path(tmp) / "ATL06.h5"
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), _cpu_s()
         # the history keeps every launch's code (~14 KB each: ~50 MB over 1000 km), which
         # the memory figures would count: kernels are counted up to KERNELS_UP_TO_KM only
         with dr.scoped_set_flag(dr.JitFlag.KernelHistory, count_kernels):
@@ -268,9 +294,10 @@ def _granule(surf, track, shots: int, beams: str, *, count_kernels: bool) -> dic
             dr.sync_thread()
             kernels = (len({k["hash"] for k in dr.kernel_history([dr.KernelType.JIT])})
                        if count_kernels else None)
-        seconds = time.perf_counter() - t0
+        seconds, cpu_s = time.perf_counter() - t0, _cpu_s() - cpu0
         files_mb = (a3.stat().st_size + a6.stat().st_size) / 2 ** 20
-    return {"seconds": seconds, "out": out, "files_mb": files_mb, "kernels": kernels}
+    return {"seconds": seconds, "cpu_s": cpu_s, "out": out, "files_mb": files_mb,
+            "kernels": kernels}
 
 
 def run(*, out: pathlib.Path, quick: bool) -> list[dict]:
