@@ -106,9 +106,10 @@ def cast_rate(surface, track, *, paths_per_shot: int, shots: int = 4096) -> floa
 
 
 #: the cast yardstick (:func:`cast_time`): the most of the granule's corridor tiles it casts
-#: into, the fewest lanes a launch (ESTIMATE: launches of >= 1 M lanes took 40-60 ms each
-#: here and moved by ~10 % under load, where a tile's own 65 k lanes moved by ~25 %), and its
-#: passes after one warm-up (each pass casts the granule's rays once)
+#: into, the fewest lanes a launch (ESTIMATE, from one trial: passes of 1.3 M-lane launches
+#: moved by 3-17 % (median 6 %) under a load of 13-17, where the 65 k-lane launches of
+#: :func:`cast_rate` moved by 37-53 % between calls), and its passes after one warm-up (each
+#: pass casts the granule's rays once; docs/guide/campaigns.md has the measurements)
 CAST_TILES = 8
 CAST_LANES = 1_000_000
 CAST_PASSES = 5
