@@ -94,10 +94,16 @@ def test_bench_quick(bench_run):
     # rays are every beam's shots x paths
     assert granule["beams"] == 6 and granule["rays"] >= 6 * granule["shots"]
     assert 0 < granule["cast_s"] < granule["seconds"] and granule["of_cast"] > 1
+    # the cast's yardstick: the granule's own ray count, in one of its tiles per >= 1 M rays
+    assert granule["cast_tiles"] == max(1, min(8, granule["rays"] // 1_000_000))
+    assert granule["cast_lanes"] == granule["rays"] // granule["cast_tiles"]
+    assert granule["cast_cv"] >= 0 and granule["cast_cpu_s"] > 0
     # a cold process's granule (interpreter, imports, renderer) costs more than a warm one's
     assert granule["end_to_end_s"] > granule["first_s"] > 0
     assert granule["end_to_end_over_warm"] == pytest.approx(
         granule["end_to_end_s"] / granule["seconds"])
+    # and in CPU (both processes): the start and the first granule against the second
+    assert granule["end_to_end_cpu_s"] > granule["cpu_s"] > 0
     assert "DEM granule, 6 beams x 4 km" in printed
     assert all(r["peak_rss_mb"] >= r["rss_before_mb"] > 0 and r["photons"] > 0 for r in tl)
     assert tl[1]["tiles"] > tl[0]["tiles"] and "DEM track 4 km" in printed

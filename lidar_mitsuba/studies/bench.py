@@ -509,9 +509,11 @@ def format_summary(doc: dict) -> str:
             lines.append(f"DEM granule, {r['beams']} beams x {r['length_km']:g} km: "
                          f"{r['seconds']:.2f} s in a warm worker, {r['of_cast']:.1f}x its "
                          f"{r['rays'] / 1e6:.1f} M rays cast alone ({r['cast_s']:.2f} s at "
-                         f"{r['cast_rays_per_s'] / 1e6:.0f} M rays/s); end to end (a cold "
+                         f"{r['cast_rays_per_s'] / 1e6:.0f} M rays/s into {r['cast_tiles']} of "
+                         f"its tiles, {100 * r['cast_cv']:.0f} % cv); end to end (a cold "
                          f"process) {r['end_to_end_s']:.2f} s, "
-                         f"{r['end_to_end_over_warm']:.2f}x warm; peak RSS "
+                         f"{r['end_to_end_over_warm']:.2f}x warm "
+                         f"({r['end_to_end_over_warm_cpu']:.2f}x in CPU); peak RSS "
                          f"{r['peak_rss_first_mb']:.0f} MB after one granule, "
                          f"{r['peak_rss_mb']:.0f} MB after two")
             continue

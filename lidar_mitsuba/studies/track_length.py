@@ -11,10 +11,12 @@ compile, ~0.2 s, that the disk cache hides only on a repeat of the same terrain)
 
 The six-beam granule row runs the granule twice in its process, as a campaign's long-lived
 worker does: ``seconds`` is the second (warm: renderer, kernels, writer process and DEM
-already loaded), ``of_cast`` its ratio to casting the same rays alone, ``end_to_end_s`` the
-first granule's end counted from the interpreter's start (what a cold
-``lidar-mitsuba simulate`` pays: its writer process started before the renderer's set-up, as
-``simulate --dem`` starts it) and ``end_to_end_over_warm`` the ratio of the two.
+already loaded), ``of_cast`` its ratio to casting the same rays alone (:func:`cast_time`:
+the granule's ray count cast into its own corridor tiles in launches of >= 1 M lanes, with
+``cast_cv`` the spread of its passes), ``end_to_end_s`` the first granule's end counted from
+the interpreter's start (what a cold ``lidar-mitsuba simulate`` pays: its writer process
+started before the renderer's set-up, as ``simulate --dem`` starts it; its modules imported
+from bytecode, :func:`compile_bytecode`) and ``end_to_end_over_warm`` the ratio of the two.
 """
 from __future__ import annotations
 
@@ -71,7 +73,9 @@ def _peak_rss_mb() -> float:
 def cast_rate(surface, track, *, paths_per_shot: int, shots: int = 4096) -> float:
     """Rays per second [1/s] of vertical casts alone on a corridor tile of ``surface`` under
     ``track``'s first ``shots`` shots (``paths_per_shot`` rays a shot, Gaussian footprints):
-    the bound a granule's pipeline is held against (median of 7 casts after 2)."""
+    the bound the cloud and forest rows are held against (median of 7 casts after 2: 65 k
+    rays a launch, which moves by ~25 % between runs; the granule row's yardstick is
+    :func:`cast_time`)."""
     import drjit as dr
     from .. import geotrack
     from ..trace.scene import scene_bounds
@@ -101,6 +105,89 @@ def cast_rate(surface, track, *, paths_per_shot: int, shots: int = 4096) -> floa
     return n / float(np.median(times))
 
 
+#: the cast yardstick (:func:`cast_time`): the most of the granule's corridor tiles it casts
+#: into, the fewest lanes a launch (ESTIMATE, from one trial: passes of 1.3 M-lane launches
+#: moved by 3-17 % (median 6 %) under a load of 13-17, where the 65 k-lane launches of
+#: :func:`cast_rate` moved by 37-53 % between calls), and its passes after one warm-up (each
+#: pass casts the granule's rays once; docs/guide/campaigns.md has the measurements)
+CAST_TILES = 8
+CAST_LANES = 1_000_000
+CAST_PASSES = 5
+
+
+def cast_time(surface, track, *, rays: int, paths_per_shot: int, shots: int,
+              passes: int = CAST_PASSES, seed: int = 0) -> dict:
+    """The time [s] to cast a granule's own rays alone: the yardstick a granule's pipeline
+    is held against (``of_cast``).
+
+    What is cast: ``rays`` rays (the granule's shots x paths per shot x bounces; at
+    ``max_depth=1`` every one a primary ray, as the integrator's ``_first_surface`` casts
+    them), as vertical rays from above the scene to their first hit (``ray_intersect``,
+    the hit distance evaluated: no sampling, weights or detection), into ``tiles`` of the
+    granule's own corridor tiles (``rays //`` :data:`CAST_LANES`, at least 1 and at most
+    :data:`CAST_TILES`; :meth:`granule._Context.plan` of ``tiles`` stretches of
+    :data:`~lidar_mitsuba.ground.dem.TILE_SHOTS` shots, evenly spread along the
+    ``shots``-shot track and taken from each beam in turn: the same DEM, the same corridor
+    meshed ``5 sigma + 1 m`` about the footprints, built as the granule builds them),
+    ``rays / tiles`` lanes a launch (~1.3 M for a six-beam 100 km granule, where the
+    granule's own launches are a tile's 65 k: large launches, so the launch overheads and
+    the other agents' load move the yardstick less), the footprints of the tile's shots
+    repeated with Gaussian offsets of the footprint's sigma. The scene builds are not timed
+    (the granule's cost, as the tiles' layout is); Dr.Jit's whole pool casts (the machine's
+    every core: a bound).
+
+    One tile's scene is alive at a time (as in the granule); each is cast ``passes + 1``
+    times and the first dropped (its kernel from the cache, first touches). A pass is the
+    ``k``-th launch of every tile: its seconds summed over the tiles, each launch timed
+    between two ``dr.sync_thread()``. Returns ``cast_s`` (the median pass [s]),
+    ``cast_rays_per_s``, ``cast_cv`` (the passes' coefficient of variation: standard
+    deviation over mean), ``cast_cpu_s`` (the median pass's CPU seconds, every thread of the
+    process: what other agents' load moves least), ``cast_tiles`` and ``cast_lanes`` (per
+    launch)."""
+    import drjit as dr
+    from .. import geotrack
+    from ..ground.dem import TILE_SHOTS
+    from ..trace.scene import scene_bounds
+    from ..trace.variant import ensure_renderer
+    mi = ensure_renderer()
+    ctx = granule._Context(surface, track, None)
+    beams = geotrack.select_beams("all", 0)
+    tiles = max(1, min(CAST_TILES, int(rays) // CAST_LANES))
+    lanes = max(1, int(rays) // tiles)
+    tile_shots = min(TILE_SHOTS, int(shots))
+    rng = np.random.default_rng(seed)
+    seconds, cpu_s = np.zeros((tiles, int(passes))), np.zeros((tiles, int(passes)))
+    for k in range(tiles):
+        first = int((k + 0.5) / tiles * (shots - tile_shots))
+        p = ctx.plan(beams[k % len(beams)], tile_shots, first=first, seed=seed, max_depth=1,
+                     paths_per_shot=paths_per_shot, progress=False)
+        pick = np.arange(lanes) % p.x_local_m.size
+        sigma = p.instrument.footprint_sigma_m
+        x = mi.Float(p.x_local_m[pick] + rng.normal(0.0, sigma, lanes))
+        y = mi.Float(p.y_local_m[pick] + rng.normal(0.0, sigma, lanes))
+        z = dr.full(mi.Float, float(scene_bounds(p.scene)[1][2]) + 1.0, lanes)
+        dr.eval(x, y, z)
+        for j in range(int(passes) + 1):
+            dr.sync_thread()
+            t0, c0 = time.perf_counter(), time.process_time()
+            si = p.scene.ray_intersect(mi.Ray3f(mi.Point3f(x, y, z),
+                                                mi.Vector3f(0.0, 0.0, -1.0)))
+            dr.eval(si.t)
+            dr.sync_thread()
+            if j:
+                seconds[k, j - 1] = time.perf_counter() - t0
+                cpu_s[k, j - 1] = time.process_time() - c0
+            del si
+        del p, x, y, z                              # one tile's scene alive at a time
+    scale = int(rays) / (lanes * tiles)                     # the granule's rays, to the ray
+    per_pass, cpu_pass = seconds.sum(axis=0) * scale, cpu_s.sum(axis=0) * scale
+    cast_s = float(np.median(per_pass))
+    return {"cast_s": cast_s, "cast_rays_per_s": int(rays) / cast_s,
+            "cast_cv": float(per_pass.std() / per_pass.mean()),
+            "cast_cpu_s": float(np.median(cpu_pass)), "cast_tiles": int(tiles),
+            "cast_lanes": lanes}
+
+
 def _process_age_s() -> float:
     """Seconds since this process started (Linux's ``/proc``: the interpreter's start
     included), or NaN where that is not known."""
@@ -125,12 +212,29 @@ def _writer_peak_rss_mb() -> float | None:
         return None
 
 
+def _cpu_s() -> float:
+    """CPU seconds [s] this process (every thread, ended ones too) and its writer process
+    have used since they started: what other agents' load on the machine moves far less
+    than wall time."""
+    t = os.times()
+    from .. import granule_writer
+    w = granule_writer._WRITER[0]
+    try:
+        with open(f"/proc/{w.proc.pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        writer = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (AttributeError, OSError, ValueError, IndexError):
+        writer = 0.0
+    return t.user + t.system + writer
+
+
 def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
     """Run one length of ``beams`` in this process (call in a fresh one); with every beam,
     the granule twice, as a long-lived worker runs granule after granule: the first (cold:
     ``end_to_end_s`` counts from the interpreter's start, imports and the renderer's set-up
     included) and the second (``seconds``: warm), against the time its rays alone take to
-    cast (:func:`cast_rate`)."""
+    cast (:func:`cast_time`); the same in CPU seconds of both processes (``cpu_s``,
+    ``end_to_end_cpu_s``: from both processes' start)."""
     from ..trace.variant import ensure_renderer
     if beams == "all":                 # as simulate --dem: the writer's imports beside ours
         from .. import granule_writer
@@ -145,7 +249,8 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
     first = None
     if beams == "all":                 # a worker's first granule, then the one reported
         first = _granule(surf, track, shots, beams, count_kernels=False)
-        first.update(end_to_end_s=_process_age_s(), peak_rss_first_mb=_peak_rss_mb())
+        first.update(end_to_end_s=_process_age_s(), peak_rss_first_mb=_peak_rss_mb(),
+                     end_to_end_cpu_s=_cpu_s())
     res = _granule(surf, track, shots, beams,
                    count_kernels=length_km <= KERNELS_UP_TO_KM and first is None)
     seconds, out = res["seconds"], res["out"]
@@ -155,11 +260,14 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
     row = {}
     if first is not None:        # the same rays, cast alone: the pipeline's cost over them
         rays = sum(o.shots * o.config["paths_per_shot"] * o.config["max_depth"] for o in out)
-        rate = cast_rate(surf, track, paths_per_shot=out[0].config["paths_per_shot"])
-        row = {"beams": len(out), "rays": int(rays), "cast_rays_per_s": rate,
-               "cast_s": rays / rate, "of_cast": seconds / (rays / rate),
+        cast = cast_time(surf, track, rays=rays, shots=shots,
+                         paths_per_shot=out[0].config["paths_per_shot"])
+        row = {"beams": len(out), "rays": int(rays), **cast,
+               "of_cast": seconds / cast["cast_s"],
                "first_s": first["seconds"], "end_to_end_s": first["end_to_end_s"],
                "end_to_end_over_warm": first["end_to_end_s"] / seconds,
+               "cpu_s": res["cpu_s"], "end_to_end_cpu_s": first["end_to_end_cpu_s"],
+               "end_to_end_over_warm_cpu": first["end_to_end_cpu_s"] / res["cpu_s"],
                "peak_rss_first_mb": first["peak_rss_first_mb"],
                "writer_peak_rss_mb": _writer_peak_rss_mb()}
     return {**row, "length_km": float(length_km), "shots": shots, "seconds": seconds,
@@ -171,12 +279,13 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
 
 def _granule(surf, track, shots: int, beams: str, *, count_kernels: bool) -> dict:
     """One streamed granule into a temporary folder: its wall time [s] (Dr.Jit's queue
-    synced), summaries, files' size [MB] and distinct kernels (when counted)."""
+    synced), CPU [s] (both processes, :func:`_cpu_s`), summaries, files' size [MB] and
+    distinct kernels (when counted)."""
     import tempfile
     import drjit as dr
     with tempfile.TemporaryDirectory() as tmp:
         a3, a6 = pathlib.Path(tmp) / "ATL03.h5", pathlib.Path(tmp) / "ATL06.h5"
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), _cpu_s()
         # the history keeps every launch's code (~14 KB each: ~50 MB over 1000 km), which
         # the memory figures would count: kernels are counted up to KERNELS_UP_TO_KM only
         with dr.scoped_set_flag(dr.JitFlag.KernelHistory, count_kernels):
@@ -186,9 +295,10 @@ def _granule(surf, track, shots: int, beams: str, *, count_kernels: bool) -> dic
             dr.sync_thread()
             kernels = (len({k["hash"] for k in dr.kernel_history([dr.KernelType.JIT])})
                        if count_kernels else None)
-        seconds = time.perf_counter() - t0
+        seconds, cpu_s = time.perf_counter() - t0, _cpu_s() - cpu0
         files_mb = (a3.stat().st_size + a6.stat().st_size) / 2 ** 20
-    return {"seconds": seconds, "out": out, "files_mb": files_mb, "kernels": kernels}
+    return {"seconds": seconds, "cpu_s": cpu_s, "out": out, "files_mb": files_mb,
+            "kernels": kernels}
 
 
 def run(*, out: pathlib.Path, quick: bool) -> list[dict]:
@@ -199,6 +309,7 @@ def run(*, out: pathlib.Path, quick: bool) -> list[dict]:
     runs = [(km, "gt2l") for km in lengths] + [(4.0 if quick else 100.0, "all")]
     out.mkdir(parents=True, exist_ok=True)
     path = make_dem(out / "long_dem.tif", max(lengths))
+    compile_bytecode()
     rows = []
     for km, beams in runs:
         p = subprocess.run([sys.executable, "-m", "lidar_mitsuba.studies.track_length",
@@ -207,6 +318,21 @@ def run(*, out: pathlib.Path, quick: bool) -> list[dict]:
         rows.append(json.loads(p.stdout.strip().splitlines()[-1]))
     path.unlink()
     return rows
+
+
+def compile_bytecode() -> None:
+    """Write the bytecode of the package and its plugins where it is missing or stale, so
+    that the processes :func:`run` starts import from ``.pyc`` files, as an installed
+    package's do: with ``PYTHONDONTWRITEBYTECODE`` set (as on the machines these rows were
+    measured on) an editable install compiles its modules from source in every process, a
+    cost a user's cold start does not pay (measured: compiling the 70 modules of ours a
+    granule's simulating process imports took 0.16-0.19 s of CPU under load, and the writer
+    process compiles its own). Nothing where the folders cannot be written."""
+    import compileall
+    import importlib
+    for name in ("lidar_mitsuba", "lidar_mitsuba_plugins"):
+        for folder in importlib.import_module(name).__path__:
+            compileall.compile_dir(folder, quiet=2, workers=1)
 
 
 def chart(rows: list[dict], path: pathlib.Path) -> None:

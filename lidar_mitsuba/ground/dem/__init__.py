@@ -51,8 +51,10 @@ DEM's bilinear surface."""
 
 
 def _rasterio():
-    import rasterio          # imported when a DEM is used: the rest of the package needs no GDAL
-    return rasterio
+    """rasterio, imported when a DEM is used (the rest of the package needs no GDAL), its
+    ``boto3`` deferred (:func:`lidar_mitsuba.deferred.rasterio`)."""
+    from ... import deferred
+    return deferred.rasterio()
 
 
 _OPEN = threading.local()
