@@ -52,8 +52,7 @@ def _hillshade(z: np.ndarray, cell_m: float) -> np.ndarray:
 def _read_decimated(path):
     """``(z, extent, cell_m, crs)`` of a GeoTIFF read at most :data:`BACKGROUND_PX` pixels
     on a side (nodata as NaN); extent ``(x0, x1, y0, y1)`` [m] for ``imshow``."""
-    from ..deferred import rasterio as _rasterio
-    rasterio = _rasterio()
+    import rasterio
     with rasterio.open(path) as ds:
         k = max(1, math.ceil(max(ds.width, ds.height) / BACKGROUND_PX))
         shape = (max(2, ds.height // k), max(2, ds.width // k))

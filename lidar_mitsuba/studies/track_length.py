@@ -15,8 +15,8 @@ already loaded), ``of_cast`` its ratio to casting the same rays alone (:func:`ca
 the granule's ray count cast into its own corridor tiles in launches of >= 1 M lanes, with
 ``cast_cv`` the spread of its passes), ``end_to_end_s`` the first granule's end counted from
 the interpreter's start (what a cold ``lidar-mitsuba simulate`` pays: its writer process
-started before the renderer's set-up, as ``simulate --dem`` starts it; its modules imported
-from bytecode, :func:`compile_bytecode`) and ``end_to_end_over_warm`` the ratio of the two.
+started before the renderer's set-up, as ``simulate --dem`` starts it) and
+``end_to_end_over_warm`` the ratio of the two.
 """
 from __future__ import annotations
 
@@ -309,7 +309,6 @@ def run(*, out: pathlib.Path, quick: bool) -> list[dict]:
     runs = [(km, "gt2l") for km in lengths] + [(4.0 if quick else 100.0, "all")]
     out.mkdir(parents=True, exist_ok=True)
     path = make_dem(out / "long_dem.tif", max(lengths))
-    compile_bytecode()
     rows = []
     for km, beams in runs:
         p = subprocess.run([sys.executable, "-m", "lidar_mitsuba.studies.track_length",
@@ -318,21 +317,6 @@ def run(*, out: pathlib.Path, quick: bool) -> list[dict]:
         rows.append(json.loads(p.stdout.strip().splitlines()[-1]))
     path.unlink()
     return rows
-
-
-def compile_bytecode() -> None:
-    """Write the bytecode of the package and its plugins where it is missing or stale, so
-    that the processes :func:`run` starts import from ``.pyc`` files, as an installed
-    package's do: with ``PYTHONDONTWRITEBYTECODE`` set (as on the machines these rows were
-    measured on) an editable install compiles its modules from source in every process, a
-    cost a user's cold start does not pay (measured: compiling the 70 modules of ours a
-    granule's simulating process imports took 0.16-0.19 s of CPU under load, and the writer
-    process compiles its own). Nothing where the folders cannot be written."""
-    import compileall
-    import importlib
-    for name in ("lidar_mitsuba", "lidar_mitsuba_plugins"):
-        for folder in importlib.import_module(name).__path__:
-            compileall.compile_dir(folder, quiet=2, workers=1)
 
 
 def chart(rows: list[dict], path: pathlib.Path) -> None:

@@ -51,10 +51,8 @@ DEM's bilinear surface."""
 
 
 def _rasterio():
-    """rasterio, imported when a DEM is used (the rest of the package needs no GDAL), its
-    ``boto3`` deferred (:func:`lidar_mitsuba.deferred.rasterio`)."""
-    from ... import deferred
-    return deferred.rasterio()
+    import rasterio          # imported when a DEM is used: the rest of the package needs no GDAL
+    return rasterio
 
 
 _OPEN = threading.local()
