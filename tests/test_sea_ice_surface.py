@@ -77,3 +77,6 @@ def test_the_built_in_spec_and_its_record():
         with pytest.raises(ParameterError) as e:
             SurfaceSpec(kind="sea_ice", **kw)
         assert e.value.name == name
+    with pytest.raises(ParameterError) as e:          # not silently ignored elsewhere
+        SurfaceSpec(kind="fractal", surface_rms_m=0.09)
+    assert e.value.name == "surface_rms_m"

@@ -538,6 +538,10 @@ class SurfaceSpec:
             terrain.check_fractal_parameters(p=self.p, size_m=self.size_m, grid_m=self.grid_m,
                                              relief_m=self.relief_m)
             check("relief_m", self.relief_m, self.relief_m <= 1e4, "must be in [0, 1e4]")
+        preset = sea_ice_surface.PRESETS[sea_ice_surface.DEFAULT_PRESET]
+        for name, key in (("surface_rms_m", "rms_m"), ("surface_corr_m", "corr_length_m")):
+            if self.kind != "sea_ice" and getattr(self, name) != preset[key]:
+                raise ParameterError(name, "only applies to --surface sea_ice")
         if self.kind == "sea_ice":
             sea_ice_surface.check_parameters(rms_m=self.surface_rms_m,
                                              corr_length_m=self.surface_corr_m,
