@@ -305,7 +305,8 @@ def plot(doc: dict, path) -> None:
     ax.hist(doc["real"]["residuals_m"], bins=bins, density=True, histtype="step", color="k",
             lw=2.0, label=f"real: {100 * rt['below']:.1f} % below, {100 * rt['above']:.1f} % "
                           "above")
-    colours = ("tab:red", "tab:orange", "tab:blue", "tab:green", "tab:purple")
+    colours = ("tab:red", "tab:orange", "tab:blue", "tab:green", "tab:purple", "tab:brown",
+               "tab:pink", "tab:olive")
     for row, c in zip(doc["rows"], colours):
         t = row["tails"]
         ax.hist(row["residuals_m"], bins=bins, density=True, histtype="step", color=c, lw=1.2,
