@@ -137,3 +137,17 @@ def test_validate_water_air_and_sea_ice_rows(validated):
     assert any(q.startswith("night: blowing snow") for q in v)
     for png in ("lake.png", "cloud.png", "sea_ice.png"):
         assert (out / png).stat().st_size > 10_000
+
+
+def test_validate_rough_sea_ice_twin_rows(validated):
+    """Issue 41's rows: the same shots over rough sea ice of published roughness
+    (ground/sea_ice_surface.py; the smoke run's first shots) have the spread and both tails
+    checked against the real subset's, and the relief widens the flat twin's spread."""
+    doc, _ = validated
+    t = doc["twin"]
+    si = t["sea_ice"]
+    assert si["surface"]["kind"] == "sea_ice" and si["shots"] > 300
+    assert si["spread_robust_m"] > t["twin"]["spread_robust_m"]
+    v = {r["quantity"]: r for r in doc["verdicts"]}
+    assert "twin over rough sea ice: surface-return spread (robust sd)" in v
+    assert sum(q.startswith("twin over rough sea ice: photons > 20 cm") for q in v) == 2

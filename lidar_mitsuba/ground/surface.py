@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import terrain
+from . import sea_ice_surface, terrain
 from .brdf import ward_bsdf_dict
 from ..constants import ParameterError, check
 from ..machine import check_memory
@@ -37,7 +37,7 @@ if TYPE_CHECKING:                 # annotations only: the renderer is set up on 
     import mitsuba as mi          # trimesh where a heightfield or plane is meshed (a DEM's
     import trimesh                # tiles are meshed without it)
 
-SURFACES = ("flat", "slope", "fractal")
+SURFACES = ("flat", "slope", "fractal", "sea_ice")
 #: peak memory of meshing a heightfield per vertex [bytes]: grid temporaries, the trimesh
 #: (float64 vertices, int64 faces) and Mitsuba's float32 / uint32 copies
 MESH_BYTES_PER_VERTEX = 200
@@ -483,14 +483,19 @@ class SurfaceSpec:
     'fractal'
 
     Attributes:
-        kind: ``flat``, ``slope`` or ``fractal``.
+        kind: ``flat``, ``slope``, ``fractal`` or ``sea_ice`` (rough sea ice of published
+            rms height and correlation length, :mod:`~lidar_mitsuba.ground.sea_ice_surface`).
         slope_deg: slope of the ``slope`` plane [deg], in [0, 90).
         slope_azimuth_deg: direction of steepest ascent [deg] (0 = along track).
         p: spectral exponent of the fractal (1/f^p filter).
         relief_m: max - min height of the fractal tile [m].
         size_m: side of the square tile [m].
         grid_m: fractal grid spacing [m].
-        terrain_seed: seed of the fractal's white noise (>= 0).
+        terrain_seed: seed of the fractal's (or the sea ice's) white noise (>= 0).
+        surface_rms_m: rms height of the ``sea_ice`` surface over its tile [m] (default:
+            Beckers et al. 2015's Fram Strait mean, 0.16 m; 0.09 m north of Svalbard).
+        surface_corr_m: correlation length (e-folding) of the ``sea_ice`` surface [m]
+            (default 25: IceBridge ATM's 20-30 m, Remote Sens. 2022, 14, 3011).
         rho_d: Ward diffuse albedo.
         rho_s: Ward specular reflectance.
         alpha: Ward roughness (RMS slope of the specular lobe).
@@ -506,6 +511,9 @@ class SurfaceSpec:
     rho_d: float = 0.9
     rho_s: float = 0.05
     alpha: float = 0.3
+    surface_rms_m: float = sea_ice_surface.PRESETS[sea_ice_surface.DEFAULT_PRESET]["rms_m"]
+    surface_corr_m: float = sea_ice_surface.PRESETS[
+        sea_ice_surface.DEFAULT_PRESET]["corr_length_m"]
 
     def __post_init__(self):
         check("surface", self.kind, self.kind in SURFACES, f"must be one of {', '.join(SURFACES)}")
@@ -530,12 +538,25 @@ class SurfaceSpec:
             terrain.check_fractal_parameters(p=self.p, size_m=self.size_m, grid_m=self.grid_m,
                                              relief_m=self.relief_m)
             check("relief_m", self.relief_m, self.relief_m <= 1e4, "must be in [0, 1e4]")
+        preset = sea_ice_surface.PRESETS[sea_ice_surface.DEFAULT_PRESET]
+        for name, key in (("surface_rms_m", "rms_m"), ("surface_corr_m", "corr_length_m")):
+            if self.kind != "sea_ice" and getattr(self, name) != preset[key]:
+                raise ParameterError(name, "only applies to --surface sea_ice")
+        if self.kind == "sea_ice":
+            sea_ice_surface.check_parameters(rms_m=self.surface_rms_m,
+                                             corr_length_m=self.surface_corr_m,
+                                             size_m=self.size_m, grid_m=self.grid_m)
 
     def bsdf_dict(self) -> dict:
         return ward_bsdf_dict(rho_d=self.rho_d, rho_s=self.rho_s, alpha=self.alpha)
 
     def build(self) -> Surface:
-        """The surface: a :class:`Plane` or a periodic fractal :class:`HeightfieldSurface`."""
+        """The surface: a :class:`Plane` or a periodic fractal or sea-ice
+        :class:`HeightfieldSurface`."""
+        if self.kind == "sea_ice":
+            return HeightfieldSurface(sea_ice_surface.rough_sea_ice(
+                rms_m=self.surface_rms_m, corr_length_m=self.surface_corr_m,
+                size_m=self.size_m, grid_m=self.grid_m, seed=self.terrain_seed))
         if self.kind == "fractal":
             return HeightfieldSurface(terrain.fractal(
                 p=self.p, size_m=self.size_m, grid_m=self.grid_m, relief_m=self.relief_m,
@@ -544,7 +565,12 @@ class SurfaceSpec:
                      azimuth_deg=self.slope_azimuth_deg, size_m=self.size_m)
 
     def config(self) -> dict:
-        return dataclasses.asdict(self)
+        """The fields (the ``sea_ice`` ones only for that kind: other runs' records as
+        before)."""
+        out = dataclasses.asdict(self)
+        if self.kind != "sea_ice":
+            del out["surface_rms_m"], out["surface_corr_m"]
+        return out
 
 
 def resolve(surface) -> tuple[Surface, dict | None, dict]:

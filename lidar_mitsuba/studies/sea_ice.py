@@ -12,7 +12,11 @@ tails:
 3. ``floe``: rough sea ice at the footprint scale (a periodic fractal of published rms
    roughness) under a finite snowpack (a wind slab over depth hoar, the October depth of a
    published climatology) over a bare-ice base;
-4. ``ridged floe``: the same with the rms roughness of deformed (ridged) ice.
+4. ``ridged floe``: the same with the rms roughness of deformed (ridged) ice;
+5. ``sea_ice``, ``sea_ice_nansen``: rough sea ice whose relief at the footprint scale has the
+   published statistics (rms height and correlation length of airborne laser surveys,
+   :mod:`~lidar_mitsuba.ground.sea_ice_surface`: 16 cm and 9 cm rms, 25 m) under the flat
+   twin's Ward snow, and ``sea_ice_snow``: the 16 cm one under the floe's snowpack.
 
 Every twin is written to ATL03 and read back by :func:`~lidar_mitsuba.products.atl03.rates.atl03_rates`, the code that
 reads the real file, so both sides' residuals come from the same classifier output, the same
@@ -30,7 +34,7 @@ import time
 import numpy as np
 
 from .. import granule, twin
-from ..ground import snow, terrain
+from ..ground import sea_ice_surface, snow, terrain
 from ..ground.surface import SurfaceSpec
 from ..products.atl03.rates import atl03_rates
 
@@ -126,7 +130,17 @@ def floe_snow() -> snow.SnowVolume:
         crust_density_kg_m3=slab["density_kg_m3"])
 
 
-#: the ladder: name -> (what it is, its rms roughness [m] or None for flat, its snow volume)
+def rough_sea_ice(preset: str, terrain_seed: int) -> SurfaceSpec:
+    """Rough sea ice of a published roughness preset
+    (:data:`~lidar_mitsuba.ground.sea_ice_surface.PRESETS`: rms height and correlation
+    length from airborne laser surveys), the ``--surface sea_ice`` tile (1024 m, 1 m grid)."""
+    p = sea_ice_surface.PRESETS[preset]
+    return SurfaceSpec(kind="sea_ice", surface_rms_m=p["rms_m"],
+                       surface_corr_m=p["corr_length_m"], terrain_seed=int(terrain_seed))
+
+
+#: the ladder: name -> (what it is, its rms roughness [m] or None for flat, its snow volume,
+#: and for the ``sea_ice`` rungs the surface of terrain seed k)
 MODELS = {
     "flat": ("flat Ward snow (the current twin)", None, lambda: None),
     "snow300": ("flat + snow volume 300 um, 350 kg/m^3, semi-infinite (the issue's)", None,
@@ -135,6 +149,13 @@ MODELS = {
              "depth hoar 330 um) over bare ice 0.65", FLOE["roughness_rms_m"]["value"],
              floe_snow),
     "ridged": ("ridged floe: the floe with 16 cm rms", FLOE["ridged_rms_m"]["value"], floe_snow),
+    "sea_ice": ("rough sea ice: 16 cm rms, 25 m correlation length (Beckers et al. 2015, Fram "
+                "Strait; IceBridge ATM), Ward snow", 0.16, lambda: None,
+                lambda k: rough_sea_ice("fram_strait", k)),
+    "sea_ice_nansen": ("rough sea ice: 9 cm rms, 25 m (Beckers et al. 2015, Nansen Basin)",
+                       0.09, lambda: None, lambda k: rough_sea_ice("nansen_basin", k)),
+    "sea_ice_snow": ("rough sea ice (16 cm, 25 m) under the floe's 18 cm of snow", 0.16,
+                     floe_snow, lambda k: rough_sea_ice("fram_strait", k)),
 }
 
 
@@ -144,14 +165,15 @@ def twin_tails(name: str, *, real=None, seed: int = 1, repeats: int = 1,
     ``repeats`` times (seeds ``seed + k``; a rough floe also gets terrain seed ``k``: a new
     patch of the same ice), each written to ATL03 and read back by
     :func:`~lidar_mitsuba.products.atl03.rates.atl03_rates`; their residuals pooled into :func:`tails`."""
-    what, rms, make_snow = MODELS[name]
+    what, rms, make_snow, *rough = MODELS[name]
     real = twin.read(twin.REAL_SUBSET) if real is None else real
     out = pathlib.Path(out_dir or tempfile.mkdtemp(prefix="sea_ice_"))
     out.mkdir(parents=True, exist_ok=True)
     vol = make_snow()
     resid, per_shot, seg_rms, t0 = [], [], [], time.perf_counter()
     for k in range(int(repeats)):
-        surface = SurfaceSpec(kind="flat") if rms is None else _fractal(rms, k)
+        surface = (rough[0](k) if rough else SurfaceSpec(kind="flat") if rms is None
+                   else _fractal(rms, k))
         g = twin.simulate_over_surface(real, surface=surface, seed=seed + k, shots=shots,
                                        progress=False, snow=vol)
         path = out / f"{name}_{k}_ATL03.h5"
@@ -192,11 +214,11 @@ _WHY = {
                        "floe does (coherent backscatter, which favours short paths, is not "
                        "modelled; finer or denser surface snow would shorten the paths)",
     ("above", "short"): "too few early photons: only surface relief puts light above the "
-                        "segment's median, and the published rms, carried by a p = 1.8 "
-                        "fractal over a 512 m tile, leaves a few cm of it inside a 20 m "
-                        "segment (column 'surface rms in 20 m'); the real segments also hold "
-                        "snow dunes, sastrugi and ridge sails sharper than that, refrozen "
-                        "leads at other heights, and ATLAS's real (non-Gaussian) pulse",
+                        "segment's median, and this model leaves less of it inside a 20 m "
+                        "segment (column 'surface rms in 20 m') than the real ice has (a "
+                        "p = 1.8 fractal of the published rms: a few cm; the sea_ice rungs: "
+                        "the published rms and correlation length, the 9 cm one smoother); "
+                        "the published elevation distribution is also positively skewed",
     ("above", "long"): "too many early photons: the modelled relief is rougher at the "
                        "footprint scale than the real floe",
 }
@@ -225,7 +247,8 @@ def verdict(model: dict, real: dict) -> dict:
 
 # ------------------------------------------------------------------------------ the study
 def run(*, quick: bool = False, seed: int = 1, out_dir=None,
-        models=("flat", "snow300", "floe", "ridged")) -> dict:
+        models=("flat", "snow300", "floe", "ridged", "sea_ice", "sea_ice_nansen",
+                "sea_ice_snow")) -> dict:
     """The real subset's tails and each model's beside them, with verdicts and run times.
     ``quick``: one twin per model (1128 shots); otherwise four (new seeds and, on the rough
     floes, new patches of ice), pooled."""
@@ -282,7 +305,8 @@ def plot(doc: dict, path) -> None:
     ax.hist(doc["real"]["residuals_m"], bins=bins, density=True, histtype="step", color="k",
             lw=2.0, label=f"real: {100 * rt['below']:.1f} % below, {100 * rt['above']:.1f} % "
                           "above")
-    colours = ("tab:red", "tab:orange", "tab:blue", "tab:green", "tab:purple")
+    colours = ("tab:red", "tab:orange", "tab:blue", "tab:green", "tab:purple", "tab:brown",
+               "tab:pink", "tab:olive")
     for row, c in zip(doc["rows"], colours):
         t = row["tails"]
         ax.hist(row["residuals_m"], bins=bins, density=True, histtype="step", color=c, lw=1.2,
