@@ -109,9 +109,6 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
             {'type': 'canopy', 'filename': 'stand.npz', 'mode': 'turbid'}
     """
 
-    #: cell of the crowns' grid [m] (ESTIMATE: a speed choice; any size is exact)
-    CELL_M = 1.0
-
     def __init__(self, props: mi.Properties):
         if "max_depth" not in props:
             props["max_depth"] = 3
@@ -128,28 +125,26 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
     def set_table(self, table: dict) -> None:
         """Use a canopy table (module ``canopy_table``): its crowns, foliage and grids."""
         t = canopy_table.check(table)
-        x0, y0, nx, ny, off, trees = canopy_table.grid(t["cx"], t["cy"], t["r"],
-                                                       cell_m=self.CELL_M, pad_m=0.0)
-        # the grid's place and size, and the crowns' top, as opaque values (kernel inputs,
-        # not constants): a new table of the same stand (a DEM's next corridor tile) reuses
-        # the compiled kernels
-        line = (dr.opaque(mi.Float, x0), dr.opaque(mi.Float, y0), dr.opaque(mi.Int32, nx),
-                dr.opaque(mi.Int32, ny), self.CELL_M, mi.UInt32(off), mi.UInt32(trees))
-        omega = t["rho"] + t["tau"]
-        per_cell = max(1, int(np.diff(off).max())) if off.size > 1 else 1
-        self._table = dict(
-            crowns=[mi.Float(t[k]) for k in canopy_table.ARRAYS], shape=t["shape"],
-            leaf_angle=canopy_table.LEAF_ANGLES.index(t["leaf_angle"]),
-            sigma_g=mi.Float(t["g"] * np.float32(t["clumping"] * t["lad"])),
-            n_g=int(t["g"].size), rho=t["rho"], tau=t["tau"], omega=omega,
-            line=line, n=int(t["cx"].size),
-            # (a power of two: the gap kernel's local buffers, a compile-time size)
-            max_per_cell=1 << (per_cell - 1).bit_length(),
-            sigma_nadir=float(t["g"][-1] * t["clumping"] * t["lad"]),
-            top=dr.opaque(mi.Float, float(t["zt"].max()) + 1e-2 if t["cx"].size else -1e30),
-            # the gap layer's leaf return: pi Gamma_b / (G 0.9) at nadir, from the table's G
-            # and <cos^2> (Ross; lidar_mitsuba.vegetation.ross.leaf_return_weight)
-            leaf_nadir=t["rho"] * _COS2[t["leaf_angle"]] / float(t["g"][-1]) / REFERENCE_ALBEDO)
+        self._table = _tables(t, _grid(t), tiled=False)
+        self._table["top"] = dr.opaque(mi.Float, float(t["zt"].max(initial=-1e30)) + 1e-2)
+
+    def set_stand(self, crowns: dict) -> None:
+        """Use a stand's crowns over a DEM's corridor tiles (``lidar_mitsuba.vegetation.
+        turbid.stand_crowns``), uploaded once with their grid; each tile then hands the
+        ground under them (:meth:`set_tile`)."""
+        self._table = _stand_tables(crowns)
+
+    def set_tile(self, tile: dict) -> None:
+        """A corridor tile's ground under the stand's crowns (``lidar_mitsuba.vegetation.
+        turbid.tile_crowns``), as opaque values: every tile reuses the kernels."""
+        if self._table is None or not self._table["tiled"]:
+            raise ValueError("canopy: set_tile needs a stand (set_stand)")
+        (sx, sy), (bx, by), (mx, my) = tile["shift_m"], tile["image0"], tile["images"]
+        self._table["tile"] = (
+            dr.opaque(mi.Float, sx), dr.opaque(mi.Float, sy), dr.opaque(mi.Int32, bx),
+            dr.opaque(mi.Int32, by), dr.opaque(mi.Int32, mx), dr.opaque(mi.Int32, my),
+            dr.opaque(mi.UInt32, tile["trees"]), mi.Float(tile["ground_z_m"]))
+        self._table["top"] = dr.opaque(mi.Float, float(tile["top_m"]))
 
     def _emit(self, sx, sy, paths_per_shot, seed, z_start):
         """``pathlength``'s photons, starting above the crowns as well as the scene (the
@@ -160,6 +155,8 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
     def _core(self, scene: mi.Scene):
         if self._table is None:
             raise ValueError("canopy: no table (give filename or call set_table)")
+        if self._table["tiled"] and self._table["tile"] is None:
+            raise ValueError("canopy: a stand without a tile (call set_tile)")
         if self.mode == "gap":
             return self._gap, 2
         return self._turbid, self.max_depth
@@ -185,11 +182,15 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
         end = dr.gather(mi.UInt32, off, c + 1, ok)
         return start, dr.select(ok, end, start)
 
-    def _chord(self, k: mi.UInt32, o: mi.Point3f, d: mi.Vector3f, active: mi.Bool):
+    def _chord(self, k: mi.UInt32, o: mi.Point3f, d: mi.Vector3f, active: mi.Bool,
+               image=None):
         """Entry and exit distances ``(t0, t1)`` of the ray ``o + t d`` through crown ``k``
-        (``t0 >= t1``: it misses)."""
-        cx, cy, zb, zt, r = (dr.gather(mi.Float, a, k, active) for a in self._table["crowns"])
-        return crown_chord(self._table["shape"], o, d, cx, cy, zb, zt, r)
+        (``t0 >= t1``: it misses); ``image``: see :func:`_tile_chord`."""
+        tab = self._table
+        cx, cy, zb, zt, r = (dr.gather(mi.Float, a, k, active) for a in tab["crowns"])
+        if image is None:
+            return crown_chord(tab["shape"], o, d, cx, cy, zb, zt, r)
+        return _tile_chord(tab, k, o, d, active, image, (cx, cy, zb, zt, r))
 
     @dr.syntax
     def _first_collision(self, o, d, t_max, seed, active):
@@ -200,6 +201,8 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
         same free path in each (its uniform variate hashes ``seed`` and its index)."""
         x0, y0, nx, ny, cell, off, trees = self._table["line"]
         sigma = dr.maximum(self._sigma(d), 1e-30)
+        ox, oy, image = _tile_local(self._table, o.x, o.y)
+        o = mi.Point3f(ox, oy, o.z)
         fx, fy = (o.x - x0) / cell, (o.y - y0) / cell
         ix, iy = mi.Int32(dr.floor(fx)), mi.Int32(dr.floor(fy))
         step_x = dr.select(d.x > 0.0, 1, -1)
@@ -218,7 +221,7 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
             end = dr.select(inside, dr.gather(mi.UInt32, off, c + 1, go & inside), k)
             while go & (k < end):
                 tree = dr.gather(mi.UInt32, trees, k, go)
-                t0, t1 = self._chord(tree, o, d, go)
+                t0, t1 = self._chord(tree, o, d, go, image)
                 t0 = dr.maximum(t0, 0.0)
                 t1 = dr.minimum(t1, t_max)
                 u = mi.sample_tea_float32(seed, tree)
@@ -240,13 +243,16 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
 
     @dr.syntax
     def _depth(self, grid, o, d, t_max, lane_x, lane_y, active):
-        """Optical depth of the crowns along ``o + t d``, ``0 <= t <= t_max``."""
-        start, end = self._cells(grid, lane_x, lane_y, active)
+        """Optical depth of the crowns along ``o + t d``, ``0 <= t <= t_max`` (the crowns
+        of the cell of (``lane_x``, ``lane_y``))."""
+        lx, ly, image = _tile_local(self._table, lane_x, lane_y)
+        o = mi.Point3f(o.x + (lx - lane_x), o.y + (ly - lane_y), o.z)
+        start, end = self._cells(grid, lx, ly, active)
         length = mi.Float(0.0)
         k = mi.UInt32(start)
         while active & (k < end):
             tree = dr.gather(mi.UInt32, grid[6], k)
-            t0, t1 = self._chord(tree, o, d, active)
+            t0, t1 = self._chord(tree, o, d, active, image)
             length += dr.maximum(dr.minimum(t1, t_max) - dr.maximum(t0, 0.0), 0.0)
             k += 1
         return length * self._sigma(d)
@@ -300,6 +306,80 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
         n = 0 if self._table is None else self._table["n"]
         return (f"CanopyIntegrator[mode={self.mode}, hot_spot={self.hot_spot}, crowns={n}, "
                 f"max_depth={self.max_depth}]")
+
+
+def _tables(t: dict, grid: tuple, *, tiled: bool) -> dict:
+    """The integrator's table of ``t`` (``canopy_table.check``) and its ``grid``
+    (``canopy_table.grid``); ``tiled``: a stand's crowns over tiles (``set_stand``)."""
+    x0, y0, nx, ny, off, trees = grid
+    # the grid's place and size as opaque values (kernel inputs, not constants): a new
+    # table of the same stand reuses the compiled kernels
+    line = (dr.opaque(mi.Float, x0), dr.opaque(mi.Float, y0), dr.opaque(mi.Int32, nx),
+            dr.opaque(mi.Int32, ny), canopy_table.CELL_M, mi.UInt32(off), mi.UInt32(trees))
+    per_cell = max(1, int(np.diff(off).max())) if off.size > 1 else 1
+    return dict(
+        crowns=[mi.Float(t[k]) for k in canopy_table.ARRAYS], shape=t["shape"],
+        leaf_angle=canopy_table.LEAF_ANGLES.index(t["leaf_angle"]),
+        sigma_g=mi.Float(t["g"] * np.float32(t["clumping"] * t["lad"])),
+        n_g=int(t["g"].size), rho=t["rho"], tau=t["tau"], omega=t["rho"] + t["tau"],
+        line=line, n=int(t["cx"].size), tiled=tiled,
+        # (a power of two: the gap kernel's local buffers, a compile-time size)
+        max_per_cell=1 << (per_cell - 1).bit_length(),
+        sigma_nadir=float(t["g"][-1] * t["clumping"] * t["lad"]),
+        # the gap layer's leaf return: pi Gamma_b / (G 0.9) at nadir, from the table's G
+        # and <cos^2> (Ross; lidar_mitsuba.vegetation.ross.leaf_return_weight)
+        leaf_nadir=t["rho"] * _COS2[t["leaf_angle"]] / float(t["g"][-1]) / REFERENCE_ALBEDO)
+
+
+def _grid(t: dict) -> tuple:
+    """The crowns of ``t`` binned into a grid (``canopy_table.grid``, ``CELL_M`` cells)."""
+    return canopy_table.grid(t["cx"], t["cy"], t["r"], cell_m=canopy_table.CELL_M, pad_m=0.0)
+
+
+def _stand_tables(crowns: dict) -> dict:
+    """The integrator's table of a stand's crowns over a DEM's tiles
+    (:meth:`CanopyIntegrator.set_stand`), no tile yet."""
+    t = canopy_table.check(crowns)
+    tab = _tables(t, crowns.get("grid") or _grid(t), tiled=True)
+    period = crowns["period_m"]
+    tab.update(tree=mi.UInt32(crowns["tree"]),
+               image=(mi.Int32(crowns["image_x"]), mi.Int32(crowns["image_y"])),
+               period=None if period is None else tuple(dr.opaque(mi.Float, float(v))
+                                                        for v in period),
+               tile=None, top=dr.opaque(mi.Float, -1e30))
+    return tab
+
+
+def _tile_local(tab: dict, x: mi.Float, y: mi.Float):
+    """``(x, y, image)``: the point (x, y) [m] in the grid's coordinates and the image of
+    the stand it lies in, counted from the tile's first (a stand over a DEM's tiles: the
+    tile's coordinates shifted to the stand's and wrapped into its square); a plain table:
+    as it is, ``image`` None."""
+    if not tab["tiled"]:
+        return x, y, None
+    shx, shy, bx, by = tab["tile"][:4]
+    gx, gy = x + shx, y + shy
+    if tab["period"] is None:
+        return gx, gy, (bx, by)
+    lx, ly = tab["period"]
+    wx, wy = dr.floor(gx / lx), dr.floor(gy / ly)
+    return gx - wx * lx, gy - wy * ly, (mi.Int32(wx) + bx, mi.Int32(wy) + by)
+
+
+def _tile_chord(tab: dict, k, o, d, active, image, crown):
+    """:meth:`CanopyIntegrator._chord` of a stand's crown ``k`` (``crown``: cx, cy, zb, zt,
+    r, heights above its ground) from the stand's ``image`` (:func:`_tile_local`): on the
+    tile's ground under that image of its tree (none there, or out of the tile: a miss)."""
+    cx, cy, zb, zt, r = crown
+    mx, my, n, ground = tab["tile"][4:]
+    ix = image[0] + dr.gather(mi.Int32, tab["image"][0], k, active)
+    iy = image[1] + dr.gather(mi.Int32, tab["image"][1], k, active)
+    ok = active & (ix >= 0) & (ix < mx) & (iy >= 0) & (iy < my)
+    tree = dr.gather(mi.UInt32, tab["tree"], k, ok)
+    z = dr.gather(mi.Float, ground, mi.UInt32(iy * mx + ix) * n + tree, ok)
+    ok &= dr.isfinite(z)
+    t0, t1 = crown_chord(tab["shape"], o, d, cx, cy, zb + z, zt + z, r)
+    return dr.select(ok, t0, dr.inf), dr.select(ok, t1, -dr.inf)
 
 
 #: <cos^2 theta_L> of each leaf angle distribution (lidar_mitsuba.vegetation.ross.COS2_MEAN)
@@ -392,13 +472,16 @@ def _line(integ, ray, t_g, u, active):
     optical depth is piecewise linear between their ends, walked end by end (exact)."""
     x0, y0, nx, ny, cell, off, trees = integ._table["line"]
     sigma = integ._table["sigma_nadir"]
-    start, end = integ._cells(integ._table["line"], ray.o.x, ray.o.y, active)
+    ox, oy, image = _tile_local(integ._table, ray.o.x, ray.o.y)
+    o = mi.Point3f(ox, oy, ray.o.z)
+    start, end = integ._cells(integ._table["line"], ox, oy, active)
     a_buf = dr.alloc_local(mi.Float, integ._table["max_per_cell"], mi.Float(0.0))
     b_buf = dr.alloc_local(mi.Float, integ._table["max_per_cell"], mi.Float(0.0))
     length = mi.Float(0.0)
     k = mi.UInt32(start)
     while active & (k < end):
-        t0, t1 = integ._chord(dr.gather(mi.UInt32, trees, k, active), ray.o, ray.d, active)
+        t0, t1 = integ._chord(dr.gather(mi.UInt32, trees, k, active), o, ray.d, active,
+                              image)
         t0 = dr.maximum(t0, 0.0)
         t1 = dr.minimum(t1, t_g)
         keep = active & (t1 > t0)

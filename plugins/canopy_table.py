@@ -26,6 +26,9 @@ SHAPES = ("cone", "ellipsoid", "cylinder")
 LEAF_ANGLES = ("spherical", "planophile", "erectophile", "uniform")
 ARRAYS = ("cx", "cy", "zb", "zt", "r")
 SCALARS = ("lad", "clumping", "rho", "tau")
+#: cell of the crowns' grid [m] (ESTIMATE: a speed choice; any size is exact): the ``canopy``
+#: integrator's, and a stand's grid built outside it (``lidar_mitsuba.vegetation.turbid``)
+CELL_M = 1.0
 #: crowns binned at once by :func:`grid` (bounds its memory: a block's boxes of cells)
 GRID_BLOCK = 8192
 
