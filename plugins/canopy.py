@@ -342,8 +342,7 @@ def _stand_tables(crowns: dict) -> dict:
     t = canopy_table.check(crowns)
     tab = _tables(t, crowns.get("grid") or _grid(t), tiled=True)
     period = crowns["period_m"]
-    tab.update(tree=mi.UInt32(crowns["tree"]),
-               image=(mi.Int32(crowns["image_x"]), mi.Int32(crowns["image_y"])),
+    tab.update(key=mi.UInt32(np.asarray(crowns["key"], np.uint32)),
                period=None if period is None else tuple(dr.opaque(mi.Float, float(v))
                                                         for v in period),
                tile=None, top=dr.opaque(mi.Float, -1e30))
@@ -372,11 +371,11 @@ def _tile_chord(tab: dict, k, o, d, active, image, crown):
     tile's ground under that image of its tree (none there, or out of the tile: a miss)."""
     cx, cy, zb, zt, r = crown
     mx, my, n, ground = tab["tile"][4:]
-    ix = image[0] + dr.gather(mi.Int32, tab["image"][0], k, active)
-    iy = image[1] + dr.gather(mi.Int32, tab["image"][1], k, active)
+    key = dr.gather(mi.UInt32, tab["key"], k, active)
+    ix = image[0] + mi.Int32((key >> 4) & 15) - 8
+    iy = image[1] + mi.Int32(key & 15) - 8
     ok = active & (ix >= 0) & (ix < mx) & (iy >= 0) & (iy < my)
-    tree = dr.gather(mi.UInt32, tab["tree"], k, ok)
-    z = dr.gather(mi.Float, ground, mi.UInt32(iy * mx + ix) * n + tree, ok)
+    z = dr.gather(mi.Float, ground, mi.UInt32(iy * mx + ix) * n + (key >> 8), ok)
     ok &= dr.isfinite(z)
     t0, t1 = crown_chord(tab["shape"], o, d, cx, cy, zb + z, zt + z, r)
     return dr.select(ok, t0, dr.inf), dr.select(ok, t1, -dr.inf)
