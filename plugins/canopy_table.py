@@ -80,10 +80,12 @@ def grid(cx: np.ndarray, cy: np.ndarray, r: np.ndarray, *, cell_m: float, pad_m:
         cells.append(c)
         trees.append(t + k0)
     cells, trees = np.concatenate(cells), np.concatenate(trees)
-    order = np.argsort(cells, kind="stable")
     counts = np.bincount(cells, minlength=nx * ny)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.uint32)
-    return float(x0), float(y0), nx, ny, offsets, trees[order].astype(np.uint32)
+    # by cell, then crown: one sort of the unique keys cell * n + crown (a plain sort of
+    # int64 is ~3x faster than a stable argsort and its gather; the same order)
+    keys = np.sort(cells * np.int64(cx.size) + trees)
+    return float(x0), float(y0), nx, ny, offsets, (keys % cx.size).astype(np.uint32)
 
 
 def _cells_hit(cx, cy, reach, *, x0: float, y0: float, nx: int, cell_m: float):
