@@ -23,7 +23,8 @@ them, never the other way round.
 - ``canopy.py``: ``<integrator type="canopy">``, tree crowns as a turbid medium of leaves
   (Ross's G, bi-Lambertian leaves, the monostatic hot spot) over the scene's ground, traced
   by Monte Carlo (``mode="turbid"``) or as a gap-probability layer (``mode="gap"``); the
-  crowns come from a table (``canopy_table.py``); it subclasses ``pathlength``.
+  crowns come from a table (``canopy_table.py``), their kernel code from
+  ``canopy_crowns.py``; it subclasses ``pathlength``.
 
 Use from plain Mitsuba::
 
@@ -61,9 +62,10 @@ import sys
 import types
 
 PLUGIN_FILES = ("ward", "water", "bilambertian", "pathlength", "volpathlength", "snowkernel",
-                "mediapathlength", "canopy")
+                "mediapathlength", "canopy_crowns", "canopy")
 """The plugin files, in load order (``volpathlength``, ``snowkernel`` and
-``mediapathlength`` build on ``pathlength``)."""
+``mediapathlength`` build on ``pathlength``; ``canopy`` on ``pathlength`` and
+``canopy_crowns``, its crowns' kernel code, which registers nothing)."""
 
 _registered: set[str] = set()
 
