@@ -51,7 +51,8 @@ Shared, variant-independent modules: ``constants`` (c, the FWHM factor, the refe
 the nominal geometry), ``returns`` (the integrators' output record), ``scene_utils`` (scene
 bounds and medium), ``kernel_table`` (the layout of a snow kernel's table), ``canopy_table``
 (a stand's crowns and foliage, and the grids that find them), ``water_optics``
-(Cox & Munk's slopes and Quan & Fry's index, the ``water`` BSDF's closed forms).
+(Cox & Munk's slopes and Quan & Fry's index, the ``water`` BSDF's closed forms); and
+``canopy_crowns`` (the ``canopy`` plugin's crown kernels: it needs Mitsuba, not a variant).
 """
 from __future__ import annotations
 
@@ -62,10 +63,9 @@ import sys
 import types
 
 PLUGIN_FILES = ("ward", "water", "bilambertian", "pathlength", "volpathlength", "snowkernel",
-                "mediapathlength", "canopy_crowns", "canopy")
+                "mediapathlength", "canopy")
 """The plugin files, in load order (``volpathlength``, ``snowkernel`` and
-``mediapathlength`` build on ``pathlength``; ``canopy`` on ``pathlength`` and
-``canopy_crowns``, its crowns' kernel code, which registers nothing)."""
+``mediapathlength`` build on ``pathlength``)."""
 
 _registered: set[str] = set()
 

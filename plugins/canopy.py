@@ -2,7 +2,7 @@
 (``<integrator type="canopy">``).
 
 Registered in every JIT variant by ``import lidar_mitsuba_plugins`` (or ``import lidar_mitsuba``),
-after ``pathlength``, on which it builds, and ``canopy_crowns`` (the crowns' kernel code).
+after ``pathlength``, on which it builds; the crowns' kernel code is ``canopy_crowns``.
 """
 from __future__ import annotations
 
@@ -11,11 +11,11 @@ import sys
 import drjit as dr
 import mitsuba as mi
 
+from lidar_mitsuba_plugins import canopy_crowns as _crowns
 from lidar_mitsuba_plugins import canopy_table
 from lidar_mitsuba_plugins.constants import C_M_PER_NS, REFERENCE_ALBEDO
 
 _pathlength = sys.modules[f"lidar_mitsuba_plugins._{mi.variant()}_pathlength"]
-_crowns = sys.modules[f"lidar_mitsuba_plugins._{mi.variant()}_canopy_crowns"]
 crown_chord = _crowns.crown_chord
 _fov_exit = _pathlength._fov_exit
 #: leaf normals per photon tried before giving up (acceptance >= 0.21 per try: 0.79^96 ~ 1e-10)

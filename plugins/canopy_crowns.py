@@ -3,8 +3,8 @@ through a crown, the integrator's table of a canopy table and its grid, and a st
 over a DEM's corridor tiles (one grid for every tile: a tile's photons wrapped into the
 stand's square, each crown on the tile's ground under its image).
 
-Executed in every JIT variant before ``canopy.py`` (``lidar_mitsuba_plugins.PLUGIN_FILES``);
-registers nothing.
+Imported as a plain module (it registers nothing): its functions take the arrays of the
+variant active when they are called, as the ``canopy`` plugin's kernels do.
 """
 from __future__ import annotations
 
