@@ -1,8 +1,7 @@
 """A forest over a DEM (issue 42): the stand wraps along a corridor of any length, the
 ``canopy`` integrator holds the stand's crowns and each corridor tile hands it the ground
-under them, and a granule over the
-forest writes ATL03, ATL06 and ATL08 together, from Python and from the CLI
-(``simulate --dem ... --forest``)."""
+under them, and a granule over the forest writes ATL03, ATL06 and ATL08 together, from
+Python and from the CLI (``simulate --dem ... --forest``)."""
 from __future__ import annotations
 
 import h5py
