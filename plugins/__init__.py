@@ -23,7 +23,8 @@ them, never the other way round.
 - ``canopy.py``: ``<integrator type="canopy">``, tree crowns as a turbid medium of leaves
   (Ross's G, bi-Lambertian leaves, the monostatic hot spot) over the scene's ground, traced
   by Monte Carlo (``mode="turbid"``) or as a gap-probability layer (``mode="gap"``); the
-  crowns come from a table (``canopy_table.py``); it subclasses ``pathlength``.
+  crowns come from a table (``canopy_table.py``), their kernel code from
+  ``canopy_crowns.py``; it subclasses ``pathlength``.
 
 Use from plain Mitsuba::
 
@@ -50,7 +51,8 @@ Shared, variant-independent modules: ``constants`` (c, the FWHM factor, the refe
 the nominal geometry), ``returns`` (the integrators' output record), ``scene_utils`` (scene
 bounds and medium), ``kernel_table`` (the layout of a snow kernel's table), ``canopy_table``
 (a stand's crowns and foliage, and the grids that find them), ``water_optics``
-(Cox & Munk's slopes and Quan & Fry's index, the ``water`` BSDF's closed forms).
+(Cox & Munk's slopes and Quan & Fry's index, the ``water`` BSDF's closed forms); and
+``canopy_crowns`` (the ``canopy`` plugin's crown kernels: it needs Mitsuba, not a variant).
 """
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 (``<integrator type="canopy">``).
 
 Registered in every JIT variant by ``import lidar_mitsuba_plugins`` (or ``import lidar_mitsuba``),
-after ``pathlength``, on which it builds.
+after ``pathlength``, on which it builds; the crowns' kernel code is ``canopy_crowns``.
 """
 from __future__ import annotations
 
@@ -10,12 +10,13 @@ import sys
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
+from lidar_mitsuba_plugins import canopy_crowns as _crowns
 from lidar_mitsuba_plugins import canopy_table
 from lidar_mitsuba_plugins.constants import C_M_PER_NS, REFERENCE_ALBEDO
 
 _pathlength = sys.modules[f"lidar_mitsuba_plugins._{mi.variant()}_pathlength"]
+crown_chord = _crowns.crown_chord
 _fov_exit = _pathlength._fov_exit
 #: leaf normals per photon tried before giving up (acceptance >= 0.21 per try: 0.79^96 ~ 1e-10)
 NORMAL_TRIES = 96
@@ -95,6 +96,13 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
     nothing it does later is seen, but for light scattered back into the field of view,
     left out).
 
+    **A stand over a DEM's corridor tiles** (``set_stand`` once, ``set_tile`` per tile): one
+    grid of the periodic stand's square and the images near its edges (within the field of
+    view's diameter: as far as any leg reaches from where it starts), the crowns' heights
+    above their ground; each leg is wrapped into the square where it starts, and a crown
+    stands on the tile's ground under its image (the tile's ``ground_z_m``), so no tile
+    gathers or bins crowns of its own.
+
     .. tabs::
 
         .. code-tab:: xml
@@ -108,9 +116,6 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
 
             {'type': 'canopy', 'filename': 'stand.npz', 'mode': 'turbid'}
     """
-
-    #: cell of the crowns' grid [m] (ESTIMATE: a speed choice; any size is exact)
-    CELL_M = 1.0
 
     def __init__(self, props: mi.Properties):
         if "max_depth" not in props:
@@ -128,28 +133,26 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
     def set_table(self, table: dict) -> None:
         """Use a canopy table (module ``canopy_table``): its crowns, foliage and grids."""
         t = canopy_table.check(table)
-        x0, y0, nx, ny, off, trees = canopy_table.grid(t["cx"], t["cy"], t["r"],
-                                                       cell_m=self.CELL_M, pad_m=0.0)
-        # the grid's place and size, and the crowns' top, as opaque values (kernel inputs,
-        # not constants): a new table of the same stand (a DEM's next corridor tile) reuses
-        # the compiled kernels
-        line = (dr.opaque(mi.Float, x0), dr.opaque(mi.Float, y0), dr.opaque(mi.Int32, nx),
-                dr.opaque(mi.Int32, ny), self.CELL_M, mi.UInt32(off), mi.UInt32(trees))
-        omega = t["rho"] + t["tau"]
-        per_cell = max(1, int(np.diff(off).max())) if off.size > 1 else 1
-        self._table = dict(
-            crowns=[mi.Float(t[k]) for k in canopy_table.ARRAYS], shape=t["shape"],
-            leaf_angle=canopy_table.LEAF_ANGLES.index(t["leaf_angle"]),
-            sigma_g=mi.Float(t["g"] * np.float32(t["clumping"] * t["lad"])),
-            n_g=int(t["g"].size), rho=t["rho"], tau=t["tau"], omega=omega,
-            line=line, n=int(t["cx"].size),
-            # (a power of two: the gap kernel's local buffers, a compile-time size)
-            max_per_cell=1 << (per_cell - 1).bit_length(),
-            sigma_nadir=float(t["g"][-1] * t["clumping"] * t["lad"]),
-            top=dr.opaque(mi.Float, float(t["zt"].max()) + 1e-2 if t["cx"].size else -1e30),
-            # the gap layer's leaf return: pi Gamma_b / (G 0.9) at nadir, from the table's G
-            # and <cos^2> (Ross; lidar_mitsuba.vegetation.ross.leaf_return_weight)
-            leaf_nadir=t["rho"] * _COS2[t["leaf_angle"]] / float(t["g"][-1]) / REFERENCE_ALBEDO)
+        self._table = _crowns.tables(t, _crowns.grid_of(t), tiled=False)
+        self._table["top"] = dr.opaque(mi.Float, float(t["zt"].max(initial=-1e30)) + 1e-2)
+
+    def set_stand(self, crowns: dict) -> None:
+        """Use a stand's crowns over a DEM's corridor tiles (``lidar_mitsuba.vegetation.
+        turbid.stand_crowns``), uploaded once with their grid; each tile then hands the
+        ground under them (:meth:`set_tile`)."""
+        self._table = _crowns.stand_tables(crowns)
+
+    def set_tile(self, tile: dict) -> None:
+        """A corridor tile's ground under the stand's crowns (``lidar_mitsuba.vegetation.
+        turbid.tile_crowns``), as opaque values: every tile reuses the kernels."""
+        if self._table is None or not self._table["tiled"]:
+            raise ValueError("canopy: set_tile needs a stand (set_stand)")
+        (sx, sy), (bx, by), (mx, my) = tile["shift_m"], tile["image0"], tile["images"]
+        self._table["tile"] = (
+            dr.opaque(mi.Float, sx), dr.opaque(mi.Float, sy), dr.opaque(mi.Int32, bx),
+            dr.opaque(mi.Int32, by), dr.opaque(mi.Int32, mx), dr.opaque(mi.Int32, my),
+            dr.opaque(mi.UInt32, tile["trees"]), mi.Float(tile["ground_z_m"]))
+        self._table["top"] = dr.opaque(mi.Float, float(tile["top_m"]))
 
     def _emit(self, sx, sy, paths_per_shot, seed, z_start):
         """``pathlength``'s photons, starting above the crowns as well as the scene (the
@@ -160,6 +163,8 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
     def _core(self, scene: mi.Scene):
         if self._table is None:
             raise ValueError("canopy: no table (give filename or call set_table)")
+        if self._table["tiled"] and self._table["tile"] is None:
+            raise ValueError("canopy: a stand without a tile (call set_tile)")
         if self.mode == "gap":
             return self._gap, 2
         return self._turbid, self.max_depth
@@ -185,11 +190,15 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
         end = dr.gather(mi.UInt32, off, c + 1, ok)
         return start, dr.select(ok, end, start)
 
-    def _chord(self, k: mi.UInt32, o: mi.Point3f, d: mi.Vector3f, active: mi.Bool):
+    def _chord(self, k: mi.UInt32, o: mi.Point3f, d: mi.Vector3f, active: mi.Bool,
+               image=None):
         """Entry and exit distances ``(t0, t1)`` of the ray ``o + t d`` through crown ``k``
-        (``t0 >= t1``: it misses)."""
-        cx, cy, zb, zt, r = (dr.gather(mi.Float, a, k, active) for a in self._table["crowns"])
-        return crown_chord(self._table["shape"], o, d, cx, cy, zb, zt, r)
+        (``t0 >= t1``: it misses); ``image``: see :func:`_tile_chord`."""
+        tab = self._table
+        cx, cy, zb, zt, r = (dr.gather(mi.Float, a, k, active) for a in tab["crowns"])
+        if image is None:
+            return crown_chord(tab["shape"], o, d, cx, cy, zb, zt, r)
+        return _crowns.tile_chord(tab, k, o, d, active, image, (cx, cy, zb, zt, r))
 
     @dr.syntax
     def _first_collision(self, o, d, t_max, seed, active):
@@ -200,6 +209,8 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
         same free path in each (its uniform variate hashes ``seed`` and its index)."""
         x0, y0, nx, ny, cell, off, trees = self._table["line"]
         sigma = dr.maximum(self._sigma(d), 1e-30)
+        ox, oy, image = _crowns.tile_local(self._table, o.x, o.y)
+        o = mi.Point3f(ox, oy, o.z)
         fx, fy = (o.x - x0) / cell, (o.y - y0) / cell
         ix, iy = mi.Int32(dr.floor(fx)), mi.Int32(dr.floor(fy))
         step_x = dr.select(d.x > 0.0, 1, -1)
@@ -218,7 +229,7 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
             end = dr.select(inside, dr.gather(mi.UInt32, off, c + 1, go & inside), k)
             while go & (k < end):
                 tree = dr.gather(mi.UInt32, trees, k, go)
-                t0, t1 = self._chord(tree, o, d, go)
+                t0, t1 = self._chord(tree, o, d, go, image)
                 t0 = dr.maximum(t0, 0.0)
                 t1 = dr.minimum(t1, t_max)
                 u = mi.sample_tea_float32(seed, tree)
@@ -240,13 +251,16 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
 
     @dr.syntax
     def _depth(self, grid, o, d, t_max, lane_x, lane_y, active):
-        """Optical depth of the crowns along ``o + t d``, ``0 <= t <= t_max``."""
-        start, end = self._cells(grid, lane_x, lane_y, active)
+        """Optical depth of the crowns along ``o + t d``, ``0 <= t <= t_max`` (the crowns
+        of the cell of (``lane_x``, ``lane_y``))."""
+        lx, ly, image = _crowns.tile_local(self._table, lane_x, lane_y)
+        o = mi.Point3f(o.x + (lx - lane_x), o.y + (ly - lane_y), o.z)
+        start, end = self._cells(grid, lx, ly, active)
         length = mi.Float(0.0)
         k = mi.UInt32(start)
         while active & (k < end):
             tree = dr.gather(mi.UInt32, grid[6], k)
-            t0, t1 = self._chord(tree, o, d, active)
+            t0, t1 = self._chord(tree, o, d, active, image)
             length += dr.maximum(dr.minimum(t1, t_max) - dr.maximum(t0, 0.0), 0.0)
             k += 1
         return length * self._sigma(d)
@@ -272,7 +286,8 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
             i += 1
         return n
 
-    def _leaf(self, d: mi.Vector3f, wo: mi.Vector3f, sampler, active: mi.Bool):
+    def _leaf(self, d: mi.Vector3f, wo: mi.Vector3f, sampler, active: mi.Bool,
+              way_on: bool = True):
         """A leaf collision of a photon travelling along ``d``: ``(value, d_new)``, the
         return toward ``wo`` (pi f_L cos / 0.9 of a leaf drawn by :meth:`_sample_normal`:
         rho on its lit side, tau through it) and the next direction (reflected with
@@ -282,6 +297,8 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
         n_leaf = self._sample_normal(d, sampler, active)
         dn, wn = dr.dot(d, n_leaf), dr.dot(wo, n_leaf)
         value = dr.select(dn * wn < 0.0, tab["rho"], tab["tau"]) * dr.abs(wn) / REFERENCE_ALBEDO
+        if not way_on:                   # (the path's last vertex: its next direction unused)
+            return value, d
         reflect = sampler.next_1d(active) * tab["omega"] < tab["rho"]
         side = dr.select(dn < 0.0, 1.0, -1.0) * dr.select(reflect, 1.0, -1.0)
         local = mi.warp.square_to_cosine_hemisphere(sampler.next_2d(active))
@@ -300,62 +317,6 @@ class CanopyIntegrator(_pathlength.PathLengthIntegrator):
         n = 0 if self._table is None else self._table["n"]
         return (f"CanopyIntegrator[mode={self.mode}, hot_spot={self.hot_spot}, crowns={n}, "
                 f"max_depth={self.max_depth}]")
-
-
-#: <cos^2 theta_L> of each leaf angle distribution (lidar_mitsuba.vegetation.ross.COS2_MEAN)
-_COS2 = {"spherical": 1.0 / 3.0, "planophile": 0.75, "erectophile": 0.25, "uniform": 0.5}
-
-
-def crown_chord(shape: str, o: mi.Point3f, d: mi.Vector3f, cx, cy, zb, zt, r):
-    """Entry and exit distances ``(t0, t1)`` of the ray ``o + t d`` (``d`` unit) through a
-    crown of axis (cx, cy) between heights ``zb`` and ``zt``, widest radius ``r``
-    (``t0 >= t1`` where it misses): the slab ``zb <= z <= zt`` intersected with the cylinder
-    (``x^2 + y^2 <= r^2``), the ellipsoid (semi-axes r, r, (zt - zb)/2) or the cone (apex
-    at ``zt``, radius ``r`` at ``zb``). Each is convex, so the ray's part inside is one
-    interval: the roots of a quadratic, clipped to the slab."""
-    px, py = o.x - cx, o.y - cy
-    inv_dz = dr.rcp(dr.select(dr.abs(d.z) > 1e-12, d.z, 1e-12))
-    ta, tb = (zb - o.z) * inv_dz, (zt - o.z) * inv_dz
-    s0, s1 = dr.minimum(ta, tb), dr.maximum(ta, tb)
-    if shape == "ellipsoid":          # scaled to the sphere of radius r
-        k = r / (0.5 * (zt - zb))
-        pz, dz = (o.z - 0.5 * (zb + zt)) * k, d.z * k
-        a = dr.square(d.x) + dr.square(d.y) + dr.square(dz)
-        b = px * d.x + py * d.y + pz * dz
-        c = dr.square(px) + dr.square(py) + dr.square(pz) - r * r
-    elif shape == "cylinder":
-        a = dr.square(d.x) + dr.square(d.y)
-        b = px * d.x + py * d.y
-        c = dr.square(px) + dr.square(py) - r * r
-    else:                             # cone: x^2 + y^2 <= k^2 (z - zt)^2, z <= zt
-        k = r / (zt - zb)
-        pz = o.z - zt
-        a = dr.square(d.x) + dr.square(d.y) - dr.square(k * d.z)
-        b = px * d.x + py * d.y - k * k * pz * d.z
-        c = dr.square(px) + dr.square(py) - dr.square(k * pz)
-    disc = dr.square(b) - a * c
-    root = dr.sqrt(dr.maximum(disc, 0.0))
-    tiny = dr.abs(a) <= 1e-12
-    safe_a = dr.select(tiny, 1e-12, a)
-    q0, q1 = (-b - root) / safe_a, (-b + root) / safe_a
-    r0, r1 = dr.minimum(q0, q1), dr.maximum(q0, q1)
-    if shape == "cone":
-        # a < 0 (steeper than the cone's side, e.g. a vertical line): the quadratic is <= 0
-        # outside its roots; the piece below the apex is the later one going down
-        steep = a < 0.0
-        down = d.z < 0.0
-        e0 = dr.select(steep, dr.select(down, r1, -dr.inf), r0)
-        e1 = dr.select(steep, dr.select(down, dr.inf, r0), r1)
-        miss = ~steep & (disc < 0.0)
-    elif shape == "cylinder":         # along the axis: inside throughout or never
-        e0 = dr.select(tiny, -dr.inf, r0)
-        e1 = dr.select(tiny, dr.inf, r1)
-        miss = dr.select(tiny, c > 0.0, disc < 0.0)
-    else:
-        e0, e1, miss = r0, r1, disc < 0.0
-    t0 = dr.maximum(e0, s0)
-    t1 = dr.minimum(e1, s1)
-    return dr.select(miss, dr.inf, t0), dr.select(miss, -dr.inf, t1)
 
 
 def _gap_kernel(integ, scene, sx, sy, paths_per_shot, seed, z_start):
@@ -392,13 +353,16 @@ def _line(integ, ray, t_g, u, active):
     optical depth is piecewise linear between their ends, walked end by end (exact)."""
     x0, y0, nx, ny, cell, off, trees = integ._table["line"]
     sigma = integ._table["sigma_nadir"]
-    start, end = integ._cells(integ._table["line"], ray.o.x, ray.o.y, active)
+    ox, oy, image = _crowns.tile_local(integ._table, ray.o.x, ray.o.y)
+    o = mi.Point3f(ox, oy, ray.o.z)
+    start, end = integ._cells(integ._table["line"], ox, oy, active)
     a_buf = dr.alloc_local(mi.Float, integ._table["max_per_cell"], mi.Float(0.0))
     b_buf = dr.alloc_local(mi.Float, integ._table["max_per_cell"], mi.Float(0.0))
     length = mi.Float(0.0)
     k = mi.UInt32(start)
     while active & (k < end):
-        t0, t1 = integ._chord(dr.gather(mi.UInt32, trees, k, active), ray.o, ray.d, active)
+        t0, t1 = integ._chord(dr.gather(mi.UInt32, trees, k, active), o, ray.d, active,
+                              image)
         t0 = dr.maximum(t0, 0.0)
         t1 = dr.minimum(t1, t_g)
         keep = active & (t1 > t0)
@@ -477,17 +441,19 @@ def _walk(integ, scene, sx, sy, paths_per_shot, seed, z_start):
         up_m = integ._leg_m(p, sx64, sy64)
         wo = integ._to_receiver(p, sx64, sy64, up_m)
         seen = vertex & (dr.square(p.x - x0) + dr.square(p.y - y0) <= fov2)
-        leaf_val, d_leaf = integ._leaf(ray.d, wo, sampler, scatter)
+        leaf_val, d_leaf = integ._leaf(ray.d, wo, sampler, scatter, way_on=depth_max > 1)
         value = dr.select(scatter, leaf_val, integ._return_weight(si, wo, surface & seen))
         # the way up: through the same gaps for the first vertex (hot spot), else
         # Beer-Lambert through the crowns and a shadow ray against the scene
         n_off = dr.select(scatter, mi.Vector3f(0.0), si.n)
         up = _pathlength_spawn(p, n_off, wo)
-        blocked = scene.ray_test(up, seen & ~first)
-        # (wo is within microradians of the vertical: the crowns over p's cell are those
-        # it crosses, to within a millimetre of their edges)
-        tau_up = integ._depth(line, up.o, wo, dr.inf, p.x, p.y, seen & (~first | (not hot)))
-        trans = dr.select(first & hot, 1.0, dr.exp(-tau_up))
+        blocked, trans = mi.Bool(False), mi.Float(1.0)
+        if depth_max > 1 or not hot:     # (Python: one vertex seen through its own gaps)
+            blocked = scene.ray_test(up, seen & ~first)
+            # (wo is within microradians of the vertical: the crowns over p's cell are those
+            # it crosses, to within a millimetre of their edges)
+            tau_up = integ._depth(line, up.o, wo, dr.inf, p.x, p.y, seen & (~first | (not hot)))
+            trans = dr.select(first & hot, 1.0, dr.exp(-tau_up))
         w = dr.select(seen & ~blocked, throughput * value * trans, 0.0)
         t_ns = mi.Float64(t_emit_ns) + (down_m + inner_m + up_m) / C_M_PER_NS
         slot = lane * depth_max + depth
@@ -496,11 +462,12 @@ def _walk(integ, scene, sx, sy, paths_per_shot, seed, z_start):
 
         # -- the next direction: the leaf reflects or transmits (Lambertian), the ground
         # samples its BSDF
-        bs, bsdf_w = si.bsdf().sample(ctx, si, sampler.next_1d(surface),
-                                      sampler.next_2d(surface), surface)
-        d_new = dr.select(scatter, d_leaf, si.to_world(bs.wo))
-        throughput *= dr.select(scatter, omega, bsdf_w[0])
-        ray = dr.select(vertex, _pathlength_spawn(p, n_off, d_new), ray)
+        if depth_max > 1:                # (Python: after the last vertex, no way on)
+            bs, bsdf_w = si.bsdf().sample(ctx, si, sampler.next_1d(surface),
+                                          sampler.next_2d(surface), surface)
+            d_new = dr.select(scatter, d_leaf, si.to_world(bs.wo))
+            throughput *= dr.select(scatter, omega, bsdf_w[0])
+            ray = dr.select(vertex, _pathlength_spawn(p, n_off, d_new), ray)
         depth += 1
         active &= vertex & (throughput > 0.0)
     return tuple(out)

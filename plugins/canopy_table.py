@@ -26,6 +26,9 @@ SHAPES = ("cone", "ellipsoid", "cylinder")
 LEAF_ANGLES = ("spherical", "planophile", "erectophile", "uniform")
 ARRAYS = ("cx", "cy", "zb", "zt", "r")
 SCALARS = ("lad", "clumping", "rho", "tau")
+#: cell of the crowns' grid [m] (ESTIMATE: a speed choice; any size is exact): the ``canopy``
+#: integrator's, and a stand's grid built outside it (``lidar_mitsuba.vegetation.turbid``)
+CELL_M = 1.0
 #: crowns binned at once by :func:`grid` (bounds its memory: a block's boxes of cells)
 GRID_BLOCK = 8192
 
@@ -77,10 +80,12 @@ def grid(cx: np.ndarray, cy: np.ndarray, r: np.ndarray, *, cell_m: float, pad_m:
         cells.append(c)
         trees.append(t + k0)
     cells, trees = np.concatenate(cells), np.concatenate(trees)
-    order = np.argsort(cells, kind="stable")
     counts = np.bincount(cells, minlength=nx * ny)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.uint32)
-    return float(x0), float(y0), nx, ny, offsets, trees[order].astype(np.uint32)
+    # by cell, then crown: one sort of the unique keys cell * n + crown (a plain sort of
+    # int64 is ~3x faster than a stable argsort and its gather; the same order)
+    keys = np.sort(cells * np.int64(cx.size) + trees)
+    return float(x0), float(y0), nx, ny, offsets, (keys % cx.size).astype(np.uint32)
 
 
 def _cells_hit(cx, cy, reach, *, x0: float, y0: float, nx: int, cell_m: float):

@@ -1,7 +1,7 @@
-"""A forest over a DEM (issue 42): the stand wraps along a corridor of any length, each
-corridor tile hands the ``canopy`` integrator the crowns over it, and a granule over the
-forest writes ATL03, ATL06 and ATL08 together, from Python and from the CLI
-(``simulate --dem ... --forest``)."""
+"""A forest over a DEM (issue 42): the stand wraps along a corridor of any length, the
+``canopy`` integrator holds the stand's crowns and each corridor tile hands it the ground
+under them, and a granule over the forest writes ATL03, ATL06 and ATL08 together, from
+Python and from the CLI (``simulate --dem ... --forest``)."""
 from __future__ import annotations
 
 import h5py
@@ -21,28 +21,61 @@ def small_dem(tmp_path_factory):
 
 def test_the_stand_wraps_along_the_corridor_on_the_ground_where_it_is(small_dem):
     """A 200 m periodic stand seen by a corridor tile 1.1 km away (tiles of a 100 km track
-    see the same stand): the tile's table over a window one period on a side, anywhere,
-    holds exactly one image of every tree (the count is exact, not statistical), and every
-    image's crown stands on the DEM where the image is (its base ``crown_base`` above the
-    DEM's height at its axis, to float32 rounding of ~2000 m heights: 1 mm), in the tile's
-    coordinates."""
-    from lidar_mitsuba.vegetation import turbid
+    see the same stand): the tile's ground under the stand's crowns
+    (:func:`~lidar_mitsuba.vegetation.turbid.tile_crowns`) places, in a window one period
+    on a side, anywhere, exactly one image of every tree (the count is exact, not
+    statistical), each crown standing on the DEM where its image is (its base
+    ``crown_base`` above the DEM's height at its axis, to float32 rounding of ~2000 m
+    heights: 1 mm). The ``canopy`` integrator's gap layer through the stand's crowns
+    (:func:`~lidar_mitsuba.vegetation.turbid.stand_crowns`: one grid for every tile, the
+    tile's photons wrapped into it) and that tile's ground gives each photon's line the
+    gap probability that numpy computes over the same crowns placed in the tile
+    (:func:`~lidar_mitsuba.vegetation.gap.gap_probability`: an independent
+    implementation), across the period's edge: to float32 rounding of the ~2000 m heights
+    (1.2e-4 m at each of a chord's ends, a few chords a line, times the extinction,
+    ~0.3 /m here: 5e-4)."""
+    from lidar_mitsuba.vegetation import gap, turbid
+    mi = lm.ensure_renderer()
     ground = dems.DEMSurface(dems.DEM.open(small_dem))
     (cx, cy) = ground.centre_xy_m()
     f = lm.forest(species="conifer", height_m=12.0, cover=0.5, lai=2.0, ground=ground,
-                  representation="turbid", seed=5,
+                  representation="gap", seed=5,
                   bounds_m=((cx - 100.0, cy - 100.0), (cx + 100.0, cy + 100.0)))
+    s, period = f.stand, 200.0
     x0, y0 = cx + 1100.0 + 17.3, cy - 900.0 + 3.1         # not on the period's lattice
-    shift = (x0 - 40.0, y0 + 25.0, 0.0)                    # the tile's origin in the frame
-    shots_y = y0 + np.linspace(0.0, 200.0, 50)       # a tile's shots, 100 m about them
-    t = turbid.tile_table(f, x_m=np.full(50, x0 + 100.0), y_m=shots_y, reach_m=100.0,
-                          shift_m=shift)
-    ax, ay = t["cx"] + shift[0], t["cy"] + shift[1]
+    origin = (x0 - 40.0, y0 + 25.0)                         # the tile's origin in the frame
+    shots_x, shots_y = np.full(50, x0 + 100.0), y0 + np.linspace(0.0, 200.0, 50)
+    t = turbid.tile_crowns(f, x_m=shots_x, y_m=shots_y, reach_m=100.0, origin_m=origin)
+    (mx, _), n = t["images"], t["trees"]
+    k = np.flatnonzero(np.isfinite(t["ground_z_m"]))
+    (j, i), tree = np.divmod(k // n, mx), k % n
+    (sx0, sy0) = s.bounds_m[0]
+    tx = s.x_m[tree] - sx0 + (i - t["image0"][0]) * period - t["shift_m"][0]
+    ty = s.y_m[tree] - sy0 + (j - t["image0"][1]) * period - t["shift_m"][1]
+    ax, ay = tx + origin[0], ty + origin[1]
     inside = (ax >= x0) & (ax < x0 + 200.0) & (ay >= y0) & (ay < y0 + 200.0)
-    assert inside.sum() == f.stand.n_trees > 100
-    base = f.stand.crown_base_m.min(), f.stand.crown_base_m.max()
-    above = t["zb"] - ground.height_m(ax, ay)
-    assert base[0] - 1e-3 <= above.min() and above.max() <= base[1] + 1e-3
+    assert inside.sum() == s.n_trees > 100
+    zb = t["ground_z_m"][k] + s.crown_base_m[tree]
+    above = zb - ground.height_m(ax, ay)
+    assert s.crown_base_m.min() - 1e-3 <= above.min() and above.max() <= (
+        s.crown_base_m.max() + 1e-3)
+    # the gap layer over the tile (a flat ground below every crown) against numpy
+    integ = mi.load_dict({"type": "canopy", "mode": "gap", "footprint_sigma_m": 2.5})
+    integ.set_stand(turbid.stand_crowns(f, pad_m=2.0 * integ.fov_radius_m + 1.0))
+    integ.set_tile(t)
+    floor = float(np.min(t["ground_z_m"][k])) - 30.0
+    scene = mi.load_dict({"type": "scene", "ground": {
+        "type": "rectangle", "to_world": mi.ScalarTransform4f().translate(
+            [100.0, -25.0, floor]).scale([400.0, 400.0, 1.0]),
+        "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}}}})
+    ret = integ.trace(scene, shot_x_m=shots_x - origin[0], shot_y_m=shots_y - origin[1],
+                      paths_per_shot=32, seed=2)
+    table = turbid.crowns_table(s, cx=tx, cy=ty, zb=zb, zt=zb - s.crown_base_m[tree]
+                                + s.height_m[tree], r=s.crown_radius_m[tree], rho=0.1, tau=0.1)
+    on_ground = ret.z_m < floor + 0.5
+    p_num = gap.gap_probability(table, ret.x_m[on_ground], ret.y_m[on_ground], floor)
+    np.testing.assert_allclose(ret.weight[on_ground] / (0.5 / 0.9), p_num, atol=5e-4)
+    assert 0.05 < p_num.mean() < 0.95 and p_num.min() < 0.1     # canopy and gaps both seen
     # the stand moved into a granule's frame is the same forest on the same ground
     g = f.with_origin((cx - 1234.0, cy + 567.0))
     assert np.allclose(g.stand.x_m + g.origin_m[0], f.stand.x_m)

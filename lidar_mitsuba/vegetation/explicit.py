@@ -304,12 +304,19 @@ def placed_trees(forest, bounds_xy_m) -> tuple[np.ndarray, ...]:
     the ground's there, its stem's own where that is off the ground): ``(index, x_m, y_m,
     ground_z_m)``, each (m,)."""
     idx, x, y = trees_near(forest.stand, bounds_xy_m)
+    return idx, x, y, ground_under(forest, idx, x, y)
+
+
+def ground_under(forest, idx: np.ndarray, x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
+    """(m,) the ground's height [m] under the trees ``idx`` (stand indices) placed at
+    (``x_m``, ``y_m``) [m]: a tree's own where it stands, an image's the ground's where the
+    image is (its stem's own where that is off the ground)."""
     z = forest.stand.ground_z_m[idx].copy()
-    moved = (x != forest.stand.x_m[idx]) | (y != forest.stand.y_m[idx])
+    moved = (x_m != forest.stand.x_m[idx]) | (y_m != forest.stand.y_m[idx])
     if moved.any():                   # periodic images stand on the ground where they are
-        zg = np.asarray(forest.ground.height_m(x[moved], y[moved]), float)
+        zg = np.asarray(forest.ground.height_m(x_m[moved], y_m[moved]), float)
         z[moved] = np.where(np.isfinite(zg), zg, z[moved])
-    return idx, x, y, z
+    return z
 
 
 def placed_meshes(protos: list[dict], idx: np.ndarray, place_m: np.ndarray, *,

@@ -218,8 +218,8 @@ class ForestSurface(Surface):
         (``--full-tile``) is refused: a forest's tile is too many leaves to trace whole. A
         representation that adds no shapes to the scene: the ground's own tiling (one scene
         for a plane or a tile, folded positions, the whole stand's canopy table); over a
-        DEM the DEM's corridor tiles, each handing the ``canopy`` integrator the table of
-        the trees over it (:func:`.turbid.tile_table`)."""
+        DEM the DEM's corridor tiles, the ``canopy`` integrator holding the stand's crowns
+        and each tile handing it the ground under them (:func:`.turbid.tile_crowns`)."""
         kw = dict(x_local_m=x_local_m, y_local_m=y_local_m, dz_m=dz_m, reach_m=reach_m,
                   bsdf=bsdf, crop=crop, chunk_shots=chunk_shots)
         tiled = hasattr(self.ground, "corridor_tile")
@@ -287,7 +287,9 @@ class _ForestTiles(ChunkTiles):
     chunk is launched (:class:`~lidar_mitsuba.ground.surface.ChunkTiles`): the ground's mesh
     over the chunk's shots ``reach_m`` about them (a plane's or a heightfield's in the frame
     of the chunk's first shot, unwrapped; a DEM's own corridor tile) and the stand's trees
-    there (:meth:`ForestSurface.with_vegetation`)."""
+    there (:meth:`ForestSurface.with_vegetation`); turbid and gap crowns over a DEM: the
+    stand's crowns handed to the ``canopy`` integrator once (:meth:`attach`), and each
+    tile's ground under them as the tile is (:func:`.turbid.tile_crowns`)."""
 
     def __init__(self, forest: ForestSurface, x_m, y_m, *, x_local_m, y_local_m, dz_m,
                  reach_m: float, bsdf, chunk_shots: int):
@@ -296,27 +298,28 @@ class _ForestTiles(ChunkTiles):
         self.offsets_m = (x - np.asarray(x_local_m, np.float64),
                           y - np.asarray(y_local_m, np.float64),
                           np.broadcast_to(np.asarray(dz_m, np.float64), x.shape))
-        self.integrator, self._attached_first = None, False
+        self.integrator = None
         super().__init__(x, y, reach_m=reach_m, bsdf=bsdf, chunk_shots=chunk_shots)
-        self._first_table = self._first[5]
 
     def attach(self, integrator) -> None:
-        """The ``canopy`` integrator of a turbid or gap forest over a DEM: handed each tile's
-        table as the tile is (the first one now: the scout traces it)."""
+        """The ``canopy`` integrator of a turbid or gap forest over a DEM: handed the stand's
+        crowns (:func:`.turbid.stand_crowns`, padded by the field of view's diameter: a leg
+        after the first ends where it leaves the field of view's cylinder, so none reaches
+        farther from where it starts) and the first tile's ground (the scout traces it);
+        each later tile's ground as the tile is."""
         self.integrator = integrator
-        if self._first_table is not None:
-            integrator.set_table(self._first_table)
-            self._attached_first = True        # (the first tile's: not set again)
+        if self._first is not None and self._first[5] is not None:
+            pad = 2.0 * float(integrator.fov_radius_m) + 1.0
+            integrator.set_stand(turbid.stand_crowns(self.forest, pad_m=pad))
+            integrator.set_tile(self._first[5])
 
     def _use(self, built: tuple) -> None:
-        if built[5] is not None and self.integrator is not None and not (
-                built[5] is self._first_table and self._attached_first):
-            self.integrator.set_table(built[5])
-        self._attached_first = False
+        if built[5] is not None and self.integrator is not None:
+            self.integrator.set_tile(built[5])
 
     def _build(self, a: int, b: int):
-        """``(scene, x_local, y_local, offsets, triangles, table)`` of shots ``a`` .. ``b - 1``
-        (``table``: the tile's canopy table, turbid and gap over a DEM; else None)."""
+        """``(scene, x_local, y_local, offsets, triangles, tile)`` of shots ``a`` .. ``b - 1``
+        (``tile``: turbid and gap over a DEM, :func:`.turbid.tile_crowns`; else None)."""
         forest, x, y, n = self.forest, self.x_m[a:b], self.y_m[a:b], b - a
         if hasattr(forest.ground, "corridor_tile"):            # a DEM: its own tiles
             ground, (ox, oy), tri = forest.ground.corridor_tile(x, y, reach_m=self.reach_m,
@@ -331,10 +334,10 @@ class _ForestTiles(ChunkTiles):
                 bounds_m=(float(xl.min()) - r, float(xl.max()) + r,
                           float(yl.min()) - r, float(yl.max()) + r))
             shift, offsets = (0.0, 0.0, 0.0), tuple(np.full(n, v) for v in d)
-        if forest.representation != "explicit":       # the crowns over the shots: a table
-            table = turbid.tile_table(forest, x_m=x, y_m=y, reach_m=self.reach_m,
-                                      shift_m=shift)
-            return ground, x - offsets[0], y - offsets[1], offsets, int(tri), table
+        if forest.representation != "explicit":       # the ground under the crowns there
+            tile = turbid.tile_crowns(forest, x_m=x, y_m=y, reach_m=self.reach_m,
+                                      origin_m=shift[:2])
+            return ground, x - offsets[0], y - offsets[1], offsets, int(tri), tile
         scene, veg = forest.with_vegetation(ground, shift_m=shift)
         return scene, x - offsets[0], y - offsets[1], offsets, int(tri) + veg, None
 

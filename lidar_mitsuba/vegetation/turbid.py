@@ -76,30 +76,113 @@ def crowns_table(stand, *, cx, cy, zb, zt, r, rho: float, tau: float) -> dict:
             "rho": float(rho), "tau": float(tau)}
 
 
-def tile_table(forest, *, x_m, y_m, reach_m: float, shift_m) -> dict:
-    """The canopy table of one corridor tile of a forest over a DEM: the crowns that reach
-    within ``reach_m`` [m] of the band of the tile's shots (``x_m``, ``y_m`` (n,) [m, the
-    forest's frame]: the band about their chord, as the DEM's corridor, where every photon
-    of theirs stays), with the periodic stand's images, each standing on the ground where
-    it is (:func:`.explicit.placed_trees`), in the tile's coordinates (frame less
-    ``shift_m`` (dx, dy, dz) [m]). Only the band: a tile's mesh on a coarse DEM's pixels
-    spans hundreds of metres across, and its crowns cost the table's grid."""
+def stand_crowns(forest, *, pad_m: float) -> dict:
+    """The crowns of a forest over a DEM, once for every corridor tile (cached on the
+    forest): a canopy table (:func:`crowns_table`) of the stand's square, in its own
+    coordinates (the bounds' lower corner at 0), with the periodic images within ``pad_m``
+    [m] of the square as crowns of their own, ``zb``, ``zt`` the crown's bottom and top
+    above the ground it stands on (a tile's :func:`tile_crowns` gives the ground), in the
+    order of a Z curve over the stand (:func:`_z_order`), and ``key`` (uint32: the stand's
+    index of the crown's tree ``k`` and its image ``(i, j)`` in periods, ``k << 8 |
+    (i + 8) << 4 | (j + 8)``: one gather a crown in the kernel), ``trees`` (the stand's
+    count), ``period_m`` ((x, y) [m], None when the stand is not periodic),
+    ``top_m`` (the tallest tree [m]) and ``grid``, the crowns binned into cells of
+    :data:`~lidar_mitsuba_plugins.canopy_table.CELL_M`
+    (:func:`~lidar_mitsuba_plugins.canopy_table.grid`). The ``canopy`` integrator takes it
+    with ``set_stand`` and each tile's ground with ``set_tile``: no tile gathers or bins
+    crowns of its own."""
+    from lidar_mitsuba_plugins import canopy_table as ct
+    key = ("stand_crowns", float(pad_m))
+    if key in forest._cache:
+        return forest._cache[key]
+    s = forest.stand
+    (x0, y0), (x1, y1) = s.bounds_m
+    lx, ly = x1 - x0, y1 - y0
+    x, y, r = s.x_m - x0, s.y_m - y0, np.asarray(s.crown_radius_m, float)
+    m = int(np.ceil((pad_m + r.max(initial=0.0)) / min(lx, ly))) if s.periodic else 0
+    parts = []
+    for i in range(-m, m + 1):
+        for j in range(-m, m + 1):
+            ex, ey = x + i * lx, y + j * ly
+            k = np.flatnonzero((ex + r > -pad_m) & (ex - r < lx + pad_m)
+                               & (ey + r > -pad_m) & (ey - r < ly + pad_m))
+            parts.append((k, ex[k], ey[k], np.full(k.size, i), np.full(k.size, j)))
+    idx, cx, cy, ix, iy = (np.concatenate(p) for p in zip(*parts))
+    order = _z_order(cx, cy)          # neighbours in the stand, neighbours in memory
+    idx, cx, cy, ix, iy = idx[order], cx[order], cy[order], ix[order], iy[order]
+    out = crowns_table(s, cx=cx, cy=cy, zb=s.crown_base_m[idx], zt=s.height_m[idx], r=r[idx],
+                       rho=forest.leaf.reflectance, tau=forest.leaf.transmittance)
+    if s.n_trees >= 1 << 24 or m > 7:
+        raise ParameterError("forest", f"a stand of {s.n_trees} trees and images {m} "
+                             f"periods out: at most 2^24 trees and 7 periods (the canopy "
+                             f"integrator's key)")
+    out.update(key=((idx << 8) | ((ix + 8) << 4) | (iy + 8)).astype(np.uint32),
+               trees=int(s.n_trees),
+               period_m=(lx, ly) if s.periodic else None,
+               top_m=float(s.height_m.max(initial=0.0)),
+               grid=ct.grid(cx, cy, r[idx], cell_m=ct.CELL_M, pad_m=0.0))
+    forest._cache[key] = out
+    return out
+
+
+def _z_order(x_m: np.ndarray, y_m: np.ndarray, *, block_m: float = 4.0) -> np.ndarray:
+    """The order of the points (x, y) [m] along a Z (Morton) curve over blocks of
+    ``block_m``: points near each other mostly close in the order (a tile's crowns are
+    read from a few stretches of the stand's arrays, not from all over them)."""
+    code = np.zeros(np.asarray(x_m).shape, np.uint64)
+    for k, v in enumerate((x_m, y_m)):
+        q = np.floor((np.asarray(v, float) - np.min(v, initial=0.0)) / block_m)
+        q = np.clip(q, 0, 2 ** 21 - 1).astype(np.uint64)
+        for bit in range(21):
+            code |= ((q >> np.uint64(bit)) & np.uint64(1)) << np.uint64(2 * bit + k)
+    return np.argsort(code, kind="stable")
+
+
+def tile_crowns(forest, *, x_m, y_m, reach_m: float, origin_m) -> dict:
+    """What one corridor tile of a forest over a DEM hands the ``canopy`` integrator
+    (``set_tile``) beside the stand's crowns (:func:`stand_crowns`): the ground under the
+    images of the trees whose crowns reach within ``reach_m`` [m] of the band of the tile's
+    shots (``x_m``, ``y_m`` (n,) [m, the forest's frame]: the band about their chord, as the
+    DEM's corridor, where every photon of theirs stays), each standing on the ground where
+    it is (:func:`.explicit.ground_under`); the tile's coordinates are the frame's less
+    ``origin_m`` (x, y) [m]. A dict: ``shift_m`` (x, y) [m], from the tile's coordinates to
+    the stand's less a whole number of periods (``image0``, from the images of the ground
+    table); ``images`` (mx, my) periods covered; ``trees`` the stand's count; ``ground_z_m``
+    (my * mx * trees,) [m] float32, the ground under tree ``k`` in image (i, j) at
+    ``(j * mx + i) * trees + k`` (NaN for a crown not in the band: no photon of the tile
+    meets it); ``top_m`` the highest crown top [m] (-1e30 when none)."""
     from ..ground.dem.tiles import chord_frame
-    from .explicit import placed_trees
+    from .explicit import ground_under, trees_near
     s = forest.stand
     x, y, r = np.asarray(x_m, np.float64), np.asarray(y_m, np.float64), float(reach_m)
-    idx, cx, cy, z = placed_trees(forest, (float(x.min()) - r, float(x.max()) + r,
-                                           float(y.min()) - r, float(y.max()) + r))
+    idx, cx, cy = trees_near(s, (float(x.min()) - r, float(x.max()) + r,
+                                 float(y.min()) - r, float(y.max()) + r))
     (ox, oy), (ux, uy), along, across = chord_frame(x, y)
     a = (cx - ox) * ux + (cy - oy) * uy
     c = (cx - ox) * -uy + (cy - oy) * ux
     rc = s.crown_radius_m[idx] + r
     keep = ((a >= along.min() - rc) & (a <= along.max() + rc)
             & (c >= across.min() - rc) & (c <= across.max() + rc))
-    idx, cx, cy, z = idx[keep], cx[keep], cy[keep], z[keep] - shift_m[2]
-    return crowns_table(s, cx=cx - shift_m[0], cy=cy - shift_m[1], zb=z + s.crown_base_m[idx],
-                        zt=z + s.height_m[idx], r=s.crown_radius_m[idx],
-                        rho=forest.leaf.reflectance, tau=forest.leaf.transmittance)
+    idx, cx, cy = idx[keep], cx[keep], cy[keep]
+    z = ground_under(forest, idx, cx, cy)
+    (x0, y0), (x1, y1) = s.bounds_m
+    shift = np.array([float(origin_m[0]) - x0, float(origin_m[1]) - y0])
+    tile_image, image = np.zeros(2), np.zeros((2, idx.size))
+    if s.periodic:
+        period = np.array([x1 - x0, y1 - y0])
+        tile_image = np.floor(shift / period)
+        shift = shift - tile_image * period
+        image = np.rint((np.stack([cx, cy]) - np.stack([s.x_m[idx], s.y_m[idx]]))
+                        / period[:, None])
+    lo = image.min(axis=1) if idx.size else tile_image
+    n_img = (image.max(axis=1) - lo + 1).astype(int) if idx.size else np.ones(2, int)
+    ground = np.full(int(n_img[0] * n_img[1]) * s.n_trees, np.nan, np.float32)
+    slot = ((image[1] - lo[1]) * n_img[0] + image[0] - lo[0]).astype(np.int64)
+    ground[slot * s.n_trees + idx] = z
+    return {"shift_m": (float(shift[0]), float(shift[1])),
+            "image0": tuple(int(v) for v in tile_image - lo), "images": tuple(map(int, n_img)),
+            "trees": int(s.n_trees), "ground_z_m": ground,
+            "top_m": float(z.max() + s.height_m[idx].max()) + 1e-2 if idx.size else -1e30}
 
 
 def table_file(table: dict) -> pathlib.Path:
@@ -130,7 +213,8 @@ def integrator_dict(stand, *, mode: str, base: dict, rho: float, tau: float,
     (:data:`MODES`), over ``base`` (the instrument's ``pathlength`` parameters:
     ``Instrument.integrator_dict()``). ``max_depth``: ``turbid``'s vertices per path
     (default the plugin's, 3); ``gap`` has two records per photon. ``table`` False: the
-    dict names no table (a DEM's corridor tiles set each tile's, :func:`tile_table`)."""
+    dict names no table (a DEM's corridor tiles: the stand's crowns, :func:`stand_crowns`, and
+    each tile's ground, :func:`tile_crowns`, are set on the integrator)."""
     if mode not in MODES:
         raise ParameterError("representation", f"must be one of explicit, {', '.join(MODES)}"
                                                f" (got {mode!r})")
@@ -155,8 +239,9 @@ def forest_integrator(forest, base: dict) -> dict:
     ``turbid`` or ``gap`` representation is traced with: ``canopy`` over ``base`` (the
     material's ``pathlength`` dict, whose ``max_depth`` the turbid medium keeps), the leaves'
     optics the forest's. Over one scene in the stand's coordinates (a plane or a
-    heightfield) the table is the whole stand's; over a DEM's corridor tiles each tile sets
-    its own (:func:`tile_table`, the forest's tiling)."""
+    heightfield) the table is the whole stand's; over a DEM's corridor tiles the forest's
+    tiling sets the stand's crowns once (:func:`stand_crowns`) and each tile's ground
+    (:func:`tile_crowns`)."""
     return integrator_dict(forest.stand, mode=forest.representation, base=base,
                            rho=forest.leaf.reflectance, tau=forest.leaf.transmittance,
                            max_depth=base.get("max_depth"),
