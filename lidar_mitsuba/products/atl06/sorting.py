@@ -7,7 +7,8 @@ insertion-sorted runs of 16, then bottom-up merges), and :func:`first_at_least`,
 ``searchsorted``. The fit's results depend only on the sorted values, or (``argsort``) on the
 one stable order, so they are the same whichever sort gives them: a NaN, which no comparison
 orders, takes ``argsort``'s order in both (``tests/test_atl06.py`` checks the sorts against
-numpy's).
+numpy's). (Only -0.0 and 0.0, equal to every comparison, may trade places: a residual is -0.0
+only for a photon at height -0.0 exactly on its line.)
 """
 from __future__ import annotations
 
