@@ -241,6 +241,43 @@ def test_compiled_fit_in_blocks_on_threads_is_bit_identical(monkeypatch, fractal
         np.testing.assert_array_equal(getattr(one, name), getattr(split, name), err_msg=name)
 
 
+def test_the_fit_s_sorts_are_numpy_s(rng):
+    """The compiled fit's sorts (lidar_mitsuba.products.atl06.sorting): ``sort`` gives
+    numpy's sorted values and ``argsort`` numpy's stable order, on the cases a quicksort and
+    a merge sort get wrong when they are wrong (sizes about the runs of 16, ties, runs
+    already sorted either way, one value repeated); a NaN gets the merge sort's order in
+    both."""
+    from lidar_mitsuba.products.atl06 import sorting
+    cases = [rng.normal(0, 1, n) for n in (0, 1, 2, 15, 16, 17, 33, 120, 257, 2000)]
+    cases += [np.round(rng.normal(0, 3, 300)) / 3, np.sort(rng.normal(0, 1, 100)),
+              np.sort(rng.normal(0, 1, 100))[::-1].copy(), np.full(50, 0.25)]
+    for a in cases:
+        np.testing.assert_array_equal(sorting.sort(a), np.sort(a))
+        np.testing.assert_array_equal(sorting.argsort(a), np.argsort(a, kind="stable"))
+    a = np.array([1.0, np.nan, 0.0, 2.0, np.nan, -1.0])
+    np.testing.assert_array_equal(sorting.sort(a), a[sorting.argsort(a)])
+
+
+def test_dead_time_weights_from_the_residuals_order_are_the_searched_ones(rng):
+    """The non-paralyzable dead-time weights from the residuals' sorted order (both ends of
+    each photon's dead-time window moving up, no search) equal, bit for bit, those found by
+    numpy's binary search in the sorted times (the weights' definition: 1 / the fraction of
+    the other N C - 1 channel-pulses not dead at the photon): photons within a dead time of
+    each other, ties (equal residuals, and distinct ones whose times round to one value)."""
+    from lidar_mitsuba.products.atl06 import kernel, sorting
+    half_c, dead_ns, npc = 0.149896229, 3.0, 57 * 16 - 1
+    r = np.round(rng.uniform(-1.5, 2.5, 400), 2)            # ~1 per cm: ties, dense
+    r[:3] = [0.1, np.nextafter(0.1, 1.0), 0.1]
+    for rr in (r, r[:37], r[:0]):
+        t = -rr / half_c
+        ts = np.sort(t)
+        dead = np.searchsorted(ts, t, "left") - np.searchsorted(ts, t - dead_ns, "right")
+        w = 1.0 / (1.0 - dead / npc)
+        w2 = kernel._dead_time_weights_ordered(rr, sorting.argsort(rr), 57, 16, dead_ns, half_c)
+        np.testing.assert_array_equal(w2, w)
+        assert rr.size == 0 or w.max() > 1.0
+
+
 def test_compiled_reference_heights_are_the_numpy_loop_to_the_bit(rng):
     """The truth column h_ref_m, compiled (numpy's pairwise sums replayed), equals the numpy
     loop bit for bit: segments of 0 to 300 shots (both sides of numpy's 8- and 128-element

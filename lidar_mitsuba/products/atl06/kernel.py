@@ -14,6 +14,11 @@ In the fit, sums run in a different order than numpy's pairwise ones, so results
 (~1e-15 relative), except where a photon sits on a window edge within that rounding.
 Python's ``min``/``max`` keep the first argument on NaN; :func:`_pmax` and :func:`_pmin` do
 the same, so NaNs propagate as in the reference. ``cache=True`` keeps the compiled code.
+
+Sorts, the main cost, are as few as the results allow, each the same to the bit (issue 43):
+values by quicksort (:mod:`~lidar_mitsuba.products.atl06.sorting`), the last iteration's sorted
+residuals reused for the final line (the same line), one argsort for the first-photon-bias
+weights and median (no searches), the densest window in one sweep (0.59x the CPU before).
 """
 from __future__ import annotations
 
@@ -23,6 +28,7 @@ import numba
 import numpy as np
 
 from ...numeric import pairwise_sum
+from .sorting import argsort, first_at_least, has_nan, sort
 
 #: output columns, in order (ints travel as floats and are converted by the caller)
 OUT_FIELDS = ("n_seg_pulses", "flags", "n_fit_photons", "h_li", "h_li_sigma", "h_mean",
@@ -57,65 +63,6 @@ def _pmax(a, b):
 def _pmin(a, b):
     """Python's ``min(a, b)``: ``b`` only when ``b < a``."""
     return b if b < a else a
-
-
-@numba.njit(cache=True, nogil=True)
-def _argsort(a):
-    """Stable argsort of a float64 array (insertion-sorted runs of 16, then bottom-up merges):
-    the one sort this module uses, since numba's own sorts take seconds each to compile."""
-    n = a.size
-    idx = np.arange(n)
-    run = 16
-    for lo in range(0, n, run):
-        hi = min(lo + run, n)
-        for i in range(lo + 1, hi):
-            v = idx[i]
-            key = a[v]
-            j = i - 1
-            while j >= lo and a[idx[j]] > key:
-                idx[j + 1] = idx[j]
-                j -= 1
-            idx[j + 1] = v
-    src = idx
-    dst = np.empty(n, np.int64)
-    width = run
-    while width < n:
-        for lo in range(0, n, 2 * width):
-            mid = min(lo + width, n)
-            hi = min(lo + 2 * width, n)
-            i, j, k = lo, mid, lo
-            while i < mid and j < hi:
-                if a[src[j]] < a[src[i]]:
-                    dst[k] = src[j]
-                    j += 1
-                else:
-                    dst[k] = src[i]
-                    i += 1
-                k += 1
-            while i < mid:
-                dst[k] = src[i]
-                i += 1
-                k += 1
-            while j < hi:
-                dst[k] = src[j]
-                j += 1
-                k += 1
-        src, dst = dst, src
-        width *= 2
-    return src
-
-
-@numba.njit(cache=True, nogil=True)
-def _first_at_least(a, v, right):
-    """``np.searchsorted(a, v, side="right" if right else "left")`` for sorted ``a``."""
-    lo, hi = 0, a.size
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if a[mid] < v or (right and a[mid] == v):
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
 
 
 @numba.njit(cache=True, nogil=True)
@@ -159,9 +106,9 @@ def _iqr(rs, iqr_scale):
 
 
 @numba.njit(cache=True, nogil=True)
-def _robust_spread(r, n_background, lo, hi, iqr_scale):
-    """:func:`lidar_mitsuba.products.first_photon_bias.robust_spread`."""
-    rs = r[_argsort(r)]
+def _robust_spread(rs, n_background, lo, hi, iqr_scale):
+    """:func:`lidar_mitsuba.products.first_photon_bias.robust_spread` of the residuals ``rs``,
+    sorted (:func:`~lidar_mitsuba.products.atl06.sorting.sort`)."""
     n = rs.size
     if n == 0:
         return np.nan
@@ -258,15 +205,15 @@ def _dead_time_weights(t, n_pulses, n_channels, dead_time_ns, paralyzable):
     ok = True
     if n == 0 or dead_time_ns <= 0:
         return w, ok
-    order = _argsort(t)
+    npc = float(max(n_pulses * n_channels - 1, 1))
+    order = argsort(t)
     ts = t[order]
     lo = np.empty(n, np.int64)
     hi = np.empty(n, np.int64)
     for j in range(n):
-        lo[j] = _first_at_least(ts, ts[j] - dead_time_ns, True)
-        hi[j] = _first_at_least(ts, ts[j], False)
-    npc = float(max(n_pulses * n_channels - 1, 1))
-    if not paralyzable:
+        lo[j] = first_at_least(ts, ts[j] - dead_time_ns, True)
+        hi[j] = first_at_least(ts, ts[j], False)
+    if not paralyzable:      # (the weights of _dead_time_weights_ordered; kept for the twin)
         for j in range(n):
             alive = 1.0 - (hi[j] - lo[j]) / npc
             w[order[j]] = 1.0 / alive if alive > 0 else np.nan
@@ -299,11 +246,35 @@ def _dead_time_weights(t, n_pulses, n_channels, dead_time_ns, paralyzable):
 
 
 @numba.njit(cache=True, nogil=True)
-def _weighted_median_minus_uniform(r, w, n_bg, half_w):
-    """:func:`lidar_mitsuba.products.first_photon_bias.weighted_median_minus_uniform`."""
-    order = _argsort(r)
-    rs = r[order]
-    ws = w[order]
+def _dead_time_weights_ordered(r, order, n_pulses, n_channels, dead_time_ns, half_c):
+    """:func:`_dead_time_weights` of the non-paralyzable detector at the times ``t = -r /
+    half_c`` [ns] of the residuals ``r`` [m], given ``order``, ``r``'s stable argsort (NaN-free
+    ``r``): the same weights. ``t`` runs up along ``order`` reversed, so both ends of each
+    photon's dead-time window [t - dead time, t) only move up along it (no search)."""
+    n = r.size
+    w = np.ones(n)
+    if n == 0 or dead_time_ns <= 0:
+        return w
+    npc = float(max(n_pulses * n_channels - 1, 1))
+    ts = np.empty(n)
+    for j in range(n):
+        ts[j] = -r[order[n - 1 - j]] / half_c
+    lo = 0
+    hi = 0
+    for j in range(n):
+        while hi < n and ts[hi] < ts[j]:                  # first_at_least(ts, t, False)
+            hi += 1
+        while lo < n and ts[lo] <= ts[j] - dead_time_ns:  # first_at_least(ts, t - tau, True)
+            lo += 1
+        alive = 1.0 - (hi - lo) / npc
+        w[order[n - 1 - j]] = 1.0 / alive if alive > 0 else np.nan
+    return w
+
+
+@numba.njit(cache=True, nogil=True)
+def _weighted_median_minus_uniform(rs, ws, n_bg, half_w):
+    """:func:`lidar_mitsuba.products.first_photon_bias.weighted_median_minus_uniform` of the
+    residuals ``rs`` in their stable order and their weights ``ws`` in the same order."""
     total = ws.sum() - n_bg
     if not total > 0:
         return np.nan
@@ -352,13 +323,23 @@ def _exclusion(win, sig_r, dead_m, w0):
 @numba.njit(cache=True, nogil=True)
 def _densest_window(h, w0):
     """:func:`lidar_mitsuba.products.atl06.reference._densest_window`."""
-    hs = h[_argsort(h)]
+    hs = sort(h)
     i_best = 0
     best = -1
+    if has_nan(h):                 # (no order: each window's end searched for, as before)
+        for i in range(hs.size):
+            count = first_at_least(hs, hs[i] + w0, True) - i
+            if count > best:
+                best = count
+                i_best = i
+        return (h >= hs[i_best]) & (h <= hs[i_best] + w0)
+    end = 0
     for i in range(hs.size):                   # the first fullest window [hs[i], hs[i] + w0]
-        count = _first_at_least(hs, hs[i] + w0, True) - i
-        if count > best:
-            best = count
+        top = hs[i] + w0
+        while end < hs.size and hs[end] <= top:    # (the windows' ends only move up)
+            end += 1
+        if end - i > best:
+            best = end - i
             i_best = i
     return (h >= hs[i_best]) & (h <= hs[i_best] + w0)
 
@@ -379,8 +360,8 @@ def _first_window(x, h, x_shot, gate_c, has_gate, sel, cfg):
         bg = 0.0
     sigma_exp = math.hypot(cfg[_SIGMA_PULSE_M], cfg[_FOOTPRINT_SIGMA_M] * b)
     r0 = r_all[sel]
-    sig_r = _robust_spread(r0, _background_per_m(bg, x_shot.size, half_c) * w0, r0.min(),
-                           r0.min() + w0, cfg[_IQR_SCALE])
+    sig_r = _robust_spread(sort(r0), _background_per_m(bg, x_shot.size, half_c) * w0,
+                           r0.min(), r0.min() + w0, cfg[_IQR_SCALE])
     win = _pmax(w0, 6.0 * _pmax(_pmin(sig_r, 5.0), sigma_exp))
     new = np.abs(r_all) < win / 2.0
     if _span_ok(x, new, int(cfg[_MIN_PHOTONS]), cfg[_MIN_SPAN_M])[0]:
@@ -391,16 +372,19 @@ def _first_window(x, h, x_shot, gate_c, has_gate, sel, cfg):
 @numba.njit(cache=True, nogil=True)
 def _refine_window(x, h, x_shot, gate_c, has_gate, sel, win, sig_r, bg, cfg):
     """:func:`lidar_mitsuba.products.atl06.reference._refine_window`, the selection ``sel`` updated
-    in place: (W, bckgrd, iterations, converged)."""
+    in place: (W, bckgrd, iterations, converged, the sorted residuals of its last line, and
+    whether ``sel`` is still that line's selection: then the final line is that line)."""
     n_pulses, half_c, iqr_scale = x_shot.size, cfg[_HALF_C], cfg[_IQR_SCALE]
     dead_m = cfg[_DEAD_TIME_NS] * half_c
     min_photons, min_span_m = int(cfg[_MIN_PHOTONS]), cfg[_MIN_SPAN_M]
     bg_per_m = _background_per_m(bg, n_pulses, half_c)
     it = 0
-    converged = False
+    converged = fresh = False
+    rs = np.empty(0)
     for it in range(1, int(cfg[_MAX_ITERATIONS]) + 1):
         ok, a, b, _ = _line_fit(x, h, sel)
         if not ok:
+            fresh = False
             break
         r_all = h - (a + b * x)
         r0 = r_all[sel]
@@ -409,7 +393,8 @@ def _refine_window(x, h, x_shot, gate_c, has_gate, sel, win, sig_r, bg, cfg):
         if math.isfinite(bg_i):
             bg = bg_i
             bg_per_m = _background_per_m(bg, n_pulses, half_c)
-        sig_r = _pmin(5.0, _robust_spread(r0, bg_per_m * win, -win / 2.0, win / 2.0,
+        rs, fresh = sort(r0), True
+        sig_r = _pmin(5.0, _robust_spread(rs, bg_per_m * win, -win / 2.0, win / 2.0,
                                           iqr_scale))
         sigma_exp = math.hypot(cfg[_SIGMA_PULSE_M], cfg[_FOOTPRINT_SIGMA_M] * b)
         win_new = _pmax(_pmax(_pmax(6.0 * sigma_exp, 6.0 * sig_r), 0.75 * win),
@@ -422,15 +407,16 @@ def _refine_window(x, h, x_shot, gate_c, has_gate, sel, win, sig_r, bg, cfg):
             converged = True
             break
         sel[:] = new
-    return win, bg, it, converged
+        fresh = False
+    return win, bg, it, converged, rs, fresh
 
 
 @numba.njit(cache=True, nogil=True)
-def _final_spread_and_background(x_shot, gate_c, has_gate, a, b, r_all, r0, win, bg, cfg):
-    """:func:`lidar_mitsuba.products.atl06.reference._final_spread_and_background`: (sigma_r,
-    n_bg_out, exposure [ns], bckgrd)."""
+def _final_spread_and_background(x_shot, gate_c, has_gate, a, b, r_all, rs, win, bg, cfg):
+    """:func:`lidar_mitsuba.products.atl06.reference._final_spread_and_background` (``rs``:
+    the final residuals sorted): (sigma_r, n_bg_out, exposure [ns], bckgrd)."""
     half_c = cfg[_HALF_C]
-    sig_r = _robust_spread(r0, _background_per_m(bg, x_shot.size, half_c) * win, -win / 2.0,
+    sig_r = _robust_spread(rs, _background_per_m(bg, x_shot.size, half_c) * win, -win / 2.0,
                            win / 2.0, cfg[_IQR_SCALE])
     excl = _exclusion(win, sig_r, cfg[_DEAD_TIME_NS] * half_c, cfg[_W0])
     n_bg_out, exposure_ns, bg_final = _background(x_shot, gate_c, has_gate, a, b, r_all, excl,
@@ -464,8 +450,13 @@ def _first_photon_bias(r_all, win, bg, n_pulses, cfg):
     dead_m = dead_time_ns * half_c
     ext = (r_all > -win / 2.0) & (r_all < win / 2.0 + 2.0 * dead_m)
     r_ext = r_all[ext]
-    w_ext, ok_w = _dead_time_weights(-r_ext / half_c, n_pulses, n_channels, dead_time_ns,
-                                     cfg[_PARALYZABLE] != 0.0)
+    order = argsort(r_ext)                  # (r_ext has no NaN: it passed two comparisons)
+    if cfg[_PARALYZABLE] != 0.0:
+        w_ext, ok_w = _dead_time_weights(-r_ext / half_c, n_pulses, n_channels, dead_time_ns,
+                                         True)
+    else:
+        w_ext, ok_w = _dead_time_weights_ordered(r_ext, order, n_pulses, n_channels,
+                                                 dead_time_ns, half_c), True
     in_win = np.abs(r_ext) < win / 2.0
     rw = r_ext[in_win]
     ww = w_ext[in_win]
@@ -493,8 +484,15 @@ def _first_photon_bias(r_all, win, bg, n_pulses, cfg):
     fpb_corr = centroid - (np.mean(rw) if rw.size else np.nan)
     fpb_sigma = (math.sqrt(np.sum((ww * (rw - centroid)) ** 2)) / n_corr if n_corr > 0
                  else np.nan)
-    fpb_med = (_weighted_median_minus_uniform(rw, ww, n_bg_true, win / 2.0) if all_finite
-               else np.nan)
+    fpb_med = np.nan
+    if all_finite:                 # the window's photons in their stable order (rw's argsort)
+        rs, ws = np.empty(rw.size), np.empty(rw.size)
+        k = 0
+        for e in order:
+            if in_win[e]:
+                rs[k], ws[k] = r_ext[e], w_ext[e]
+                k += 1
+        fpb_med = _weighted_median_minus_uniform(rs, ws, n_bg_true, win / 2.0)
     flags = 0
     if not (ok_w and all_finite and n_corr > 0 and math.isfinite(fpb_corr)):
         flags |= _FPB_DIVERGED
@@ -527,8 +525,8 @@ def fit_segment(x, h, x_shot, gate_c, has_gate, cfg, out):
     if not ok:
         out[_FLAGS] = _TOO_FEW
         return
-    win, bg, it, converged = _refine_window(x, h, x_shot, gate_c, has_gate, sel, win, sig_r,
-                                            bg, cfg)
+    win, bg, it, converged, rs, fresh = _refine_window(x, h, x_shot, gate_c, has_gate, sel,
+                                                       win, sig_r, bg, cfg)
     flags = 0
     if not converged and it >= int(cfg[_MAX_ITERATIONS]):
         flags |= _NOT_CONVERGED
@@ -539,8 +537,10 @@ def fit_segment(x, h, x_shot, gate_c, has_gate, cfg, out):
     r_all = h - (a + b * x)
     r0 = r_all[sel]
     n_fit = r0.size
+    if not fresh:                  # (else the final line is the last iteration's)
+        rs = sort(r0)
     sig_r, n_bg_out, exposure_ns, bg = _final_spread_and_background(
-        x_shot, gate_c, has_gate, a, b, r_all, r0, win, bg, cfg)
+        x_shot, gate_c, has_gate, a, b, r_all, rs, win, bg, cfg)
     n_noise_obs, h_rms, sigma_h_mean = _formal_errors(r0, b, cov00, win, n_bg_out, exposure_ns,
                                                       n_pulses, cfg)
     fpb_corr, fpb_sigma, fpb_med, gain, min_alive, n_corr, fpb_flags = _first_photon_bias(
