@@ -130,7 +130,7 @@ def _on_gpu() -> bool:
     return mi.variant().startswith("cuda")
 
 
-def bench_integrator(*, quick: bool) -> dict:
+def bench_integrator(*, quick: bool, smoke: bool = False) -> dict:
     """Photon paths/s of the path-length integrator against raw ``scene.ray_intersect`` on the
     same rays and mesh (the 1024 m fractal tile at 1 m, about 2 million triangles), cast in the
     same launches of ``max_lanes`` rays; and where a trace's host time goes: building and
@@ -140,6 +140,8 @@ def bench_integrator(*, quick: bool) -> dict:
     Each repetition times the single- and two-bounce traces and the casts one after the other,
     and a ratio is the median of the repetitions' own ratios, so a machine whose speed drifts
     during the run (this VM's does, by tens of per cent within a minute) biases none of them.
+    ``smoke`` (the tests' size): the quick run's mesh and launches, one repetition after the
+    warm-up.
     """
     size = 256.0 if quick else 1024.0
     hf = terrain.fractal(p=1.8, size_m=size, grid_m=1.0, relief_m=10.0, seed=0)
@@ -150,7 +152,7 @@ def bench_integrator(*, quick: bool) -> dict:
     n_shots, k = (2000, 128) if quick else ((2 ** 20, 128) if _on_gpu() else (20000, 256))
     xs = (np.arange(n_shots) * 0.7) % (size - 30) + 15
     ys = np.full(n_shots, size / 2)
-    reps = 3 if quick else 5
+    reps = 1 if smoke else 3 if quick else 5
     doc = {"triangles": int(len(tm.faces)), "mesh_build_s": build_s, "paths": n_shots * k,
            "shots": n_shots, "paths_per_shot": k}
     integs = {depth: mi.load_dict(Instrument().integrator_dict(max_depth=depth))
@@ -220,16 +222,17 @@ END_TO_END_CASES = (("strong", "auto", "auto"), ("weak", "auto", "auto"), ("stro
                     ("strong", "auto", 128), ("strong", 1, 128))
 
 
-def bench_end_to_end(*, quick: bool) -> list[dict]:
+def bench_end_to_end(*, quick: bool, smoke: bool = False) -> list[dict]:
     """Shots/s of ``simulate`` over the p = 1.8 fractal: both beams with the default
     ``max_depth="auto"`` (two bounces on this terrain) and the strong beam with one bounce,
     all with the default ``paths_per_shot="auto"``; and the strong beam's two cases again
     with the fixed 128 paths per shot that ``auto`` replaced (``paths`` says which), with
     their bias and precision beside the speed. ``shots_per_s`` counts the whole call (scene
     build, bounce pilot and path scout included); ``loop_shots_per_s`` the trace-and-detect
-    chunk loop alone, what a long track runs at. On a GPU each run is 1 M shots."""
+    chunk loop alone, what a long track runs at. On a GPU each run is 1 M shots; ``smoke``
+    (the tests' size): 500 shots."""
     rows = []
-    shots = 2000 if quick else (2 ** 20 if _on_gpu() else 20000)
+    shots = 500 if smoke else 2000 if quick else (2 ** 20 if _on_gpu() else 20000)
     for beam, max_depth, paths in END_TO_END_CASES:
         out = {}
 
@@ -365,8 +368,8 @@ def throughput(*, quick: bool, smoke: bool = False) -> dict:
     end, with the variant and the device they ran on."""
     doc = {"variant": mi.variant(), "device": device_name(), "cpu_count": os.cpu_count(),
            "detector": bench_detector(quick=quick, smoke=smoke),
-           "integrator": bench_integrator(quick=quick),
-           "end_to_end": bench_end_to_end(quick=quick)}
+           "integrator": bench_integrator(quick=quick, smoke=smoke),
+           "end_to_end": bench_end_to_end(quick=quick, smoke=smoke)}
     cast_bound(doc["end_to_end"], doc["integrator"]["rays_per_s"])
     doc["paths_speedup"] = paths_speedup(doc["end_to_end"])
     return doc
@@ -391,8 +394,10 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False, smoke: bool = False,
 
     ``smoke`` (the tests' size; implies ``quick``): the quick run with its costliest parts
     cut where no row, chart or field depends on them: the detector's cases on 5000 shots
-    once, each accuracy setting once, two seeds for the simplifications, and fewer shots in
-    the snow walk (:func:`.snow_bias.run`). Its numbers only show that the bench runs.
+    once, the integrator's traces once, 500 shots end to end, each accuracy setting once, two
+    seeds for the simplifications, fewer shots in the snow walk and snow kernel tables of
+    2^12 walk photons a node (:func:`.snow_bias.run`, :func:`.snow_optics.run`). Its numbers
+    only show that the bench runs.
 
     ``variants``: Mitsuba variants to measure (default: the active one). With several, each
     variant's throughput runs in a process of its own (``out_dir/<variant>/``), the studies
@@ -424,7 +429,7 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False, smoke: bool = False,
         doc["snow"] = snow_bias.run(quick=quick, smoke=smoke)
         doc["accuracy_vs_time"]["snow volume, 200 um"] = snow_bias.pareto_rows(doc["snow"])
         from . import media_accuracy, snow_optics
-        doc["snow_optics"] = snow_optics.run(quick=quick)
+        doc["snow_optics"] = snow_optics.run(quick=quick, smoke=smoke)
         doc["media"] = media_accuracy.run(quick=quick)
         doc["accuracy_vs_time"].update(doc["media"])
         from . import cloud_cost

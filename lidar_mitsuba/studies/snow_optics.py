@@ -91,11 +91,15 @@ def one(changes: dict, *, shots: int, seed: int = 3) -> dict:
     return out
 
 
-def run(*, quick: bool = False) -> dict:
+def run(*, quick: bool = False, smoke: bool = False) -> dict:
     """The sensitivity table (:data:`ROWS`; quick: :data:`QUICK_ROWS`, 2000 shots and
-    kernel tables of 2^14 photons per node)."""
+    kernel tables of 2^14 photons per node; ``smoke``, the tests' size: the quick run with
+    tables of :data:`.snow_bias.SMOKE_TABLE_PHOTONS`)."""
+    quick = quick or smoke
     rows = [(n, c) for n, c in ROWS if not quick or n in QUICK_ROWS]
-    with snow_kernel.photons_per_node(1 << 14 if quick else None):
+    from .snow_bias import SMOKE_TABLE_PHOTONS
+    with snow_kernel.photons_per_node(SMOKE_TABLE_PHOTONS if smoke else
+                                      1 << 14 if quick else None):
         out = [{"name": n, **one(c, shots=2000 if quick else 20000)} for n, c in rows]
     return {"baseline": BASELINE, "site": SITE.to_dict(), "rows": out,
             "published": [list(p) for p in PUBLISHED], "quick": quick}
