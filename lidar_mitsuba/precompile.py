@@ -1,5 +1,5 @@
-"""The first run on a machine compiles the compiled kernels: the detector's (numba, ~12 s on
-2 cores) and, for tracks of 20 km or more, the compiled ATL06 fit (numba, ~17 s); numba keeps
+"""The first run on a machine compiles the compiled kernels: the detector's (numba, ~40 s on
+2 cores) and, for tracks of 20 km or more, the compiled ATL06 fit (numba, ~22 s); numba keeps
 them in ``__pycache__`` beside the package, so later runs load them in a fraction of a second.
 (Dr.Jit's tracing kernels compile too, ~0.1-1 s each, and stay in ``~/.drjit``.)
 
@@ -16,10 +16,11 @@ import time
 
 import numpy as np
 
-#: rough compile times on the 2-core VM [s], for the bar's length
-DETECTOR_S = 12.0
-ATL06_S = 17.0
-HEIGHTS_S = 1.0
+#: rough compile times on the 2-core VM [s], for the bar's length (measured on a quiet machine,
+#: empty numba cache, 2026-11-27: 40.1, 21.5 and 2.2 s)
+DETECTOR_S = 40.0
+ATL06_S = 22.0
+HEIGHTS_S = 2.0
 
 
 def _detector() -> None:
