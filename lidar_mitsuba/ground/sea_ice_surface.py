@@ -51,7 +51,7 @@ import numpy as np
 
 from ..constants import ParameterError
 from ..machine import check_memory
-from .terrain import FRACTAL_BYTES_PER_NODE, Heightfield, _grid_count
+from .terrain import FRACTAL_BYTES_PER_NODE, Heightfield, _grid_count, check_seed
 
 #: Published sea-ice roughness for :func:`rough_sea_ice` (``rms_m``, ``corr_length_m``) and
 #: where each number comes from. The correlation length of both is the middle of the published
@@ -119,9 +119,7 @@ def rough_sea_ice(*, rms_m: float, corr_length_m: float, size_m: float = 512.0,
     check_memory("grid_m", FRACTAL_BYTES_PER_NODE * n * n,
                  f"a {n} x {n} sea-ice surface (size_m / grid_m = {n})",
                  "use a coarser grid_m or a smaller size_m")
-    if seed is not None and (not isinstance(seed, (int, np.integer)) or isinstance(seed, bool)
-                             or seed < 0):
-        raise ParameterError("seed", f"must be an integer >= 0 or None (got {seed!r})")
+    check_seed(seed)
     rng = np.random.default_rng(seed)
     w = scipy.fft.rfft2(rng.standard_normal((n, n)), workers=-1)
     fy = np.fft.fftfreq(n, d=grid_m)[:, None]            # [1/m]

@@ -272,6 +272,14 @@ def _grid_count(size_m: float, grid_m: float) -> int:
     return n
 
 
+def check_seed(seed) -> None:
+    """Refuses (:class:`ParameterError` naming ``seed``) a white-noise seed that is not an
+    integer >= 0 or None (``np.random.default_rng``'s: the fractal's and the sea ice's)."""
+    if seed is not None and (not isinstance(seed, (int, np.integer)) or isinstance(seed, bool)
+                             or seed < 0):
+        raise ParameterError("seed", f"must be an integer >= 0 or None (got {seed!r})")
+
+
 def flat(*, size_m: float = 1024.0, grid_m: float = 1.0, z_m: float = 0.0) -> Heightfield:
     """Flat periodic heightfield at constant height ``z_m`` [m].
 
@@ -338,9 +346,7 @@ def fractal(
                  f"a {n} x {n} fractal (size_m / grid_m = {n})",
                  "use a coarser grid_m or a smaller size_m")
     pf, rel = float(p), float(relief_m)
-    if seed is not None and (not isinstance(seed, (int, np.integer)) or isinstance(seed, bool)
-                             or seed < 0):
-        raise ParameterError("seed", f"must be an integer >= 0 or None (got {seed!r})")
+    check_seed(seed)
 
     rng = np.random.default_rng(seed)
     w = rng.standard_normal((n, n))

@@ -139,6 +139,11 @@ def rough_sea_ice(preset: str, terrain_seed: int) -> SurfaceSpec:
                        surface_corr_m=p["corr_length_m"], terrain_seed=int(terrain_seed))
 
 
+def _rms(preset: str) -> float:
+    """The rms height [m] of a published sea-ice roughness preset."""
+    return sea_ice_surface.PRESETS[preset]["rms_m"]
+
+
 #: the ladder: name -> (what it is, its rms roughness [m] or None for flat, its snow volume,
 #: and for the ``sea_ice`` rungs the surface of terrain seed k)
 MODELS = {
@@ -150,11 +155,13 @@ MODELS = {
              floe_snow),
     "ridged": ("ridged floe: the floe with 16 cm rms", FLOE["ridged_rms_m"]["value"], floe_snow),
     "sea_ice": ("rough sea ice: 16 cm rms, 25 m correlation length (Beckers et al. 2015, Fram "
-                "Strait; IceBridge ATM), Ward snow", 0.16, lambda: None,
+                "Strait; IceBridge ATM), Ward snow", _rms("fram_strait"), lambda: None,
                 lambda k: rough_sea_ice("fram_strait", k)),
     "sea_ice_nansen": ("rough sea ice: 9 cm rms, 25 m (Beckers et al. 2015, Nansen Basin)",
-                       0.09, lambda: None, lambda k: rough_sea_ice("nansen_basin", k)),
-    "sea_ice_snow": ("rough sea ice (16 cm, 25 m) under the floe's 18 cm of snow", 0.16,
+                       _rms("nansen_basin"), lambda: None,
+                       lambda k: rough_sea_ice("nansen_basin", k)),
+    "sea_ice_snow": ("rough sea ice (16 cm, 25 m) under the floe's 18 cm of snow",
+                     _rms("fram_strait"),
                      floe_snow, lambda k: rough_sea_ice("fram_strait", k)),
 }
 

@@ -100,6 +100,10 @@ def stand_crowns(forest, *, pad_m: float) -> dict:
     lx, ly = x1 - x0, y1 - y0
     x, y, r = s.x_m - x0, s.y_m - y0, np.asarray(s.crown_radius_m, float)
     m = int(np.ceil((pad_m + r.max(initial=0.0)) / min(lx, ly))) if s.periodic else 0
+    if s.n_trees >= 1 << 24 or m > 7:
+        raise ParameterError("forest", f"a stand of {s.n_trees} trees and images {m} "
+                             f"periods out: at most 2^24 trees and 7 periods (the canopy "
+                             f"integrator's key)")
     parts = []
     for i in range(-m, m + 1):
         for j in range(-m, m + 1):
@@ -112,10 +116,6 @@ def stand_crowns(forest, *, pad_m: float) -> dict:
     idx, cx, cy, ix, iy = idx[order], cx[order], cy[order], ix[order], iy[order]
     out = crowns_table(s, cx=cx, cy=cy, zb=s.crown_base_m[idx], zt=s.height_m[idx], r=r[idx],
                        rho=forest.leaf.reflectance, tau=forest.leaf.transmittance)
-    if s.n_trees >= 1 << 24 or m > 7:
-        raise ParameterError("forest", f"a stand of {s.n_trees} trees and images {m} "
-                             f"periods out: at most 2^24 trees and 7 periods (the canopy "
-                             f"integrator's key)")
     out.update(key=((idx << 8) | ((ix + 8) << 4) | (iy + 8)).astype(np.uint32),
                trees=int(s.n_trees),
                period_m=(lx, ly) if s.periodic else None,
