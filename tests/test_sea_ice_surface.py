@@ -63,7 +63,8 @@ def test_rms_within_a_segment_matches_the_closed_form(tiles):
 
 
 def test_the_built_in_spec_and_its_record():
-    spec = SurfaceSpec(kind="sea_ice", size_m=64.0, grid_m=0.5, surface_corr_m=4.0)
+    spec = SurfaceSpec(kind="sea_ice", size_m=64.0, grid_m=0.5, surface_corr_m=4.0,
+                       surface_ridges="none")
     surf = spec.build()
     assert isinstance(surf, HeightfieldSurface) and surf.hf.periodic
     assert np.std(surf.hf.z_m) == pytest.approx(sis.PRESETS["fram_strait"]["rms_m"])

@@ -38,8 +38,12 @@ Airborne Topographic Mapper over the Arctic Ocean, 94 spring flights 2009-2019, 
 2022, 14(13), 3011 (doi:10.3390/rs14133011): mean correlation lengths 20-30 m on 1.5 km
 along-track segments. The same paper finds the elevation distribution positively skewed
 (an exponentially modified Gaussian fits it better than a Gaussian); its parameters were not
-readable here, so the surface is Gaussian (symmetric): a skew would put more relief above the
-median than below it.
+readable here. The skew comes instead from the sparse features the same surveys count:
+pressure-ridge sails and other obstacles (:mod:`~lidar_mitsuba.ground.sea_ice_ridges`, a
+preset's ``ridges``). With ridges the published rms is the whole surface's: the Gaussian
+carries ``sigma_G^2 = sigma^2 - kappa_2`` (``kappa_2`` the ridges' variance, closed form), so
+the total keeps the published rms in expectation and the ridges move part of it into sparse
+positive relief (height skewness ``kappa_3 / sigma^3``).
 
 Pure numpy / scipy; no renderer import.
 """
@@ -51,14 +55,19 @@ import numpy as np
 
 from ..constants import ParameterError
 from ..machine import check_memory
+from . import sea_ice_ridges
 from .terrain import FRACTAL_BYTES_PER_NODE, Heightfield, _grid_count, check_seed
 
-#: Published sea-ice roughness for :func:`rough_sea_ice` (``rms_m``, ``corr_length_m``) and
+#: Published sea-ice roughness for :func:`rough_sea_ice` (``rms_m``, ``corr_length_m``, the
+#: obstacles ``ridges`` of :data:`~lidar_mitsuba.ground.sea_ice_ridges.RIDGES` or ``none``) and
 #: where each number comes from. The correlation length of both is the middle of the published
-#: 20-30 m range.
+#: 20-30 m range. The Fram Strait ice carries the Arctic laser profiles' typical obstacles
+#: (their variance is ~2/3 of its published rms^2, the rest the Gaussian's); the Nansen Basin's
+#: published rms (0.09 m) is below those obstacles' own (0.129 m), so it has none: no regional
+#: obstacle statistics for it were readable here.
 PRESETS = {
     "fram_strait": {
-        "rms_m": 0.16, "corr_length_m": 25.0,
+        "rms_m": 0.16, "corr_length_m": 25.0, "ridges": "arctic_obstacles",
         "source": "rms: Beckers et al. 2015, Ann. Glaciol. 56(69): mean surface roughness "
                   "(sd of relative surface elevation, airborne laser scanner) of the ice in "
                   "Fram Strait, 0.16 m, the older, more deformed ice the transpolar drift "
@@ -66,7 +75,7 @@ PRESETS = {
                   "Remote Sens. 2022, 14(13), 3011 (IceBridge ATM, Arctic, spring 2009-2019): "
                   "mean 20-30 m, 25 m taken"},
     "nansen_basin": {
-        "rms_m": 0.09, "corr_length_m": 25.0,
+        "rms_m": 0.09, "corr_length_m": 25.0, "ridges": sea_ice_ridges.NONE,
         "source": "rms: Beckers et al. 2015: 0.09 m north of Svalbard (Nansen Basin, younger "
                   "ice); correlation length as fram_strait"},
 }
@@ -82,7 +91,7 @@ the length was not readable here)."""
 
 
 def check_parameters(*, rms_m: float, corr_length_m: float, size_m: float,
-                     grid_m: float) -> int:
+                     grid_m: float, ridges: str = sea_ice_ridges.NONE) -> int:
     """Validate :func:`rough_sea_ice`'s parameters without building it; returns N (nodes per
     side). Raises :class:`ParameterError` naming the parameter."""
     n = _grid_count(size_m, grid_m)
@@ -94,13 +103,18 @@ def check_parameters(*, rms_m: float, corr_length_m: float, size_m: float,
         raise ParameterError("surface_corr_m", f"must lie between 2 grid steps "
                              f"({2 * grid_m:g} m) and an eighth of the tile ({size_m / 8:g} m) "
                              f"(got {corr_length_m:g})")
+    sea_ice_ridges.check(sea_ice_ridges.parameters(ridges), rms_m=rms_m, size_m=size_m)
     return n
 
 
 def rough_sea_ice(*, rms_m: float, corr_length_m: float, size_m: float = 512.0,
-                  grid_m: float = 0.5, seed: int | None = 0) -> Heightfield:
+                  grid_m: float = 0.5, seed: int | None = 0,
+                  ridges: str = sea_ice_ridges.NONE) -> Heightfield:
     """A periodic Gaussian random surface [m] of exponential autocorrelation (the module's
-    spectral synthesis), zero mean, rms exactly ``rms_m`` over the tile.
+    spectral synthesis), zero mean; without ridges its rms is exactly ``rms_m`` over the tile,
+    with ``ridges`` the Gaussian's is ``sqrt(rms_m^2 - kappa_2)`` and the ridge sails of
+    :mod:`~lidar_mitsuba.ground.sea_ice_ridges` (variance ``kappa_2``) are added to it (total
+    rms ``rms_m`` in expectation).
 
     Args:
         rms_m: rms height [m] over the tile.
@@ -108,14 +122,18 @@ def rough_sea_ice(*, rms_m: float, corr_length_m: float, size_m: float = 512.0,
         size_m: side of the square tile [m] (>= 8 correlation lengths, so the tile holds the
             relief's statistics).
         grid_m: grid spacing [m].
-        seed: seed of the white noise (``np.random.default_rng``).
+        seed: seed of the white noise (``np.random.default_rng``; the ridges draw from the
+            same generator after it, so a surface without ridges is as before to the bit).
+        ridges: obstacle statistics by name (:data:`~lidar_mitsuba.ground.sea_ice_ridges.RIDGES`)
+            or ``none``.
 
     Returns:
         Heightfield of shape (N, N), N = round(size_m / grid_m), periodic.
     """
     import scipy.fft
     n = check_parameters(rms_m=rms_m, corr_length_m=corr_length_m, size_m=size_m,
-                         grid_m=grid_m)
+                         grid_m=grid_m, ridges=ridges)
+    ridge = sea_ice_ridges.parameters(ridges)
     check_memory("grid_m", FRACTAL_BYTES_PER_NODE * n * n,
                  f"a {n} x {n} sea-ice surface (size_m / grid_m = {n})",
                  "use a coarser grid_m or a smaller size_m")
@@ -130,7 +148,12 @@ def rough_sea_ice(*, rms_m: float, corr_length_m: float, size_m: float = 512.0,
     h = scipy.fft.irfft2(w, s=(n, n), workers=-1)
     h -= h.mean()
     rms = float(np.sqrt(np.mean(h * h)))
-    h *= (rms_m / rms) if rms > 0 else 0.0
+    gauss_rms = rms_m if ridge is None else math.sqrt(rms_m ** 2
+                                                      - sea_ice_ridges.cumulants(**ridge)[1])
+    h *= (gauss_rms / rms) if rms > 0 else 0.0
+    if ridge is not None:
+        h += sea_ice_ridges.ridge_field(n=n, grid_m=grid_m, rng=rng, **ridge)
+        h -= h.mean()
     h.setflags(write=False)
     return Heightfield(z_m=h, grid_m=float(grid_m), periodic=True)
 

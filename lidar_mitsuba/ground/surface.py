@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import sea_ice_surface, terrain
+from . import sea_ice_ridges, sea_ice_surface, terrain
 from .brdf import ward_bsdf_dict
 from ..constants import ParameterError, check
 from ..machine import check_memory
@@ -496,6 +496,9 @@ class SurfaceSpec:
             Beckers et al. 2015's Fram Strait mean, 0.16 m; 0.09 m north of Svalbard).
         surface_corr_m: correlation length (e-folding) of the ``sea_ice`` surface [m]
             (default 25: IceBridge ATM's 20-30 m, Remote Sens. 2022, 14, 3011).
+        surface_ridges: the ``sea_ice`` surface's ridge sails (``arctic_obstacles``:
+            Castellani et al. 2014's, 0.45 m high every ~20 m; ``none``: Gaussian relief;
+            :mod:`~lidar_mitsuba.ground.sea_ice_ridges`); the rms is still the whole's.
         rho_d: Ward diffuse albedo.
         rho_s: Ward specular reflectance.
         alpha: Ward roughness (RMS slope of the specular lobe).
@@ -514,6 +517,9 @@ class SurfaceSpec:
     surface_rms_m: float = sea_ice_surface.PRESETS[sea_ice_surface.DEFAULT_PRESET]["rms_m"]
     surface_corr_m: float = sea_ice_surface.PRESETS[
         sea_ice_surface.DEFAULT_PRESET]["corr_length_m"]
+    surface_ridges: str = dataclasses.field(
+        default=sea_ice_surface.PRESETS[sea_ice_surface.DEFAULT_PRESET]["ridges"],
+        metadata={"choices": (*sea_ice_ridges.RIDGES, sea_ice_ridges.NONE)})
 
     def __post_init__(self):
         check("surface", self.kind, self.kind in SURFACES, f"must be one of {', '.join(SURFACES)}")
@@ -539,13 +545,15 @@ class SurfaceSpec:
                                              relief_m=self.relief_m)
             check("relief_m", self.relief_m, self.relief_m <= 1e4, "must be in [0, 1e4]")
         preset = sea_ice_surface.PRESETS[sea_ice_surface.DEFAULT_PRESET]
-        for name, key in (("surface_rms_m", "rms_m"), ("surface_corr_m", "corr_length_m")):
+        for name, key in (("surface_rms_m", "rms_m"), ("surface_corr_m", "corr_length_m"),
+                          ("surface_ridges", "ridges")):
             if self.kind != "sea_ice" and getattr(self, name) != preset[key]:
                 raise ParameterError(name, "only applies to --surface sea_ice")
         if self.kind == "sea_ice":
             sea_ice_surface.check_parameters(rms_m=self.surface_rms_m,
                                              corr_length_m=self.surface_corr_m,
-                                             size_m=self.size_m, grid_m=self.grid_m)
+                                             size_m=self.size_m, grid_m=self.grid_m,
+                                             ridges=self.surface_ridges)
 
     def bsdf_dict(self) -> dict:
         return ward_bsdf_dict(rho_d=self.rho_d, rho_s=self.rho_s, alpha=self.alpha)
@@ -556,7 +564,8 @@ class SurfaceSpec:
         if self.kind == "sea_ice":
             return HeightfieldSurface(sea_ice_surface.rough_sea_ice(
                 rms_m=self.surface_rms_m, corr_length_m=self.surface_corr_m,
-                size_m=self.size_m, grid_m=self.grid_m, seed=self.terrain_seed))
+                size_m=self.size_m, grid_m=self.grid_m, seed=self.terrain_seed,
+                ridges=self.surface_ridges))
         if self.kind == "fractal":
             return HeightfieldSurface(terrain.fractal(
                 p=self.p, size_m=self.size_m, grid_m=self.grid_m, relief_m=self.relief_m,
@@ -569,7 +578,7 @@ class SurfaceSpec:
         before)."""
         out = dataclasses.asdict(self)
         if self.kind != "sea_ice":
-            del out["surface_rms_m"], out["surface_corr_m"]
+            del out["surface_rms_m"], out["surface_corr_m"], out["surface_ridges"]
         return out
 
 

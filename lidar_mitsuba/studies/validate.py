@@ -270,9 +270,11 @@ def _sea_ice_twin_rows(t: dict, row) -> None:
         return
     real = t["real"]
     surf = si["surface"]
+    ridges = surf.get("surface_ridges", "none")
     what = (f"rough sea ice of published roughness ({100 * surf['surface_rms_m']:.0f} cm rms, "
             f"{surf['surface_corr_m']:g} m correlation length: Beckers et al. 2015, IceBridge "
-            "ATM; ground/sea_ice_surface.py) under Ward snow, nothing from the file")
+            f"ATM; ridge sails {ridges}: Castellani et al. 2014; ground/sea_ice_surface.py, "
+            "sea_ice_ridges.py) under Ward snow, nothing from the file")
     ours, theirs = si["spread_robust_m"], real["spread_robust_m"]
     row("twin over rough sea ice: surface-return spread (robust sd)", f"{100 * ours:.1f} cm",
         f"{100 * theirs:.1f} cm", abs(ours / theirs - 1) <= SPREAD_AGREES,
@@ -287,9 +289,9 @@ def _sea_ice_twin_rows(t: dict, row) -> None:
             f"x{a / b:.2f} (a factor 2 agrees); " + (
                 "the snow's volume return, which delays photons, is not in this twin "
                 "(the sea-ice ladder's sea_ice_snow rung has it)" if side == "below" else
-                "early photons come from the relief above each segment's median; the "
-                "published elevation distribution is positively skewed, this surface "
-                "Gaussian"))
+                "early photons come from the relief above each segment's median: the "
+                "ridge sails' sparse positive relief (the published elevations' positive "
+                "skew) and the Gaussian's"))
 
 
 # ------------------------------------------------------------------------------ the report
