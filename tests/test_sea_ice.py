@@ -17,6 +17,7 @@ def test_tails_exact():
     assert t["below"] == pytest.approx(0.2) and t["above"] == pytest.approx(0.3)
     assert t["below_se"] == pytest.approx(math.sqrt(0.2 * 0.8 / 10))
     assert t["above_se"] == pytest.approx(math.sqrt(0.3 * 0.7 / 10))
+    assert t["above_far_count"] == 1 and t["above_far"] == pytest.approx(0.1)   # 0.3 is not
     t = sea_ice.tails(r, cut_m=0.4)
     assert (t["below_count"], t["above_count"]) == (1, 1)
     t = sea_ice.tails(np.zeros(5))

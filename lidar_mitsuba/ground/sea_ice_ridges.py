@@ -4,9 +4,10 @@ surface_ridges=...)``, :func:`~lidar_mitsuba.ground.sea_ice_surface.rough_sea_ic
 
 Airborne laser profiles of Arctic sea ice count *obstacles*: local maxima standing more than a
 cutoff ``h_c`` above the level ice (and separated by a trough, the Rayleigh criterion). Their
-heights above the cutoff are negatively exponential (Hibler 1975; Wadhams; Weeks et al. for
-the Ross Sea: "well described by a negative exponential distribution"); their spacing along
-a profile has a mean ``D``. A ridge sail is, across its crest, a triangle whose flanks slope
+heights above the cutoff are negatively exponential (laser profiles of 4 365 Ross Sea ridges,
+Weeks et al. 1989, JGR, authors recalled: "well described by a negative exponential
+distribution"; Wadhams: so are ridge keels' drafts; Hibler et al.'s one-parameter model of
+Arctic laser profiles); their spacing along a profile has a mean ``D``. A ridge sail is, across its crest, a triangle whose flanks slope
 at the sail angle ``alpha`` (Timco & Burden 1997).
 
 The model: straight segments of length ``l`` (sails), centres uniform on the periodic tile,
@@ -62,8 +63,9 @@ RIDGES = {
                   "sections); cutoff 0.20 m: the obstacle threshold of Petty et al. 2016 "
                   "(TC 10, 1161, their code's min_ridge_height) and Mchedlishvili et al. "
                   "2023 (TC 17, 4103), ESTIMATE for Castellani et al.'s own (not readable "
-                  "here); heights above the cutoff negative exponential (Hibler 1975; "
-                  "Wadhams; Weeks et al. 1989); sail angle 33 deg: Timco & Burden 1997, "
+                  "here); heights above the cutoff negative exponential (Weeks et al. "
+                  "1989, Ross Sea laser profiles; Wadhams; Hibler et al.); sail angle 33 "
+                  "deg: Timco & Burden 1997, "
                   "CRST 25, 65 (Beaufort Sea ridges' average); length 50 m: ESTIMATE (a "
                   "sail runs continuously for tens of metres to kilometres, the profiles' "
                   "obstacles include shorter rubble; the one-point moments do not depend "
@@ -142,15 +144,18 @@ def ridge_field(*, n: int, grid_m: float, spacing_m: float, mean_height_m: float
     tan_a = math.tan(math.radians(sail_angle_deg))
     z = np.zeros((n, n))
     for (cx, cy), th, h in zip(centre, theta, height):
-        _add_sail(z, grid_m, cx, cy, math.cos(th), math.sin(th), h, h / tan_a, length_m)
+        _add_sail(z, grid_m=grid_m, centre_m=(cx, cy), crest=(math.cos(th), math.sin(th)),
+                  height_m=h, half_width_m=h / tan_a, length_m=length_m)
     return z
 
 
-def _add_sail(z: np.ndarray, grid_m: float, cx: float, cy: float, dx: float, dy: float,
-              h: float, w: float, length_m: float) -> None:
-    """Add one sail (centre ``(cx, cy)`` [m], crest direction ``(dx, dy)``, height ``h``,
-    half-width ``w``, length ``length_m``) to the periodic grid ``z`` (z[iy, ix] at
-    x = ix grid_m, y = iy grid_m) in place."""
+def _add_sail(z: np.ndarray, *, grid_m: float, centre_m: tuple[float, float],
+              crest: tuple[float, float], height_m: float, half_width_m: float,
+              length_m: float) -> None:
+    """Add one sail (centre ``(x, y)`` [m], unit crest direction, height [m], half-width [m]
+    and length [m]) to the periodic grid ``z`` (z[iy, ix] at x = ix grid_m, y = iy grid_m)
+    in place."""
+    (cx, cy), (dx, dy), h, w = centre_m, crest, height_m, half_width_m
     n = z.shape[0]
     size = n * grid_m
     half_x = 0.5 * length_m * abs(dx) + w * abs(dy)      # the sail's bounding box

@@ -291,7 +291,9 @@ def _sea_ice_twin_rows(t: dict, row) -> None:
                 "(the sea-ice ladder's sea_ice_snow rung has it)" if side == "below" else
                 "early photons come from the relief above each segment's median: the "
                 "ridge sails' sparse positive relief (the published elevations' positive "
-                "skew) and the Gaussian's"))
+                "skew) and the Gaussian's; beyond +30 cm "
+                f"{100 * si['tails'].get('above_far', float('nan')):.1f} % against "
+                f"{100 * rt['above_far']:.1f} %"))
 
 
 # ------------------------------------------------------------------------------ the report
