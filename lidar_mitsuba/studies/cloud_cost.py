@@ -3,7 +3,8 @@ over the synthetic ice sheet of :mod:`.track_length`, streamed to ATL03 and ATL0
 under a water cloud (tau 1, 1-1.5 km), each timed after a warm-up (kernels compiled, the
 cloud's table made once and cached: its own time is reported apart; ``quick``: 0.3 km, no
 warm-up, the cloudy run first, a table of 32 000 paths), and both against the
-time the granule's rays take to cast alone (:func:`.track_length.cast_rate`)."""
+time the granule's rays take to cast alone (:func:`.track_length.cast_time`: the granule's own
+ray count, as the ``granule`` row's ``of_cast``)."""
 from __future__ import annotations
 
 import pathlib
@@ -62,11 +63,11 @@ def run(*, quick: bool) -> dict:
                 cloud_kernel.SHOTS, cloud_kernel.PATHS = sizes
         clear_s, out = _granule_s(surf, track, shots, None, tmp, repeats)
         rays = sum(o.shots * o.config["paths_per_shot"] * o.config["max_depth"] for o in out)
-        rate = track_length.cast_rate(surf, track,
+        cast = track_length.cast_time(surf, track, rays=rays, shots=shots,
                                       paths_per_shot=out[0].config["paths_per_shot"])
-    cast_s = rays / rate
+    cast_s = cast["cast_s"]
     return {"length_km": km, "beams": len(out), "shots": shots, "cloud": CLOUD,
             "clear_s": clear_s, "cloud_s": cloud_s, "cloud_over_clear": cloud_s / clear_s,
-            "table_s": table_s, "rays": int(rays), "cast_s": cast_s,
+            "table_s": table_s, "rays": int(rays), **cast,
             "clear_of_cast": clear_s / cast_s, "cloud_of_cast": cloud_s / cast_s,
             "repeats": repeats}

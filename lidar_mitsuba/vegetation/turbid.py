@@ -15,7 +15,8 @@ and docs/physics/canopy.md.
 A periodic stand (a torus over its bounds) lists, besides its crowns, their images shifted
 by the bounds' size wherever a crown lies within ``pad_m`` of an edge, so that the lines of
 a track folded into the tile (up to a footprint's 5 sigma and a field of view outside it)
-see the crowns across the edge.
+see the crowns across the edge (:func:`~.stand.periodic_copies` lists the copies, as for the
+explicit leaves' :func:`~.explicit.trees_near`).
 """
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ import numpy as np
 
 from ..constants import ParameterError, check
 from . import ross
+from .stand import periodic_copies
 
 #: nodes of the G table handed to the integrator (mu = k / (G_NODES - 1); linear between
 #: them: G varies smoothly, < 1e-4 between nodes)
@@ -50,14 +52,15 @@ def canopy_table(stand, *, rho: float, tau: float, pad_m: float = 40.0) -> dict:
         (x0, y0), (x1, y1) = stand.bounds_m
         lx, ly = x1 - x0, y1 - y0
         idx, qx, qy = [], [], []
-        for dx in (-lx, 0.0, lx):
-            for dy in (-ly, 0.0, ly):
-                keep = ((cx + dx + r > x0 - pad_m) & (cx + dx - r < x1 + pad_m)
-                        & (cy + dy + r > y0 - pad_m) & (cy + dy - r < y1 + pad_m))
-                k = np.arange(cx.size) if dx == dy == 0.0 else np.flatnonzero(keep)
-                idx.append(k)
-                qx.append(cx[k] + dx)
-                qy.append(cy[k] + dy)
+        for i, j in periodic_copies(stand.bounds_m, (x0 - pad_m, x1 + pad_m, y0 - pad_m,
+                                                     y1 + pad_m), reach_m=float(r.max())):
+            dx, dy = i * lx, j * ly
+            keep = ((cx + dx + r > x0 - pad_m) & (cx + dx - r < x1 + pad_m)
+                    & (cy + dy + r > y0 - pad_m) & (cy + dy - r < y1 + pad_m))
+            k = np.arange(cx.size) if i == j == 0 else np.flatnonzero(keep)
+            idx.append(k)
+            qx.append(cx[k] + dx)
+            qy.append(cy[k] + dy)
         idx, cx, cy = np.concatenate(idx), np.concatenate(qx), np.concatenate(qy)
         zb, zt, r = zb[idx], zt[idx], r[idx]
     return crowns_table(stand, cx=cx, cy=cy, zb=zb, zt=zt, r=r, rho=rho, tau=tau)
@@ -105,12 +108,12 @@ def stand_crowns(forest, *, pad_m: float) -> dict:
                              f"periods out: at most 2^24 trees and 7 periods (the canopy "
                              f"integrator's key)")
     parts = []
-    for i in range(-m, m + 1):
-        for j in range(-m, m + 1):
-            ex, ey = x + i * lx, y + j * ly
-            k = np.flatnonzero((ex + r > -pad_m) & (ex - r < lx + pad_m)
-                               & (ey + r > -pad_m) & (ey - r < ly + pad_m))
-            parts.append((k, ex[k], ey[k], np.full(k.size, i), np.full(k.size, j)))
+    for i, j in periodic_copies(((0.0, 0.0), (lx, ly)), (-pad_m, lx + pad_m, -pad_m, ly + pad_m),
+                                reach_m=float(r.max(initial=0.0)), periodic=s.periodic):
+        ex, ey = x + i * lx, y + j * ly
+        k = np.flatnonzero((ex + r > -pad_m) & (ex - r < lx + pad_m)
+                           & (ey + r > -pad_m) & (ey - r < ly + pad_m))
+        parts.append((k, ex[k], ey[k], np.full(k.size, i), np.full(k.size, j)))
     idx, cx, cy, ix, iy = (np.concatenate(p) for p in zip(*parts))
     order = _z_order(cx, cy)          # neighbours in the stand, neighbours in memory
     idx, cx, cy, ix, iy = idx[order], cx[order], cy[order], ix[order], iy[order]
