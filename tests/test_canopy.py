@@ -260,3 +260,25 @@ def test_forest_front_door_gap_and_turbid():
 def dataclasses_replace(obj, **kw):
     import dataclasses
     return dataclasses.replace(obj, **kw)
+
+
+def test_a_stands_crowns_are_built_once_per_process():
+    """Two forests of one spec (a campaign's granules each make the spec's forest again) get
+    the same crowns' table, the very object, equal to the bit to one built afresh; another
+    seed or pad builds its own; at most ``_STANDS_MAX`` are kept."""
+    from lidar_mitsuba.ground.surface import Plane
+
+    def make(seed):
+        return lidar_mitsuba.forest(species="conifer", ground=Plane(size_m=80.0),
+                                    representation="turbid", seed=seed)
+    first = turbid.stand_crowns(make(1), pad_m=20.0)
+    again = turbid.stand_crowns(make(1), pad_m=20.0)
+    assert again is first
+    fresh = turbid._build_stand_crowns(make(1), pad_m=20.0)
+    for k, v in fresh.items():
+        if k != "grid":
+            assert np.array_equal(np.asarray(v), np.asarray(first[k])), k
+    assert all(np.array_equal(a, b) for a, b in zip(fresh["grid"], first["grid"]))
+    assert turbid.stand_crowns(make(2), pad_m=20.0) is not first
+    assert turbid.stand_crowns(make(1), pad_m=25.0) is not first
+    assert len(turbid._STANDS) <= turbid._STANDS_MAX

@@ -24,6 +24,7 @@ import hashlib
 import os
 import pathlib
 import tempfile
+import threading
 
 import numpy as np
 
@@ -93,11 +94,57 @@ def stand_crowns(forest, *, pad_m: float) -> dict:
     :data:`~lidar_mitsuba_plugins.canopy_table.CELL_M`
     (:func:`~lidar_mitsuba_plugins.canopy_table.grid`). The ``canopy`` integrator takes it
     with ``set_stand`` and each tile's ground with ``set_tile``: no tile gathers or bins
-    crowns of its own."""
-    from lidar_mitsuba_plugins import canopy_table as ct
+    crowns of its own.
+
+    Also kept per process beyond the forest (:data:`_STANDS`): a forest of the same crowns
+    (a campaign's next granule, its forest made again from the spec) gets the same table,
+    the same object, without building it again. Read it, never change it."""
     key = ("stand_crowns", float(pad_m))
     if key in forest._cache:
         return forest._cache[key]
+    whole = _stand_key(forest, pad_m)
+    with _STANDS_LOCK:
+        out = _STANDS.get(whole)
+    if out is None:
+        out = _build_stand_crowns(forest, pad_m=float(pad_m))
+        with _STANDS_LOCK:
+            while len(_STANDS) >= _STANDS_MAX:
+                _STANDS.pop(next(iter(_STANDS)))      # the oldest
+            _STANDS[whole] = out
+    forest._cache[key] = out
+    return out
+
+
+#: stands' crowns (:func:`stand_crowns`) kept per process, beyond their forest: a campaign's
+#: worker makes the spec's forest again for every granule, and the crowns' table and grid
+#: (~1 s of CPU, ~65 MB, for the 2048 m conifer stand's 400 000 crowns and images) depend
+#: only on the crowns, their square, the leaves and the pad (:func:`_stand_key`). At most
+#: :data:`_STANDS_MAX`, the oldest dropped (as the DEMs a worker holds,
+#: :data:`lidar_mitsuba.ground.dem._WHOLE_MAX`)
+_STANDS: dict = {}
+_STANDS_MAX = 2
+_STANDS_LOCK = threading.Lock()
+
+
+def _stand_key(forest, pad_m: float) -> tuple:
+    """What :func:`stand_crowns`' table is made of: ``pad_m``, the stand's square, its
+    periodicity, crown shape and foliage, the leaves' optics, and a digest of its crowns
+    (stems, radii, bases and heights: the ground under them is not in the table)."""
+    s = forest.stand
+    digest = hashlib.blake2b(digest_size=20)
+    for a in (s.x_m, s.y_m, s.crown_radius_m, s.crown_base_m, s.height_m):
+        a = np.ascontiguousarray(a)
+        digest.update(f"{a.dtype.str}{a.shape}".encode())
+        digest.update(a.data)
+    return (float(pad_m), tuple(tuple(map(float, c)) for c in s.bounds_m), bool(s.periodic),
+            s.crown_shape, s.leaf_angle, float(s.leaf_area_density_m2_m3), float(s.clumping),
+            float(forest.leaf.reflectance), float(forest.leaf.transmittance),
+            digest.hexdigest())
+
+
+def _build_stand_crowns(forest, *, pad_m: float) -> dict:
+    """:func:`stand_crowns`' table, built."""
+    from lidar_mitsuba_plugins import canopy_table as ct
     s = forest.stand
     (x0, y0), (x1, y1) = s.bounds_m
     lx, ly = x1 - x0, y1 - y0
@@ -124,7 +171,6 @@ def stand_crowns(forest, *, pad_m: float) -> dict:
                period_m=(lx, ly) if s.periodic else None,
                top_m=float(s.height_m.max(initial=0.0)),
                grid=ct.grid(cx, cy, r[idx], cell_m=ct.CELL_M, pad_m=0.0))
-    forest._cache[key] = out
     return out
 
 
