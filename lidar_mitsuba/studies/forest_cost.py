@@ -93,7 +93,7 @@ def _alternated(cases: dict, track, *, km: float, beams: str, repeats: int, warm
     bare = statistics.median(times["bare"])
     rows, casts = [], {}
     for name, out in outs.items():
-        rays = sum(o.shots * o.config["paths_per_shot"] * o.config["max_depth"] for o in out)
+        rays = track_length.granule_rays(out)
         ppshot = out[0].config["paths_per_shot"]
         if (rays, ppshot) not in casts:           # (rows of the same rays: one yardstick)
             casts[rays, ppshot] = track_length.cast_time(surf, track, rays=rays, shots=shots,
@@ -107,7 +107,7 @@ def _alternated(cases: dict, track, *, km: float, beams: str, repeats: int, warm
                      # a shared machine drifts between rounds more than within one)
                      "over_bare_paired": statistics.median(
                          t / b for t, b in zip(times[name], times["bare"])),
-                     "rays": int(rays), **cast, "of_cast": sec / cast["cast_s"],
+                     "rays": rays, **cast, "of_cast": sec / cast["cast_s"],
                      "paths_per_shot": out[0].config["paths_per_shot"],
                      "atl08_s": atl08.get(name), "repeats": repeats,
                      "photons": out[0].photons})
@@ -119,16 +119,12 @@ def run(*, quick: bool, km: float | None = None, repeats: int | None = None,
     """The rows: bare, gap and turbid at ``km`` (default 100; quick: bare and turbid, one
     beam, 0.15 km), then bare and explicit at :data:`EXPLICIT_KM` (not quick). ``log``:
     called with a line after each granule."""
-    from .. import geotrack
-    from ..ground import dem
     km = (0.15 if quick else 100.0) if km is None else float(km)
     repeats = (1 if quick else 3) if repeats is None else int(repeats)
     beams = "gt2l" if quick else "all"
     with tempfile.TemporaryDirectory() as tmp:
         tmp = pathlib.Path(tmp)
-        surf = dem.DEMSurface(dem.DEM.open(track_length.make_dem(tmp / "dem.tif", km)))
-        track = geotrack.GeoTrack(start_lat_deg=track_length.START_LAT, start_lon_deg=-45.0,
-                                  azimuth_deg=0.0)
+        surf, track = track_length.ice_sheet(tmp, km)
         reps = ("turbid",) if quick else ("gap", "turbid")
         stand_m = 256.0 if quick else None            # (quick: its cover in 0.03 s)
         rows = []

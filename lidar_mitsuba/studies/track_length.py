@@ -56,6 +56,30 @@ def make_dem(path: pathlib.Path, length_km: float) -> pathlib.Path:
                                    length_m=length, posting_m=DEM_POSTING_M, hole=False)
 
 
+def ice_sheet_track() -> object:
+    """The track north along the -45 meridian from :data:`START_LAT` (a
+    :class:`~lidar_mitsuba.geotrack.GeoTrack`): :func:`make_dem`'s DEM lies under it."""
+    from .. import geotrack
+    return geotrack.GeoTrack(start_lat_deg=START_LAT, start_lon_deg=-45.0, azimuth_deg=0.0)
+
+
+def ice_sheet(folder: pathlib.Path, length_km: float) -> tuple:
+    """``(surface, track)``: the DEM of :func:`make_dem` for ``length_km``, written to
+    ``folder``/dem.tif, as a :class:`~lidar_mitsuba.ground.dem.DEMSurface`, and
+    :func:`ice_sheet_track` (the cloud and forest rows' ground)."""
+    from ..ground import dem
+    surface = dem.DEMSurface(dem.DEM.open(make_dem(pathlib.Path(folder) / "dem.tif",
+                                                   length_km)))
+    return surface, ice_sheet_track()
+
+
+def granule_rays(summaries) -> int:
+    """The rays a streamed granule cast (its beams' summaries): shots x paths per shot x
+    bounces, summed over its beams (what :func:`cast_time` casts)."""
+    return int(sum(o.shots * o.config["paths_per_shot"] * o.config["max_depth"]
+                   for o in summaries))
+
+
 def _peak_rss_mb() -> float:
     """This process's peak resident memory [MB]: Linux's ``VmHWM``, which starts afresh at
     ``exec``; ``ru_maxrss`` keeps the peak of the process that forked it (the bench, ~1.5 GB
@@ -208,11 +232,10 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
         granule_writer.writer()
     ensure_renderer()                  # libLLVM, variant, plugins
     from ..ground import dem
-    from .. import geotrack
     surf = dem.DEMSurface(dem.DEM.open(dem_path))
     shots = int(round(length_km * 1e3 / 0.7))
     before = _peak_rss_mb()
-    track = geotrack.GeoTrack(start_lat_deg=START_LAT, start_lon_deg=-45.0, azimuth_deg=0.0)
+    track = ice_sheet_track()
     first = None
     if beams == "all":                 # a worker's first granule, then the one reported
         first = _granule(surf, track, shots, beams, count_kernels=False)
@@ -226,10 +249,10 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
                                           section_shots=granule.SECTION_SHOTS))
     row = {}
     if first is not None:        # the same rays, cast alone: the pipeline's cost over them
-        rays = sum(o.shots * o.config["paths_per_shot"] * o.config["max_depth"] for o in out)
+        rays = granule_rays(out)
         cast = cast_time(surf, track, rays=rays, shots=shots,
                          paths_per_shot=out[0].config["paths_per_shot"])
-        row = {"beams": len(out), "rays": int(rays), **cast,
+        row = {"beams": len(out), "rays": rays, **cast,
                "of_cast": seconds / cast["cast_s"],
                "first_s": first["seconds"], "end_to_end_s": first["end_to_end_s"],
                "end_to_end_over_warm": first["end_to_end_s"] / seconds,

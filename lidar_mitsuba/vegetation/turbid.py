@@ -102,11 +102,14 @@ def stand_crowns(forest, *, pad_m: float) -> dict:
     key = ("stand_crowns", float(pad_m))
     if key in forest._cache:
         return forest._cache[key]
-    whole = _stand_key(forest, pad_m)
+    s = forest.stand
+    (x0, y0), (x1, y1) = s.bounds_m
+    square = (s.x_m - x0, s.y_m - y0, x1 - x0, y1 - y0)    # what the table is made of
+    whole = _stand_key(forest, square, pad_m)
     with _STANDS_LOCK:
         out = _STANDS.get(whole)
     if out is None:
-        out = _build_stand_crowns(forest, pad_m=float(pad_m))
+        out = _build_stand_crowns(forest, square, pad_m=float(pad_m))
         with _STANDS_LOCK:
             while len(_STANDS) >= _STANDS_MAX:
                 _STANDS.pop(next(iter(_STANDS)))      # the oldest
@@ -116,39 +119,44 @@ def stand_crowns(forest, *, pad_m: float) -> dict:
 
 
 #: stands' crowns (:func:`stand_crowns`) kept per process, beyond their forest: a campaign's
-#: worker makes the spec's forest again for every granule, and the crowns' table and grid
-#: (~1 s of CPU, ~65 MB, for the 2048 m conifer stand's 400 000 crowns and images) depend
-#: only on the crowns, their square, the leaves and the pad (:func:`_stand_key`). At most
-#: :data:`_STANDS_MAX`, the oldest dropped (as the DEMs a worker holds,
-#: :data:`lidar_mitsuba.ground.dem._WHOLE_MAX`)
+#: worker makes the spec's forest again for every granule (and moves it into the granule's
+#: frame), and the crowns' table and grid (~1 s of CPU, ~65 MB, for the 2048 m conifer
+#: stand's 400 000 crowns and images) depend only on the crowns in their square's own
+#: coordinates, the leaves and the pad (:func:`_stand_key`: equal to the bit wherever the
+#: frame is, as long as the subtractions that move the stand are exact; where one is not, the
+#: key differs and the table is built again, as before). At most :data:`_STANDS_MAX`, the
+#: oldest dropped (as the DEMs a worker holds, :data:`lidar_mitsuba.ground.dem._WHOLE_MAX`)
 _STANDS: dict = {}
 _STANDS_MAX = 2
 _STANDS_LOCK = threading.Lock()
 
 
-def _stand_key(forest, pad_m: float) -> tuple:
-    """What :func:`stand_crowns`' table is made of: ``pad_m``, the stand's square, its
-    periodicity, crown shape and foliage, the leaves' optics, and a digest of its crowns
-    (stems, radii, bases and heights: the ground under them is not in the table)."""
+def _stand_key(forest, square: tuple, pad_m: float) -> tuple:
+    """Everything :func:`stand_crowns`' table is made of: ``pad_m``, the stand's crowns in
+    its square's coordinates (``square``: stems ``x``, ``y`` [m] from the square's lower
+    corner, its sides ``lx``, ``ly`` [m]), their radii, bases and heights (a digest; the
+    ground under them is not in the table), its periodicity, crown shape and foliage, and
+    the leaves' optics."""
     s = forest.stand
+    x, y, lx, ly = square
     digest = hashlib.blake2b(digest_size=20)
-    for a in (s.x_m, s.y_m, s.crown_radius_m, s.crown_base_m, s.height_m):
+    for a in (x, y, s.crown_radius_m, s.crown_base_m, s.height_m):
         a = np.ascontiguousarray(a)
         digest.update(f"{a.dtype.str}{a.shape}".encode())
         digest.update(a.data)
-    return (float(pad_m), tuple(tuple(map(float, c)) for c in s.bounds_m), bool(s.periodic),
-            s.crown_shape, s.leaf_angle, float(s.leaf_area_density_m2_m3), float(s.clumping),
+    return (float(pad_m), float(lx), float(ly), bool(s.periodic), s.crown_shape,
+            s.leaf_angle, float(s.leaf_area_density_m2_m3), float(s.clumping),
             float(forest.leaf.reflectance), float(forest.leaf.transmittance),
             digest.hexdigest())
 
 
-def _build_stand_crowns(forest, *, pad_m: float) -> dict:
-    """:func:`stand_crowns`' table, built."""
+def _build_stand_crowns(forest, square: tuple, *, pad_m: float) -> dict:
+    """:func:`stand_crowns`' table, built from the stand's crowns in its ``square``'s
+    coordinates (:func:`_stand_key`)."""
     from lidar_mitsuba_plugins import canopy_table as ct
     s = forest.stand
-    (x0, y0), (x1, y1) = s.bounds_m
-    lx, ly = x1 - x0, y1 - y0
-    x, y, r = s.x_m - x0, s.y_m - y0, np.asarray(s.crown_radius_m, float)
+    x, y, lx, ly = square
+    r = np.asarray(s.crown_radius_m, float)
     m = int(np.ceil((pad_m + r.max(initial=0.0)) / min(lx, ly))) if s.periodic else 0
     if s.n_trees >= 1 << 24 or m > 7:
         raise ParameterError("forest", f"a stand of {s.n_trees} trees and images {m} "
