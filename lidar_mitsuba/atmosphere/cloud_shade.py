@@ -27,9 +27,10 @@ low at grazing incidence (0.50 against 0.60 for tau 1.1, g 0.85 at mu0 0.07). Th
 takes), scored by counting the photons that leave the top (:class:`.hg_walk.Escape`). For
 the clouds a run makes (water and ice, ``tau`` <= 20) and a sun above ``mu0`` 0.02 (1.1 deg)
 :func:`shade_factor` reads ``R`` from the table that walk made once
-(:mod:`.cloud_reflection_table`: ``R = 1 - t`` for a conservative layer, ``t`` its total
-transmittance; ``tests/test_cloud_shade.py`` checks the two agree within their sampling
-errors) and runs the Monte Carlo only for other layers and a lower sun.
+(:mod:`lidar_mitsuba.atmosphere.cloud_reflection_table`: ``R = 1 - t`` for a conservative
+layer, ``t`` its total transmittance; ``tests/test_cloud_shade.py`` checks the two agree
+within their sampling errors) and runs the Monte Carlo only for other layers and a lower
+sun.
 """
 from __future__ import annotations
 
@@ -73,7 +74,7 @@ def shade_factor(*, cover: float, optical_depth: float, g: float,
     elevation (:func:`lidar_mitsuba.sky.apparent_mu0` of the geometric
     ``solar_elevation_deg``). ``R`` from the shipped table where it holds the layer (its
     water and ice ``g``, ``optical_depth`` up to 20, ``mu0`` >= 0.02:
-    :func:`.cloud_reflection_table.reflectance`, ``1 - t(mu0)``), else by
+    :func:`lidar_mitsuba.atmosphere.cloud_reflection_table.reflectance`, ``1 - t(mu0)``), else by
     :func:`layer_reflectance`. 1 with the sun at or below the horizon (the twilight sky's
     light comes down from high above any deck: no shade modelled) or no cover."""
     from ..sky import apparent_mu0
