@@ -114,6 +114,18 @@ def saemundsson_refraction_deg(elevation_deg):
     return 1.02 / np.tan(np.deg2rad(h + 10.3 / (h + 5.11))) / 60.0
 
 
+def apparent_mu0(elevation_deg):
+    """``mu0`` [1]: the cosine of the sun's apparent zenith angle at sea level, the sine of
+    its apparent elevation (Saemundsson's refraction, :func:`saemundsson_refraction_deg`,
+    added to the geometric ``elevation_deg`` [deg], array; capped at 90 deg), clipped to
+    [1e-3, 1]: the collimated beam's ``mu0`` the cloud layers' Monte Carlo and table take
+    (:mod:`lidar_mitsuba.atmosphere.cloud_shade`,
+    :mod:`lidar_mitsuba.atmosphere.cloud_reflection`), which must be above 0."""
+    h = np.asarray(elevation_deg, np.float64)
+    h_app = h + saemundsson_refraction_deg(h)
+    return np.clip(np.sin(np.deg2rad(np.minimum(h_app, 90.0))), 1e-3, 1.0)
+
+
 def refraction_deg(elevation_deg, z_m, *, tangent_z_m=None):
     """Refraction [deg] of the sun's ray reaching height ``z_m`` [m] at geometric elevation
     ``elevation_deg`` [deg]: Saemundsson's formula scaled with the air density at ``z_m``

@@ -25,7 +25,7 @@ def _brute_g(mu: float, leaf_angle: str, n: int = 1500) -> float:
     """(1/2pi) int g_L |Omega . n| dn by the midpoint rule over inclination and azimuth."""
     t = (np.arange(n) + 0.5) * (np.pi / 2 / n)
     p = (np.arange(2 * n) + 0.5) * (np.pi / n)
-    f = ross.inclination_pdf(t, leaf_angle)[:, None]
+    f = ross.leaf_angle_pdf(leaf_angle, t)[:, None]
     proj = np.abs(mu * np.cos(t)[:, None]
                   + math.sqrt(1 - mu * mu) * np.sin(t)[:, None] * np.cos(p)[None, :])
     return float((f * proj).mean(1) @ np.full(n, np.pi / 2 / n))
@@ -260,3 +260,28 @@ def test_forest_front_door_gap_and_turbid():
 def dataclasses_replace(obj, **kw):
     import dataclasses
     return dataclasses.replace(obj, **kw)
+
+
+def test_a_stands_crowns_are_built_once_per_process():
+    """Two forests of one spec (a campaign's granules each make the spec's forest again) get
+    the same crowns' table, the very object, equal to the bit to one built afresh; another
+    seed or pad builds its own; at most ``_STANDS_MAX`` are kept."""
+    from lidar_mitsuba.ground.surface import Plane
+
+    def make(seed):
+        return lidar_mitsuba.forest(species="conifer", ground=Plane(size_m=80.0),
+                                    representation="turbid", seed=seed)
+    first = turbid.stand_crowns(make(1), pad_m=20.0)
+    again = turbid.stand_crowns(make(1), pad_m=20.0)
+    assert again is first
+    f = make(1)
+    (x0, y0), (x1, y1) = f.stand.bounds_m
+    fresh = turbid._build_stand_crowns(f, (f.stand.x_m - x0, f.stand.y_m - y0, x1 - x0,
+                                           y1 - y0), pad_m=20.0)
+    for k, v in fresh.items():
+        if k != "grid":
+            assert np.array_equal(np.asarray(v), np.asarray(first[k])), k
+    assert all(np.array_equal(a, b) for a, b in zip(fresh["grid"], first["grid"]))
+    assert turbid.stand_crowns(make(2), pad_m=20.0) is not first
+    assert turbid.stand_crowns(make(1), pad_m=25.0) is not first
+    assert len(turbid._STANDS) <= turbid._STANDS_MAX

@@ -71,3 +71,42 @@ def test_the_night_floors_sunlight_in_a_decks_gaps():
     factor = cloud_shade.shade_factor(cover=0.75, optical_depth=1.1, g=deck.g,
                                       solar_elevation_deg=4.0)
     assert factor * clear < shaded < clear
+
+
+@pytest.mark.parametrize("tau, g, mu0, between", [(1.28, 0.85, 0.2, 0.0),
+                                                  (3.620387, 0.75, 0.9, 0.0),
+                                                  (1.1, 0.85, 0.074, 0.005),
+                                                  (5.0, 0.75, 0.31, 0.005)])
+def test_the_tables_reflectance_is_the_monte_carlos(tau, g, mu0, between):
+    """``R = 1 - t`` from the shipped table (a conservative layer) against a fresh Monte Carlo
+    (another seed than the table's): within four combined binomial standard errors (a 6e-5
+    chance of a false failure for a normal error) on the table's nodes, and off them plus
+    ``between`` for the table's linear interpolation (ESTIMATE, 0.005: its nodes are 0.02
+    apart in mu0 and sqrt(2) in tau, and R bends little between them; the two off-node cases
+    measured within 1.2 standard errors)."""
+    from lidar_mitsuba.atmosphere import cloud_reflection_table as table
+    n = 1 << 15
+    mc = cloud_shade.layer_reflectance(optical_depth=tau, g=g, mu0=mu0, photons=n, seed=7)
+    r, se = table.reflectance(optical_depth=tau, g=g, mu0=mu0)
+    assert abs(float(r) - mc) < 4 * math.hypot(float(se), math.sqrt(mc * (1 - mc) / n)) + between
+
+
+def test_the_shade_factor_reads_the_table_where_it_holds():
+    """A water deck at a 4 deg sun: ``1 - cover R`` with the table's ``R`` at the apparent
+    sun's ``mu0``; a sun below the table's lowest ``mu0`` (0.02) and a ``g`` it does not hold
+    run the Monte Carlo at ``mu0`` in 0.001 steps."""
+    from lidar_mitsuba import sky
+    from lidar_mitsuba.atmosphere import cloud_reflection_table as table
+    mu0 = float(sky.apparent_mu0(4.0))
+    refraction = 1.02 / math.tan(math.radians(4.0 + 10.3 / 9.11)) / 60.0   # Saemundsson
+    assert mu0 == pytest.approx(math.sin(math.radians(4.0 + refraction)), rel=1e-12)
+    r = float(table.reflectance(optical_depth=1.1, g=0.85, mu0=mu0)[0])
+    assert cloud_shade.shade_factor(cover=0.5, optical_depth=1.1, g=0.85,
+                                    solar_elevation_deg=4.0) == 1.0 - 0.5 * r
+    low = round(float(sky.apparent_mu0(0.3)), 3)
+    assert low < 0.02
+    for g, elev, m in [(0.85, 0.3, low), (0.8, 4.0, round(mu0, 3))]:
+        assert cloud_shade.shade_factor(cover=1.0, optical_depth=1.1, g=g,
+                                        solar_elevation_deg=elev) == (
+            1.0 - cloud_shade.layer_reflectance(optical_depth=1.1, g=g, mu0=m))
+    assert sky.apparent_mu0(-5.0) == 1e-3 and sky.apparent_mu0(90.0) == pytest.approx(1.0)

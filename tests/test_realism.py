@@ -375,3 +375,17 @@ def test_a_pairs_weak_beam_takes_its_strong_partners_cloud():
     assert clouds["gt3r"] == clouds["gt3l"] == implied_cloud(beams["gt3l"])
     assert clouds["gt1r"] == implied_cloud(beams["gt1l"])
     assert clouds["gt2l"] == implied_cloud(beams["gt2l"])          # gt2r is not in the file
+
+
+def test_json_safe_writes_plain_json_with_no_nan():
+    """The studies' one JSON cleaner (realism.json, validate's and reproduce's report.json):
+    NumPy values as Python ones, every non-finite float (Python's or NumPy's) as null, keys as
+    strings, the keys a study leaves out dropped."""
+    from lidar_mitsuba.studies import json_safe
+    doc = {"nan": np.float64("nan"), "row": [np.float32(1.5), np.int64(3), np.bool_(True),
+                                           float("inf"), (np.array([1.0, np.nan]),)],
+           "_own": 1, 2: "two"}
+    out = json_safe(doc, skip=lambda key: key.startswith("_"))
+    assert json.loads(json.dumps(out, allow_nan=False)) == {
+        "nan": None, "row": [1.5, 3, True, None, [[1.0, None]]], "2": "two"}
+    assert type(out["row"][1]) is int and type(out["row"][2]) is bool

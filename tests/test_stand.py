@@ -155,3 +155,33 @@ def test_bad_inputs_raise_parameter_error(kwargs, name):
     with pytest.raises(ParameterError) as e:
         st.stand(**kw)
     assert e.value.name == name
+
+
+def test_periodic_copies_list_every_copy_that_reaches_a_box():
+    """The copies of a periodic square whose crowns reach into a box, against brute force
+    over 13 x 13 periods: every copy with a crown in the box (closed edges) is listed, each
+    listed copy's square widened by the largest crown touches the box (to the millimetre the
+    helper adds), in i-then-j order; a non-periodic stand lists itself only."""
+    rng = np.random.default_rng(4)
+    bounds = ((-30.0, 5.0), (20.0, 45.0))                     # 50 x 40 m
+    x, y = rng.uniform(-30.0, 20.0, 300), rng.uniform(5.0, 45.0, 300)
+    r = rng.uniform(0.5, 4.0, 300)
+    reach = float(r.max()) + 1e-3
+    for _ in range(40):
+        bx0, by0 = rng.uniform(-200.0, 200.0, 2)
+        box = (bx0, bx0 + rng.uniform(0.0, 120.0), by0, by0 + rng.uniform(0.0, 90.0))
+        got = st.periodic_copies(bounds, box, reach_m=float(r.max()))
+        assert got == sorted(got)
+        for i in range(-6, 7):
+            for j in range(-6, 7):
+                cx, cy = x + 50.0 * i, y + 40.0 * j
+                hit = np.any((cx + r >= box[0]) & (cx - r <= box[1])
+                             & (cy + r >= box[2]) & (cy - r <= box[3]))
+                near = (bounds[1][0] + 50.0 * i + reach >= box[0]
+                        and bounds[0][0] + 50.0 * i - reach <= box[1]
+                        and bounds[1][1] + 40.0 * j + reach >= box[2]
+                        and bounds[0][1] + 40.0 * j - reach <= box[3])
+                assert ((i, j) in got) == near
+                assert near or not hit
+    assert st.periodic_copies(bounds, (500.0, 600.0, 0.0, 1.0), reach_m=4.0,
+                              periodic=False) == [(0, 0)]

@@ -200,9 +200,7 @@ def direct_sun_factor(cloud, *, surface_albedo: float, solar_elevation_deg, z_m:
                  aerosol_optical_depth=atmosphere.aerosol_optical_depth,
                  aerosol_scale_height_m=atmosphere.aerosol_scale_height_m,
                  aerosol_ssa=atmosphere.aerosol_single_scattering_albedo)
-    h_app = nodes + sky.saemundsson_refraction_deg(nodes)
-    mu0 = np.clip(np.sin(np.deg2rad(np.minimum(h_app, 90.0))), 1e-3, 1.0)
-    rho = _rho_on_grid(cloud, surface_albedo, mu0, tabulated=tabulated)
+    rho = _rho_on_grid(cloud, surface_albedo, sky.apparent_mu0(nodes), tabulated=tabulated)
     glob = np.maximum(sk.direct + sk.diffuse, 1e-300)
     share = sk.surface_radiance / np.maximum(sk.toa_radiance, 1e-300) * sk.direct / glob
     factor = 1.0 + (rho / a_sys - 1.0) * share

@@ -25,7 +25,9 @@ makes (``g`` 0.75 ice, 0.85 water; ``a`` = 1), ``rho_0`` and ``t`` on a grid of 
 Between the nodes: linear in ``mu0`` (0.02 apart, as the Monte Carlo's own grid was) and
 linear in ``ln tau`` (nodes a factor sqrt(2) apart from 0.01 to 20; linear in ``tau`` from the
 exact ``tau = 0``: ``rho_0 = 0``, ``t = 1``, ``s = 0``). :func:`covers` says where the table
-holds; elsewhere (another ``g`` or ``a``) the caller runs the Monte Carlo.
+holds; elsewhere (another ``g`` or ``a``) the caller runs the Monte Carlo. The same ``t`` gives a
+conservative layer's plane albedo ``R(mu0) = 1 - t(mu0)`` (:func:`reflectance`: the shade a
+broken deck casts, :mod:`~lidar_mitsuba.atmosphere.cloud_shade`).
 """
 from __future__ import annotations
 
@@ -90,16 +92,37 @@ def _at_tau(field: np.ndarray, exact_zero: float, i: int, j: int, w: float) -> n
     return (1.0 - w) * lo + w * field[j]
 
 
+def _check_covered(optical_depth: float, g: float) -> None:
+    if not covers(optical_depth=optical_depth, g=g, single_scattering_albedo=1.0):
+        raise ParameterError("cloud", f"the table holds g {list(load()['gs'])} and optical "
+                             f"depths 0-{load()['optical_depths'][-1]:g} (got g {g}, "
+                             f"tau {optical_depth})")
+
+
+def reflectance(*, optical_depth: float, g: float, mu0) -> tuple[np.ndarray, np.ndarray]:
+    """``(R, standard error)`` [1]: the fraction of a collimated beam at ``mu0`` (array,
+    clamped to the table's 0.02-1) that a layer the table :func:`covers` reflects with
+    nothing below it (its flux through the top, what
+    :func:`~lidar_mitsuba.atmosphere.cloud_shade.layer_reflectance` counts): ``1 - t(mu0)``,
+    the layer being conservative (``a`` = 1: what it does not transmit it reflects; the
+    walk's photons still inside after its last event, fewer than 1e-4, counted reflected
+    here and transmitted there), linear between nodes as :func:`rho`; the standard error
+    the nodes' binomial one."""
+    _check_covered(optical_depth, g)
+    tab = load()
+    i, j, w = _tau_weights(optical_depth)
+    t = np.interp(np.asarray(mu0, np.float64), tab["mu0s"],
+                  _at_tau(tab["transmittance"][_g_index(g)], 1.0, i, j, w))
+    return 1.0 - t, np.sqrt(t * (1.0 - t) / tab["photons"])
+
+
 def rho(*, optical_depth: float, g: float, mu0, surface_albedo: float
         ) -> tuple[np.ndarray, np.ndarray]:
     """``(rho, standard error)`` [1] of eq. (1) at ``mu0`` (array, clamped to the table's
     0.02-1) for a layer the table :func:`covers`; the standard error from the nodes' own
     (the local estimate's for ``rho_0``, binomial for ``t`` and ``s``), propagated to first
     order, before interpolation."""
-    if not covers(optical_depth=optical_depth, g=g, single_scattering_albedo=1.0):
-        raise ParameterError("cloud", f"the table holds g {list(load()['gs'])} and optical "
-                             f"depths 0-{load()['optical_depths'][-1]:g} (got g {g}, "
-                             f"tau {optical_depth})")
+    _check_covered(optical_depth, g)
     tab = load()
     k = _g_index(g)
     i, j, w = _tau_weights(optical_depth)

@@ -24,16 +24,22 @@ track's clouds are the only sample of the field the file gives), random in posit
 (within 0.01 of it at normal incidence for tau 1-10, ``tests/test_cloud_shade.py``) and 15-30 %
 low at grazing incidence (0.50 against 0.60 for tau 1.1, g 0.85 at mu0 0.07). The walk is
 :func:`.hg_walk.walk` (the one the nadir reflectance factor of :mod:`.cloud_reflection`
-takes), scored by counting the photons that leave the top (:class:`.hg_walk.Escape`).
+takes), scored by counting the photons that leave the top (:class:`.hg_walk.Escape`). For
+the clouds a run makes (water and ice, ``tau`` <= 20) and a sun above ``mu0`` 0.02 (1.1 deg)
+:func:`shade_factor` reads ``R`` from the table that walk made once
+(:mod:`lidar_mitsuba.atmosphere.cloud_reflection_table`: ``R = 1 - t`` for a conservative
+layer, ``t`` its total transmittance; ``tests/test_cloud_shade.py`` checks the two agree
+within their sampling errors) and runs the Monte Carlo only for other layers and a lower
+sun.
 """
 from __future__ import annotations
 
 import functools
-import math
 
 import numpy as np
 
 from ..constants import ParameterError
+from . import cloud_reflection_table
 from .hg_walk import Escape, check_layer, collimated, walk
 
 PHOTONS = 1 << 15
@@ -65,16 +71,23 @@ def shade_factor(*, cover: float, optical_depth: float, g: float,
                  solar_elevation_deg: float) -> float:
     """The sunlight below a broken deck in its gaps, relative to clear sky [1]:
     ``1 - cover R(mu0)`` (module docstring), ``mu0`` the sine of the sun's apparent
-    elevation (Saemundsson's refraction added to the geometric ``solar_elevation_deg``).
-    1 with the sun at or below the horizon (the twilight sky's light comes down from high
-    above any deck: no shade modelled) or no cover."""
-    from ..sky import saemundsson_refraction_deg
+    elevation (:func:`lidar_mitsuba.sky.apparent_mu0` of the geometric
+    ``solar_elevation_deg``). ``R`` from the shipped table where it holds the layer (its
+    water and ice ``g``, ``optical_depth`` up to 20, ``mu0`` >= 0.02:
+    :func:`lidar_mitsuba.atmosphere.cloud_reflection_table.reflectance`, ``1 - t(mu0)``), else by
+    :func:`layer_reflectance`. 1 with the sun at or below the horizon (the twilight sky's
+    light comes down from high above any deck: no shade modelled) or no cover."""
+    from ..sky import apparent_mu0
     if not (0.0 <= cover <= 1.0):
         raise ParameterError("cover", f"must be in [0, 1] (got {cover})")
     h = float(solar_elevation_deg)
     if cover == 0.0 or optical_depth <= 0.0 or h <= 0.0:
         return 1.0
-    h_app = h + float(saemundsson_refraction_deg(h))
-    mu0 = round(math.sin(math.radians(min(h_app, 90.0))), 3)   # 0.001 steps: the cache's key
-    return 1.0 - cover * layer_reflectance(optical_depth=round(float(optical_depth), 3),
-                                           g=float(g), mu0=max(mu0, 1e-3))
+    mu0, tau = float(apparent_mu0(h)), float(optical_depth)
+    if (cloud_reflection_table.covers(optical_depth=tau, g=g, single_scattering_albedo=1.0)
+            and mu0 >= cloud_reflection_table.load()["mu0s"][0]):
+        r = float(cloud_reflection_table.reflectance(optical_depth=tau, g=g, mu0=mu0)[0])
+    else:                                     # 0.001 steps: the cache's key
+        r = layer_reflectance(optical_depth=round(tau, 3), g=float(g),
+                              mu0=max(round(mu0, 3), 1e-3))
+    return 1.0 - cover * r

@@ -3,7 +3,8 @@ over the synthetic ice sheet of :mod:`.track_length`, streamed to ATL03 and ATL0
 under a water cloud (tau 1, 1-1.5 km), each timed after a warm-up (kernels compiled, the
 cloud's table made once and cached: its own time is reported apart; ``quick``: 0.3 km, no
 warm-up, the cloudy run first, a table of 32 000 paths), and both against the
-time the granule's rays take to cast alone (:func:`.track_length.cast_rate`)."""
+time the granule's rays take to cast alone (:func:`.track_length.cast_time`: the granule's own
+ray count, as the ``granule`` row's ``of_cast``)."""
 from __future__ import annotations
 
 import pathlib
@@ -32,10 +33,8 @@ def _granule_s(surf, track, shots: int, cloud, tmp: pathlib.Path, repeats: int):
 def run(*, quick: bool) -> dict:
     """One row: seconds clear and cloudy, their ratio, the cloud table's seconds, and each
     run's time over its rays cast alone."""
-    from .. import geotrack
     from ..atmosphere import cloud_kernel
     from ..atmosphere.cloud_layer import Cloud
-    from ..ground import dem
     from ..instrument import Instrument
     km = 0.3 if quick else 10.0
     shots = int(round(km * 1e3 / 0.7))
@@ -43,9 +42,7 @@ def run(*, quick: bool) -> dict:
     cloud = Cloud.water(**CLOUD)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = pathlib.Path(tmp)
-        surf = dem.DEMSurface(dem.DEM.open(track_length.make_dem(tmp / "dem.tif", km)))
-        track = geotrack.GeoTrack(start_lat_deg=track_length.START_LAT, start_lon_deg=-45.0,
-                                  azimuth_deg=0.0)
+        surf, track = track_length.ice_sheet(tmp, km)
         t0 = time.perf_counter()
         small = {"shots": 500, "paths_per_shot": 64} if quick else {}   # (quick: a small table)
         table = cloud_kernel.table_for(cloud, Instrument(), **small)   # the paper's geometry
@@ -61,12 +58,12 @@ def run(*, quick: bool) -> dict:
             if quick:
                 cloud_kernel.SHOTS, cloud_kernel.PATHS = sizes
         clear_s, out = _granule_s(surf, track, shots, None, tmp, repeats)
-        rays = sum(o.shots * o.config["paths_per_shot"] * o.config["max_depth"] for o in out)
-        rate = track_length.cast_rate(surf, track,
+        rays = track_length.granule_rays(out)
+        cast = track_length.cast_time(surf, track, rays=rays, shots=shots,
                                       paths_per_shot=out[0].config["paths_per_shot"])
-    cast_s = rays / rate
+    cast_s = cast["cast_s"]
     return {"length_km": km, "beams": len(out), "shots": shots, "cloud": CLOUD,
             "clear_s": clear_s, "cloud_s": cloud_s, "cloud_over_clear": cloud_s / clear_s,
-            "table_s": table_s, "rays": int(rays), "cast_s": cast_s,
+            "table_s": table_s, "rays": rays, **cast,
             "clear_of_cast": clear_s / cast_s, "cloud_of_cast": cloud_s / cast_s,
             "repeats": repeats}

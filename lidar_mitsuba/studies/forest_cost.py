@@ -12,7 +12,8 @@ alternate (bare, gap, turbid, bare, ...) in one warm process, after a short warm
 (kernels compiled), and each row is the median of ``repeats``; a row's ``over_bare`` is its
 median over the bare median, ``over_bare_paired`` the median of each round's ratio to the
 bare run of its round, ``of_cast`` its median over the time its rays take to cast
-alone (:func:`.track_length.cast_rate`). The forest's ATL08 (our classifier over the ATL03,
+alone into the bare DEM's corridor (:func:`.track_length.cast_time`: the row's own ray count,
+as the ``granule`` row's ``of_cast``). The forest's ATL08 (our classifier over the ATL03,
 :mod:`lidar_mitsuba.products.atl08.granule`) is timed apart (``atl08_s``): the product, not
 the trace. All runs: ``max_depth=1``, paths per shot by the scout, the range gate 60 m (the
 canopy inside it, bare and forest alike). ``quick`` (the bench's test): one beam over
@@ -90,11 +91,14 @@ def _alternated(cases: dict, track, *, km: float, beams: str, repeats: int, warm
             if name != "bare" and name not in atl08:
                 atl08[name] = _atl08_s(tmp)
     bare = statistics.median(times["bare"])
-    rows = []
+    rows, casts = [], {}
     for name, out in outs.items():
-        rays = sum(o.shots * o.config["paths_per_shot"] * o.config["max_depth"] for o in out)
-        rate = track_length.cast_rate(surf, track,
-                                      paths_per_shot=out[0].config["paths_per_shot"])
+        rays = track_length.granule_rays(out)
+        ppshot = out[0].config["paths_per_shot"]
+        if (rays, ppshot) not in casts:           # (rows of the same rays: one yardstick)
+            casts[rays, ppshot] = track_length.cast_time(surf, track, rays=rays, shots=shots,
+                                                         beams=beams, paths_per_shot=ppshot)
+        cast = casts[rays, ppshot]
         sec = statistics.median(times[name])
         rows.append({"representation": name, "length_km": km, "beams": len(out),
                      "shots": shots, "seconds": sec, "times_s": times[name],
@@ -103,8 +107,7 @@ def _alternated(cases: dict, track, *, km: float, beams: str, repeats: int, warm
                      # a shared machine drifts between rounds more than within one)
                      "over_bare_paired": statistics.median(
                          t / b for t, b in zip(times[name], times["bare"])),
-                     "rays": int(rays), "cast_s": rays / rate,
-                     "of_cast": sec / (rays / rate),
+                     "rays": rays, **cast, "of_cast": sec / cast["cast_s"],
                      "paths_per_shot": out[0].config["paths_per_shot"],
                      "atl08_s": atl08.get(name), "repeats": repeats,
                      "photons": out[0].photons})
@@ -116,16 +119,12 @@ def run(*, quick: bool, km: float | None = None, repeats: int | None = None,
     """The rows: bare, gap and turbid at ``km`` (default 100; quick: bare and turbid, one
     beam, 0.15 km), then bare and explicit at :data:`EXPLICIT_KM` (not quick). ``log``:
     called with a line after each granule."""
-    from .. import geotrack
-    from ..ground import dem
     km = (0.15 if quick else 100.0) if km is None else float(km)
     repeats = (1 if quick else 3) if repeats is None else int(repeats)
     beams = "gt2l" if quick else "all"
     with tempfile.TemporaryDirectory() as tmp:
         tmp = pathlib.Path(tmp)
-        surf = dem.DEMSurface(dem.DEM.open(track_length.make_dem(tmp / "dem.tif", km)))
-        track = geotrack.GeoTrack(start_lat_deg=track_length.START_LAT, start_lon_deg=-45.0,
-                                  azimuth_deg=0.0)
+        surf, track = track_length.ice_sheet(tmp, km)
         reps = ("turbid",) if quick else ("gap", "turbid")
         stand_m = 256.0 if quick else None            # (quick: its cover in 0.03 s)
         rows = []

@@ -28,6 +28,7 @@ import time
 import numpy as np
 
 from ..constants import ALTITUDE_M, REFERENCE_ALBEDO, ParameterError
+from . import json_safe
 
 PACKAGE_DATA = pathlib.Path(__file__).resolve().parents[1] / "data"
 """The real files the package ships (``validate --real`` with no file)."""
@@ -433,7 +434,7 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
         out = pathlib.Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         realism_report.plot(doc, out / "realism_background.png")
-        (out / "realism.json").write_text(json.dumps(_json_safe(doc), indent=1))
+        (out / "realism.json").write_text(json.dumps(json_safe(doc), indent=1))
         (out / "realism.md").write_text(realism_report.report_md(doc))
     return doc
 
@@ -474,17 +475,3 @@ def format_row(r: dict) -> str:
     return (f"{r['file'][:34]:<34} {r['beam']} {r['strength']:<6} "
             f"bg {k(m['background_clear_hz'])}/{k(p['background_hz'])} kHz "
             f"sig {s(m['signal_clear'])}/{s(p['signal_per_shot'])}  {r['verdict']}")
-
-
-def _json_safe(obj):
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return _json_safe(obj.item())
-    if isinstance(obj, np.ndarray):
-        return _json_safe(obj.tolist())
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj

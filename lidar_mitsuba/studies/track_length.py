@@ -56,6 +56,30 @@ def make_dem(path: pathlib.Path, length_km: float) -> pathlib.Path:
                                    length_m=length, posting_m=DEM_POSTING_M, hole=False)
 
 
+def ice_sheet_track() -> object:
+    """The track north along the -45 meridian from :data:`START_LAT` (a
+    :class:`~lidar_mitsuba.geotrack.GeoTrack`): :func:`make_dem`'s DEM lies under it."""
+    from .. import geotrack
+    return geotrack.GeoTrack(start_lat_deg=START_LAT, start_lon_deg=-45.0, azimuth_deg=0.0)
+
+
+def ice_sheet(folder: pathlib.Path, length_km: float) -> tuple:
+    """``(surface, track)``: the DEM of :func:`make_dem` for ``length_km``, written to
+    ``folder``/dem.tif, as a :class:`~lidar_mitsuba.ground.dem.DEMSurface`, and
+    :func:`ice_sheet_track` (the cloud and forest rows' ground)."""
+    from ..ground import dem
+    surface = dem.DEMSurface(dem.DEM.open(make_dem(pathlib.Path(folder) / "dem.tif",
+                                                   length_km)))
+    return surface, ice_sheet_track()
+
+
+def granule_rays(summaries) -> int:
+    """The rays a streamed granule cast (its beams' summaries): shots x paths per shot x
+    bounces, summed over its beams (what :func:`cast_time` casts)."""
+    return int(sum(o.shots * o.config["paths_per_shot"] * o.config["max_depth"]
+                   for o in summaries))
+
+
 def _peak_rss_mb() -> float:
     """This process's peak resident memory [MB]: Linux's ``VmHWM``, which starts afresh at
     ``exec``; ``ru_maxrss`` keeps the peak of the process that forked it (the bench, ~1.5 GB
@@ -70,45 +94,10 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def cast_rate(surface, track, *, paths_per_shot: int, shots: int = 4096) -> float:
-    """Rays per second [1/s] of vertical casts alone on a corridor tile of ``surface`` under
-    ``track``'s first ``shots`` shots (``paths_per_shot`` rays a shot, Gaussian footprints):
-    the bound the cloud and forest rows are held against (median of 7 casts after 2: 65 k
-    rays a launch, which moves by ~25 % between runs; the granule row's yardstick is
-    :func:`cast_time`)."""
-    import drjit as dr
-    from .. import geotrack
-    from ..trace.scene import scene_bounds
-    from ..trace.variant import ensure_renderer
-    mi = ensure_renderer()
-    ctx = granule._Context(surface, track, None)
-    p = ctx.plan(geotrack.select_beams("gt2l", 0)[0], shots, seed=0, max_depth=1,
-                 paths_per_shot=paths_per_shot, progress=False)
-    n = p.x_local_m.size * paths_per_shot
-    rng = np.random.default_rng(0)
-    sigma = p.instrument.footprint_sigma_m
-    x = mi.Float(np.repeat(p.x_local_m, paths_per_shot) + rng.normal(0.0, sigma, n))
-    y = mi.Float(np.repeat(p.y_local_m, paths_per_shot) + rng.normal(0.0, sigma, n))
-    top = float(scene_bounds(p.scene)[1][2]) + 1.0
-
-    def cast():
-        si = p.scene.ray_intersect(mi.Ray3f(mi.Point3f(x, y, dr.full(mi.Float, top, n)),
-                                            mi.Vector3f(0.0, 0.0, -1.0)))
-        dr.eval(si.t)
-        dr.sync_thread()
-    times = []
-    for k in range(9):
-        t0 = time.perf_counter()
-        cast()
-        if k >= 2:
-            times.append(time.perf_counter() - t0)
-    return n / float(np.median(times))
-
-
 #: the cast yardstick (:func:`cast_time`): the most of the granule's corridor tiles it casts
 #: into, the fewest lanes a launch (ESTIMATE, from one trial: passes of 1.3 M-lane launches
-#: moved by 3-17 % (median 6 %) under a load of 13-17, where the 65 k-lane launches of
-#: :func:`cast_rate` moved by 37-53 % between calls), and its passes after one warm-up (each
+#: moved by 3-17 % (median 6 %) under a load of 13-17, where the 65 k-lane launches of the
+#: yardstick before it moved by 37-53 % between calls), and its passes after one warm-up (each
 #: pass casts the granule's rays once; docs/guide/campaigns.md has the measurements)
 CAST_TILES = 8
 CAST_LANES = 1_000_000
@@ -116,7 +105,7 @@ CAST_PASSES = 5
 
 
 def cast_time(surface, track, *, rays: int, paths_per_shot: int, shots: int,
-              passes: int = CAST_PASSES, seed: int = 0) -> dict:
+              beams: str = "all", passes: int = CAST_PASSES, seed: int = 0) -> dict:
     """The time [s] to cast a granule's own rays alone: the yardstick a granule's pipeline
     is held against (``of_cast``).
 
@@ -127,8 +116,10 @@ def cast_time(surface, track, *, rays: int, paths_per_shot: int, shots: int,
     granule's own corridor tiles (``rays //`` :data:`CAST_LANES`, at least 1 and at most
     :data:`CAST_TILES`; :meth:`granule._Context.plan` of ``tiles`` stretches of
     :data:`~lidar_mitsuba.ground.dem.TILE_SHOTS` shots, evenly spread along the
-    ``shots``-shot track and taken from each beam in turn: the same DEM, the same corridor
-    meshed ``5 sigma + 1 m`` about the footprints, built as the granule builds them),
+    ``shots``-shot track and taken from each of the granule's ``beams`` (as
+    :func:`~lidar_mitsuba.geotrack.select_beams` names them) in turn: the same DEM, the
+    same corridor meshed ``5 sigma + 1 m`` about the footprints, built as the granule
+    builds them),
     ``rays / tiles`` lanes a launch (~1.3 M for a six-beam 100 km granule, where the
     granule's own launches are a tile's 65 k: large launches, so the launch overheads and
     the other agents' load move the yardstick less), the footprints of the tile's shots
@@ -151,7 +142,7 @@ def cast_time(surface, track, *, rays: int, paths_per_shot: int, shots: int,
     from ..trace.variant import ensure_renderer
     mi = ensure_renderer()
     ctx = granule._Context(surface, track, None)
-    beams = geotrack.select_beams("all", 0)
+    beams = geotrack.select_beams(beams, 0)
     tiles = max(1, min(CAST_TILES, int(rays) // CAST_LANES))
     lanes = max(1, int(rays) // tiles)
     tile_shots = min(TILE_SHOTS, int(shots))
@@ -241,11 +232,10 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
         granule_writer.writer()
     ensure_renderer()                  # libLLVM, variant, plugins
     from ..ground import dem
-    from .. import geotrack
     surf = dem.DEMSurface(dem.DEM.open(dem_path))
     shots = int(round(length_km * 1e3 / 0.7))
     before = _peak_rss_mb()
-    track = geotrack.GeoTrack(start_lat_deg=START_LAT, start_lon_deg=-45.0, azimuth_deg=0.0)
+    track = ice_sheet_track()
     first = None
     if beams == "all":                 # a worker's first granule, then the one reported
         first = _granule(surf, track, shots, beams, count_kernels=False)
@@ -259,10 +249,10 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
                                           section_shots=granule.SECTION_SHOTS))
     row = {}
     if first is not None:        # the same rays, cast alone: the pipeline's cost over them
-        rays = sum(o.shots * o.config["paths_per_shot"] * o.config["max_depth"] for o in out)
+        rays = granule_rays(out)
         cast = cast_time(surf, track, rays=rays, shots=shots,
                          paths_per_shot=out[0].config["paths_per_shot"])
-        row = {"beams": len(out), "rays": int(rays), **cast,
+        row = {"beams": len(out), "rays": rays, **cast,
                "of_cast": seconds / cast["cast_s"],
                "first_s": first["seconds"], "end_to_end_s": first["end_to_end_s"],
                "end_to_end_over_warm": first["end_to_end_s"] / seconds,

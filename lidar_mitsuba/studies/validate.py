@@ -35,7 +35,7 @@ from ..products import atl06
 from ..products.atl03.rates import atl03_rates
 from .. import granule, twin
 from ..ground import snow
-from . import validate_media
+from . import json_safe, validate_media
 from ..geotrack import Site
 from ..instrument import Instrument
 from ..run import simulate
@@ -327,24 +327,10 @@ def run(out_dir, *, quick: bool = False, smoke: bool = False) -> dict:
     doc["verdicts"] = verdicts(doc)
     doc["seconds"] = time.perf_counter() - t0
     plot(doc, out)
-    safe = _json_safe(doc)
+    safe = json_safe(doc, skip=lambda key: key == "residuals_m")
     (out / "report.json").write_text(json.dumps(safe, indent=1))
     (out / "report.md").write_text(report_md(doc))
     return doc
-
-
-def _json_safe(obj):
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items() if k != "residuals_m"}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return _json_safe(obj.tolist())
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
 
 
 PNG = ("twin.png", "interior.png", "lake.png", "cloud.png", "sea_ice.png")

@@ -37,7 +37,7 @@ import math
 import numpy as np
 
 from ..constants import ParameterError, check
-from .stand import Stand, sample_leaf_inclination
+from .stand import Stand, periodic_copies, sample_leaf_inclination
 
 #: facets per cluster (a shoot, a leaf cluster) when the stand's clumping index is below 1
 #: (ESTIMATE: a conifer shoot holds tens of needles; 16 facets of 10 cm make a ~30-40 cm shoot)
@@ -261,16 +261,14 @@ def trees_near(stand: Stand, bounds_xy_m: tuple[float, float, float, float] | No
     x0, x1, y0, y1 = bounds_xy_m
     (sx0, sy0), (sx1, sy1) = stand.bounds_m
     w, hgt = sx1 - sx0, sy1 - sy0
-    shifts = [(0.0, 0.0)]
-    if stand.periodic:
-        kx = range(int(math.floor((x0 - sx1) / w)), int(math.ceil((x1 - sx0) / w)) + 1)
-        ky = range(int(math.floor((y0 - sy1) / hgt)), int(math.ceil((y1 - sy0) / hgt)) + 1)
-        shifts = [(i * w, j * hgt) for i in kx for j in ky]
+    reach = float(stand.crown_radius_m.max(initial=0.0))
+    shifts = [(i * w, j * hgt) for i, j in periodic_copies(stand.bounds_m, bounds_xy_m,
+                                                           reach_m=reach,
+                                                           periodic=stand.periodic)]
     # candidates from the stems sorted along the bounds' narrower side (a corridor tile is
     # a strip: a few per cent of a stand), then the exact test in stand order
     axis = "x" if x1 - x0 <= y1 - y0 else "y"
     order, sorted_v = _sorted_stems(stand, axis)
-    reach = float(stand.crown_radius_m.max(initial=0.0))
     lo, hi = (x0, x1) if axis == "x" else (y0, y1)
     idx, xs, ys = [], [], []
     for dx, dy in shifts:

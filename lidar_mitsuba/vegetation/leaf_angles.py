@@ -30,23 +30,32 @@ import numpy as np
 
 from ..constants import ParameterError
 
+#: the leaf angle distributions (the ``Stand.leaf_angle`` names), in the ``canopy`` plugin's
+#: code order
 LEAF_ANGLES = ("spherical", "planophile", "erectophile", "uniform")
+
+
+def check_leaf_angle(leaf_angle: str) -> str:
+    """``leaf_angle`` if it is one of :data:`LEAF_ANGLES`, else ``ParameterError``."""
+    if leaf_angle not in LEAF_ANGLES:
+        raise ParameterError("leaf_angle", f"must be one of {', '.join(LEAF_ANGLES)} "
+                                           f"(got {leaf_angle!r})")
+    return leaf_angle
 
 
 def leaf_angle_pdf(leaf_angle: str, theta_l_rad) -> np.ndarray:
     """de Wit's density of the leaf inclination ``theta_l_rad`` [rad] in [0, pi/2] (module
-    docstring); each integrates to 1 over [0, pi/2]."""
+    docstring); each integrates to 1 over [0, pi/2]. The one both Ross G's integrate
+    (:func:`ross_g`, :func:`.ross.g_function`)."""
     t = np.asarray(theta_l_rad, float)
+    check_leaf_angle(leaf_angle)
     if leaf_angle == "spherical":
         return np.sin(t)
     if leaf_angle == "planophile":
         return 2.0 / np.pi * (1.0 + np.cos(2.0 * t))
     if leaf_angle == "erectophile":
         return 2.0 / np.pi * (1.0 - np.cos(2.0 * t))
-    if leaf_angle == "uniform":
-        return np.full(t.shape, 2.0 / np.pi)
-    raise ParameterError("leaf_angle", f"must be one of {', '.join(LEAF_ANGLES)} "
-                         f"(got {leaf_angle!r})")
+    return np.full(t.shape, 2.0 / np.pi)
 
 
 def _quadrature(n: int = 2000) -> tuple[np.ndarray, np.ndarray]:

@@ -61,10 +61,7 @@ import math
 
 import numpy as np
 
-from ..constants import ParameterError
-
-#: the leaf angle distributions (the ``Stand.leaf_angle`` names), in the plugin's code order
-LEAF_ANGLES = ("spherical", "planophile", "erectophile", "uniform")
+from .leaf_angles import LEAF_ANGLES, check_leaf_angle, leaf_angle_pdf  # noqa: F401
 
 #: G at nadir, <cos theta_L> of each distribution (closed forms, integrated by hand:
 #: int_0^{pi/2} (1 +- cos 2t) cos t dt = 1 +- 1/3)
@@ -76,27 +73,6 @@ G_HORIZON = {"spherical": 0.5, "planophile": 8.0 / (3.0 * math.pi ** 2),
 #: <cos^2 theta_L> of each distribution (int_0^{pi/2} (1 +- cos 2t) cos^2 t dt = pi/4 +- pi/8)
 COS2_MEAN = {"spherical": 1.0 / 3.0, "planophile": 0.75, "erectophile": 0.25,
              "uniform": 0.5}
-
-
-def check_leaf_angle(leaf_angle: str) -> str:
-    """``leaf_angle`` if it is one of :data:`LEAF_ANGLES`, else ``ParameterError``."""
-    if leaf_angle not in LEAF_ANGLES:
-        raise ParameterError("leaf_angle", f"must be one of {', '.join(LEAF_ANGLES)} "
-                                           f"(got {leaf_angle!r})")
-    return leaf_angle
-
-
-def inclination_pdf(theta_l: np.ndarray, leaf_angle: str) -> np.ndarray:
-    """pdf of the leaf normal's inclination ``theta_l`` [rad] on [0, pi/2] (module table)."""
-    t = np.asarray(theta_l, float)
-    check_leaf_angle(leaf_angle)
-    if leaf_angle == "spherical":
-        return np.sin(t)
-    if leaf_angle == "planophile":
-        return 2.0 / math.pi * (1.0 + np.cos(2.0 * t))
-    if leaf_angle == "erectophile":
-        return 2.0 / math.pi * (1.0 - np.cos(2.0 * t))
-    return np.full_like(t, 2.0 / math.pi)
 
 
 def psi(mu: np.ndarray, theta_l: np.ndarray) -> np.ndarray:
@@ -116,7 +92,8 @@ def psi(mu: np.ndarray, theta_l: np.ndarray) -> np.ndarray:
 
 def g_function(mu: np.ndarray, leaf_angle: str, *, nodes: int = 48) -> np.ndarray:
     """Ross's G for directions of cosine ``mu`` to the vertical (any shape), by Gauss-Legendre
-    quadrature of :func:`psi` against :func:`inclination_pdf`, split at the kernel's kink
+    quadrature of :func:`psi` against the leaf inclination's pdf
+    (:func:`.leaf_angles.leaf_angle_pdf`), split at the kernel's kink
     ``theta_L = pi/2 - theta`` (each side smooth: 48 nodes give ~1e-12)."""
     check_leaf_angle(leaf_angle)
     mu = np.asarray(mu, float)
@@ -126,7 +103,7 @@ def g_function(mu: np.ndarray, leaf_angle: str, *, nodes: int = 48) -> np.ndarra
     for lo, hi in ((np.zeros_like(kink), kink), (kink, np.full_like(kink, math.pi / 2))):
         half = (hi - lo)[..., None] / 2.0
         t = lo[..., None] + half * (x + 1.0)
-        out += np.sum(w * half * inclination_pdf(t, leaf_angle) * psi(mu[..., None], t), -1)
+        out += np.sum(w * half * leaf_angle_pdf(leaf_angle, t) * psi(mu[..., None], t), -1)
     return out
 
 

@@ -344,6 +344,27 @@ class Stand:
                 "periodic": bool(self.periodic), "seed": self.seed}
 
 
+def periodic_copies(bounds_m, box_m, *, reach_m: float, periodic: bool = True
+                    ) -> list[tuple[int, int]]:
+    """The copies of a periodic square ``bounds_m`` (``((x0, y0), (x1, y1))`` [m]) whose crowns
+    can reach into ``box_m`` (``(x0, x1, y0, y1)`` [m]): the periods ``(i, j)`` of the copies,
+    shifted by ``(i (x1 - x0), j (y1 - y0))``, that overlap the box once widened by
+    ``reach_m`` [m] (the largest crown radius) and a millimetre (no rounding loses a copy
+    that touches it), ``i`` then ``j`` ascending (the order the callers list crowns in).
+    ``[(0, 0)]``, the square itself, when not ``periodic``. The callers test each copy's
+    crowns against the box themselves: a listed copy may hold none."""
+    if not periodic:
+        return [(0, 0)]
+    (sx0, sy0), (sx1, sy1) = bounds_m
+    bx0, bx1, by0, by1 = box_m
+    slack = float(reach_m) + 1e-3
+
+    def periods(lo, hi, s0, s1):
+        w = s1 - s0
+        return range(math.ceil((lo - slack - s1) / w), math.floor((hi + slack - s0) / w) + 1)
+    return [(i, j) for i in periods(bx0, bx1, sx0, sx1) for j in periods(by0, by1, sy0, sy1)]
+
+
 # --------------------------------------------------------------------------- the generator
 def _bounds_of(surface) -> tuple[tuple[float, float], tuple[float, float]]:
     """The extent a stand covers by default over ``surface`` [m] (its tile or grid)."""

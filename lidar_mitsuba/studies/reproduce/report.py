@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import os
 import pathlib
 import platform
@@ -22,6 +21,7 @@ from .complex_surfaces import (_beam_summary, fig10_12_complex, plot_fig10, plot
                                rows_fig10, rows_fig11, rows_fig12)
 from .albedo import fig13_albedo, plot_fig13, rows_fig13
 from ...trace.lazy import mi
+from .. import json_safe
 
 ROWS = {"fig3": rows_fig3, "fig4": rows_fig4, "fig5": rows_fig5, "fig6": rows_fig6,
         "fig7": rows_fig7, "fig8": rows_fig8, "fig9": rows_fig9, "fig10": rows_fig10,
@@ -53,23 +53,6 @@ def headline(results: dict) -> dict:
                      "std_p2_m": float(s[-1]), "std_p2_se_m": float(np.nan_to_num(sse[-1])),
                      "std_p_first_m": float(s[0])}
     return out
-
-
-def _json_safe(obj):
-    if isinstance(obj, dict):
-        return {str(k): _json_safe(v) for k, v in obj.items() if not str(k).startswith("_")}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _json_safe(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (np.bool_,)):
-        return bool(obj)
-    return obj
 
 
 def _write_text(path: pathlib.Path, text: str) -> None:
@@ -195,7 +178,7 @@ def run(out_dir, *, quick: bool = False, profile=None, profile_name: str | None 
     doc = _document(results, counts=counts, quick=quick, fig_time=fig_time, timings=timings)
     timings["report"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
-    doc = _json_safe(doc)
+    doc = json_safe(doc, skip=lambda key: key.startswith("_"))
     _write_text(out / "report.json", json.dumps(doc, indent=1) + "\n")
     _write_text(out / "report.md", format_markdown(doc))
     timings["total"] = time.perf_counter() - t_all
@@ -273,7 +256,8 @@ def _compute_and_draw(computes: dict, out: pathlib.Path, *, timings: dict,
 
 
 def _document(results: dict, *, counts, quick: bool, fig_time: dict, timings: dict) -> dict:
-    """The report document (``report.json``'s content before :func:`_json_safe`): mode,
+    """The report document (``report.json``'s content before
+    :func:`~lidar_mitsuba.studies.json_safe`): mode,
     counts, seeds, headline, every figure's rows and command line, the data, the
     environment and ``timings`` (the dict itself, still filled by the caller)."""
     cloud = results["fig10_12"].get("_cloud")
