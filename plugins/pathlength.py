@@ -158,11 +158,11 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
 
     def _first_hit(self, scene: mi.Scene, sx: mi.Float, sy: mi.Float, paths_per_shot: int,
                    seed: mi.UInt32, z_start: mi.Float, mesh: mi.Mesh | None = None):
-        """Emit the photons (:meth:`_emit`) and find their first surface. Returns ``(x0, y0,
-        sampler, ray, t_emit_ns, si, leg_m, wo, in_fov)``: :meth:`_emit`'s, the interaction,
-        the float64 leg between the spacecraft and it [m], the direction to the receiver,
-        and whether it is a hit inside the field of view. ``mesh``: the scene's lone mesh,
-        its interaction computed in line (:func:`_mesh_interaction`, ``si.shape`` not set)."""
+        """Emit the photons (:meth:`_emit`) and find their first surface (``mesh``: the
+        scene's lone mesh, its interaction in line: :func:`_mesh_interaction`). Returns
+        ``(x0, y0, sampler, ray, t_emit_ns, si, leg_m, wo, in_fov)``: :meth:`_emit`'s, the
+        interaction, the float64 leg between the spacecraft and it [m], the direction to
+        the receiver, and whether it is a hit inside the field of view."""
         x0, y0, sampler, ray, t_emit_ns = self._emit(sx, sy, paths_per_shot, seed, z_start)
         sx64, sy64 = mi.Float64(x0), mi.Float64(y0)
         si = scene.ray_intersect(ray) if mesh is None else _mesh_interaction(scene, mesh, ray)
@@ -177,8 +177,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
         """``max_depth == 1``: one return per photon, straight-line code (no loop, no
         scatter). Returns Dr.Jit arrays of length ``n`` (one slot per photon): time [ns]
         (float64), weight (0 where nothing returns), hit x, y, z [m]. A scene of one mesh
-        (a DEM's corridor tile) is traced without the calls through the shape and BSDF
-        registries (:func:`_lone_mesh`): the same arithmetic, ~5 % less kernel."""
+        (a corridor tile) skips the shape and BSDF registries' calls (:func:`_lone_mesh`)."""
         mesh = _lone_mesh(scene)
         *_, t_emit_ns, si, leg_m, wo, seen = self._first_hit(scene, sx, sy, paths_per_shot,
                                                              seed, z_start, mesh=mesh)
@@ -263,11 +262,12 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
             out = core(scene, mi.Float(shot_x_m[start:stop]), mi.Float(shot_y_m[start:stop]),
                        int(paths_per_shot), dr.opaque(mi.UInt32, _mix_seed(seed, k)),
                        dr.opaque(mi.Float, z_start))
+            traced = out       # held until fetched (freed in flight: host tasks behind it)
             if offset_m is not None and any(np.any(d[start:stop]) for d in offset_m):
                 out = _moved(out, tuple(d[start:stop] for d in offset_m),
                              slots_per_shot=int(paths_per_shot) * slots)
             dr.eval(*out)                  # asynchronous on CUDA
-            return out
+            return out, traced
 
         steps = [(k, a, min(n_shots, a + per_chunk))
                  for k, a in enumerate(range(0, n_shots, per_chunk))]
@@ -345,12 +345,13 @@ class PendingReturns:
             return Returns.empty(n_shots=0, paths_per_shot=self.paths_per_shot)
         parts = []
         for i, (k, start, stop) in enumerate(self._steps):
-            out = self._first if i == 0 else self._launch(k, start, stop)
+            out, traced = self._first if i == 0 else self._launch(k, start, stop)
             self._first = None
             t0 = time.perf_counter()
             dr.sync_thread()
             t1 = time.perf_counter()
             parts.append((self._fetch(out, stop - start), start))
+            del out, traced
             self.timings_s["wait_s"] += t1 - t0
             self.timings_s["fetch_s"] += time.perf_counter() - t1
             if progress is not None:
