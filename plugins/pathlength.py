@@ -464,8 +464,8 @@ def _mesh_interaction(scene: mi.Scene, mesh: mi.Mesh, ray: mi.Ray3f) -> mi.Surfa
     ``PreliminaryIntersection::compute_surface_interaction`` and the fields of
     ``SurfaceInteraction::finalize_surface_interaction`` the integrators read (``t``, the
     shading frame, ``wi``), in its order, so the same bits (include/mitsuba/render/
-    interaction.h, v3.9.1). Not set: ``shape``, ``instance``, ``time``, ``wavelengths``
-    (``si.bsdf()`` is not available: evaluate the mesh's BSDF)."""
+    interaction.h, v3.9.1). Not as ``ray_intersect`` gives them: ``time`` and ``wavelengths``
+    (not set), ``shape`` (the mesh on misses too, where ``ray_intersect`` has none)."""
     pi = scene.ray_intersect_preliminary(ray)
     active = pi.is_valid()
     si = mesh.compute_surface_interaction(ray, pi, mi.RayFlags.All, active)
