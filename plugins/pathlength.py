@@ -106,10 +106,12 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
 
     # ---------------------------------------------------------------- core
     def _return_weight(self, si: mi.SurfaceInteraction3f, wo_world: mi.Vector3f,
-                       active: mi.Bool) -> mi.Float:
-        """pi * f_r(i, o) * cos(theta_o) / 0.9 at ``si`` toward ``wo_world`` (no throughput)."""
+                       active: mi.Bool, bsdf: mi.BSDF | None = None) -> mi.Float:
+        """pi * f_r(i, o) * cos(theta_o) / 0.9 at ``si`` toward ``wo_world`` (no throughput),
+        of ``bsdf`` (a lone mesh's, :func:`_lone_mesh`: in line) or else ``si.bsdf()``."""
         ctx = mi.BSDFContext()
-        bsdf = si.bsdf()
+        if bsdf is None:
+            bsdf = si.bsdf()
         value = bsdf.eval(ctx, si, si.to_local(wo_world), active)
         return dr.select(active, dr.pi / REFERENCE_ALBEDO * value[0], 0.0)
 
@@ -155,14 +157,15 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
         return x0, y0, sampler, ray, t_emit_ns
 
     def _first_hit(self, scene: mi.Scene, sx: mi.Float, sy: mi.Float, paths_per_shot: int,
-                   seed: mi.UInt32, z_start: mi.Float):
-        """Emit the photons (:meth:`_emit`) and find their first surface. Returns ``(x0, y0,
-        sampler, ray, t_emit_ns, si, leg_m, wo, in_fov)``: :meth:`_emit`'s, the interaction,
-        the float64 leg between the spacecraft and it [m], the direction to the receiver,
-        and whether it is a hit inside the field of view."""
+                   seed: mi.UInt32, z_start: mi.Float, mesh: mi.Mesh | None = None):
+        """Emit the photons (:meth:`_emit`) and find their first surface (``mesh``: the
+        scene's lone mesh, its interaction in line: :func:`_mesh_interaction`). Returns
+        ``(x0, y0, sampler, ray, t_emit_ns, si, leg_m, wo, in_fov)``: :meth:`_emit`'s, the
+        interaction, the float64 leg between the spacecraft and it [m], the direction to
+        the receiver, and whether it is a hit inside the field of view."""
         x0, y0, sampler, ray, t_emit_ns = self._emit(sx, sy, paths_per_shot, seed, z_start)
         sx64, sy64 = mi.Float64(x0), mi.Float64(y0)
-        si = scene.ray_intersect(ray)
+        si = scene.ray_intersect(ray) if mesh is None else _mesh_interaction(scene, mesh, ray)
         leg_m = self._leg_m(si.p, sx64, sy64)     # the same leg down and up, float64
         wo = self._to_receiver(si.p, sx64, sy64, leg_m)
         in_fov = si.is_valid() & (dr.square(si.p.x - x0) + dr.square(si.p.y - y0)
@@ -173,10 +176,12 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
                        seed: mi.UInt32, z_start: mi.Float):
         """``max_depth == 1``: one return per photon, straight-line code (no loop, no
         scatter). Returns Dr.Jit arrays of length ``n`` (one slot per photon): time [ns]
-        (float64), weight (0 where nothing returns), hit x, y, z [m]."""
+        (float64), weight (0 where nothing returns), hit x, y, z [m]. A scene of one mesh
+        (a corridor tile) skips the shape and BSDF registries' calls (:func:`_lone_mesh`)."""
+        mesh = _lone_mesh(scene)
         *_, t_emit_ns, si, leg_m, wo, seen = self._first_hit(scene, sx, sy, paths_per_shot,
-                                                             seed, z_start)
-        w = self._return_weight(si, wo, seen)
+                                                             seed, z_start, mesh=mesh)
+        w = self._return_weight(si, wo, seen, None if mesh is None else mesh.bsdf())
         t_ns = mi.Float64(t_emit_ns) + (leg_m + leg_m) / C_M_PER_NS
         return t_ns, w, si.p.x, si.p.y, si.p.z
 
@@ -257,11 +262,12 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
             out = core(scene, mi.Float(shot_x_m[start:stop]), mi.Float(shot_y_m[start:stop]),
                        int(paths_per_shot), dr.opaque(mi.UInt32, _mix_seed(seed, k)),
                        dr.opaque(mi.Float, z_start))
-            dr.eval(*out)                  # asynchronous on CUDA
-            shift = None
+            traced = out       # held until fetched (freed in flight: host tasks behind it)
             if offset_m is not None and any(np.any(d[start:stop]) for d in offset_m):
-                shift = tuple(d[start:stop] for d in offset_m)
-            return out, shift
+                out = _moved(out, tuple(d[start:stop] for d in offset_m),
+                             slots_per_shot=int(paths_per_shot) * slots)
+            dr.eval(*out)                  # asynchronous on CUDA
+            return out, traced
 
         steps = [(k, a, min(n_shots, a + per_chunk))
                  for k, a in enumerate(range(0, n_shots, per_chunk))]
@@ -339,12 +345,13 @@ class PendingReturns:
             return Returns.empty(n_shots=0, paths_per_shot=self.paths_per_shot)
         parts = []
         for i, (k, start, stop) in enumerate(self._steps):
-            out, shift = self._first if i == 0 else self._launch(k, start, stop)
+            out, traced = self._first if i == 0 else self._launch(k, start, stop)
             self._first = None
             t0 = time.perf_counter()
             dr.sync_thread()
             t1 = time.perf_counter()
-            parts.append((self._fetch(out, shift, stop - start), start))
+            parts.append((self._fetch(out, stop - start), start))
+            del out, traced
             self.timings_s["wait_s"] += t1 - t0
             self.timings_s["fetch_s"] += time.perf_counter() - t1
             if progress is not None:
@@ -358,9 +365,10 @@ class PendingReturns:
         out.shot = out.shot.astype(np.uint32)
         return out
 
-    def _fetch(self, out, shift, n_shots: int) -> Returns:
+    def _fetch(self, out, n_shots: int) -> Returns:
         """Compact the slots of non-zero weight on the device, derive their shot (and depth)
-        there, put folded shots back in place, and copy only those to the host."""
+        there, and copy only those to the host (folded shots were put back in place in the
+        trace's own kernel: :func:`_moved`)."""
         t, w, x, y, z = out[:5]
         depth_of_slot = out[5] if len(out) > 5 else None      # cores that record it per slot
         idx = dr.compress(w > 0.0)                        # synchronises; keeps slot order
@@ -370,13 +378,6 @@ class PendingReturns:
         if dr.width(idx) < dr.width(w):   # (single bounce on terrain often keeps every slot)
             t, w = dr.gather(mi.Float64, t, idx), dr.gather(mi.Float, w, idx)
             x, y, z = (dr.gather(mi.Float, a, idx) for a in (x, y, z))
-        if shift is not None:                             # as Returns.moved, on the device
-            # the per-shot time shift is computed on the host (n_shots values), exactly as
-            # Returns.moved does, so both give the same bits
-            dx, dy, dz, dt = (dr.gather(mi.Float64, mi.Float64(d), shot)
-                              for d in (*shift, 2.0 * shift[2] / C_M_PER_NS))
-            t = t - dt
-            x, y, z = (mi.Float(mi.Float64(a) + d) for a, d in ((x, dx), (y, dy), (z, dz)))
         arrays = [shot, t, w, x, y, z]
         if depth_of_slot is not None:
             arrays.append(dr.minimum(dr.gather(mi.UInt32, depth_of_slot, idx), 255))
@@ -389,6 +390,31 @@ class PendingReturns:
         return Returns(shot=host[0], time_ns=host[1], weight=host[2], x_m=host[3],
                        y_m=host[4], z_m=host[5], depth=depth, n_shots=n_shots,
                        paths_per_shot=self.paths_per_shot)
+
+
+def _moved(out: tuple, shift: tuple[np.ndarray, np.ndarray, np.ndarray], *,
+           slots_per_shot: int) -> tuple:
+    """A core's ``(t, w, x, y, z, ...)`` slots put back in place as :meth:`Returns.moved`
+    does, on the device and in the trace's own kernel (every slot; the fetch keeps those of
+    non-zero weight): points move by the shot's ``shift`` (dx, dy, dz) [m] in float64, times
+    by -2 dz / c, computed on the host per shot exactly as ``Returns.moved`` computes it, so
+    both give the same bits. An offset that is the same for every shot (a DEM's corridor
+    tile moves by its origin) enters as one value instead of a gather per slot."""
+    t, w, x, y, z = out[:5]
+    shot = None
+
+    def per_slot(d: np.ndarray):
+        nonlocal shot
+        if d.size and np.all(d == d[0]):
+            return dr.opaque(mi.Float64, float(d[0]))
+        if shot is None:
+            shot = _quotient(dr.arange(mi.UInt32, dr.width(w)), slots_per_shot)
+        return dr.gather(mi.Float64, mi.Float64(d), shot)
+
+    dx, dy, dz, dt = (per_slot(d) for d in (*shift, 2.0 * shift[2] / C_M_PER_NS))
+    t = t - dt
+    x, y, z = (mi.Float(mi.Float64(a) + d) for a, d in ((x, dx), (y, dy), (z, dz)))
+    return (t, w, x, y, z, *out[5:])
 
 
 def _checked_shots(shot_x_m, shot_y_m, paths_per_shot: int, offset_m):
@@ -419,6 +445,34 @@ def _fov_exit(ray: mi.Ray3f, cx: mi.Float, cy: mi.Float, radius_m: float) -> mi.
     t_out = (dr.sqrt(dr.maximum(disc, 0.0)) - b) / dr.maximum(a, 1e-30)
     t_out = dr.select(disc >= 0.0, dr.maximum(t_out, 0.0), 0.0)
     return dr.select(a > 1e-12, t_out, dr.select(c <= 0.0, dr.inf, 0.0))
+
+
+def _lone_mesh(scene: mi.Scene) -> mi.Mesh | None:
+    """The scene's one shape when it is a mesh with a BSDF (a DEM's corridor tile, a
+    heightfield tile), else ``None``. Every ray that hits the scene hits it, so its
+    interaction and BSDF can be traced in line instead of through the registries' calls
+    (a gather of the instance and of its members per lane, and a call per packet)."""
+    shapes = scene.shapes()
+    if len(shapes) != 1 or not shapes[0].is_mesh() or shapes[0].bsdf() is None:
+        return None
+    return shapes[0]
+
+
+def _mesh_interaction(scene: mi.Scene, mesh: mi.Mesh, ray: mi.Ray3f) -> mi.SurfaceInteraction3f:
+    """``scene.ray_intersect(ray)`` for a scene whose only shape is ``mesh``, with the mesh's
+    ``compute_surface_interaction`` called in line: Mitsuba 3.9's
+    ``PreliminaryIntersection::compute_surface_interaction`` and the fields of
+    ``SurfaceInteraction::finalize_surface_interaction`` the integrators read (``t``, the
+    shading frame, ``wi``), in its order, so the same bits (include/mitsuba/render/
+    interaction.h, v3.9.1). Not as ``ray_intersect`` gives them: ``time`` and ``wavelengths``
+    (not set), ``shape`` (the mesh on misses too, where ``ray_intersect`` has none)."""
+    pi = scene.ray_intersect_preliminary(ray)
+    active = pi.is_valid()
+    si = mesh.compute_surface_interaction(ray, pi, mi.RayFlags.All, active)
+    si.t = dr.select(active, si.t, dr.inf)
+    si.initialize_sh_frame()
+    si.wi = dr.select(active, si.to_local(-ray.d), -ray.d)
+    return si
 
 
 def _quotient(index: mi.UInt32, divisor: int) -> mi.UInt32:

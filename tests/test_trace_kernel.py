@@ -1,0 +1,88 @@
+"""The first-surface trace's shortcuts give the bits of the long way (issue 43): a scene of
+one mesh traced without the shape and BSDF registries' calls, folded shots put back in the
+trace's own kernel, a small mesh's bounds read on the host. Exact comparisons: each shortcut
+does the same float operations in the same order, so any difference is a bug, not noise."""
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from lidar_mitsuba.trace import scene as scn
+from lidar_mitsuba.ground.brdf import ward_bsdf_dict
+
+pathlength = pytest.importorskip(f"lidar_mitsuba_plugins._{mi.variant()}_pathlength")
+scene_utils = pytest.importorskip("lidar_mitsuba_plugins.scene_utils")
+
+import drjit as dr  # noqa: E402
+
+
+def _rough_tile(rng, n: int = 33, cell_m: float = 1.0):
+    """A rough heightfield mesh, n x n nodes ``cell_m`` apart, heights ~0.5 m about 1800 m,
+    far from the origin as a corridor tile's first shot is not (float32 at km scale)."""
+    from lidar_mitsuba.ground.surface import grid_faces
+    x, y = np.meshgrid(np.arange(n) * cell_m, np.arange(n) * cell_m)
+    z = 1800.0 + 0.5 * rng.standard_normal(x.shape)
+    vertices = np.column_stack([x.ravel() + 700.0, y.ravel() - 300.0, z.ravel()])
+    return vertices, grid_faces(n, n)
+
+
+def _shots(rng, k: int = 48):
+    return (700.0 + 8.0 + 16.0 * rng.random(k)).astype(np.float32), \
+        (-300.0 + 8.0 + 16.0 * rng.random(k)).astype(np.float32)
+
+
+def test_a_lone_mesh_traced_in_line_has_the_registry_calls_bits(rng):
+    vertices, faces = _rough_tile(rng)
+    scene = scn.scene_from_mesh(vertices, faces, bsdf=ward_bsdf_dict())
+    mesh = pathlength._lone_mesh(scene)
+    assert mesh is not None
+    integ = mi.load_dict({"type": "pathlength"})
+    sx, sy = _shots(rng)
+    args = (scene, mi.Float(sx), mi.Float(sy), 16, dr.opaque(mi.UInt32, 11),
+            dr.opaque(mi.Float, 1830.0))
+    inline = integ._first_surface(*args)
+    # the long way: scene.ray_intersect and si.bsdf() (calls through the registries)
+    *_, t_emit, si, leg, wo, seen = integ._first_hit(*args)
+    w = integ._return_weight(si, wo, seen)
+    t = mi.Float64(t_emit) + (leg + leg) / pathlength.C_M_PER_NS
+    registry = (t, w, si.p.x, si.p.y, si.p.z)
+    dr.eval(*inline, *registry)
+    a, b = [v.numpy() for v in inline], [v.numpy() for v in registry]
+    hit = b[1] > 0
+    assert hit.mean() > 0.99                         # the footprints are on the tile
+    assert np.array_equal(a[1], b[1])
+    for u, v in zip(a, b):
+        assert u[hit].tobytes() == v[hit].tobytes()
+    two = mi.load_dict({"type": "scene", "a": scn.mitsuba_mesh(vertices, faces),
+                        "b": {"type": "rectangle"}})
+    assert pathlength._lone_mesh(two) is None        # two shapes: the registry's calls
+
+
+def test_folded_shots_put_back_in_the_kernel_are_returns_moved(rng):
+    vertices, faces = _rough_tile(rng)
+    scene = scn.scene_from_mesh(vertices, faces, bsdf=ward_bsdf_dict())
+    integ = mi.load_dict({"type": "pathlength"})
+    sx, sy = _shots(rng)
+    k = sx.size
+    plain = integ.trace(scene, shot_x_m=sx, shot_y_m=sy, paths_per_shot=8, seed=5)
+    # a corridor tile's offsets (one value for every shot) and per-shot ones
+    for d in ((np.full(k, -3456.25), np.full(k, 1.2e5), np.zeros(k)),
+              (rng.normal(0, 1e3, k), np.full(k, 7.0), rng.normal(0, 2.0, k))):
+        moved = integ.trace(scene, shot_x_m=sx, shot_y_m=sy, paths_per_shot=8, seed=5,
+                            offset_m=d)
+        ref = plain.moved(dx_m=d[0], dy_m=d[1], dz_m=d[2])
+        for name in ref.ARRAYS:
+            assert getattr(moved, name).tobytes() == getattr(ref, name).tobytes(), name
+
+
+def test_small_mesh_bounds_on_the_host_are_the_device_s(rng, monkeypatch):
+    vertices, faces = _rough_tile(rng, n=9)
+    mesh = scn.mitsuba_mesh(vertices, faces)
+    host = scene_utils._vertex_bounds(mesh)
+    monkeypatch.setattr(scene_utils, "HOST_BOUNDS_MAX_VERTICES", 0)
+    device = scene_utils._vertex_bounds(mesh)
+    for h, d in zip(host, device):
+        assert h.dtype == d.dtype == np.float64 and h.tobytes() == d.tobytes()
+    assert np.array_equal(host[0], vertices.astype(np.float32).min(axis=0))
+    vertices[3, 2] = np.nan
+    monkeypatch.setattr(scene_utils, "HOST_BOUNDS_MAX_VERTICES", 2 ** 20)
+    assert np.isnan(scene_utils._vertex_bounds(scn.mitsuba_mesh(vertices, faces))[1]).all()
