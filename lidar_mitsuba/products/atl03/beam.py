@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import file as atl03_file
-from .. import h5write as h5chunks
+from .. import h5template, h5write as h5chunks
 from ...detector import pmt
 from ... import radiometry
 from .fields import COORDINATES, F4_FILL, GROUPS, SURFACE_TYPES
@@ -38,13 +38,6 @@ PULSES_PER_MAJOR_FRAME = 200
 BCKGRD_SHOTS = 50           #: shots per ATL03 bckgrd_atlas row (200 Hz at 10 kHz)
 _C_M_PER_S = C_M_PER_NS * 1e9
 _pending: dict = {}         # (file key, beam) -> the bckgrd_atlas row the next section continues
-
-
-def _put(group, name, data, units, description, fillvalue=None):
-    """A resizable, compressed dataset, or ``data`` appended to it along axis 0 (see
-    :mod:`lidar_mitsuba.products.h5write`)."""
-    return h5chunks.put(group, name, data, units, description, append=True,
-                        fillvalue=fillvalue)
 
 
 # --------------------------------------------------------------------------- the run's rows
@@ -362,14 +355,15 @@ def discard(f) -> None:
 def _write_group(gt, name: str, values: dict) -> None:
     """Append ``values`` to group ``gt/name`` as its fields (:data:`GROUPS`) say: dtype,
     constants for the fields not given, attributes and the ``delta_time`` dimension scale
-    when the group is new."""
+    when the group is new (its datasets copied from a template:
+    :mod:`lidar_mitsuba.products.h5template`)."""
     spec = GROUPS[name]
-    new = name not in gt
-    g = gt.require_group(name)
     extra = set(values) - set(spec)
     if extra:
         raise KeyError(f"{name}: not ATL03 fields: {sorted(extra)}")
     n = len(values["delta_time"])
+    coordinates = COORDINATES.get(name, "delta_time")
+    columns = []
     for field_name, fld in spec.items():
         v = values.get(field_name, fld.const)
         note = fld.model_note
@@ -380,15 +374,16 @@ def _write_group(gt, name: str, values: dict) -> None:
         data = np.asarray(v)
         if data.ndim == 0 or data.shape[0] != n:
             data = np.broadcast_to(data, (n,) + fld.shape)
-        ds = _put(g, field_name, data.astype(fld.dtype), fld.units, fld.description,
-                  fillvalue=fld.fill)
-        if new:
-            _field_attrs(ds, fld, note, COORDINATES.get(name, "delta_time"), field_name)
+        columns.append((field_name, data.astype(fld.dtype), fld.units, fld.description,
+                        functools.partial(_field_attrs, fld, note, coordinates, field_name),
+                        fld.fill))
+    g, new = h5template.put_group(gt, name, columns)
     if new:
         atl03_file.dimension_scale(g)
 
 
-def _field_attrs(ds, fld, note: str, coordinates: str, name: str) -> None:
+def _field_attrs(fld, note: str, coordinates: str, name: str) -> dict:
+    """A field's attributes after ``units`` and ``description``."""
     attrs = {"long_name": fld.long_name}
     if fld.fill is not None:
         attrs["_FillValue"] = np.asarray(fld.fill, fld.dtype)
@@ -399,7 +394,7 @@ def _field_attrs(ds, fld, note: str, coordinates: str, name: str) -> None:
         attrs["coordinates"] = coords
     if note:
         attrs["model_note"] = note
-    h5chunks.set_attrs(ds, attrs, new=True)     # (after put's units and description)
+    return attrs
 
 
 def beam_attrs(beam, sc_orient: int) -> dict:
@@ -437,9 +432,12 @@ def write_beam(f, run, sc_orient: int, *, replanned: bool = False) -> None:
     for surface in SURFACE_TYPES:
         _write_group(gt, f"signal_find_output/{surface}", found)
     truth = f.require_group("truth").require_group(beam.name)
+    groups: dict = {}
     for group, name, data, units, desc in truth_fields(s.res, order=s.order,
                                                        first_shot=run.first_shot):
-        _put(truth.require_group(group), name, data, units, desc)
+        groups.setdefault(group, []).append((name, data, units, desc, {}, None))
+    for group, columns in groups.items():
+        h5template.put_group(truth, group, columns)
     if "config" not in truth.attrs:                       # (the first section's)
         truth.attrs["config"] = json.dumps(s.res.config)
     elif replanned:                                       # a section with a model of its own
