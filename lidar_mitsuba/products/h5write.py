@@ -54,7 +54,8 @@ MAX_PENDING_BYTES = 256 * 2 ** 20
 
 _H5Z_FILTER_DEFLATE, _H5Z_FILTER_SHUFFLE = 1, 2
 _lock = threading.Lock()
-_pending: collections.deque = collections.deque()   # (file key, dataset, offset, future, bytes)
+_pending: collections.deque = collections.deque()  # (file key, [(dataset, offset)], future
+                                                    # of their compressed chunks, bytes)
 _queued = [0]                                        # bytes of rows in _pending
 _tails: dict = {}     # (file key, dataset name) -> (dataset, first row, rows, level, chunk
                       # rows, fill value)
@@ -271,37 +272,50 @@ def _level(dset) -> int | None:
 
 
 def _write(dset, start: int, data, *, dtype, level, key, chunk_rows, fill) -> None:
-    """Rows ``start ..`` of ``dset`` (``chunk_rows`` a chunk, padded with ``fill``)."""
+    """Rows ``start ..`` of ``dset`` (``chunk_rows`` a chunk, padded with ``fill``): the
+    whole chunks they complete compressed on the pool as one job, the rest held."""
     data = np.ascontiguousarray(data, dtype=dtype)
     held = _tails.pop(key, None)
-    if held is not None:
-        if held[1] + held[2].shape[0] == start:          # continue the waiting rows
-            start, data = held[1], np.concatenate([held[2], data])
-        else:                                            # (rows written around us)
-            _submit(key[0], *held)
+    if held is not None and held[1] + held[2].shape[0] != start:   # (rows written around us)
+        _submit(key[0], [held])
+        held = None
     stop = start + data.shape[0]
     if level is None:
         if stop > start:
             dset[start:stop] = data
         return
-    rows = chunk_rows
+    rows, chunks = chunk_rows, []
+    if held is not None:       # the waiting rows begin a chunk: these rows continue it
+        head = data[:rows - held[2].shape[0]]
+        start, data = start + head.shape[0], data[head.shape[0]:]
+        whole = (dset, held[1], np.concatenate([held[2], head]), level, rows, fill)
+        if whole[2].shape[0] < rows:                   # (still short of a chunk)
+            _tails[key] = whole
+            return
+        chunks.append(whole)
     a = -(-start // rows) * rows                       # first chunk boundary at or after start
     if start < a:                                      # a chunk begun by someone else
         dset[start:min(a, stop)] = data[:a - start]
     for c0 in range(a, stop - rows + 1, rows):
-        _submit(key[0], dset, c0, data[c0 - start:c0 - start + rows], level, rows, fill)
+        chunks.append((dset, c0, data[c0 - start:c0 - start + rows], level, rows, fill))
     b = max(a, stop // rows * rows)
     if b < stop:
         _tails[key] = (dset, b, data[b - start:].copy(), level, rows, fill)
+    _submit(key[0], chunks)
     _store(block_above=MAX_PENDING_BYTES)
+
+
+#: waiting rows of this many datasets compressed as one job of the pool at :func:`drain`
+DRAIN_BATCH = 32
 
 
 def drain(f) -> None:
     """Store the rows waiting for file ``f`` (the ``h5py.File`` about to close), and every
     compressed chunk still queued."""
     key = _file_key(f)
-    for k in [k for k in _tails if k[0] == key]:
-        _submit(key, *_tails.pop(k))
+    held = [_tails.pop(k) for k in [k for k in _tails if k[0] == key]]
+    for i in range(0, len(held), DRAIN_BATCH):
+        _submit(key, held[i:i + DRAIN_BATCH])
     _store(block_above=0)
     _forget(key)
 
@@ -317,26 +331,36 @@ def discard(f) -> None:
         keep = [e for e in _pending if e[0] != key]
         for e in _pending:
             if e[0] == key:
-                e[3].cancel()
+                e[2].cancel()
         _pending.clear()
         _pending.extend(keep)
-        _queued[0] = sum(e[4] for e in keep)
+        _queued[0] = sum(e[3] for e in keep)
 
 
-def _submit(file_key: bytes, dset, first_row: int, rows: np.ndarray, level: int,
-            chunk_rows: int, fill) -> None:
-    """Queue the chunk of ``dset`` (in the file ``file_key`` names) that starts at
-    ``first_row`` (``rows``: all of it, or its first rows, then padded with the dataset's fill
-    value ``fill``: ``chunk_rows`` rows) for compression."""
-    n = chunk_rows
-    if rows.shape[0] < n:
-        rows = np.concatenate([rows, np.full((n - rows.shape[0],) + rows.shape[1:],
-                                             fill, rows.dtype)])
-    future = host_pool().submit(_encode, rows, level)
-    offset = (first_row,) + (0,) * (rows.ndim - 1)
+def _submit(file_key: bytes, chunks: list) -> None:
+    """Queue ``chunks`` of the file ``file_key`` names for compression, as one job of the
+    pool: each ``(dataset, first row, rows, level, chunk rows, fill value)``, ``rows`` all of
+    the chunk or its first rows (then padded with the fill value to ``chunk rows``)."""
+    if not chunks:
+        return
+    future = host_pool().submit(_encode_chunks, [c[2:] for c in chunks])
+    places = [(c[0], (c[1],) + (0,) * (c[2].ndim - 1)) for c in chunks]
+    nbytes = sum(c[4] * (c[2].nbytes // c[2].shape[0]) for c in chunks)
     with _lock:
-        _pending.append((file_key, dset, offset, future, rows.nbytes))
-        _queued[0] += rows.nbytes
+        _pending.append((file_key, places, future, nbytes))
+        _queued[0] += nbytes
+
+
+def _encode_chunks(chunks: list) -> list:
+    """Each ``(rows, level, chunk rows, fill value)``, padded to a whole chunk, as HDF5's
+    shuffle and deflate filters store it (:func:`_encode`)."""
+    out = []
+    for rows, level, n, fill in chunks:
+        if rows.shape[0] < n:
+            rows = np.concatenate([rows, np.full((n - rows.shape[0],) + rows.shape[1:],
+                                                 fill, rows.dtype)])
+        out.append(_encode(rows, level))
+    return out
 
 
 def _store(*, block_above: int) -> None:
@@ -346,12 +370,13 @@ def _store(*, block_above: int) -> None:
         with _lock:
             if not _pending:
                 return
-            key, dset, offset, future, nbytes = _pending[0]
+            key, places, future, nbytes = _pending[0]
             if not future.done() and _queued[0] <= block_above:
                 return
             _pending.popleft()
             _queued[0] -= nbytes
-        dset.id.write_direct_chunk(offset, future.result())
+        for (dset, offset), blob in zip(places, future.result()):
+            dset.id.write_direct_chunk(offset, blob)
 
 
 def _encode(piece: np.ndarray, level: int) -> bytes:

@@ -50,8 +50,12 @@ class _Section:
     def __post_init__(self):
         res = self.run.result
         self.res, self.inst, det = res, res.instrument, res.detections
-        self.order = np.argsort(det.shot, kind="stable")
-        self.shot = det.shot[self.order].astype(np.int64)          # local to this run
+        shot = det.shot
+        # (simulate()'s photons come in shot order: then the order is the identity, and the
+        # per-photon fields are views, not gathered copies)
+        self.order = (slice(None) if shot.size < 2 or bool(np.all(shot[1:] >= shot[:-1]))
+                      else np.argsort(shot, kind="stable"))
+        self.shot = shot[self.order].astype(np.int64)              # local to this run
         self.gshot = self.shot + self.run.first_shot                 # in the whole track
         self.channel = det.channel[self.order]
         self.conf = np.asarray(res.signal_conf)[self.order].astype(np.int8)
@@ -374,7 +378,8 @@ def _write_group(gt, name: str, values: dict) -> None:
         data = np.asarray(v)
         if data.ndim == 0 or data.shape[0] != n:
             data = np.broadcast_to(data, (n,) + fld.shape)
-        columns.append((field_name, data.astype(fld.dtype), fld.units, fld.description,
+        columns.append((field_name, data.astype(fld.dtype, copy=False), fld.units,
+                        fld.description,
                         functools.partial(_field_attrs, fld, note, coordinates, field_name),
                         fld.fill))
     g, new = h5template.put_group(gt, name, columns)
