@@ -14,6 +14,10 @@ is not installed. Either stream inflates to the very bytes HDF5's pipeline would
 compressed, so every HDF5 reader decodes the same values with the standard filters the
 dataset declares (``tests/test_h5chunks.py``); only the compressed bytes differ from zlib's.
 
+The whole chunks one append completes are compressed as one job of the pool (a job per
+chunk cost more in futures and locks than ISA-L took on a small chunk), and at
+:func:`drain` the waiting rows of :data:`DRAIN_BATCH` datasets make a job.
+
 Rows that do not fill a chunk wait in memory (one partial chunk per dataset) for the next
 append of the same dataset, so a granule streamed section by section never has HDF5 read back,
 merge and recompress a chunk; :func:`drain` stores them, padded beyond the dataset's extent

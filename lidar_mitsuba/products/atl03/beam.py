@@ -56,7 +56,6 @@ class _Section:
         self.order = (slice(None) if shot.size < 2 or bool(np.all(shot[1:] >= shot[:-1]))
                       else np.argsort(shot, kind="stable"))
         self.shot = shot[self.order].astype(np.int64)              # local to this run
-        self.gshot = self.shot + self.run.first_shot                 # in the whole track
         self.channel = det.channel[self.order]
         self.conf = np.asarray(res.signal_conf)[self.order].astype(np.int8)
         (self.seg_of_shot, self.first, self.count, self.ref_shot,
@@ -92,7 +91,9 @@ def _ph_id_count(shot: np.ndarray, channel: np.ndarray) -> np.ndarray:
     n = shot.size
     if n == 0:
         return np.zeros(0, np.uint8)
-    key = shot.astype(np.int64) * 64 + channel.astype(np.int64)
+    key = (shot.astype(np.int64) - shot.min()) * 64 + channel.astype(np.int64)
+    if key.max() < 2 ** 31:         # (a section's: an int32 sort is ~30 % faster)
+        key = key.astype(np.int32)
     order = np.argsort(key, kind="stable")
     k = key[order]
     start = np.r_[True, k[1:] != k[:-1]]
@@ -107,17 +108,18 @@ def _heights(s: _Section) -> dict:
     shot = s.shot
     p = s.test.tail_p[s.order]
     base = 1 if run.beam.strength == "strong" else 17
+    gshot = run.first_shot + np.arange(res.n_shots, dtype=np.int64)   # (per shot, gathered)
     return {
         "lat_ph": run.lat_deg[shot], "lon_ph": run.lon_deg[shot], "h_ph": res.h_m[s.order],
         "delta_time": run.delta_time_s[shot],
-        "dist_ph_along": res.along_track_m[shot] - SEGMENT_M * s.seg_of_shot[shot],
+        "dist_ph_along": (res.along_track_m - SEGMENT_M * s.seg_of_shot)[shot],
         "dist_ph_across": np.zeros(shot.size),
         "signal_conf_ph": np.repeat(s.conf[:, None], len(SURFACE_TYPES), axis=1),
         "weight_ph": np.round(255.0 * np.clip(-np.log10(np.maximum(p, 1e-300)) / 6.0, 0, 1)),
         "ph_id_count": _ph_id_count(shot, s.channel),
         "ph_id_channel": s.channel.astype(np.int64) + base,
-        "ph_id_pulse": s.gshot % PULSES_PER_MAJOR_FRAME + 1,
-        "pce_mframe_cnt": s.gshot // PULSES_PER_MAJOR_FRAME,
+        "ph_id_pulse": (gshot % PULSES_PER_MAJOR_FRAME + 1)[shot],
+        "pce_mframe_cnt": (gshot // PULSES_PER_MAJOR_FRAME)[shot],
         "quality_ph": _quality(s),
     }
 
