@@ -200,9 +200,8 @@ def test_groups_copied_from_a_template_are_the_groups_made_in_place(tmp_path, mo
     (a template of its own)."""
     from lidar_mitsuba.products import h5template
     monkeypatch.setattr(h5template, "_templates", {})
-    rng = None
 
-    def columns(n, note="", extra=False):
+    def columns(rng, n, note="", extra=False):
         cols = [("h", rng.normal(size=n).astype(np.float32), "meters", "height",
                  {"long_name": "h", "_FillValue": np.float32(3.4e38),
                   **({"model_note": note} if note else {})}, np.float32(3.4e38)),
@@ -223,7 +222,7 @@ def test_groups_copied_from_a_template_are_the_groups_made_in_place(tmp_path, mo
             for group, n, kw in (("gt1l/heights", 1000, {}), ("gt1l/heights", C + 7, {}),
                                  ("gt2l/heights", 10, {}), ("gt2l/heights", 30, {"extra": True}),
                                  ("gt3l/heights", 20, {"note": "not modelled"})):
-                h5template.put_group(f, group, columns(n, **kw))
+                h5template.put_group(f, group, columns(rng, n, **kw))
         # two templates (the groups with and without the note), or none
         assert len(h5template._templates) == (2 if templates else 0)
         with h5py.File(path) as f:

@@ -96,23 +96,25 @@ class _Template:
         self.levels = [h5write._level(d) for d in datasets]
 
 
-_file: list = [None]
+_file: list = [None, None]      # the template file, the process that made it
 _templates: dict = {}           # key of the specs -> _Template
 _count = itertools.count()
 
 
 def _template_file() -> h5py.File:
-    if _file[0] is None:
-        _file[0] = h5py.File(f"lidar_mitsuba-templates-{os.getpid()}.h5", "w", driver="core",
-                             backing_store=False)
+    """This process's template file (a forked child makes its own and its own templates)."""
+    if _file[0] is None or _file[1] != os.getpid():
+        _templates.clear()
+        _file[:] = [h5py.File(f"lidar_mitsuba-templates-{os.getpid()}-{next(_count)}.h5", "w",
+                              driver="core", backing_store=False), os.getpid()]
     return _file[0]
 
 
 def _template(specs: list[Spec]) -> _Template:
+    f = _template_file()
     key = tuple(s.key() for s in specs)
     t = _templates.get(key)
     if t is None:
-        f = _template_file()
         name = f"t{next(_count)}"
         t = _templates[key] = _Template(name.encode(), specs, build(f.create_group(name), specs))
         h5write.forget(f)                       # (the template's own entries)
