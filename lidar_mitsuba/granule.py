@@ -35,7 +35,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import __version__, geotrack, granule_writer, machine, precompile as warmup
-from .products import atl06, cloud_flags, h5write as h5chunks
+from .products import atl06, cloud_flags, h5template, h5write as h5chunks
 from .ground.snow import kernel as snow_kernel
 from .products.atl03 import _ds, atomic_h5file
 from .products.atl03.beam import (BCKGRD_SHOTS, PULSES_PER_MAJOR_FRAME, SEGMENT_M,
@@ -259,32 +259,33 @@ def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_d
     :func:`~lidar_mitsuba.products.cloud_flags.sky_of`, for ``geophysical``'s cloud flags."""
     if beam.name not in f:                                # (the first section's)
         h5chunks.set_attrs(f.create_group(beam.name), beam_attrs(beam, sc_orient))
-    li = f[beam.name].require_group("land_ice_segments")
-    for sub in ("fit_statistics", "bias_correction", "geophysical", "ground_track", "dem"):
-        li.require_group(sub)
     i = np.clip(np.searchsorted(along_m, table.x_atc), 0, max(along_m.size - 1, 0))
     _extend_extent(f, lat_deg[i], lon_deg[i])
-    first = "segment_id" not in li          # (the first section's: the attributes too)
-    _put(li, "segment_id", np.asarray(table.segment_id, np.int32), "1",
-         "segment number: the segment spans 20 m ATL03 segments segment_id and segment_id + 1")
-    _put(li, "latitude", lat_deg[i], "degrees_north", "latitude of the segment centre")
-    _put(li, "longitude", lon_deg[i], "degrees_east", "longitude of the segment centre")
-    _put(li, "delta_time", delta_time_s[i], "seconds since 2018-01-01",
-         "time of the segment centre")
-    _put(li, "sigma_geo_h", np.zeros(len(table), np.float32), "meters",
-         "height error from geolocation (none in a simulation)")
+    n = len(table)
+    columns = [
+        ("segment_id", np.asarray(table.segment_id, np.int32), "1",
+         "segment number: the segment spans 20 m ATL03 segments segment_id and segment_id + 1"),
+        ("latitude", lat_deg[i], "degrees_north", "latitude of the segment centre"),
+        ("longitude", lon_deg[i], "degrees_east", "longitude of the segment centre"),
+        ("delta_time", delta_time_s[i], "seconds since 2018-01-01", "time of the segment centre"),
+        ("sigma_geo_h", np.zeros(n, np.float32), "meters",
+         "height error from geolocation (none in a simulation)")]
+    columns = [c + ({}, None) for c in columns]
     for ours, (sub, name, dtype) in _ATL06_NAMES.items():
         units, desc = atl06.FIELDS[ours]
         v = np.asarray(getattr(table, ours))
+        attrs = {}
         if np.issubdtype(dtype, np.floating):
             v = np.where(np.isfinite(v), v, np.finfo(dtype).max)   # ATL06's fill value
-        ds = _put(li[sub] if sub else li, name, v.astype(dtype), units, desc)
-        if first and np.issubdtype(dtype, np.floating):
-            h5chunks.set_attrs(ds, {"_FillValue": np.finfo(dtype).max.astype(dtype)}, new=True)
-    _put(li["ground_track"], "y_atc", np.full(len(table), beam.across_m, np.float32),
-         "meters", "across-track offset of the beam from the reference ground track")
+            attrs = {"_FillValue": np.finfo(dtype).max.astype(dtype)}
+        columns.append((f"{sub}/{name}" if sub else name, v.astype(dtype), units, desc, attrs,
+                        None))
+    columns.append(("ground_track/y_atc", np.full(n, beam.across_m, np.float32), "meters",
+                    "across-track offset of the beam from the reference ground track", {}, None))
     if sky is not None:         # ATL09-style cloud flags (r_eff, cloud_flg_asr, cloud_flg_atm)
-        cloud_flags.put_atl06(li["geophysical"], cloud_flags.atl06_columns(table, sky))
+        columns += cloud_flags.atl06_datasets(cloud_flags.atl06_columns(table, sky))
+    # (a new group's datasets copied from a template: products.h5template)
+    h5template.put_group(f[beam.name], "land_ice_segments", columns)
 
 
 # --------------------------------------------------------------------------- streamed granules

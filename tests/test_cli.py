@@ -244,18 +244,18 @@ def test_terrain_command(tmp_path, capsys):
 
 def test_atomic_write_leaves_nothing(tmp_path, monkeypatch):
     from lidar_mitsuba.products import atl03
-    from lidar_mitsuba.products.atl03 import beam as atl03_beam
     from lidar_mitsuba.run import simulate
     from lidar_mitsuba.ground.surface import SurfaceSpec
     res = simulate(surface=SurfaceSpec(kind="flat"), shots=20, progress=False)
-    real = atl03_beam._put                      # (the beam writer's datasets)
+    from lidar_mitsuba.products import h5write
+    real = h5write.append                       # (the beam writer's rows)
 
-    def failing(group, name, *a, **k):
-        if name == "dist_ph_along":
+    def failing(group, columns):
+        if any(path == "dist_ph_along" for path, _ in columns):
             raise OSError("disk full")
-        return real(group, name, *a, **k)
+        return real(group, columns)
 
-    monkeypatch.setattr(atl03_beam, "_put", failing)
+    monkeypatch.setattr(h5write, "append", failing)
     with pytest.raises(OSError):
         atl03.write(res, tmp_path / "x.h5")
     assert list(tmp_path.iterdir()) == []

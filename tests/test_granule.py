@@ -562,11 +562,18 @@ def test_a_failed_fit_leaves_neither_file(dem_path, tmp_path, monkeypatch):
 def _h5_objects(path) -> dict:
     """Every group and dataset of an HDF5 file: its attributes and, for a dataset, dtype,
     shape, chunks, filters, fill value and bytes (object references as the names they name)."""
-    out = {}
+    out, names = {}, {}
     with h5py.File(path, "r") as f:
+        def address(obj):
+            names[h5py.h5o.get_info(obj.id).addr] = obj.name
+        f.visititems(lambda _, obj: address(obj))
+
+        def named(ref):       # (h5py's name of an object opened by reference searches the
+            return names[h5py.h5o.get_info(h5py.h5r.dereference(ref, f.id)).addr]  # file)
+
         def attrs(obj):
-            return {k: repr([[f[r].name for r in row] for row in v] if k == "DIMENSION_LIST"
-                            else [(f[r].name, int(i)) for r, i in v] if k == "REFERENCE_LIST"
+            return {k: repr([[named(r) for r in row] for row in v] if k == "DIMENSION_LIST"
+                            else [(named(r), int(i)) for r, i in v] if k == "REFERENCE_LIST"
                             else v) for k, v in obj.attrs.items()}
 
         def visit(name, obj):
@@ -608,6 +615,25 @@ def test_the_writer_process_writes_the_same_files_and_reports_failures(dem_path,
     granule.stream_granule(**kw, atl03_path=tmp_path / "bad" / "a3.h5", writer="process")
     assert _h5_objects(tmp_path / "bad" / "a3.h5")["gt2l/heights/h_ph"] == \
         _h5_objects(tmp_path / "inline" / "a3.h5")["gt2l/heights/h_ph"]
+
+
+def test_groups_from_templates_write_the_same_files(six_beams, tmp_path, monkeypatch):
+    """ATL03 and ATL06 of two beams of a granule with every beam's groups copied from
+    templates (products.h5template, the default: the second beam's from the first's) and
+    with every object made in place: the same objects, attributes, dataset bytes, dtypes,
+    chunks, filters and fill values."""
+    from dataclasses import replace
+    from lidar_mitsuba.products import h5template
+    g = replace(six_beams[0], beams=six_beams[0].beams[:2])
+    for templates in (False, True):
+        monkeypatch.setattr(h5template, "TEMPLATES", templates)
+        (tmp_path / str(templates)).mkdir()
+        granule.write_atl03(g, tmp_path / str(templates) / "ATL03_sim.h5")
+        granule.write_atl06(g, tmp_path / str(templates) / "ATL06_sim.h5")
+    for name in ("ATL03_sim.h5", "ATL06_sim.h5"):
+        a, b = (_h5_objects(tmp_path / str(m) / name) for m in (False, True))
+        assert a.keys() == b.keys() and len(a) > 100
+        assert [k for k in a if a[k] != b[k]] == []
 
 
 def test_the_atl03_writer_reuses_simulate_s_histogram_test(six_beams):

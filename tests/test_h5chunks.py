@@ -170,3 +170,62 @@ def test_set_attrs_and_new_datasets_are_what_h5py_makes(tmp_path):
         h5chunks.drain(f)
     with h5py.File(tmp_path / "a.h5") as f:
         np.testing.assert_array_equal(f["ours/b"][:], np.ones(7, np.float32))
+
+
+def _made(f) -> dict:
+    """Every group and dataset of file ``f``: attributes (:func:`_described`) and, for a
+    dataset, its type, extent, chunks, filters, fill value and times, and bytes."""
+    out = {"/": _described(f)}
+
+    def visit(name, obj):
+        if isinstance(obj, h5py.Dataset):
+            p, t = obj.id.get_create_plist(), obj.id.get_type()
+            out[name] = (_described(obj), obj.dtype.str, t.get_class(), t.get_size(),
+                         obj.shape, obj.maxshape, obj.chunks,
+                         [p.get_filter(i) for i in range(p.get_nfilters())],
+                         repr(obj.fillvalue), p.get_fill_time(), p.get_alloc_time(),
+                         p.get_obj_track_times(), obj[()].tobytes())
+        else:
+            out[name] = _described(obj)
+    f.visititems(visit)
+    return out
+
+
+def test_groups_copied_from_a_template_are_the_groups_made_in_place(tmp_path, monkeypatch):
+    """``h5template.put_group`` with templates (a group's empty datasets copied by HDF5)
+    and without (each made by ``put`` and ``set_attrs``) writes the same file: every object,
+    attribute (type, size, charset, shape, value), dtype, extent, chunking, filter, fill
+    value and byte, over two appends to a group, a second group from the same template, a
+    dataset added to an existing group, and a group whose attributes differ in one value
+    (a template of its own)."""
+    from lidar_mitsuba.products import h5template
+    monkeypatch.setattr(h5template, "_templates", {})
+
+    def columns(rng, n, note="", extra=False):
+        cols = [("h", rng.normal(size=n).astype(np.float32), "meters", "height",
+                 {"long_name": "h", "_FillValue": np.float32(3.4e38),
+                  **({"model_note": note} if note else {})}, np.float32(3.4e38)),
+                ("conf", rng.integers(-1, 5, (n, 5)).astype(np.int8), "1", "confidence",
+                 lambda: {"flag_values": np.arange(-1, 5, dtype=np.int8),
+                          "valid_max": np.int8(4)}, np.int8(127)),
+                ("sub/t", np.cumsum(rng.random(n)), "seconds", "time", {}, None)]
+        if extra:
+            cols.append(("late", np.arange(n, dtype=np.int32), "1", "added later", {}, None))
+        return cols
+
+    files = {}
+    for templates in (False, True):
+        monkeypatch.setattr(h5template, "TEMPLATES", templates)
+        rng = np.random.default_rng(1)
+        path = tmp_path / f"{templates}.h5"
+        with atl03.atomic_h5file(path) as f:
+            for group, n, kw in (("gt1l/heights", 1000, {}), ("gt1l/heights", C + 7, {}),
+                                 ("gt2l/heights", 10, {}), ("gt2l/heights", 30, {"extra": True}),
+                                 ("gt3l/heights", 20, {"note": "not modelled"})):
+                h5template.put_group(f, group, columns(rng, n, **kw))
+        # two templates (the groups with and without the note), or none
+        assert len(h5template._templates) == (2 if templates else 0)
+        with h5py.File(path) as f:
+            files[templates] = _made(f)
+    assert len(files[True]) == 20
+    assert files[True] == files[False]

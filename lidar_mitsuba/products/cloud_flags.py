@@ -127,6 +127,25 @@ def _write(group, specs: dict, common: dict) -> None:
 def put_atl06(geophysical, cols: dict) -> None:
     """Append ``cols`` (:func:`atl06_columns`) to an ATL06 ``land_ice_segments/geophysical``
     group with ATL06's names, types and attributes (a granule's sections append)."""
+    _write(geophysical, *_atl06_specs(cols))
+
+
+def atl06_datasets(cols: dict, prefix: str = "geophysical/") -> list:
+    """:func:`put_atl06`'s datasets as ``(prefix + name, data, units, description, attrs,
+    fill value)`` (the columns of :func:`lidar_mitsuba.products.h5template.put_group`)."""
+    specs, common = _atl06_specs(cols)
+    out = []
+    for name, (data, attrs) in specs.items():
+        attrs = {**common, **attrs}
+        units, desc = attrs.pop("units"), attrs.pop("description")
+        fill = attrs.get("_FillValue")
+        out.append((prefix + name, data, units, desc, attrs,
+                    None if fill is None else np.ravel(fill)[0]))
+    return out
+
+
+def _atl06_specs(cols: dict) -> tuple[dict, dict]:
+    """``({name: (data, attrs)}, attributes common to all)`` of ATL06's cloud columns."""
     common = {"contentType": "referenceInformation", "source": "ATL09 (lidar_mitsuba: "
               "products.cloud_flags)", "coordinates": "../delta_time ../latitude ../longitude"}
     r = np.where(np.isfinite(cols["r_eff"]), cols["r_eff"], FLOAT_FILL).astype(np.float32)
@@ -146,7 +165,7 @@ def put_atl06(geophysical, cols: dict) -> None:
             "own cloud)", "flag_meanings": "no yes", "flag_values": np.arange(2, dtype=np.int8),
             "valid_min": np.int8(0), "valid_max": np.int8(1), "_FillValue": INT8_FILL}),
     }
-    _write(geophysical, specs, common)
+    return specs, common
 
 
 def put_atl07(stats, cols: dict) -> None:

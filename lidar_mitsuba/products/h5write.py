@@ -14,6 +14,10 @@ is not installed. Either stream inflates to the very bytes HDF5's pipeline would
 compressed, so every HDF5 reader decodes the same values with the standard filters the
 dataset declares (``tests/test_h5chunks.py``); only the compressed bytes differ from zlib's.
 
+The whole chunks one append completes are compressed as one job of the pool (a job per
+chunk cost more in futures and locks than ISA-L took on a small chunk), and at
+:func:`drain` the waiting rows of :data:`DRAIN_BATCH` datasets make a job.
+
 Rows that do not fill a chunk wait in memory (one partial chunk per dataset) for the next
 append of the same dataset, so a granule streamed section by section never has HDF5 read back,
 merge and recompress a chunk; :func:`drain` stores them, padded beyond the dataset's extent
@@ -54,12 +58,13 @@ MAX_PENDING_BYTES = 256 * 2 ** 20
 
 _H5Z_FILTER_DEFLATE, _H5Z_FILTER_SHUFFLE = 1, 2
 _lock = threading.Lock()
-_pending: collections.deque = collections.deque()   # (file key, dataset, offset, future, bytes)
+_pending: collections.deque = collections.deque()  # (file key, [(dataset, offset)], future
+                                                    # of their compressed chunks, bytes)
 _queued = [0]                                        # bytes of rows in _pending
-_tails: dict = {}           # (file key, dataset name) -> (dataset, first row, rows, level)
+_tails: dict = {}     # (file key, dataset name) -> (dataset, first row, rows, level, chunk
+                      # rows, fill value)
 _open: dict = {}            # (HDF5 file number, dataset name) -> _Entry of put(append=True)
 _made: dict = {}            # what a new dataset is made of -> (HDF5 type, creation plist, level)
-_chunk_rows: dict = {}      # (file key, dataset name) -> rows per chunk, of those _write cut
 
 
 def put(group, name: str, data, units: str, description: str, *, append: bool = False,
@@ -92,7 +97,8 @@ def put(group, name: str, data, units: str, description: str, *, append: bool = 
         d, level = _create(group, name, data, CHUNK_ROWS, fillvalue)
         path = key[1] if not key[1].startswith("//") else key[1][1:]     # (d.name)
         entry = _open[key] = _Entry(d, level=level, key=(_file_key(group), path),
-                                    shape=(0,) + data.shape[1:], dtype=data.dtype)
+                                    shape=(0,) + data.shape[1:], dtype=data.dtype,
+                                    chunk_rows=CHUNK_ROWS, fill=_fill(fillvalue, data.dtype))
         entry.grow(data.shape[0])
         entry.write(0, data)
     else:
@@ -177,9 +183,10 @@ class _Entry:
     filters and file. (h5py's lookup of a dataset by name, and of its shape, chunks and
     filters, cost tens of microseconds each; a granule's ATL03 makes thousands of appends.)"""
 
-    __slots__ = ("dset", "rows", "tail_shape", "dtype", "level", "key")
+    __slots__ = ("dset", "rows", "tail_shape", "dtype", "level", "key", "chunk_rows", "fill")
 
-    def __init__(self, dset, *, level=..., key=None, shape=None, dtype=None):
+    def __init__(self, dset, *, level=..., key=None, shape=None, dtype=None, chunk_rows=None,
+                 fill=None):
         self.dset = dset
         shape = dset.shape if shape is None else shape     # (known for a dataset just made)
         self.rows = shape[0]
@@ -187,13 +194,67 @@ class _Entry:
         self.dtype = dset.dtype if dtype is None else np.dtype(dtype)
         self.level = _level(dset) if level is ... else level
         self.key = (_file_key(dset), dset.name) if key is None else key
+        self.chunk_rows, self.fill = chunk_rows, fill     # (None: asked of HDF5 when needed)
 
     def grow(self, n: int) -> None:
         self.rows += n
         self.dset.id.set_extent((self.rows,) + self.tail_shape)
 
     def write(self, start: int, data) -> None:
-        _write(self.dset, start, data, dtype=self.dtype, level=self.level, key=self.key)
+        if self.level is not None and self.chunk_rows is None:
+            self.chunk_rows, self.fill = self.dset.chunks[0], self.dset.fillvalue
+        _write(self.dset, start, data, dtype=self.dtype, level=self.level, key=self.key,
+               chunk_rows=self.chunk_rows, fill=self.fill)
+
+
+def _fill(fillvalue, dtype) -> np.ndarray:
+    """The value HDF5 pads a chunk with: ``fillvalue``, or zero bytes where none is set."""
+    if fillvalue is None:
+        return np.zeros((), dtype)
+    return np.asarray(fillvalue, dtype)
+
+
+def register(group, paths: list, *, levels: list, dtypes: list, tails: list,
+             fills: list) -> None:
+    """Take the new datasets ``group[path]`` (empty, made as ``put(..., append=True)`` makes
+    them; ``levels``: each one's :func:`_level`, ``fills`` its fill value) as datasets
+    :func:`put` made, so their rows are appended the same way
+    (:mod:`lidar_mitsuba.products.h5template` copies them)."""
+    fileno, gname, fkey, gid = group.id.fileno, group.name, _file_key(group), group.id
+    for path, level, dtype, tail, fill in zip(paths, levels, dtypes, tails, fills):
+        name = f"{gname}/{path}"
+        d = h5py.Dataset(h5d.open(gid, path.encode()))
+        _open[(fileno, name)] = _Entry(d, level=level, key=(fkey, name.replace("//", "/", 1)),
+                                       shape=(0,) + tuple(tail), dtype=dtype,
+                                       chunk_rows=CHUNK_ROWS, fill=fill)
+
+
+def append(group, columns: list) -> list:
+    """Append each ``(path, data)`` of ``columns`` to the dataset ``group[path]`` (one
+    :func:`put` made, or :func:`register` took), as ``put(..., append=True)`` does. Returns
+    the paths of those that do not exist (nothing appended to them)."""
+    fileno, gname = group.id.fileno, group.name
+    missing = []
+    for path, data in columns:
+        data = np.asarray(data)
+        entry = _open.get((fileno, f"{gname}/{path}"))
+        if entry is None or not entry.dset.id.valid:
+            sub, _, leaf = path.rpartition("/")
+            g = group[sub] if sub else group
+            if leaf in g:
+                put(g, leaf, data, "", "", append=True)    # (an existing one: no attributes)
+            else:
+                missing.append(path)
+            continue
+        start = entry.rows
+        entry.grow(data.shape[0])
+        entry.write(start, data)
+    return missing
+
+
+def forget(f) -> None:
+    """Forget the datasets :func:`put` made in file ``f`` (it holds no waiting rows)."""
+    _forget(_file_key(f))
 
 
 def write_rows(dset, start: int, data) -> None:
@@ -201,8 +262,10 @@ def write_rows(dset, start: int, data) -> None:
     ``dset`` (already that long). When ``dset`` is byte shuffle then deflate and nothing else,
     whole chunks are compressed on the pool and a last partial chunk waits for the next rows
     (or :func:`drain`); otherwise HDF5 writes the rows now."""
-    _write(dset, start, data, dtype=dset.dtype, level=_level(dset),
-           key=(_file_key(dset), dset.name))
+    level = _level(dset)
+    _write(dset, start, data, dtype=dset.dtype, level=level, key=(_file_key(dset), dset.name),
+           chunk_rows=dset.chunks[0] if level is not None else None,
+           fill=dset.fillvalue if level is not None else None)
 
 
 def _level(dset) -> int | None:
@@ -212,39 +275,53 @@ def _level(dset) -> int | None:
     return level if level is not None and dset.chunks[1:] == dset.shape[1:] else None
 
 
-def _write(dset, start: int, data, *, dtype, level, key) -> None:
+def _write(dset, start: int, data, *, dtype, level, key, chunk_rows, fill) -> None:
+    """Rows ``start ..`` of ``dset`` (``chunk_rows`` a chunk, padded with ``fill``): the
+    whole chunks they complete compressed on the pool as one job, the rest held."""
     data = np.ascontiguousarray(data, dtype=dtype)
     held = _tails.pop(key, None)
-    if held is not None:
-        if held[1] + held[2].shape[0] == start:          # continue the waiting rows
-            start, data = held[1], np.concatenate([held[2], data])
-        else:                                            # (rows written around us)
-            _submit(key[0], *held)
+    if held is not None and held[1] + held[2].shape[0] != start:   # (rows written around us)
+        _submit(key[0], [held])
+        held = None
     stop = start + data.shape[0]
     if level is None:
         if stop > start:
             dset[start:stop] = data
         return
-    rows = _chunk_rows.get(key)
-    if rows is None:                  # (h5py's chunks property costs ~0.1 ms a call)
-        rows = _chunk_rows[key] = dset.chunks[0]
+    rows, chunks = chunk_rows, []
+    if held is not None:       # the waiting rows begin a chunk: these rows continue it
+        head = data[:rows - held[2].shape[0]]
+        start, data = start + head.shape[0], data[head.shape[0]:]
+        whole = (dset, held[1], np.concatenate([held[2], head]), level, rows, fill)
+        if whole[2].shape[0] < rows:                   # (still short of a chunk)
+            _tails[key] = whole
+            return
+        chunks.append(whole)
     a = -(-start // rows) * rows                       # first chunk boundary at or after start
     if start < a:                                      # a chunk begun by someone else
         dset[start:min(a, stop)] = data[:a - start]
     for c0 in range(a, stop - rows + 1, rows):
-        _submit(key[0], dset, c0, data[c0 - start:c0 - start + rows], level, rows)
+        chunks.append((dset, c0, data[c0 - start:c0 - start + rows], level, rows, fill))
     b = max(a, stop // rows * rows)
     if b < stop:
-        _tails[key] = (dset, b, data[b - start:].copy(), level)
+        _tails[key] = (dset, b, data[b - start:].copy(), level, rows, fill)
+    _submit(key[0], chunks)
     _store(block_above=MAX_PENDING_BYTES)
+
+
+#: waiting rows of this many datasets compressed as one job of the pool at :func:`drain`
+#: (a choice, not a measurement: a six-beam granule's ~870 held chunks make ~28 jobs, enough
+#: to keep every pool thread busy, each job ~2-3 MB of rows)
+DRAIN_BATCH = 32
 
 
 def drain(f) -> None:
     """Store the rows waiting for file ``f`` (the ``h5py.File`` about to close), and every
     compressed chunk still queued."""
     key = _file_key(f)
-    for k in [k for k in _tails if k[0] == key]:
-        _submit(key, *_tails.pop(k))
+    held = [_tails.pop(k) for k in [k for k in _tails if k[0] == key]]
+    for i in range(0, len(held), DRAIN_BATCH):
+        _submit(key, held[i:i + DRAIN_BATCH])
     _store(block_above=0)
     _forget(key)
 
@@ -260,26 +337,36 @@ def discard(f) -> None:
         keep = [e for e in _pending if e[0] != key]
         for e in _pending:
             if e[0] == key:
-                e[3].cancel()
+                e[2].cancel()
         _pending.clear()
         _pending.extend(keep)
-        _queued[0] = sum(e[4] for e in keep)
+        _queued[0] = sum(e[3] for e in keep)
 
 
-def _submit(file_key: bytes, dset, first_row: int, rows: np.ndarray, level: int,
-            chunk_rows: int | None = None) -> None:
-    """Queue the chunk of ``dset`` (in the file ``file_key`` names) that starts at
-    ``first_row`` (``rows``: all of it, or its first rows, then padded with the dataset's fill
-    value) for compression."""
-    n = dset.chunks[0] if chunk_rows is None else chunk_rows
-    if rows.shape[0] < n:
-        rows = np.concatenate([rows, np.full((n - rows.shape[0],) + rows.shape[1:],
-                                             dset.fillvalue, rows.dtype)])
-    future = host_pool().submit(_encode, rows, level)
-    offset = (first_row,) + (0,) * (rows.ndim - 1)
+def _submit(file_key: bytes, chunks: list) -> None:
+    """Queue ``chunks`` of the file ``file_key`` names for compression, as one job of the
+    pool: each ``(dataset, first row, rows, level, chunk rows, fill value)``, ``rows`` all of
+    the chunk or its first rows (then padded with the fill value to ``chunk rows``)."""
+    if not chunks:
+        return
+    future = host_pool().submit(_encode_chunks, [c[2:] for c in chunks])
+    places = [(c[0], (c[1],) + (0,) * (c[2].ndim - 1)) for c in chunks]
+    nbytes = sum(c[4] * (c[2].nbytes // c[2].shape[0]) for c in chunks)
     with _lock:
-        _pending.append((file_key, dset, offset, future, rows.nbytes))
-        _queued[0] += rows.nbytes
+        _pending.append((file_key, places, future, nbytes))
+        _queued[0] += nbytes
+
+
+def _encode_chunks(chunks: list) -> list:
+    """Each ``(rows, level, chunk rows, fill value)``, padded to a whole chunk, as HDF5's
+    shuffle and deflate filters store it (:func:`_encode`)."""
+    out = []
+    for rows, level, n, fill in chunks:
+        if rows.shape[0] < n:
+            rows = np.concatenate([rows, np.full((n - rows.shape[0],) + rows.shape[1:],
+                                                 fill, rows.dtype)])
+        out.append(_encode(rows, level))
+    return out
 
 
 def _store(*, block_above: int) -> None:
@@ -289,12 +376,13 @@ def _store(*, block_above: int) -> None:
         with _lock:
             if not _pending:
                 return
-            key, dset, offset, future, nbytes = _pending[0]
+            key, places, future, nbytes = _pending[0]
             if not future.done() and _queued[0] <= block_above:
                 return
             _pending.popleft()
             _queued[0] -= nbytes
-        dset.id.write_direct_chunk(offset, future.result())
+        for (dset, offset), blob in zip(places, future.result()):
+            dset.id.write_direct_chunk(offset, blob)
 
 
 def _encode(piece: np.ndarray, level: int) -> bytes:
@@ -324,8 +412,6 @@ def _forget(file_key: bytes) -> None:
     """Drop the appended datasets of the file ``file_key`` names (it is about to close)."""
     for k in [k for k, e in list(_open.items()) if e.key[0] == file_key]:
         del _open[k]
-    for k in [k for k in _chunk_rows if k[0] == file_key]:
-        del _chunk_rows[k]
 
 
 def _file_key(obj) -> bytes:
@@ -334,4 +420,4 @@ def _file_key(obj) -> bytes:
 
 
 __all__ = ["CHUNK_ROWS", "GZIP_LEVEL", "MAX_PENDING_BYTES", "put", "write_rows", "drain",
-           "discard", "set_attrs"]
+           "discard", "set_attrs", "register", "append", "forget"]
