@@ -14,15 +14,15 @@ def test_shots_without_noise_are_the_general_paths_events():
     """``detect_shots`` with a noise rate of 0 (its no-noise path: signal sorted at the head
     of the buffers) against a rate of 1e-300 per ns (the general path: the first noise gap,
     ~1e300 ns, ends past the gate, so it draws no noise event): the same recorded events and
-    order, bit for bit, with ties in time (stable order), shots past the insertion sort's
-    160 photons (the merge argsort), photons outside the gate, a gate at +inf (no surface),
-    and both dead-time models."""
+    order, bit for bit, with ties in time (whole ns: a stable order), a shot of 100 photons
+    (a long insertion sort) and shots past its 160 (the merge argsort), photons outside the
+    gate, a gate at +inf (no surface), and both dead-time models."""
     rng = np.random.default_rng(7)
     n_shots = 600
     n_sig = rng.poisson(3.0, n_shots)
-    n_sig[5], n_sig[77] = 400, 170                       # saturating shots
+    n_sig[5], n_sig[77], n_sig[9] = 400, 170, 100        # the argsort's, and a long sort
     start = np.concatenate([[0], np.cumsum(n_sig)]).astype(np.int64)
-    t = np.round(rng.uniform(-20.0, 220.0, start[-1]), 1)  # ties, and some out of the gate
+    t = np.round(rng.uniform(-20.0, 220.0, start[-1]))     # ties, and some out of the gate
     anode = rng.integers(0, 16, t.size).astype(np.int16)
     index = np.arange(t.size, dtype=np.int32)
     gate = np.zeros(n_shots)

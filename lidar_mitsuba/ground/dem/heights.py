@@ -153,11 +153,12 @@ def _axis_weights(p: np.ndarray, *, posting_m: float, sigma_m: float
     return first, np.maximum(0.0, 1.0 - np.abs(d) / P)
 
 
-#: |u| from which a ramp's Gaussian mean ``sigma (u Phi(u) + phi(u))`` is its limit to the bit
-#: (0 below, ``sigma u`` above): scipy's ``ndtr`` is exactly 0 or 1 once ``(u / sqrt 2)^2``
-#: passes its ``erfc``'s underflow bound (cephes ``MAXLOG`` = 709.78: |u| > 37.7), and
-#: ``exp(-u^2 / 2)`` is exactly 0 below exp's smallest subnormal (``-u^2 / 2 < -745.2``:
-#: |u| > 38.6); 40 clears both (``tests/test_host_kernels.py`` checks the bits across it)
+#: ``abs(u)`` from which a ramp's Gaussian mean ``sigma (u Phi(u) + phi(u))`` is its limit to
+#: the bit (0 below, ``sigma u`` above): scipy's ``ndtr`` is exactly 0 or 1 once
+#: ``u^2 / 2`` passes its ``erfc``'s underflow bound (cephes ``MAXLOG`` = 709.78:
+#: ``abs(u) > 37.7``), and ``exp(-u^2 / 2)`` is exactly 0 below exp's smallest subnormal
+#: (``u^2 / 2 > 745.2``: ``abs(u) > 38.6``); 40 clears both (``tests/test_host_kernels.py``
+#: checks the bits across it)
 RAMP_LIMIT_U = 40.0
 
 
