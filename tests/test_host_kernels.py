@@ -77,3 +77,38 @@ def test_kernels_load_once_a_process_beside_the_caller():
         assert deadtime.shot_stats.signatures and heights._stencil_sums.signatures
         assert heights._ramp_arguments.signatures and heights._hat_means.signatures
     assert precompile.load_kernels() is None
+
+
+def test_a_granules_detector_runs_on_one_thread_for_every_chunk(monkeypatch):
+    """``trace.stream.run`` under a trace launcher (a granule's sections) detects every chunk
+    with numba on the simulating thread alone, the last one too (a parallel region whose
+    second thread is busy elsewhere spins at its barrier); outside a granule the last chunk,
+    with nothing left to trace, has every thread. Synthetic returns, no rendering."""
+    import numba
+    from concurrent.futures import ThreadPoolExecutor
+    from lidar_mitsuba.detector.records import Returns
+    from lidar_mitsuba.instrument import Instrument
+    from lidar_mitsuba.trace import stream
+
+    class Source:
+        def launch(self, a, b, seed):
+            ret = Returns.at_times(np.full((b - a) * 4, 3.3e6), paths_per_shot=4)
+            return type("Done", (), {"result": lambda self: ret})()
+
+    seen = []
+    detect = stream.pmt.detect
+
+    def counting(*args, **kw):
+        seen.append(numba.get_num_threads())
+        return detect(*args, **kw)
+    monkeypatch.setattr(stream.pmt, "detect", counting)
+    every = numba.get_num_threads()
+    runs = {"granule": ThreadPoolExecutor(1), "alone": None}
+    for name, launcher in runs.items():
+        monkeypatch.setattr(stream, "trace_launcher", lambda launcher=launcher: launcher)
+        seen.clear()
+        stream.run(source=Source(), detectors={"d": Instrument()}, z_ref_m=np.zeros(30),
+                   seed=1, chunk_shots=10)
+        assert seen[:2] == [1, 1] and len(seen) == 3
+        assert seen[2] == (1 if name == "granule" else every)
+    runs["granule"].shutdown()
