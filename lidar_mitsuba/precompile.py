@@ -9,6 +9,7 @@ returns at once and shows nothing.
 """
 from __future__ import annotations
 
+import os
 import pathlib
 import sys
 import threading
@@ -20,7 +21,11 @@ import numpy as np
 #: empty numba cache, 2026-11-27: 40.1, 21.5 and 2.2 s)
 DETECTOR_S = 40.0
 ATL06_S = 22.0
-HEIGHTS_S = 2.0
+#: (ESTIMATE: the 2.2 s were the stencil sums alone; the footprint weights' two kernels of
+#: issue 43 took 1.5x their compile CPU under load, 0.9 against 0.6 s: 2.2 x 2.5)
+HEIGHTS_S = 5.5
+#: the footprint means' compiled kernels (:mod:`lidar_mitsuba.ground.dem.heights`)
+HEIGHTS_KERNELS = ("_stencil_sums", "_ramp_arguments", "_hat_means")
 
 
 def _detector() -> None:
@@ -36,6 +41,7 @@ def _detector() -> None:
 
 def _heights() -> None:
     from .ground.dem import heights
+    heights._axis_weights(np.zeros(1), posting_m=1.0, sigma_m=0.5)
     a = np.full((1, 2), 0.5)
     heights._stencil_sums(np.zeros((2, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), a, a,
                           np.empty(1), np.empty(1))
@@ -73,7 +79,7 @@ def compile_kernels(*, atl06: bool = False, progress: bool = True) -> float:
     steps = []
     if not _cached("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")):
         steps.append(("the detector", DETECTOR_S, _detector))
-    if not _cached("ground.dem.heights", ("_stencil_sums",)):
+    if not _cached("ground.dem.heights", HEIGHTS_KERNELS):
         steps.append(("the DEM footprint means", HEIGHTS_S, _heights))
     if atl06 and not _cached("products.atl06.kernel", ("fit_segment", "reference_heights")):
         steps.append(("the ATL06 fit", ATL06_S, _atl06))
@@ -109,3 +115,39 @@ def compile_kernels(*, atl06: bool = False, progress: bool = True) -> float:
     if errors:
         raise errors[0]
     return time.perf_counter() - t0
+
+
+#: the thread of :func:`load_kernels` in this process, keyed by the process id
+_LOADER: list = [None]
+
+
+def load_kernels() -> threading.Thread | None:
+    """Start loading, on a thread of its own, what a process's first granule would otherwise
+    load on the simulating thread: numba's CPU target (its type registries, a BLAS check that
+    imports ``scipy.linalg``, cffi: ~0.4-0.6 s of CPU, once a process) and the first serial
+    kernels it calls (the detector's :func:`~lidar_mitsuba.detector.deadtime.shot_stats`, the
+    footprint means' stencil sums), from numba's cache. Call it before the renderer's set-up,
+    which mostly waits with the GIL released (libLLVM, the variant's libraries: measured, a
+    spinning Python thread beside it ran for 1.65 s of its 2.05 s), so the two overlap.
+
+    Returns the started thread, or ``None`` when it already ran in this process or a kernel is
+    not cached yet (then the first run compiles it: :func:`compile_kernels`). The detector's
+    parallel kernels are left to their first call, on the simulating thread: numba's
+    ``workqueue`` threading layer (where OpenMP and TBB are missing) refuses parallel regions
+    launched from two threads at once."""
+    if _LOADER[0] is not None and _LOADER[0][0] == os.getpid():
+        return None
+    _LOADER[0] = (os.getpid(), None)
+    if not (_cached("detector.deadtime", ("shot_stats",))
+            and _cached("ground.dem.heights", HEIGHTS_KERNELS)):
+        return None
+
+    def load():
+        from .detector import deadtime
+        deadtime.shot_stats(np.zeros(1, np.uint32), np.ones(1, np.float32), 1)
+        _heights()
+
+    loader = threading.Thread(target=load, name="lidar-kernels", daemon=True)
+    loader.start()
+    _LOADER[0] = (os.getpid(), loader)
+    return loader

@@ -140,15 +140,78 @@ def shot_stats(shot, weight, n_shots):
     return w_sum, start, w_max, True
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
+def _dead_time(w, t_buf, a_buf, r_buf, last, per_ch, dead_time_ns, paralyzable):
+    """Mark in ``r_buf`` which of the ``w`` time-sorted events in the buffers the detector
+    records: each channel (``per_ch`` anodes) dead for ``dead_time_ns`` after each recorded
+    event (non-paralyzable) or each event (``paralyzable``); ``last``: (n_channels,) scratch."""
+    for c in range(last.size):
+        last[c] = -np.inf
+    for j in range(w):
+        c = a_buf[j] // per_ch
+        t = t_buf[j]
+        if t - last[c] >= dead_time_ns:
+            r_buf[j] = True
+            last[c] = t
+        else:
+            r_buf[j] = False
+            if paralyzable:
+                last[c] = t
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _signal_events(s, sig_start, sig_time, sig_anode, sig_index, g0, gate_ns, per_ch,
+                   dead_time_ns, paralyzable, t_buf, a_buf, i_buf, r_buf, last):
+    """:func:`_shot_events` of a shot without noise: its signal in the gate, stably sorted by
+    time at the head of the buffers (insertion sort, or a merge argsort past
+    :data:`_INSERTION_MAX`: a stable sort's result is unique, so the same order), and dead time."""
+    w = 0
+    for j in range(sig_start[s], sig_start[s + 1]):
+        t = sig_time[j]
+        if t >= g0 and t < g0 + gate_ns:
+            t_buf[w] = t
+            a_buf[w] = sig_anode[j]
+            i_buf[w] = sig_index[j]
+            w += 1
+    if w > _INSERTION_MAX:
+        perm = np.argsort(t_buf[:w], kind="mergesort")
+        t_buf[:w] = t_buf[:w][perm]
+        a_buf[:w] = a_buf[:w][perm]
+        i_buf[:w] = i_buf[:w][perm]
+    else:
+        for q in range(1, w):
+            t = t_buf[q]
+            if t_buf[q - 1] <= t:
+                continue
+            a, i = a_buf[q], i_buf[q]
+            k = q - 1
+            while k >= 0 and t_buf[k] > t:
+                t_buf[k + 1] = t_buf[k]
+                a_buf[k + 1] = a_buf[k]
+                i_buf[k + 1] = i_buf[k]
+                k -= 1
+            t_buf[k + 1] = t
+            a_buf[k + 1] = a
+            i_buf[k + 1] = i
+    _dead_time(w, t_buf, a_buf, r_buf, last, per_ch, dead_time_ns, paralyzable)
+    return w
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def _shot_events(s, sig_start, sig_time, sig_anode, sig_index, g0, gate_ns, noise_per_ns,
-                 anodes, n_channels, dead_time_ns, paralyzable, seed, t_buf, a_buf, i_buf, r_buf):
+                 anodes, n_channels, dead_time_ns, paralyzable, seed, t_buf, a_buf, i_buf, r_buf,
+                 last):
     """One shot: signal in the gate plus Poisson noise at ``noise_per_ns`` over the gate,
-    time-sorted into the buffers, with ``r_buf`` marking what the detector records. Returns the
-    number of events, or -1 when the buffers are too short (the caller grows them and calls
-    again). Deterministic: the same arguments give the same events."""
+    time-sorted into the buffers, with ``r_buf`` marking what the detector records
+    (``last``: (n_channels,) scratch, each channel's last relevant time, reset here). Returns
+    the number of events, or -1 when the buffers are too short (the caller grows them and
+    calls again). Deterministic: the same arguments give the same events."""
     cap = t_buf.size
     per_ch = anodes // n_channels
+    if not noise_per_ns > 0:
+        return _signal_events(s, sig_start, sig_time, sig_anode, sig_index, g0, gate_ns,
+                              per_ch, dead_time_ns, paralyzable, t_buf, a_buf, i_buf, r_buf,
+                              last)
     n_sig = 0
     for j in range(sig_start[s], sig_start[s + 1]):
         t = sig_time[j]
@@ -203,17 +266,7 @@ def _shot_events(s, sig_start, sig_time, sig_anode, sig_index, g0, gate_ns, nois
         t_buf[w], a_buf[w], i_buf[w] = t_buf[base + read], a_buf[base + read], i_buf[base + read]
         w += 1
         read += 1
-    last = np.full(n_channels, -np.inf)
-    for j in range(w):
-        c = a_buf[j] // per_ch
-        t = t_buf[j]
-        if t - last[c] >= dead_time_ns:
-            r_buf[j] = True
-            last[c] = t
-        else:
-            r_buf[j] = False
-            if paralyzable:
-                last[c] = t
+    _dead_time(w, t_buf, a_buf, r_buf, last, per_ch, dead_time_ns, paralyzable)
     return w
 
 
@@ -234,6 +287,7 @@ def _block_events(s0, s1, sig_start, sig_time, sig_anode, sig_index, gate_start,
     a_buf = np.empty(cap, sig_anode.dtype)
     i_buf = np.empty(cap, sig_index.dtype)
     r_buf = np.empty(cap, np.bool_)
+    last = np.empty(n_channels)        # each channel's last time: one array a block, not a shot
     o = o0
     for s in range(s0, s1):
         rate = noise_per_ns[s]
@@ -248,7 +302,7 @@ def _block_events(s0, s1, sig_start, sig_time, sig_anode, sig_index, gate_start,
                 r_buf = np.empty(cap, np.bool_)
             w = _shot_events(s, sig_start, sig_time, sig_anode, sig_index, gate_start[s],
                              gate_ns, rate, anodes, n_channels, dead_time_ns, paralyzable, seed,
-                             t_buf, a_buf, i_buf, r_buf)
+                             t_buf, a_buf, i_buf, r_buf, last)
             if w >= 0:
                 break
             need = 2 * cap

@@ -227,9 +227,10 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
     cast (:func:`cast_time`); the same in CPU seconds of both processes (``cpu_s``,
     ``end_to_end_cpu_s``: from both processes' start)."""
     from ..trace.variant import ensure_renderer
-    if beams == "all":                 # as simulate --dem: the writer's imports beside ours
-        from .. import granule_writer
+    if beams == "all":                 # as simulate --dem: the writer's imports beside ours,
+        from .. import granule_writer, precompile
         granule_writer.writer()
+        precompile.load_kernels()      # and numba's start beside the renderer's set-up
     ensure_renderer()                  # libLLVM, variant, plugins
     from ..ground import dem
     surf = dem.DEMSurface(dem.DEM.open(dem_path))

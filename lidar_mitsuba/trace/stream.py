@@ -207,10 +207,12 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
     bar = _progress_bar(n_shots, progress)
     spans = [(k, a, min(n_shots, a + per)) for k, a in enumerate(range(0, n_shots, per))]
     launch = getattr(source, "launch", None)
+    granule = False         # a granule's sections: the detector always on this thread alone
     if launch is None:
         launch = (lambda a, b, s: _Done(source(a, b, s)))
     elif (launcher := trace_launcher()) is not None:     # a granule's one-thread trace
         launch = _on(launcher, launch)
+        granule = True
     pending = None
     try:
         pending = launch(spans[0][1], spans[0][2], trace_seed(seed, 0)) if spans else None
@@ -223,7 +225,10 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
                 pending = launch(a1, b1, trace_seed(seed, k1))
             t1 = time.perf_counter()
             per_shot = {} if detector_inputs is None else detector_inputs(a, b)
-            with serial_while(pending is not None):
+            # serial while the next chunk traces, and in a granule on its last chunk too: the
+            # writer process and the next section hold the other core, and a parallel region
+            # whose second thread is not scheduled spins at its barrier
+            with serial_while(pending is not None or granule):
                 for name, inst in detectors.items():
                     det = pmt.detect(ret, inst, detector_rng(seed, k),
                                      gate_center_ns=gates[name][a:b], **per_shot)

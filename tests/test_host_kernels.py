@@ -1,0 +1,114 @@
+"""The host stages' shortcuts (issue 43) give the bits of the code they shortcut: the
+detector's path for shots without noise against its general path, and the footprint means'
+ramps evaluated only where they are not at their float64 limits. No rendering."""
+import math
+
+import numpy as np
+from scipy.special import ndtr
+
+from lidar_mitsuba.detector import deadtime
+from lidar_mitsuba.ground.dem import heights
+
+
+def test_shots_without_noise_are_the_general_paths_events():
+    """``detect_shots`` with a noise rate of 0 (its no-noise path: signal sorted at the head
+    of the buffers) against a rate of 1e-300 per ns (the general path: the first noise gap,
+    ~1e300 ns, ends past the gate, so it draws no noise event): the same recorded events and
+    order, bit for bit, with ties in time (whole ns: a stable order), a shot of 100 photons
+    (a long insertion sort) and shots past its 160 (the merge argsort), photons outside the
+    gate, a gate at +inf (no surface), and both dead-time models."""
+    rng = np.random.default_rng(7)
+    n_shots = 600
+    n_sig = rng.poisson(3.0, n_shots)
+    n_sig[5], n_sig[77], n_sig[9] = 400, 170, 100        # the argsort's, and a long sort
+    start = np.concatenate([[0], np.cumsum(n_sig)]).astype(np.int64)
+    t = np.round(rng.uniform(-20.0, 220.0, start[-1]))     # ties, and some out of the gate
+    anode = rng.integers(0, 16, t.size).astype(np.int16)
+    index = np.arange(t.size, dtype=np.int32)
+    gate = np.zeros(n_shots)
+    gate[::50] = np.inf
+    for paralyzable in (False, True):
+        for channels in (16, 4):
+            args = lambda rate: (start, t, anode, index, gate, 200.0,  # noqa: E731
+                                 np.full(n_shots, rate), 16, channels, 3.0, paralyzable, 5)
+            fast, general = deadtime.detect_shots(*args(0.0)), deadtime.detect_shots(*args(1e-300))
+            assert fast[0].size > 0.5 * t.size
+            for a, b in zip(fast, general):
+                assert a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+def _axis_weights_numpy(p, *, posting_m, sigma_m):
+    """The footprint means' axis weights as numpy evaluated them before issue 43: ``ndtr``
+    and ``exp`` over every ramp of every stencil."""
+    P = posting_m
+    reach, n = heights._stencil(P, sigma_m)
+    p = np.where(np.isfinite(p), p, 0.0)
+    first = np.floor((p - reach) / P).astype(np.int64)
+    u = (p[:, None] - (first[:, None] + np.arange(-1, n + 1)) * P) / sigma_m
+    r = sigma_m * (u * ndtr(u) + np.exp(-0.5 * u * u) / math.sqrt(2.0 * math.pi))
+    return first, (r[:, :-2] - 2.0 * r[:, 1:-1] + r[:, 2:]) / P
+
+
+def test_footprint_weights_are_the_numpy_expressions_bits():
+    """``_axis_weights`` (``ndtr`` and ``exp`` only where ``|u| < 40``, the rest compiled)
+    against the numpy expression over every ramp: the same bits for positions swept densely
+    across the pixels (ramp arguments crossing the +-40 limit and the +-37.7 and +-38.6 where
+    ``ndtr`` and ``exp`` reach their limits), NaN positions among them, at footprint sigmas
+    from 1 mm to 30 m on 100 m and 2 m postings."""
+    for posting_m, p in ((100.0, np.linspace(-150.0, 450.0, 24_001)),
+                         (2.0, np.linspace(-3.0, 5.0, 1_601))):
+        p = np.concatenate([p, [np.nan, 0.0, -0.0]])
+        for sigma_m in (1e-3, 0.37, 2.5, 30.0):
+            first, w = heights._axis_weights(p, posting_m=posting_m, sigma_m=sigma_m)
+            first0, w0 = _axis_weights_numpy(p, posting_m=posting_m, sigma_m=sigma_m)
+            assert first.tobytes() == first0.tobytes()
+            assert w.shape == w0.shape and w.tobytes() == w0.tobytes(), (posting_m, sigma_m)
+
+
+def test_kernels_load_once_a_process_beside_the_caller():
+    """``load_kernels`` loads the first serial kernels on a thread of its own, once a process:
+    afterwards they have their compiled version (from numba's cache, or none when a kernel
+    is not cached: then it starts nothing), and a second call starts nothing."""
+    from lidar_mitsuba import precompile
+    loader = precompile.load_kernels()
+    if loader is not None:
+        loader.join(120.0)
+        assert not loader.is_alive()
+        assert deadtime.shot_stats.signatures and heights._stencil_sums.signatures
+        assert heights._ramp_arguments.signatures and heights._hat_means.signatures
+    assert precompile.load_kernels() is None
+
+
+def test_a_granules_detector_runs_on_one_thread_for_every_chunk(monkeypatch):
+    """``trace.stream.run`` under a trace launcher (a granule's sections) detects every chunk
+    with numba on the simulating thread alone, the last one too (a parallel region whose
+    second thread is busy elsewhere spins at its barrier); outside a granule the last chunk,
+    with nothing left to trace, has every thread. Synthetic returns, no rendering."""
+    import numba
+    from concurrent.futures import ThreadPoolExecutor
+    from lidar_mitsuba.detector.records import Returns
+    from lidar_mitsuba.instrument import Instrument
+    from lidar_mitsuba.trace import stream
+
+    class Source:
+        def launch(self, a, b, seed):
+            ret = Returns.at_times(np.full((b - a) * 4, 3.3e6), paths_per_shot=4)
+            return type("Done", (), {"result": lambda self: ret})()
+
+    seen = []
+    detect = stream.pmt.detect
+
+    def counting(*args, **kw):
+        seen.append(numba.get_num_threads())
+        return detect(*args, **kw)
+    monkeypatch.setattr(stream.pmt, "detect", counting)
+    every = numba.get_num_threads()
+    runs = {"granule": ThreadPoolExecutor(1), "alone": None}
+    for name, launcher in runs.items():
+        monkeypatch.setattr(stream, "trace_launcher", lambda launcher=launcher: launcher)
+        seen.clear()
+        stream.run(source=Source(), detectors={"d": Instrument()}, z_ref_m=np.zeros(30),
+                   seed=1, chunk_shots=10)
+        assert seen[:2] == [1, 1] and len(seen) == 3
+        assert seen[2] == (1 if name == "granule" else every)
+    runs["granule"].shutdown()
