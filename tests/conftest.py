@@ -31,6 +31,39 @@ SLOW_FILES = {"test_snow_kernel.py": 148, "test_bench.py": 146, "test_notebooks.
               "test_granule.py": 28, "test_forest_dem.py": 20}
 
 
+def pytest_configure(config):
+    """The whole suite on xdist workers (the README's command): the numba kernels are compiled
+    here, in the controller, before the workers start, when their cache beside the package is
+    cold (a fresh clone, or an edited kernel): the detector's in one process and the DEM
+    footprint means' and ATL06 fit's in another, side by side (lidar_mitsuba.precompile;
+    ~38 s and ~26 s CPU on the 2-core VM). Otherwise both workers compile the detector at once,
+    each its own copy (both begin with files that detect photons), and later processes compile
+    what is not cached yet. Cached kernels: nothing runs. A selection of files (or ``-n 0``)
+    compiles, as before, what its tests use."""
+    import subprocess
+    import sys
+    from lidar_mitsuba import precompile as pc
+    whole_suite = config.args_source is pytest.Config.ArgsSource.TESTPATHS
+    workers = getattr(config.option, "numprocesses", None) or 0
+    if hasattr(config, "workerinput") or not whole_suite or workers < 2:
+        return
+    steps = []
+    if not pc._cached("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")):
+        steps.append("p._detector()")
+    rest = [fn for fn, (module, names) in (
+        ("p._heights()", ("ground.dem.heights", ("_stencil_sums",))),
+        ("p._atl06()", ("products.atl06.kernel", ("fit_segment", "reference_heights"))))
+        if not pc._cached(module, names)]
+    if rest:
+        steps.append("; ".join(rest))
+    procs = [subprocess.Popen([sys.executable, "-c",
+                               f"from lidar_mitsuba import precompile as p; {code}"])
+             for code in steps]
+    for p in procs:
+        if p.wait() != 0:
+            raise RuntimeError(f"compiling the numba kernels failed ({p.args[-1]})")
+
+
 def pytest_collection_modifyitems(config, items):
     """The slow files first, longest first (:data:`SLOW_FILES`; the sort is stable: each
     file's tests keep their order, and pyproject's ``--no-loadscope-reorder`` keeps xdist
