@@ -240,19 +240,18 @@ def test_auto_takes_the_kernel_and_refuses_bad_models(monkeypatch):
 
 def test_cli_snow_model(tmp_path, capsys):
     """--snow-model walk|kernel run; without --snow-grain-um it is refused (one line, exit 2,
-    no file; in process: tests/cli_checks.py, a process each cost seconds of start-up)."""
-    import subprocess
-    import sys
+    no file). In process, the runs too (tests/cli_checks.py: a process each cost seconds of
+    start-up; tests/test_cli.py starts the command's own process)."""
     from cli_checks import bad_call
-    exe = [sys.executable, "-m", "lidar_mitsuba.cli", "simulate", "--surface", "flat",
-           "--shots", "50", "--no-progress"]
+    from lidar_mitsuba.cli import main
+    exe = ["simulate", "--surface", "flat", "--shots", "50", "--no-progress"]
     for model in ("walk", "kernel"):
         out = tmp_path / f"{model}.h5"
-        p = subprocess.run(exe + ["--snow-grain-um", "1000", "--snow-max-events", "2000",
-                                  "--snow-model", model, "--out", str(out), "--explain"],
-                           capture_output=True, text=True, cwd=tmp_path)
-        assert p.returncode == 0, p.stderr
-        assert ("snow model: kernel" in p.stdout) == (model == "kernel") and out.is_file()
+        code = main(exe + ["--snow-grain-um", "1000", "--snow-max-events", "2000",
+                           "--snow-model", model, "--out", str(out), "--explain"])
+        printed = capsys.readouterr()
+        assert code == 0, printed.err
+        assert ("snow model: kernel" in printed.out) == (model == "kernel") and out.is_file()
     bad = tmp_path / "bad.h5"
     for args, flag in ((["--snow-model", "kernel"], "--snow-model"),
                        (["--snow-grain-um", "100", "--snow-g", "1.2"], "--snow-g"),
@@ -264,5 +263,5 @@ def test_cli_snow_model(tmp_path, capsys):
                         "--snow-crust-m"),
                        (["--snow-grain-um", "100", "--snow-crust-m", "0.02",
                          "--snow-crust-density", "5"], "--snow-crust-density")):
-        err = bad_call(exe[3:] + args + ["--out", str(bad)], capsys)
+        err = bad_call(exe + args + ["--out", str(bad)], capsys)
         assert flag in err and not bad.exists(), err
