@@ -33,15 +33,20 @@ SLOW_FILES = {"test_bench.py": 146, "test_snow_kernel.py": 110, "test_notebooks.
               "test_fpb_matrix.py": 21, "test_forest_dem.py": 20}
 
 
+#: the controller's compiling processes (:func:`pytest_configure`), awaited once
+_COMPILING: list = []
+
+
 def pytest_configure(config):
     """The whole suite on xdist workers (the README's command): the numba kernels are compiled
-    here, in the controller, before the workers start, when their cache beside the package is
-    cold (a fresh clone, or an edited kernel): the detector's in one process and the DEM
-    footprint means' and ATL06 fit's in another, side by side (lidar_mitsuba.precompile;
-    ~38 s and ~26 s CPU on the 2-core VM). Otherwise both workers compile the detector at once,
-    each its own copy (both begin with files that detect photons), and later processes compile
-    what is not cached yet. Cached kernels: nothing runs. A selection of files (or ``-n 0``)
-    compiles, as before, what its tests use."""
+    by the controller's own processes when their cache beside the package is cold (a fresh
+    clone, or an edited kernel): the detector's in one process and the DEM footprint means'
+    and ATL06 fit's in another, side by side (lidar_mitsuba.precompile; ~38 s and ~26 s CPU
+    on the 2-core VM), while the workers start and collect; no test is handed out before they
+    are done (:func:`pytest_xdist_node_collection_finished`). Otherwise both workers compile
+    the detector at once, each its own copy (both begin with files that detect photons), and
+    later processes compile what is not cached yet. Cached kernels: nothing runs. A selection
+    of files (or ``-n 0``) compiles, as before, what its tests use."""
     import subprocess
     import sys
     from lidar_mitsuba import precompile as pc
@@ -58,10 +63,16 @@ def pytest_configure(config):
         if not pc._cached(module, names)]
     if rest:
         steps.append("; ".join(rest))
-    procs = [subprocess.Popen([sys.executable, "-c",
-                               f"from lidar_mitsuba import precompile as p; {code}"])
-             for code in steps]
-    for p in procs:
+    _COMPILING.extend(subprocess.Popen([sys.executable, "-c",
+                                        f"from lidar_mitsuba import precompile as p; {code}"])
+                      for code in steps)
+
+
+def pytest_xdist_node_collection_finished(node, ids):
+    """The controller, as each worker has collected: the kernels' compiling processes are
+    awaited before the first test is handed out (:func:`pytest_configure`)."""
+    while _COMPILING:
+        p = _COMPILING.pop()
         if p.wait() != 0:
             raise RuntimeError(f"compiling the numba kernels failed ({p.args[-1]})")
 
