@@ -18,17 +18,66 @@ def pytest_xdist_auto_num_workers(config):
     return max(1, min(4, len(os.sched_getaffinity(0))))
 
 
-#: The test files that take longest (seconds on one of two workers: a full run's per-file
-#: sums, session 21, this 2-core VM nearly quiet, warm Dr.Jit and numba caches), started
-#: first: with ``--dist loadfile`` a file stays on one worker, and xdist's default order (files
-#: with the most tests first) left the heaviest, with few tests, to the end of the run, where
-#: one worker finished them alone. Longest first (the LPT rule) ends the workers within about
-#: the last file's time of each other. A file not listed runs after these, in collection
-#: order; a new slow file belongs here.
-SLOW_FILES = {"test_snow_kernel.py": 148, "test_bench.py": 146, "test_notebooks.py": 100,
-              "test_campaign.py": 95, "test_docs.py": 86, "test_fpb_matrix.py": 65,
-              "test_twin.py": 54, "test_reproduce.py": 48, "test_snow.py": 43,
-              "test_granule.py": 28, "test_forest_dem.py": 20}
+#: The test files that take longest (seconds on one of two workers: the per-file sums of the
+#: README's test command on a fresh clone, session 22: cold numba and Dr.Jit caches, as CI
+#: runs it, the machine shared (the run had 1.3 of its 2 cores), so the seconds are ~1.5x a
+#: quiet machine's; only their order counts), started first: with ``--dist loadfile`` a file
+#: stays on one worker, and xdist's default order (files with the most tests first) left the
+#: heaviest, with few tests, to the end of the run, where one worker finished them alone.
+#: Longest first (the LPT rule) ends the workers within about the last file's time of each
+#: other (that run: 734 and 736 s). A file not listed runs after these, in collection order;
+#: a new slow file belongs here.
+SLOW_FILES = {"test_bench.py": 208, "test_snow_kernel.py": 141, "test_docs.py": 106,
+              "test_twin.py": 106, "test_notebooks.py": 104, "test_campaign.py": 103,
+              "test_reproduce.py": 96, "test_snow.py": 57, "test_import_boundaries.py": 44,
+              "test_granule.py": 36, "test_cli.py": 32, "test_atl03_fields.py": 26,
+              "test_peer_media.py": 25, "test_cloud.py": 23, "test_fpb_matrix.py": 22,
+              "test_brdf_variants.py": 21, "test_forest_twin.py": 21,
+              "test_detector_pinned.py": 21}
+
+
+#: the controller's compiling processes (:func:`pytest_configure`), awaited once
+_COMPILING: list = []
+
+
+def pytest_configure(config):
+    """The whole suite on xdist workers (the README's command): the numba kernels are compiled
+    by the controller's own processes when their cache beside the package is cold (a fresh
+    clone, or an edited kernel): the detector's in one process and the DEM footprint means'
+    and ATL06 fit's in another, side by side (lidar_mitsuba.precompile; ~38 s and ~26 s CPU
+    on the 2-core VM), while the workers start and collect; no test is handed out before they
+    are done (:func:`pytest_xdist_node_collection_finished`). Otherwise both workers compile
+    the detector at once, each its own copy (both begin with files that detect photons), and
+    later processes compile what is not cached yet. Cached kernels: nothing runs. A selection
+    of files (or ``-n 0``) compiles, as before, what its tests use."""
+    import subprocess
+    import sys
+    from lidar_mitsuba import precompile as pc
+    whole_suite = config.args_source is pytest.Config.ArgsSource.TESTPATHS
+    workers = getattr(config.option, "numprocesses", None) or 0
+    if hasattr(config, "workerinput") or not whole_suite or workers < 2:
+        return
+    steps = []
+    if not pc._cached("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")):
+        steps.append("p._detector()")
+    rest = [fn for fn, (module, names) in (
+        ("p._heights()", ("ground.dem.heights", ("_stencil_sums",))),
+        ("p._atl06()", ("products.atl06.kernel", ("fit_segment", "reference_heights"))))
+        if not pc._cached(module, names)]
+    if rest:
+        steps.append("; ".join(rest))
+    _COMPILING.extend(subprocess.Popen([sys.executable, "-c",
+                                        f"from lidar_mitsuba import precompile as p; {code}"])
+                      for code in steps)
+
+
+def pytest_xdist_node_collection_finished(node, ids):
+    """The controller, as each worker has collected: the kernels' compiling processes are
+    awaited before the first test is handed out (:func:`pytest_configure`)."""
+    while _COMPILING:
+        p = _COMPILING.pop()
+        if p.wait() != 0:
+            raise RuntimeError(f"compiling the numba kernels failed ({p.args[-1]})")
 
 
 def pytest_collection_modifyitems(config, items):
