@@ -61,7 +61,7 @@ def pytest_configure(config):
     if not pc._cached("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")):
         steps.append("p._detector()")
     rest = [fn for fn, (module, names) in (
-        ("p._heights()", ("ground.dem.heights", ("_stencil_sums",))),
+        ("p._heights()", ("ground.dem.heights", pc.HEIGHTS_KERNELS)),
         ("p._atl06()", ("products.atl06.kernel", ("fit_segment", "reference_heights"))))
         if not pc._cached(module, names)]
     if rest:
