@@ -278,7 +278,7 @@ def _warm_up() -> None:
     """The writer's imports, and the compiled ATL06 fit loaded from numba's cache when it is
     there (never compiled here: a short track does not use it), before the first section."""
     from . import granule, precompile  # noqa: F401
-    if precompile._cached("products.atl06.kernel", ("fit_segment", "reference_heights")):
+    if precompile.is_cached("atl06"):
         precompile._atl06()
 
 

@@ -24,8 +24,12 @@ ATL06_S = 22.0
 #: (ESTIMATE: the 2.2 s were the stencil sums alone; the footprint weights' two kernels of
 #: issue 43 took 1.5x their compile CPU under load, 0.9 against 0.6 s: 2.2 x 2.5)
 HEIGHTS_S = 5.5
-#: the footprint means' compiled kernels (:mod:`lidar_mitsuba.ground.dem.heights`)
-HEIGHTS_KERNELS = ("_stencil_sums", "_ramp_arguments", "_hat_means")
+#: each stage's numba kernels: the module (under ``lidar_mitsuba``) and the functions whose
+#: cache entries say the stage is compiled (:func:`is_cached`): the detector's, the DEM
+#: footprint means' (:mod:`lidar_mitsuba.ground.dem.heights`) and the compiled ATL06 fit's
+KERNELS = {"detector": ("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")),
+           "heights": ("ground.dem.heights", ("_stencil_sums", "_ramp_arguments", "_hat_means")),
+           "atl06": ("products.atl06.kernel", ("fit_segment", "reference_heights"))}
 
 
 def _detector() -> None:
@@ -57,6 +61,11 @@ def _atl06() -> None:
                        range_gate_m=30.0, z_ref_m=np.zeros(n), engine="compiled")
 
 
+def is_cached(stage: str) -> bool:
+    """Whether numba's cache holds every kernel of ``stage`` (a :data:`KERNELS` key)."""
+    return _cached(*KERNELS[stage])
+
+
 def _cached(module: str, functions: tuple[str, ...]) -> bool:
     """Whether numba's cache beside the package holds the index of each of ``functions`` of
     ``module`` as the code stands (numba names it ``module.function-LINE.pyXY.nbi``, LINE the
@@ -77,11 +86,11 @@ def compile_kernels(*, atl06: bool = False, progress: bool = True) -> float:
     not cached yet; returns the seconds it took. With ``progress``, a bar on stderr says
     "compiling kernels (first run on this machine)" and moves every half second."""
     steps = []
-    if not _cached("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")):
+    if not is_cached("detector"):
         steps.append(("the detector", DETECTOR_S, _detector))
-    if not _cached("ground.dem.heights", HEIGHTS_KERNELS):
+    if not is_cached("heights"):
         steps.append(("the DEM footprint means", HEIGHTS_S, _heights))
-    if atl06 and not _cached("products.atl06.kernel", ("fit_segment", "reference_heights")):
+    if atl06 and not is_cached("atl06"):
         steps.append(("the ATL06 fit", ATL06_S, _atl06))
     if not steps:
         return 0.0
@@ -117,8 +126,8 @@ def compile_kernels(*, atl06: bool = False, progress: bool = True) -> float:
     return time.perf_counter() - t0
 
 
-#: the thread of :func:`load_kernels` in this process, keyed by the process id
-_LOADER: list = [None]
+#: the process in which :func:`load_kernels` ran (a forked child runs it again)
+_LOADED_PID: list = [None]
 
 
 def load_kernels() -> threading.Thread | None:
@@ -135,11 +144,10 @@ def load_kernels() -> threading.Thread | None:
     parallel kernels are left to their first call, on the simulating thread: numba's
     ``workqueue`` threading layer (where OpenMP and TBB are missing) refuses parallel regions
     launched from two threads at once."""
-    if _LOADER[0] is not None and _LOADER[0][0] == os.getpid():
+    if _LOADED_PID[0] == os.getpid():
         return None
-    _LOADER[0] = (os.getpid(), None)
-    if not (_cached("detector.deadtime", ("shot_stats",))
-            and _cached("ground.dem.heights", HEIGHTS_KERNELS)):
+    _LOADED_PID[0] = os.getpid()
+    if not (_cached(KERNELS["detector"][0], ("shot_stats",)) and is_cached("heights")):
         return None
 
     def load():
@@ -149,5 +157,4 @@ def load_kernels() -> threading.Thread | None:
 
     loader = threading.Thread(target=load, name="lidar-kernels", daemon=True)
     loader.start()
-    _LOADER[0] = (os.getpid(), loader)
     return loader

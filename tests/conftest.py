@@ -58,12 +58,9 @@ def pytest_configure(config):
     if hasattr(config, "workerinput") or not whole_suite or workers < 2:
         return
     steps = []
-    if not pc._cached("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")):
+    if not pc.is_cached("detector"):
         steps.append("p._detector()")
-    rest = [fn for fn, (module, names) in (
-        ("p._heights()", ("ground.dem.heights", pc.HEIGHTS_KERNELS)),
-        ("p._atl06()", ("products.atl06.kernel", ("fit_segment", "reference_heights"))))
-        if not pc._cached(module, names)]
+    rest = [f"p._{stage}()" for stage in ("heights", "atl06") if not pc.is_cached(stage)]
     if rest:
         steps.append("; ".join(rest))
     _COMPILING.extend(subprocess.Popen([sys.executable, "-c",

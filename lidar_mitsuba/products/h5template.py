@@ -16,9 +16,10 @@ a tenth of the cost). The copies are registered with
 A template is keyed by everything that makes its objects (:class:`Spec`: each dataset's path,
 dtype, row shape, fill value and attributes, in order), so a group that differs in any of
 them (another dtype, a ``model_note``) gets a template of its own, and a copy holds the
-very objects that :func:`build` would make (``tests/test_h5template.py`` compares every
-object and attribute). ``H5Ocopy`` does not carry object references (dimension scales'
-``DIMENSION_LIST``, ``REFERENCE_LIST``) from one file to another, so templates hold none:
+very objects that :func:`build` would make (``tests/test_h5chunks.py`` and
+``tests/test_granule.py`` compare every object and attribute, templates on and off).
+``H5Ocopy`` does not carry object references (dimension scales' ``DIMENSION_LIST``,
+``REFERENCE_LIST``) from one file to another, so templates hold none:
 scales are attached in the file after the copy. :data:`TEMPLATES` ``False`` (the
 environment's ``LIDAR_MITSUBA_H5_TEMPLATES=0``) makes every group with :func:`build`.
 """
