@@ -209,8 +209,8 @@ def test_validate_real_over_every_real_file(tmp_path, capsys):
         if r["verdict"] == "agrees":      # clear segments', or with the cloud the cloudy ones'
             ratio = r["background_ratio"]
             assert lo <= (ratio if ratio is not None else r["background_cloudy_ratio"]) <= hi
-        if r["product"] == "ATL08":
-            assert r["verdict"] == "surface missing"
+        if "forest" in r["file"]:        # the forest twin's rows: only with --signal-shots > 0
+            assert r["verdict"] == "not simulated" and "--signal-shots" in r["reason"]
         assert r["predicted"]["background_hz"] == pytest.approx(
             sum(v for k, v in r["predicted"]["background_terms_hz"].items() if k != "total"))
     assert set(by_file) == set(files)
@@ -225,7 +225,7 @@ def test_validate_real_over_every_real_file(tmp_path, capsys):
     assert sum(r["cloud"] is not None for r in pine) >= 4
     assert (tmp_path / "realism_background.png").stat().st_size > 10_000
     md = (tmp_path / "realism.md").read_text()
-    assert all(f in md for f in files)
+    assert all(f in md for f in files) and "MISSING" not in md
     # the forest clip's ATL03 and NASA's ATL08: our ATL08 beside it (studies.atl08_real)
     assert "h_te_best_fit" in (tmp_path / "atl08_real.md").read_text()
     out = capsys.readouterr().out
@@ -389,3 +389,58 @@ def test_json_safe_writes_plain_json_with_no_nan():
     assert json.loads(json.dumps(out, allow_nan=False)) == {
         "nan": None, "row": [1.5, 3, True, None, [[1.0, None]]], "2": "two"}
     assert type(out["row"][1]) is int and type(out["row"][2]) is bool
+
+
+def _forest_doc(a03, a08) -> dict:
+    """A forest twin's doc (studies.forest_twin.compare) with round numbers."""
+    return {"atl03": a03.name, "atl08": a08.name, "beam": "gt1r", "floor": "litter",
+            "shots": 1000, "stand": {"trees": 9, "mean_height_m": 6.0, "cover": 0.8,
+                                     "lai": 3.0, "representation": "gap"},
+            "nasa": {"ground_per_shot": 0.2, "canopy_per_shot": 0.8},
+            "ours_twin": {"ground_per_shot": 0.1, "canopy_per_shot": 0.1},
+            "like_with_like": {"real": {"ground": 0.25, "understorey": 0.25, "canopy": 0.5},
+                               "twin": {"ground": 0.5, "understorey": 0.0, "canopy": 0.4}},
+            "twin_truth": {"signal_per_shot": 0.3}}
+
+
+def test_the_forest_pairs_rows_are_judged_against_its_twin(monkeypatch, tmp_path):
+    """With signal shots the forest clip's ATL03 and ATL08 rows take their surface, signal and
+    verdict from the pair's forest twin (studies.realism_forest); a doc of round numbers stands
+    in for the rendering (forest_twin.twins), so each row's signal is exactly the doc's: ATL03
+    the like-with-like layers' sums (1.0 real, 0.9 twin: x0.9), ATL08 NASA's ground + canopy
+    against ours on the twin (1.0, 0.2: x0.2), the verdict by the matrix's ranges, the leak
+    term from the twin's true signal (0.3 a shot). An ATL08 without its ATL03 beside it:
+    surface missing."""
+    import shutil
+    from lidar_mitsuba.studies import forest_twin
+    a03 = SHARED / "ATL03_gt1r_20220401_forest_wyoming.h5"
+    a08 = SHARED / "ATL08_gt1r_20220401_forest_wyoming.h5"
+    if not (a03.exists() and a08.exists()):
+        pytest.skip(f"no forest clip at {SHARED}")
+    monkeypatch.setattr(forest_twin, "twins", lambda paths, **kw: [_forest_doc(a03, a08)])
+    monkeypatch.setattr(realism, "background_curve", dict)      # the figure's curve: not here
+    doc = realism.run([a03, a08], None, signal_shots=1)
+    assert [d["beam"] for d in doc["forest_twin"]] == ["gt1r"]
+    by = {r["product"]: r for r in doc["rows"]}
+    for product, real_sig, twin_sig in (("ATL03", 1.0, 0.9), ("ATL08", 1.0, 0.2)):
+        r, lo, hi = by[product], *realism.SIGNAL_AGREES
+        p = r["predicted"]
+        assert p["surface"].startswith("forest twin (9 conifers") and not p["surface_missing"]
+        assert r["measured"]["signal_forest"] == pytest.approx(real_sig)
+        assert p["signal_per_shot"] == pytest.approx(twin_sig)
+        assert r["signal_ratio"] == pytest.approx(twin_sig / real_sig)
+        bg = r["background_ratio"]
+        ok = lo <= r["signal_ratio"] <= hi and (bg is None or 0.5 <= bg <= 2.0)
+        assert r["verdict"] == ("agrees" if ok else "disagrees")
+        assert "shots" not in p                      # no flat-surface simulation under it
+    assert by["ATL08"]["verdict"] == "disagrees" and "signal x0.20" in by["ATL08"]["reason"]
+    # the leak term, S f_out / (2 H / c), takes the twin's true signal S: twice S, twice it
+    twice = _forest_doc(a03, a08)
+    twice["twin_truth"]["signal_per_shot"] = 0.6
+    monkeypatch.setattr(forest_twin, "twins", lambda paths, **kw: [twice])
+    again = {r["product"]: r for r in realism.run([a03, a08], None, signal_shots=1)["rows"]}
+    leak = [d["ATL08"]["predicted"]["background_terms_hz"]["leak"] for d in (by, again)]
+    assert leak[0] > 0 and leak[1] == pytest.approx(2 * leak[0], rel=1e-9)
+    assert again["ATL08"]["predicted"]["signal_per_shot"] == pytest.approx(0.2)
+    lone = realism.run([shutil.copy(a08, tmp_path)], None, signal_shots=0)["rows"][0]
+    assert lone["verdict"] == "surface missing" and "pair" in lone["reason"]

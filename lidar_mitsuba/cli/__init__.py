@@ -126,7 +126,8 @@ def _add_study_parsers(sub) -> None:
     va.add_argument("--signal-shots", type=nonnegative_int, default=200, metavar="N",
                     help="with --real: shots simulated per beam for its signal through dead "
                     "time (200; 0: the lidar equation alone, no rendering; > 0 also simulates each "
-                    "ATL03 + ATL08 forest pair's twin over all its shots: studies.forest_twin)")
+                    "ATL03 + ATL08 forest pair's twin over all its shots, studies.forest_twin, "
+                    "and judges the pair's rows against it)")
 
 
 def _add_terrain_parsers(sub) -> None:
@@ -263,17 +264,17 @@ def _cmd_validate(a) -> int:
     out = out_dir(a.out)
     if a.real is not None:
         from ..studies import realism
-        realism.run(a.real, out, signal_shots=a.signal_shots, progress=print,
-                    cloud=_cloud(a.cloud))
+        doc = realism.run(a.real, out, signal_shots=a.signal_shots, progress=print,
+                          cloud=_cloud(a.cloud))
         print(f"wrote {out / 'realism.md'}, {out / 'realism.json'} and "
               f"{out / 'realism_background.png'}")
         from ..studies import atl08_real          # ATL03 + NASA's ATL08 pairs among them
         if atl08_real.run(a.real, out, progress=print):
             print(f"wrote {out / 'atl08_real.md'} and {out / 'atl08_real.json'}")
-        if a.signal_shots > 0:                    # the forest pairs' twins: all their shots
+        if doc["forest_twin"]:                    # the forest pairs' twins the matrix ran
             from ..studies import forest_twin
-            if forest_twin.run(a.real, out, progress=print):
-                print(f"wrote {out / 'forest_twin.md'} and {out / 'forest_twin.json'}")
+            forest_twin.write(doc["forest_twin"], out)
+            print(f"wrote {out / 'forest_twin.md'} and {out / 'forest_twin.json'}")
         return 0
     for flag, given in (("--signal-shots", a.signal_shots != 200), ("--cloud", a.cloud)):
         if given:

@@ -397,12 +397,10 @@ def report_md(doc: dict) -> str:
     return "\n".join(lines)
 
 
-def run(paths, out_dir=None, *, shots: int | None = None, seed: int = 1,
-        progress=print) -> list[dict]:
+def twins(paths, *, shots: int | None = None, seed: int = 1, progress=print) -> list[dict]:
     """:func:`compare` on every ATL03/ATL08 pair among ``paths`` whose ATL08 says forest
-    (a canopy height on some segment), each beam both files have; ``forest_twin.md`` and
-    ``.json`` in ``out_dir`` when given."""
-    import json
+    (a canopy height on some segment), each beam both files have (the realism matrix's
+    forest rows take theirs from these: :mod:`~lidar_mitsuba.studies.realism_forest`)."""
     import h5py
     from .atl08_real import pairs
     out = []
@@ -411,14 +409,31 @@ def run(paths, out_dir=None, *, shots: int | None = None, seed: int = 1,
             beams = [b for b in f8 if b.startswith("gt") and b in f3
                      and (f8[f"{b}/land_segments/canopy/h_canopy"][()] < F4_FILL).any()]
         for beam in beams:
-            progress(f"forest twin of {pathlib.Path(a03).name} {beam}")
+            if progress is not None:
+                progress(f"forest twin of {pathlib.Path(a03).name} {beam}")
             out.append(compare(a03, a08, beam, shots=shots, seed=seed))
-    if out and out_dir is not None:
-        d = pathlib.Path(out_dir)
-        d.mkdir(parents=True, exist_ok=True)
-        (d / "forest_twin.json").write_text(json.dumps(out, indent=1, default=float))
-        (d / "forest_twin.md").write_text("# The forest twin\n\n" + "\n".join(
-            report_md(r) for r in out))
+    return out
+
+
+def write(docs: list[dict], out_dir) -> None:
+    """``forest_twin.md`` and ``forest_twin.json`` of :func:`twins`' ``docs`` in ``out_dir``
+    (nothing without a doc)."""
+    import json
+    if not docs:
+        return
+    d = pathlib.Path(out_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    (d / "forest_twin.json").write_text(json.dumps(docs, indent=1, default=float))
+    (d / "forest_twin.md").write_text("# The forest twin\n\n" + "\n".join(
+        report_md(r) for r in docs))
+
+
+def run(paths, out_dir=None, *, shots: int | None = None, seed: int = 1,
+        progress=print) -> list[dict]:
+    """:func:`twins` of ``paths``, written by :func:`write` to ``out_dir`` when given."""
+    out = twins(paths, shots=shots, seed=seed, progress=progress)
+    if out_dir is not None:
+        write(out, out_dir)
     return out
 
 

@@ -222,9 +222,12 @@ def outside_fraction(dh_m, spans_m) -> np.ndarray:
     return 1.0 - np.searchsorted(d, spans / 2.0, side="right") / d.size
 
 
-def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> dict:
+def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
+              forest: dict | None = None) -> dict:
     """The model's background (term by term), signal and shape for one beam (``twin_granule``:
-    the file's twin, for ``signal_shots > 0``); with a ``cloud``
+    the file's twin, for ``signal_shots > 0``; ``forest``: a forest row's signal and surface
+    from its twin, :func:`~lidar_mitsuba.studies.realism_forest.prediction`, in place of the
+    flat surface's simulation); with a ``cloud``
     (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`), also its cloudy segments' background and
     signal (ESTIMATE: the clear signal dimmed by the cloud's two-way transmission; through dead
     time that overstates the loss dead time takes from the dimmer return, without it, with
@@ -245,8 +248,14 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> 
     out = {"surface": surface["name"], "surface_missing": bool(surface.get("missing")),
            "range_m": range_m, "pulse_energy_uj": float(inst.link_budget.pulse_energy_uj),
            "energy_source": beam_energy(rb)[1], "band_from_file": band.from_file}
-    f_out = None
-    if signal_shots > 0 and twin_granule is not None:
+    f_out, leak_signal = None, None
+    if forest is not None:                # the forest twin's (studies.realism_forest)
+        out.update({k: forest[k] for k in ("surface", "signal_per_shot", "signal_from",
+                                           "forest_shots")}, forest_twin=True,
+                   surface_missing=False)
+        leak_signal = forest["signal_truth"]
+        f_out = equation_outside_fraction(inst, band.signal_span_m, surface=surface)
+    elif signal_shots > 0 and twin_granule is not None:
         sim = simulated(twin_granule, rb.name, surface=surface, shots=signal_shots, seed=seed,
                         spans_m=band.signal_span_m)
         out.update({k: v for k, v in sim.items() if k != "outside_fraction"})
@@ -271,7 +280,9 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> 
     # clear segments in the gaps of the file's own broken deck: its shade (cloud_shade)
     cover = 0.0 if cloud is None or rb.clear is None else float(1.0 - np.mean(rb.clear))
     out["deck_cover"] = cover
-    terms = night.background_terms(inst, signal_per_shot=out["signal_per_shot"],
+    if leak_signal is None:
+        leak_signal = out["signal_per_shot"]
+    terms = night.background_terms(inst, signal_per_shot=leak_signal,
                                    deck=cloud if 0.0 < cover < 1.0 else None,
                                    deck_cover=cover if cover < 1.0 else 0.0, **kw)
     out["background_terms_hz"] = terms
@@ -294,7 +305,8 @@ def _ratio(pred, meas) -> float | None:
 
 def verdict(row: dict) -> tuple[str, str]:
     """``(verdict, reason)`` for a beam's row: agrees / disagrees / cloud missing / surface
-    missing / not measured, the reason naming the quantity that decides it."""
+    missing / not simulated / not measured, the reason naming the quantity that decides it
+    (a forest row with its twin: :func:`~lidar_mitsuba.studies.realism_forest.verdict`)."""
     m, p = row["measured"], row["predicted"]
     bg = _ratio(p["background_hz"], m["background_clear_hz"])
     sig = _ratio(p["signal_per_shot"], m["signal_clear"])
@@ -304,10 +316,13 @@ def verdict(row: dict) -> tuple[str, str]:
     if "signal_cloudy" in p:
         row["signal_cloudy_ratio"] = _ratio(p["signal_cloudy"], m["signal_cloudy"])
     cloudy = m["cloud_flags"] and m["clear_fraction"] == 0
+    if p.get("forest_twin"):
+        from .realism_forest import verdict as forest_verdict
+        return forest_verdict(row)
     if p["surface_missing"]:
-        return "surface missing", ("the product's surface (land, forest) is not modelled here"
-                                   + ("; every segment is cloudy and no cloud is given"
-                                      if cloudy else "") + "; beam, energy and sky as given")
+        v, why = p.get("missing") or ("surface missing", "the product's surface is not "
+                                      "modelled here")
+        return v, why + ("; every segment is cloudy and no cloud is given" if cloudy else "")
     if cloudy and m["background_cloudy_hz"] is None and m["signal_cloudy"] is None:
         return "not measured", "the file gives neither a background nor a signal rate"
     if cloudy and "background_cloudy_hz" in p:
@@ -399,12 +414,19 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
     (when given). ``signal_shots``: shots simulated per beam for its signal (0: the lidar
     equation, no rendering). ``progress``: a callable given one line per beam. ``cloud``: a
     :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud` for the cloudy segments (default: each
-    beam's own, :func:`~lidar_mitsuba.studies.realism_inputs.implied_cloud`)."""
+    beam's own, :func:`~lidar_mitsuba.studies.realism_inputs.implied_cloud`). With
+    ``signal_shots > 0`` each ATL03 + ATL08 forest pair's rows are judged against its forest
+    twin (:mod:`~lidar_mitsuba.studies.realism_forest`), whose docs the result keeps under
+    ``forest_twin`` (:func:`~lidar_mitsuba.studies.forest_twin.write` writes them)."""
     from .. import twin
     from ..products.real import read_product
+    from . import realism_forest
     t0 = time.perf_counter()
     rows, files = [], []
-    for k, path in enumerate(real_files(paths)):
+    paths = real_files(paths)
+    forest_docs, forest, paired = _forest_twins(paths, signal_shots=signal_shots, seed=seed,
+                                                progress=progress)
+    for k, path in enumerate(paths):
         rf = read_product(path)
         tg = twin.read(path) if signal_shots > 0 else None
         files.append({"file": path.name, "product": rf.product, "release": rf.release,
@@ -414,13 +436,20 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
             if tg is not None and rb.name not in {b.beam.name for b in tg.beams}:
                 continue                          # no two segments in a row: no shots
             sky = cloud if cloud is not None else implied[rb.name]
+            fdoc = forest.get((path.name, rb.name))
+            fp = None if fdoc is None else realism_forest.prediction(fdoc, rf.product)
             row = {"file": path.name, "product": rf.product, "beam": rb.name,
                    "strength": rb.strength, "measured": measured(rf, rb),
                    "cloud": None if sky is None else {
                        **sky.to_dict(), "from": "given" if cloud is not None else
                        "the file's reflectance"},
                    "predicted": predicted(rb, tg, signal_shots=signal_shots,
-                                          seed=seed + 7 * k, cloud=sky)}
+                                          seed=seed + 7 * k, cloud=sky, forest=fp)}
+            if fp is not None:
+                row["measured"]["signal_forest"] = fp["signal_measured"]
+            elif row["predicted"]["surface_missing"]:
+                row["predicted"]["missing"] = realism_forest.missing(
+                    signal_shots=signal_shots, paired=path.name in paired)
             row["verdict"], row["reason"] = verdict(row)
             rows.append(row)
             if progress is not None:
@@ -428,7 +457,7 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
     doc = {"signal_shots": int(signal_shots), "files": files, "rows": rows,
            "cloud": None if cloud is None else dataclasses.asdict(cloud),
            "pairs": pair_ratios(rows), "seconds": time.perf_counter() - t0,
-           "curve": background_curve()}
+           "curve": background_curve(), "forest_twin": forest_docs}
     if out_dir is not None:
         from . import realism_report
         out = pathlib.Path(out_dir)
@@ -437,6 +466,21 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
         (out / "realism.json").write_text(json.dumps(json_safe(doc), indent=1))
         (out / "realism.md").write_text(realism_report.report_md(doc))
     return doc
+
+
+def _forest_twins(paths, *, signal_shots: int, seed: int, progress):
+    """``(docs, by_row, paired)``: the forest twins of the ATL03 + ATL08 forest pairs among
+    ``paths`` (:func:`~lidar_mitsuba.studies.forest_twin.twins`, every shot of the clip, seed
+    ``seed + 1``; none with ``signal_shots`` 0), the docs by the matrix rows they judge
+    (:func:`~lidar_mitsuba.studies.realism_forest.by_row`), and the names of the files in a
+    pair."""
+    from . import forest_twin, realism_forest
+    from .atl08_real import pairs
+    paired = {pathlib.Path(f).name for pair in pairs(paths) for f in pair}
+    if signal_shots <= 0 or not paired:
+        return [], {}, paired
+    docs = forest_twin.twins(paths, seed=seed + 1, progress=progress)
+    return docs, realism_forest.by_row(docs), paired
 
 
 def background_curve(*, elevations_deg=None, z_m: float = 0.0) -> dict:
@@ -474,4 +518,5 @@ def format_row(r: dict) -> str:
         return "-" if v is None else f"{v:.2f}"
     return (f"{r['file'][:34]:<34} {r['beam']} {r['strength']:<6} "
             f"bg {k(m['background_clear_hz'])}/{k(p['background_hz'])} kHz "
-            f"sig {s(m['signal_clear'])}/{s(p['signal_per_shot'])}  {r['verdict']}")
+            f"sig {s(m.get('signal_forest', m['signal_clear']))}/{s(p['signal_per_shot'])}  "
+            f"{r['verdict']}")

@@ -40,14 +40,15 @@ PRODUCT_SURFACES = {
     "ocean": {"name": "open water (water BSDF, 5 m/s wind)", "albedo": 0.06, "water": 5.0},
     "inland water": {"name": "open water (water BSDF, 5 m/s wind)", "albedo": 0.06,
                      "water": 5.0},
-    "land": {"name": "land / forest: MISSING (the forest issue)", "albedo": 0.1, "water": None,
-             "missing": True},
+    "land": {"name": "land: a flat plate of albedo 0.1 (no forest twin)", "albedo": 0.1,
+             "water": None, "missing": True},
 }
 """The surface a user would choose knowing only the product (ATL06: land ice, ATL07: sea
 ice, ATL08: land, ATL03: its ``surf_type``) and its Lambertian albedo for sunlight: snow 0.9
 (the reference plate), open water 0.06 (Payne 1972, J. Atmos. Sci. 29, 959: the sea's
 albedo at moderate sun) at an ESTIMATE 5 m/s wind, land 0.1 (ESTIMATE: conifer canopy in the
-green, with its surface missing). Snow surfaces also delay the share of their return that
+green; a flat plate: a land row's surface is its forest twin where the file's ATL03 + ATL08
+pair has one, :mod:`~lidar_mitsuba.studies.realism_forest`, and missing otherwise). Snow surfaces also delay the share of their return that
 their volume scatters back (``snow``: the pack, :mod:`lidar_mitsuba.ground.snow.delay`)."""
 
 

@@ -98,7 +98,8 @@ def report_md(doc: dict) -> str:
             f"| {m['clear_fraction']:.2f}{'' if m['cloud_flags'] else ' (no flag)'} | "
             f"{_k(m['background_clear_hz'])} / {_k(m['background_cloudy_hz'])} | "
             f"{_k(p['background_hz'])} ({parts}) | {cloudy} | {_f(ratio)} | "
-            f"{_f(m['signal_clear'])} | {_f(p['signal_per_shot'])} | {_f(r['signal_ratio'])} | "
+            f"{_f(m.get('signal_forest', m['signal_clear']))} | {_f(p['signal_per_shot'])} | "
+            f"{_f(r['signal_ratio'])} | "
             f"{p['pulse_energy_uj']:.1f} ({'file' if p['energy_source'] == 'tx_pulse_energy' else 'history'}) "
             f"| {p['surface']} | **{r['verdict']}** | {r['reason']} |")
     lines += ["", "## Strong:weak", "", "| file | pair | sun [deg] | background measured, "
