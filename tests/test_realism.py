@@ -325,9 +325,20 @@ def test_validate_real_runs_over_the_shipped_files_and_simulates_a_beam(tmp_path
     assert p["shots"] == 60 and p["signal_per_shot"] > 0 and "spread_robust_m" in p
     assert p["energy_source"] == "tx_pulse_energy"
     assert row["measured"]["spread_robust_m"] > 0
-    # the leak as ATL03 counts it: two 50-shot rows (the second of 10 shots) of its photons
-    leak = p["leak"]
-    assert leak["rows"] == 2 and p["background_terms_hz"]["leak"] == leak["leak_hz"] > 0
+    # the leak: ATL03 gives its finder's span, so the laser photons outside it and their
+    # afterpulses; without the span (ATL06, ATL07), those our finder leaves in two 50-shot
+    # rows (the second of 10 shots) of the same simulation
+    assert p["leak_from"] == "the file's span" and "leak" not in p
+    rb = real.read_product(twin.REAL_SUBSET).beams[0]
+    band_s = 2 * np.nanmedian(rb.band_height_m) / night.C_M_PER_S
+    assert p["background_terms_hz"]["leak"] == pytest.approx(
+        p["signal_per_shot"] * p["outside_fraction"] / band_s, rel=1e-12)
+    rb.signal_span_m = None
+    q = realism.predicted(rb, twin.read(twin.REAL_SUBSET), signal_shots=60, seed=0)
+    assert q["signal_per_shot"] == p["signal_per_shot"]
+    leak = q["leak"]
+    assert q["leak_from"].startswith("our signal finder") and leak["rows"] == 2
+    assert q["background_terms_hz"]["leak"] == leak["leak_hz"] > 0
     assert 0 < leak["leftover_photons"] < leak["signal_photons"]
     assert leak["gate_noise_hz"] > 0 and leak["band_rate_hz"] > 0
 

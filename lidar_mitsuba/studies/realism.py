@@ -263,7 +263,15 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None) -> 
         photons = sim.pop("photons")
         out.update({k: v for k, v in sim.items() if k != "outside_fraction"})
         f_out = sim["outside_fraction"]
-        out["outside_fraction_fixed_span"] = float(np.nanmedian(f_out))
+        if rb.signal_span_m is not None and np.isfinite(rb.signal_span_m).any():
+            # ATL03 gives each row's span: where its own finder cut (ours, run on its
+            # photons, cuts wider: docs/physics/night-floor.md); the laser photons outside
+            # it and their afterpulses are the leak
+            f_out = f_out + photons["afterpulse_probability"]
+            photons = None
+            out["outside_fraction"] = float(np.nanmedian(f_out))
+        out["leak_from"] = ("the file's span" if photons is None else
+                            "our signal finder on the simulated photons")
     else:
         out["signal_per_shot"] = radiometric_signal(inst, z_m=z, surface=surface)
         out["signal_from"] = "lidar equation (no dead time)"
