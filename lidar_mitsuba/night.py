@@ -332,7 +332,7 @@ class Leak:
 def atl03_leak(*, shot, h_m, is_signal, gate_center_h_m, range_gate_m: float, n_shots: int,
                noise_hz: float, band_rate_hz: float, band_height_m: float,
                rng: np.random.Generator, keep: float = 1.0,
-               afterpulse_probability: float = 0.0, realizations: int = 8,
+               afterpulse_probability: float = 0.0, realizations: int = 32,
                passes: int = 2) -> Leak:
     """Term 5 as ATL03 counts it, from a simulation's photons: its laser photons (``is_signal``;
     heights already moved by the snow's delay where it has one), each kept with probability

@@ -4,7 +4,7 @@ what the model predicts there, nothing fitted to the file.
 
 For each beam: the measured background (clear and cloudy segments apart) against the
 model's (:func:`lidar_mitsuba.night.background_terms`: dark counts, sunlight, the air's and a
-cloud's backscatter, the laser's own photons the product's signal span misses), the signal
+cloud's backscatter, the laser's own photons the product's signal finder leaves), the signal
 photons per shot on clear segments against a short simulation of the file's own shots over
 the surface a user would choose knowing only the product (:data:`PRODUCT_SURFACES`) through
 the detector's dead time (or, with ``signal_shots=0``, the lidar equation alone), the
