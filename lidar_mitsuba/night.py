@@ -23,11 +23,14 @@ that span, ``bckgrd_counts_reduced`` the counts left) and divides::
 4. **cloud backscatter** where a cloud layer is given
    (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`), which also dims everything below it
    by ``exp(-2 eta tau)``;
-5. **the laser's own surface photons that the signal span misses**: a signal of ``S`` detected
-   photons per shot of which a fraction ``f`` falls outside the removed span adds
-   ``S f c / (2 H)`` (the pulse's tails, echoes and afterpulses: whatever the detected
-   photons' height distribution has outside the span; for a Gaussian pulse
-   ``f = erfc(w / (2 sqrt(2) sigma))``).
+5. **the laser's own photons that the signal finder does not call high confidence**: ATL03
+   takes out of each row's histogram exactly its high-confidence photons and their height
+   span (:func:`removed_signal`; the real file shows it), so the pulse's tails, echoes,
+   afterpulses and the snow's late photons that its finder leaves stay in the background:
+   ``L`` such photons per shot add ``L c / (2 (H - w))`` (:func:`atl03_leak`, from a
+   simulation's photons through our finder). Without a simulation, a signal of ``S``
+   photons per shot of which a fraction ``f`` falls outside a span ``w`` adds
+   ``S f c / (2 H)`` (for a Gaussian pulse ``f = erfc(w / (2 sqrt(2) sigma))``).
 
 Photon terms are thinned by the detector's fill factor and PDE (dead time is negligible at
 these rates: < 1e-3 of a channel's time); dark counts are counted as they are. The strong:weak
@@ -71,6 +74,10 @@ SIGNAL_SPAN_M = 0.9
 """Height span the product removes as surface signal where a file does not give it [m]:
 ``bckgrd_int_height - bckgrd_int_height_reduced`` of the shipped subset (median 0.9 m, sea
 ice at night). ESTIMATE elsewhere (the forest clip removes ~5 m)."""
+
+BCKGRD_SHOTS = 50
+"""Shots summed into one altimetric histogram, one row of ``bckgrd_atlas`` (ATL03 ATBD; four
+rows a 200-shot major frame, ``pce_mframe_cnt``, in the real files)."""
 
 
 def dark_count_per_channel_hz(*, anodes: int, channels: int) -> float:
@@ -130,6 +137,7 @@ class HistogramBand:
 def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elevation_deg,
                      solar_azimuth_deg, band: HistogramBand | None = None,
                      signal_per_shot: float = 0.0, outside_fraction=None,
+                     leak_hz: float | None = None,
                      cloud=None, deck=None, deck_cover: float = 0.0) -> dict:
     """The detected background rate the product reports, term by term [Hz, medians over the
     shots or segments given], for an ATLAS ``instrument`` (with a link budget).
@@ -142,6 +150,8 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
         signal_per_shot: detected surface photons per shot (the leak term's ``S``).
         outside_fraction: the fraction of them outside the removed span (default: the
             instrument's Gaussian pulse, :func:`gaussian_outside_fraction`).
+        leak_hz: the leak term itself [Hz, detected] where it was counted as ATL03 counts it
+            (:func:`atl03_leak`); then ``signal_per_shot`` and ``outside_fraction`` are unused.
         cloud: a :class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud` (default: clear
             sky).
         deck, deck_cover: clear segments in the gaps of a broken deck (a ``Cloud``) of this
@@ -191,11 +201,8 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
         air_sr = air_backscatter_integral_sr(link.atmosphere, z_lo_m=lo, z_hi_m=hi,
                                              wavelength_nm=lam)
     air_hz = per_sr * air_sr / band_s
-    if outside_fraction is None:
-        sigma_m = C_M_PER_NS * instrument.pulse_sigma_ns / 2.0
-        outside_fraction = gaussian_outside_fraction(band.signal_span_m, sigma_m)
-    f_out = float(np.nanmedian(np.atleast_1d(outside_fraction)))
-    leak_hz = signal_per_shot * f_out / band_s          # detected photons already
+    if leak_hz is None:
+        leak_hz = _span_leak_hz(instrument, band, signal_per_shot, outside_fraction) / band_s
     solar_hz = _solar_hz(instrument, float(np.median(rad.solar_mhz)) * 1e6, cloud=cloud,
                          albedo=albedo, deck=deck, deck_cover=deck_cover,
                          delta_time_s=delta_time_s, z_m=z0,
@@ -206,6 +213,16 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
            "air": air_hz * keep, "cloud": cloud_hz * keep, "leak": leak_hz}
     out["total"] = sum(out.values())
     return out
+
+
+def _span_leak_hz(instrument, band: HistogramBand, signal_per_shot: float,
+                  outside_fraction) -> float:
+    """The leak without a simulation [detected photons per shot]: ``signal_per_shot`` times
+    the median ``outside_fraction`` (default: the Gaussian pulse's outside the band's span)."""
+    if outside_fraction is None:
+        sigma_m = C_M_PER_NS * instrument.pulse_sigma_ns / 2.0
+        outside_fraction = gaussian_outside_fraction(band.signal_span_m, sigma_m)
+    return signal_per_shot * float(np.nanmedian(np.atleast_1d(outside_fraction)))
 
 
 def _solar_hz(instrument, solar_hz: float, *, cloud, albedo: float, deck, deck_cover: float,
@@ -251,3 +268,141 @@ def shaded_solar_hz(instrument, solar_hz: float, *, deck, cover: float, delta_ti
         solar_elevation_deg=elev, albedo=0.0, earth_sun_au=earth_sun_distance_au(t))
     above_hz = min(float(np.median(above)), solar_hz)
     return above_hz + (solar_hz - above_hz) * factor
+
+
+# ------------------------------------------------------------------------------ term 5
+def removed_signal(*, row, h_m, high, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """What ATL03 takes out of each 50-shot row's histogram as signal: ``(count, span_m)``,
+    (n_rows,) each, the number of the row's high-confidence photons and their height span [m]
+    (max - min; 0 in a row without one). ``bckgrd_counts - bckgrd_counts_reduced`` and
+    ``bckgrd_int_height - bckgrd_int_height_reduced`` of the shipped night subset are these,
+    exactly (to float32's rounding of the 5 km heights), for the photons that are high
+    confidence for any surface type, each row's photons those of its 50 pulses
+    (``tests/test_realism.py::test_atl03_removes_exactly_its_high_confidence_photons_and_their_span``).
+
+    Args:
+        row: (n,) each photon's row; h_m: (n,) its height [m]; high: (n,) bool, high
+            confidence; n_rows: rows."""
+    r = np.asarray(row, np.int64)[np.asarray(high, bool)]
+    h = np.asarray(h_m, np.float64)[np.asarray(high, bool)]
+    count = np.bincount(r, minlength=n_rows)
+    lo, hi = np.full(n_rows, np.inf), np.full(n_rows, -np.inf)
+    np.minimum.at(lo, r, h)
+    np.maximum.at(hi, r, h)
+    return count, np.where(count > 0, hi - lo, 0.0)
+
+
+@dataclass
+class Leak:
+    """The laser's photons ATL03 leaves in its background (:func:`atl03_leak`).
+
+    Attributes:
+        leak_hz: their rate over the band less each row's span [Hz, detected].
+        signal, high, leftover: (n_rows,) each row's laser photons, its high-confidence
+            photons (laser and noise) and the laser photons left in the background (those not
+            high confidence, and the expected afterpulses of the laser's photons).
+        span_m: (n_rows,) the span removed [m]; shots: (n_rows,) shots of each row (each
+            averaged over the draws of :func:`atl03_leak`).
+        keep: the share of the laser's photons kept (a cloud's transmission).
+    """
+    leak_hz: float
+    signal: np.ndarray
+    high: np.ndarray
+    leftover: np.ndarray
+    span_m: np.ndarray
+    shots: np.ndarray
+    keep: float = 1.0
+
+    def summary(self) -> dict:
+        """Plain numbers for a report: the rate, its standard error from the laser photons'
+        own sampling, the left-over share of the laser's photons and the rows' median span.
+        The error: the left-over count averaged over the draws is ``sum_i p_i`` over the
+        simulated laser photons, ``p_i <= keep`` the chance photon ``i`` is kept and left
+        over, so its Poisson variance ``sum_i p_i^2 <= keep N``: relative error at most
+        ``sqrt(keep / N)``, ``N`` the averaged count (``1 / sqrt(N)`` with no cloud)."""
+        n = float(self.leftover.sum())
+        return {"leak_hz": self.leak_hz,
+                "leak_se_hz": self.leak_hz * math.sqrt(self.keep / n) if n > 0 else 0.0,
+                "leftover_photons": n, "signal_photons": int(self.signal.sum()),
+                "leftover_fraction": n / max(int(self.signal.sum()), 1),
+                "rows": int(self.shots.size),
+                "span_median_m": float(np.median(self.span_m)) if self.span_m.size else 0.0}
+
+
+def atl03_leak(*, shot, h_m, is_signal, gate_center_h_m, range_gate_m: float, n_shots: int,
+               noise_hz: float, band_rate_hz: float, band_height_m: float,
+               rng: np.random.Generator, keep: float = 1.0,
+               afterpulse_probability: float = 0.0, realizations: int = 32,
+               passes: int = 2) -> Leak:
+    """Term 5 as ATL03 counts it, from a simulation's photons: its laser photons (``is_signal``;
+    heights already moved by the snow's delay where it has one), each kept with probability
+    ``keep`` (a cloud's two-way transmission), among noise photons drawn at ``noise_hz`` over
+    each shot's range gate (the other terms' rate there, not the simulation's), through our
+    signal finder (:func:`~lidar_mitsuba.products.classify.histogram_test`) with its noise
+    level from the band's background rate, as ATL03's finder takes it from the 50-shot
+    ``bckgrd_rate`` (recalled from the ATL03 ATBD, not re-read here; a night's 30 m gate
+    holds ~0.02 noise photons in 200 shots, too few to estimate it from); each 50-shot row
+    then loses its high-confidence photons and their span (:func:`removed_signal`) and
+    keeps the rest. The band's rate is ``band_rate_hz`` (the other terms) plus the leak
+    itself: ``passes`` rounds, the first without it. Photons outside the gate (the snow's
+    deepest) are never high confidence, and count: the band reaches 2.5 km below the
+    surface. Afterpulses (``afterpulse_probability`` a laser photon: 10-45 m below, outside
+    any span) are added as their expected number. The thinning and the noise are drawn
+    ``realizations`` times over the same laser photons and the rows' counts averaged (the
+    laser photons' own sampling error remains: :meth:`Leak.summary`).
+
+    Args:
+        shot: (n,) each photon's shot (0 .. n_shots - 1); h_m: (n,) its height [m];
+            is_signal: (n,) the laser's (the simulation's other photons are dropped).
+        gate_center_h_m: (n_shots,) each shot's gate centre [m]; range_gate_m: its height [m].
+        noise_hz, band_rate_hz: [Hz, detected]; band_height_m: the band ``H`` [m].
+    """
+    sig = np.asarray(is_signal, bool)
+    photons = (np.asarray(shot, np.int64)[sig], np.asarray(h_m, np.float64)[sig])
+    gate = np.asarray(gate_center_h_m, np.float64)
+    rows = -(-n_shots // BCKGRD_SHOTS)
+    shots = np.bincount(np.arange(n_shots) // BCKGRD_SHOTS, minlength=rows)
+    draws = []
+    for _ in range(max(int(realizations), 1)):
+        kept = rng.random(photons[0].size) < keep if keep < 1.0 else slice(None)
+        n_noise = rng.poisson(noise_hz * 2.0 * range_gate_m / C_M_PER_S, n_shots)
+        n_shot = np.repeat(np.arange(n_shots), n_noise)
+        n_h = gate[n_shot] + (rng.random(n_shot.size) - 0.5) * range_gate_m
+        draws.append((photons[0][kept], photons[1][kept], n_shot, n_h))
+    leak_hz = 0.0
+    for _ in range(max(int(passes), 1)):
+        acc = np.zeros((4, rows))                  # signal, high, leftover, span: summed
+        for d in draws:
+            acc += _rows_left(*d, gate=gate, range_gate_m=range_gate_m, rows=rows,
+                              rate_hz=band_rate_hz + leak_hz,
+                              afterpulse_probability=afterpulse_probability)
+        signal, high, leftover, span = acc / len(draws)
+        leak_hz = float(leftover.sum() / np.sum(shots * 2.0 * (band_height_m - span)
+                                                / C_M_PER_S))
+    return Leak(leak_hz, signal, high, leftover, span, shots, float(keep))
+
+
+def _rows_left(s_shot, s_h, n_shot, n_h, *, gate, range_gate_m: float, rows: int,
+               rate_hz: float, afterpulse_probability: float) -> np.ndarray:
+    """(4, rows): each row's laser photons, high-confidence photons, laser photons left in
+    the background and span removed [m], for one draw of :func:`atl03_leak` (laser photons
+    ``s_*``, noise photons ``n_*``: shot, height [m]), the finder's noise level from
+    ``rate_hz``."""
+    from .products.classify import histogram_test
+    block_shots, bin_m = 20, 0.5                    # histogram_test's defaults (our writer's)
+    inside = np.abs(s_h - gate[s_shot]) <= range_gate_m / 2.0
+    t_shot = np.concatenate([s_shot[inside], n_shot])
+    t_h = np.concatenate([s_h[inside], n_h])
+    order = np.argsort(t_shot, kind="stable")
+    test = histogram_test(shot=t_shot[order], h_m=t_h[order], gate_center_h_m=gate,
+                          range_gate_m=range_gate_m, block_shots=block_shots, bin_m=bin_m,
+                          noise_per_bin=rate_hz * 2.0 * bin_m / C_M_PER_S * block_shots)
+    high_t = np.empty(t_shot.size, bool)
+    high_t[order] = test.conf == 4
+    high_s = np.zeros(s_shot.size, bool)
+    high_s[np.flatnonzero(inside)] = high_t[:int(inside.sum())]
+    count, span = removed_signal(row=t_shot // BCKGRD_SHOTS, h_m=t_h, high=high_t, n_rows=rows)
+    signal = np.bincount(s_shot // BCKGRD_SHOTS, minlength=rows)
+    leftover = (np.bincount(s_shot[~high_s] // BCKGRD_SHOTS, minlength=rows)
+                + afterpulse_probability * signal)
+    return np.stack([signal, count, leftover, span])

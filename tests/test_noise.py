@@ -102,6 +102,12 @@ def test_classifier_separates_signal_from_noise(rng):
     assert r["hit_rate"] > 0.99
     # noise inside +-1 bin of the surface is indistinguishable: about 3 bins of 0.5 m out of 30 m
     assert r["false_alarm_rate"] < 0.12
+    # the noise level given (ATL03's way, night.atl03_leak) as the one estimated: the same test
+    t = classify.histogram_test(shot=shot, h_m=h, gate_center_h_m=z, range_gate_m=gate)
+    given = classify.histogram_test(shot=shot, h_m=h, gate_center_h_m=z, range_gate_m=gate,
+                                    noise_per_bin=t.noise_per_bin)
+    assert np.array_equal(t.conf, conf) and np.array_equal(given.conf, conf)
+    assert np.array_equal(given.tail_p, t.tail_p)
     # and with no noise at all, everything is signal
     conf = classify.signal_confidence(shot=s_shot, h_m=s_h, gate_center_h_m=z, range_gate_m=gate)
     assert np.all(conf == 4)

@@ -69,6 +69,85 @@ def test_a_gaussians_mass_outside_a_span_against_sampling():
     assert f[0] == pytest.approx(1.0)
 
 
+def test_atl03_removes_exactly_its_high_confidence_photons_and_their_span():
+    """What ATL03's background leaves out, read from the shipped night subset: for every
+    50-shot row of ``bckgrd_atlas`` whose 50 pulses all lie inside the subset (each row is a
+    quarter of a 200-pulse major frame, ``pce_mframe_cnt``; the granule's first frame holds
+    only its last three), ``bckgrd_counts - bckgrd_counts_reduced`` is the number of the row's
+    photons high confidence for any surface type (``signal_conf_ph``'s maximum over its five
+    columns is 4), exactly, and ``bckgrd_int_height - bckgrd_int_height_reduced`` their height
+    span, to float32's rounding of the 5 km band (half its spacing there, 2.4e-4 m). The
+    sea-ice column alone misses a photon in some rows."""
+    import h5py
+    with h5py.File(twin.REAL_SUBSET) as f:
+        g = f["gt1l"]
+        bg = {k: g["bckgrd_atlas"][k][()] for k in (
+            "pce_mframe_cnt", "bckgrd_counts", "bckgrd_counts_reduced", "bckgrd_int_height",
+            "bckgrd_int_height_reduced")}
+        h = g["heights/h_ph"][()].astype(np.float64)
+        conf = g["heights/signal_conf_ph"][()]
+        pulse = (g["heights/pce_mframe_cnt"][()].astype(np.int64) * 200
+                 + g["heights/ph_id_pulse"][()] - 1)
+    frame = bg["pce_mframe_cnt"].astype(np.int64)
+    frames, first, n_rows = np.unique(frame, return_index=True, return_counts=True)
+    k = np.searchsorted(frames, frame)
+    quarter = np.arange(frame.size) - first[k] + np.where(k == 0, 4 - n_rows[0], 0)
+    row_start = frame * 200 + quarter * 50                         # each row's first pulse
+    row = np.searchsorted(row_start, pulse, side="right") - 1
+    p = np.unique(pulse)                  # the subset's unbroken stretches of pulses
+    cut = np.flatnonzero(np.diff(p) > 50)
+    full = np.zeros(row_start.size, bool)
+    for lo, hi in zip(p[np.r_[0, cut + 1]], p[np.r_[cut, p.size - 1]]):
+        full |= (row_start > lo) & (row_start + night.BCKGRD_SHOTS - 1 < hi)
+    rows = np.flatnonzero(full)
+    assert rows.size == 21                                   # of the subset's 25 rows
+    ok = row >= 0                         # (photons before the granule's first row)
+    count, span = night.removed_signal(row=row[ok], h_m=h[ok], high=conf[ok].max(axis=1) == 4,
+                                       n_rows=row_start.size)
+    removed = (bg["bckgrd_counts"] - bg["bckgrd_counts_reduced"])[rows]
+    assert np.array_equal(removed, count[rows]) and removed.min() > 90
+    narrowed = (bg["bckgrd_int_height"].astype(np.float64)
+                - bg["bckgrd_int_height_reduced"])[rows]
+    half_ulp = float(np.spacing(np.float32(5006.5))) / 2
+    assert np.all(np.abs(narrowed - span[rows]) <= half_ulp) and span[rows].min() > 0.5
+    sea_ice, _ = night.removed_signal(row=row[ok], h_m=h[ok], high=conf[ok, 2] == 4,
+                                      n_rows=row_start.size)
+    assert np.any(sea_ice[rows] != removed)
+
+
+def test_the_leak_is_the_laser_photons_the_finder_leaves_over_the_band_less_its_span():
+    """night.atl03_leak on photons whose confidence is certain: a dense surface (5 photons a
+    shot within 0.4 m: high confidence), three lone photons 5-13 m below it in the first row
+    (one in its 1.5 m neighbourhood: P = 2e-3 at a 10 kHz band, low confidence), two below the
+    gate in the second (never tested); no noise drawn. Exactly: those five and 1 % of all the
+    laser photons (afterpulses) left, each row's span the surface's, the rate over the band
+    less it. Thinned to half, the lone photons left average half (200 draws: binomial
+    standard error sqrt(5 / 4 / 200) = 0.079, 4.5 of them)."""
+    rng = np.random.default_rng(41)
+    n_shots = 100
+    s_shot = np.repeat(np.arange(n_shots), 5)
+    s_h = rng.uniform(-0.2, 0.2, s_shot.size)
+    shot = np.r_[s_shot, 3, 11, 37, 60, 77]
+    h = np.r_[s_h, -5.0, -9.0, -13.0, -20.0, -40.0]
+    kw = dict(shot=shot, h_m=h, is_signal=np.ones(h.size, bool), n_shots=n_shots,
+              gate_center_h_m=np.zeros(n_shots), range_gate_m=30.0, noise_hz=0.0,
+              band_rate_hz=1e4, band_height_m=5006.0, afterpulse_probability=0.01)
+    leak = night.atl03_leak(**kw, rng=np.random.default_rng(0), realizations=1)
+    assert np.array_equal(leak.signal, [253, 252]) and np.array_equal(leak.high, [250, 250])
+    assert np.allclose(leak.leftover, [3 + 2.53, 2 + 2.52], rtol=0, atol=1e-12)
+    span = [np.ptp(s_h[s_shot < 50]), np.ptp(s_h[s_shot >= 50])]
+    assert np.allclose(leak.span_m, span, rtol=0, atol=1e-12)
+    c = night.C_M_PER_S
+    assert leak.leak_hz == pytest.approx((5 + 5.05) / sum(50 * 2 * (5006.0 - w) / c
+                                                         for w in span), rel=1e-12)
+    half = night.atl03_leak(**kw, rng=np.random.default_rng(1), keep=0.5, realizations=200,
+                            passes=1)
+    lone = half.leftover.sum() - 0.01 * half.signal.sum()
+    assert abs(lone - 2.5) <= 4.5 * math.sqrt(5 / 4 / 200)
+    assert half.summary()["leak_se_hz"] == pytest.approx(
+        half.leak_hz * math.sqrt(0.5 / half.leftover.sum()))
+
+
 def test_dark_counts_are_every_anodes_and_the_weak_beam_keeps_its_own():
     strong, weak = Instrument.atlas("strong"), Instrument.atlas("weak")
     assert strong.dark_count_hz * strong.channels == weak.dark_count_hz * weak.channels \
@@ -246,6 +325,22 @@ def test_validate_real_runs_over_the_shipped_files_and_simulates_a_beam(tmp_path
     assert p["shots"] == 60 and p["signal_per_shot"] > 0 and "spread_robust_m" in p
     assert p["energy_source"] == "tx_pulse_energy"
     assert row["measured"]["spread_robust_m"] > 0
+    # the leak: ATL03 gives its finder's span, so the laser photons outside it and their
+    # afterpulses; without the span (ATL06, ATL07), those our finder leaves in two 50-shot
+    # rows (the second of 10 shots) of the same simulation
+    assert p["leak_from"] == "the file's span" and "leak" not in p
+    rb = real.read_product(twin.REAL_SUBSET).beams[0]
+    band_s = 2 * np.nanmedian(rb.band_height_m) / night.C_M_PER_S
+    assert p["background_terms_hz"]["leak"] == pytest.approx(
+        p["signal_per_shot"] * p["outside_fraction"] / band_s, rel=1e-12)
+    rb.signal_span_m = None
+    q = realism.predicted(rb, twin.read(twin.REAL_SUBSET), signal_shots=60, seed=0)
+    assert q["signal_per_shot"] == p["signal_per_shot"]
+    leak = q["leak"]
+    assert q["leak_from"].startswith("our signal finder") and leak["rows"] == 2
+    assert q["background_terms_hz"]["leak"] == leak["leak_hz"] > 0
+    assert 0 < leak["leftover_photons"] < leak["signal_photons"]
+    assert leak["gate_noise_hz"] > 0 and leak["band_rate_hz"] > 0
 
 
 def test_open_water_twin_and_option_refusals(tmp_path, capsys):

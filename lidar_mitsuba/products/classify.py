@@ -69,9 +69,15 @@ class HistogramTest:
 
 def histogram_test(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.ndarray,
                    range_gate_m: float, block_shots: int = 20, bin_m: float = 0.5,
-                   pool_blocks: int = 11) -> HistogramTest:
+                   pool_blocks: int = 11, noise_per_bin=None) -> HistogramTest:
     """The histogram test of :func:`signal_confidence` (same arguments), with its per-photon
-    tail probabilities and per-block noise levels (blocks up to the last photon's)."""
+    tail probabilities and per-block noise levels (blocks up to the last photon's).
+
+    ``noise_per_bin``: the noise level ``lam`` [expected noise photons in one ``bin_m`` bin
+    over ``block_shots`` shots] given instead of estimated from the photons (a scalar or
+    (n_blocks,)), as ATL03's finder takes it from the 50-shot background rate of its tall
+    band: a quiet night's gate holds too few noise photons to estimate it
+    (:func:`lidar_mitsuba.night.atl03_leak`). ``None`` (the default): estimated as above."""
     shot = np.asarray(shot, np.int64)
     if shot.size == 0:
         return HistogramTest(np.zeros(0, np.int8), np.ones(0), np.zeros(0), int(block_shots),
@@ -82,14 +88,10 @@ def histogram_test(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.nda
     block = shot // block_shots
     n_blocks = int(block.max()) + 1
     counts = np.bincount(block * n_bins + b, minlength=n_blocks * n_bins).reshape(n_blocks, n_bins)
-    # initial noise level: bins more than 2 m from the block's fullest bin
-    far = np.abs(np.arange(n_bins)[None, :] - counts.argmax(1)[:, None]) * bin_m > 2.0
-    noise_bins = far
-    for _ in range(4):
-        total = uniform_filter1d((counts * noise_bins).sum(1).astype(float), pool_blocks, mode="nearest")
-        used = uniform_filter1d(noise_bins.sum(1).astype(float), pool_blocks, mode="nearest")
-        lam = total / np.maximum(used, 1e-12)
-        noise_bins = ~(_poisson_sf(counts - 1, np.maximum(lam, 1e-12)[:, None]) < 1e-3)
+    if noise_per_bin is None:
+        lam = _noise_level(counts, bin_m=bin_m, pool_blocks=pool_blocks)
+    else:
+        lam = np.array(np.broadcast_to(np.asarray(noise_per_bin, float), (n_blocks,)))
     padded = np.pad(counts, ((0, 0), (1, 1)))
     neighbourhood = padded[:, :-2] + padded[:, 1:-1] + padded[:, 2:]
     # the tail probability and confidence of every (block, bin) cell, then each photon's
@@ -101,6 +103,20 @@ def histogram_test(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.nda
     cell[p < 1e-4] = 3
     cell[p < 1e-6] = 4
     return HistogramTest(cell[block, b], p[block, b], lam, int(block_shots), float(bin_m))
+
+
+def _noise_level(counts: np.ndarray, *, bin_m: float, pool_blocks: int) -> np.ndarray:
+    """(n_blocks,) each block's noise level ``lam`` from the (n_blocks, n_bins) histogram
+    ``counts``, by the iteration the module's docstring describes."""
+    # initial noise level: bins more than 2 m from the block's fullest bin
+    far = np.abs(np.arange(counts.shape[1])[None, :] - counts.argmax(1)[:, None]) * bin_m > 2.0
+    noise_bins = far
+    for _ in range(4):
+        total = uniform_filter1d((counts * noise_bins).sum(1).astype(float), pool_blocks, mode="nearest")
+        used = uniform_filter1d(noise_bins.sum(1).astype(float), pool_blocks, mode="nearest")
+        lam = total / np.maximum(used, 1e-12)
+        noise_bins = ~(_poisson_sf(counts - 1, np.maximum(lam, 1e-12)[:, None]) < 1e-3)
+    return lam
 
 
 def _poisson_sf(k, mu):

@@ -4,7 +4,7 @@ what the model predicts there, nothing fitted to the file.
 
 For each beam: the measured background (clear and cloudy segments apart) against the
 model's (:func:`lidar_mitsuba.night.background_terms`: dark counts, sunlight, the air's and a
-cloud's backscatter, the laser's own photons the product's signal span misses), the signal
+cloud's backscatter, the laser's own photons the product's signal finder leaves), the signal
 photons per shot on clear segments against a short simulation of the file's own shots over
 the surface a user would choose knowing only the product (:data:`PRODUCT_SURFACES`) through
 the detector's dead time (or, with ``signal_shots=0``, the lidar equation alone), the
@@ -180,10 +180,12 @@ def simulated(twin_granule, name: str, *, surface: dict, shots: int, seed: int,
     """A short simulation of the beam's first ``shots`` shots over a flat surface (the
     product's, :data:`PRODUCT_SURFACES`): detected signal per shot through dead time, the
     spread and tails of its surface photons (within :data:`TAIL_WINDOW_M`), saturation as our
-    ATL03 writes it, and the fraction of signal photons outside each of ``spans_m`` (the leak
-    term). Over snow, the surface's diffuse share of its photons is lowered by the pack's
-    volume return (:func:`~lidar_mitsuba.ground.snow.delay.delay_heights`, seeded
-    ``seed + 1``) before both."""
+    ATL03 writes it, the fraction of signal photons outside each of ``spans_m`` (the leak
+    term as it was, kept for comparison) and ``photons``, what ATL03's count of the leak
+    needs (:func:`~lidar_mitsuba.night.atl03_leak`; not for the report). Over snow, the
+    surface's diffuse share of its photons is lowered by the pack's volume return
+    (:func:`~lidar_mitsuba.ground.snow.delay.delay_heights`, seeded ``seed + 1``) before
+    all three."""
     import warnings
     from .. import twin
     from ..ground.surface import SurfaceSpec
@@ -210,6 +212,15 @@ def simulated(twin_granule, name: str, *, surface: dict, shots: int, seed: int,
     res_m = dh - np.median(dh) if dh.size else dh
     out.update(shape_stats(res_m[np.abs(res_m) <= TAIL_WINDOW_M]) if dh.size else {})
     out["outside_fraction"] = outside_fraction(dh, spans_m)
+    h = res.h_m.copy()                   # every photon, the laser's moved by the snow's delay
+    h[sig] += dh - res.dh_m[sig]
+    from ..detector.impulse import response_of
+    from ..trace.stream import gate_heights_m
+    out["photons"] = {"shot": det.shot, "h_m": h, "is_signal": sig, "n_shots": n,
+                      "gate_center_h_m": gate_heights_m(res.z_ref_m),
+                      "range_gate_m": float(res.instrument.range_gate_m),
+                      "afterpulse_probability":
+                          response_of(res.instrument).afterpulse_probability}
     return out
 
 
@@ -248,7 +259,7 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
     out = {"surface": surface["name"], "surface_missing": bool(surface.get("missing")),
            "range_m": range_m, "pulse_energy_uj": float(inst.link_budget.pulse_energy_uj),
            "energy_source": beam_energy(rb)[1], "band_from_file": band.from_file}
-    f_out, leak_signal = None, None
+    f_out = photons = leak_signal = None
     if forest is not None:                # the forest twin's (studies.realism_forest)
         out.update({k: forest[k] for k in ("surface", "signal_per_shot", "signal_from",
                                            "forest_shots")}, forest_twin=True,
@@ -258,8 +269,18 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
     elif signal_shots > 0 and twin_granule is not None:
         sim = simulated(twin_granule, rb.name, surface=surface, shots=signal_shots, seed=seed,
                         spans_m=band.signal_span_m)
+        photons = sim.pop("photons")
         out.update({k: v for k, v in sim.items() if k != "outside_fraction"})
         f_out = sim["outside_fraction"]
+        if rb.signal_span_m is not None and np.isfinite(rb.signal_span_m).any():
+            # ATL03 gives each row's span: where its own finder cut (ours, run on its
+            # photons, cuts wider: docs/physics/night-floor.md); the laser photons outside
+            # it and their afterpulses are the leak
+            f_out = f_out + photons["afterpulse_probability"]
+            photons = None
+            out["outside_fraction"] = float(np.nanmedian(f_out))
+        out["leak_from"] = ("the file's span" if photons is None else
+                            "our signal finder on the simulated photons")
     else:
         out["signal_per_shot"] = radiometric_signal(inst, z_m=z, surface=surface)
         out["signal_from"] = "lidar equation (no dead time)"
@@ -282,18 +303,49 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
     out["deck_cover"] = cover
     if leak_signal is None:
         leak_signal = out["signal_per_shot"]
+    deck = dict(deck=cloud if 0.0 < cover < 1.0 else None,
+                deck_cover=cover if cover < 1.0 else 0.0)
+    leak = _atl03_leak(inst, photons, band=band, seed=seed + 2, kw={**kw, **deck})
     terms = night.background_terms(inst, signal_per_shot=leak_signal,
-                                   deck=cloud if 0.0 < cover < 1.0 else None,
-                                   deck_cover=cover if cover < 1.0 else 0.0, **kw)
+                                   leak_hz=leak and leak["leak_hz"], **deck, **kw)
     out["background_terms_hz"] = terms
     out["background_hz"] = terms["total"]
+    if leak:
+        out["leak"] = leak
     if cloud is not None:
-        out["signal_cloudy"] = out["signal_per_shot"] * night.cloud_backscatter(cloud)[0]
+        transmission = night.cloud_backscatter(cloud)[0]
+        out["signal_cloudy"] = out["signal_per_shot"] * transmission
+        leak = _atl03_leak(inst, photons, band=band, seed=seed + 3, keep=transmission,
+                           kw={**kw, "cloud": cloud})
         cloudy = night.background_terms(inst, signal_per_shot=out["signal_cloudy"],
-                                        cloud=cloud, **kw)
+                                        cloud=cloud, leak_hz=leak and leak["leak_hz"], **kw)
+        if leak:
+            out["leak_cloudy"] = leak
         out["background_cloudy_terms_hz"] = cloudy
         out["background_cloudy_hz"] = cloudy["total"]
     return out
+
+
+def _atl03_leak(inst, photons, *, band, seed: int, kw: dict, keep: float = 1.0) -> dict | None:
+    """Term 5 as ATL03 counts it (:func:`~lidar_mitsuba.night.atl03_leak`) on a simulation's
+    ``photons`` (:func:`simulated`), each laser photon kept with probability ``keep``: noise
+    photons at the rate the other terms have inside the range gate
+    (:func:`~lidar_mitsuba.night.background_terms` of ``kw`` over a band that is the gate,
+    centred on the surface: the air of its upper half, a cloud only where it reaches into
+    it), the finder's noise level the other terms' rate over the band (``kw``'s); its
+    summary, or None without photons (``signal_shots=0``: the closed form with the file's
+    span)."""
+    if photons is None:
+        return None
+    from .. import night
+    gate_m = photons["range_gate_m"]
+    gate = night.HistogramBand(height_m=gate_m, top_above_surface_m=gate_m / 2.0)
+    noise_hz = night.background_terms(inst, leak_hz=0.0, **{**kw, "band": gate})["total"]
+    band_hz = night.background_terms(inst, leak_hz=0.0, **kw)["total"]
+    h = float(np.nanmedian(np.atleast_1d(band.height_m)))
+    leak = night.atl03_leak(**photons, noise_hz=noise_hz, band_rate_hz=band_hz,
+                            band_height_m=h, keep=keep, rng=np.random.default_rng(seed))
+    return {**leak.summary(), "gate_noise_hz": noise_hz, "band_rate_hz": band_hz}
 
 
 # ------------------------------------------------------------------------------ verdicts
