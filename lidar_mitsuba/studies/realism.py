@@ -233,22 +233,10 @@ def outside_fraction(dh_m, spans_m) -> np.ndarray:
     return 1.0 - np.searchsorted(d, spans / 2.0, side="right") / d.size
 
 
-def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
-              forest: dict | None = None) -> dict:
-    """The model's background (term by term), signal and shape for one beam (``twin_granule``:
-    the file's twin, for ``signal_shots > 0``; ``forest``: a forest row's signal and surface
-    from its twin, :func:`~lidar_mitsuba.studies.realism_forest.prediction`, in place of the
-    flat surface's simulation); with a ``cloud``
-    (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`), also its cloudy segments' background and
-    signal (ESTIMATE: the clear signal dimmed by the cloud's two-way transmission; through dead
-    time that overstates the loss dead time takes from the dimmer return, without it, with
-    ``signal_shots=0``, it ignores dead time; the cloud's forward scattering is the cloud
-    model's, not here)."""
+def _band(rb):
+    """The beam's histogram band (:class:`~lidar_mitsuba.night.HistogramBand`): the file's
+    height, top and removed span where it gives them, the polar defaults otherwise."""
     from .. import night
-    surface = PRODUCT_SURFACES.get(rb.surface, PRODUCT_SURFACES["land"])
-    range_m = _range_m(rb)
-    inst = beam_instrument(rb, range_m=range_m)
-    z = float(np.clip(_median(rb.surface_h_m) or 0.0, -500.0, 9000.0))
     band = night.HistogramBand(from_file=rb.band_height_m is not None)
     for attr, key in (("height_m", "band_height_m"), ("top_above_surface_m",
                                                       "band_top_above_surface_m"),
@@ -256,9 +244,14 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
         v = getattr(rb, key)
         if v is not None and np.isfinite(v).any():
             setattr(band, attr, v[np.isfinite(v)])
-    out = {"surface": surface["name"], "surface_missing": bool(surface.get("missing")),
-           "range_m": range_m, "pulse_energy_uj": float(inst.link_budget.pulse_energy_uj),
-           "energy_source": beam_energy(rb)[1], "band_from_file": band.from_file}
+    return band
+
+
+def _signal(out: dict, rb, twin_granule, inst, band, surface: dict, z: float, *,
+            signal_shots: int, seed: int, forest: dict | None):
+    """The beam's signal into ``out`` (the forest twin's, a short simulation's or the lidar
+    equation's: :func:`predicted`) and ``(outside fraction, simulated photons for the leak or
+    None, signal per shot for the leak or None)``."""
     f_out = photons = leak_signal = None
     if forest is not None:                # the forest twin's (studies.realism_forest)
         out.update({k: forest[k] for k in ("surface", "signal_per_shot", "signal_from",
@@ -285,6 +278,32 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
         out["signal_per_shot"] = radiometric_signal(inst, z_m=z, surface=surface)
         out["signal_from"] = "lidar equation (no dead time)"
         f_out = equation_outside_fraction(inst, band.signal_span_m, surface=surface)
+    return f_out, photons, leak_signal
+
+
+def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
+              forest: dict | None = None) -> dict:
+    """The model's background (term by term), signal and shape for one beam (``twin_granule``:
+    the file's twin, for ``signal_shots > 0``; ``forest``: a forest row's signal and surface
+    from its twin, :func:`~lidar_mitsuba.studies.realism_forest.prediction`, in place of the
+    flat surface's simulation); with a ``cloud``
+    (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`), also its cloudy segments' background and
+    signal (ESTIMATE: the clear signal dimmed by the cloud's two-way transmission; through dead
+    time that overstates the loss dead time takes from the dimmer return, without it, with
+    ``signal_shots=0``, it ignores dead time; the cloud's forward scattering is the cloud
+    model's, not here)."""
+    from .. import night
+    surface = PRODUCT_SURFACES.get(rb.surface, PRODUCT_SURFACES["land"])
+    range_m = _range_m(rb)
+    inst = beam_instrument(rb, range_m=range_m)
+    z = float(np.clip(_median(rb.surface_h_m) or 0.0, -500.0, 9000.0))
+    band = _band(rb)
+    out = {"surface": surface["name"], "surface_missing": bool(surface.get("missing")),
+           "range_m": range_m, "pulse_energy_uj": float(inst.link_budget.pulse_energy_uj),
+           "energy_source": beam_energy(rb)[1], "band_from_file": band.from_file}
+    f_out, photons, leak_signal = _signal(out, rb, twin_granule, inst, band, surface, z,
+                                          signal_shots=signal_shots, seed=seed,
+                                          forest=forest)
     t = rb.delta_time_s
     # the geometric sun from the file's time and place (the file's solar_elevation is the
     # apparent one: twin.model_sun)
