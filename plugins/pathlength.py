@@ -266,8 +266,7 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
             if offset_m is not None and any(np.any(d[start:stop]) for d in offset_m):
                 out = _moved(out, tuple(d[start:stop] for d in offset_m),
                              slots_per_shot=int(paths_per_shot) * slots)
-            dr.eval(*out)                  # asynchronous on CUDA
-            return out, traced
+            return out, traced, _kept_slots(out, int(paths_per_shot) * slots)   # evaluated
 
         steps = [(k, a, min(n_shots, a + per_chunk))
                  for k, a in enumerate(range(0, n_shots, per_chunk))]
@@ -345,13 +344,13 @@ class PendingReturns:
             return Returns.empty(n_shots=0, paths_per_shot=self.paths_per_shot)
         parts = []
         for i, (k, start, stop) in enumerate(self._steps):
-            out, traced = self._first if i == 0 else self._launch(k, start, stop)
+            out, traced, kept = self._first if i == 0 else self._launch(k, start, stop)
             self._first = None
             t0 = time.perf_counter()
             dr.sync_thread()
             t1 = time.perf_counter()
-            parts.append((self._fetch(out, stop - start), start))
-            del out, traced
+            parts.append((self._fetch(out, kept, stop - start), start))
+            del out, traced, kept
             self.timings_s["wait_s"] += t1 - t0
             self.timings_s["fetch_s"] += time.perf_counter() - t1
             if progress is not None:
@@ -365,17 +364,18 @@ class PendingReturns:
         out.shot = out.shot.astype(np.uint32)
         return out
 
-    def _fetch(self, out, n_shots: int) -> Returns:
-        """Compact the slots of non-zero weight on the device, derive their shot (and depth)
-        there, and copy only those to the host (folded shots were put back in place in the
-        trace's own kernel: :func:`_moved`)."""
+    def _fetch(self, out, kept, n_shots: int) -> Returns:
+        """Compact the slots of non-zero weight on the device and copy those and their shot
+        (and depth) to the host; the trace's kernel wrote which slots and their shots
+        (:func:`_kept_slots`) and put folded shots back in place (:func:`_moved`)."""
         t, w, x, y, z = out[:5]
         depth_of_slot = out[5] if len(out) > 5 else None      # cores that record it per slot
-        idx = dr.compress(w > 0.0)                        # synchronises; keeps slot order
+        keep, shot = kept
+        idx = dr.compress(keep)                           # synchronises; keeps slot order
         if dr.width(idx) == 0:
             return Returns.empty(n_shots=n_shots, paths_per_shot=self.paths_per_shot)
-        shot = _quotient(idx, self.paths_per_shot * self.max_depth)
         if dr.width(idx) < dr.width(w):   # (single bounce on terrain often keeps every slot)
+            shot = dr.gather(mi.UInt32, shot, idx)
             t, w = dr.gather(mi.Float64, t, idx), dr.gather(mi.Float, w, idx)
             x, y, z = (dr.gather(mi.Float, a, idx) for a in (x, y, z))
         arrays = [shot, t, w, x, y, z]
@@ -415,6 +415,17 @@ def _moved(out: tuple, shift: tuple[np.ndarray, np.ndarray, np.ndarray], *,
     t = t - dt
     x, y, z = (mi.Float(mi.Float64(a) + d) for a, d in ((x, dx), (y, dy), (z, dz)))
     return (t, w, x, y, z, *out[5:])
+
+
+def _kept_slots(out: tuple, slots_per_shot: int) -> tuple[mi.Bool, mi.UInt32]:
+    """Per slot of a core's output ``(t, w, ...)``: whether it returns (non-zero weight:
+    the slots the fetch keeps) and its shot, evaluated with ``out`` in the trace's own
+    kernel (asynchronous on CUDA). Each was a kernel of its own in the fetch, a pass over
+    the weights for the mask and one over the kept slots for the shot: the same values."""
+    w = out[1]
+    kept = (w > 0.0, _quotient(dr.arange(mi.UInt32, dr.width(w)), slots_per_shot))
+    dr.eval(*out, *kept)
+    return kept
 
 
 def _checked_shots(shot_x_m, shot_y_m, paths_per_shot: int, offset_m):

@@ -86,3 +86,60 @@ def test_small_mesh_bounds_on_the_host_are_the_device_s(rng, monkeypatch):
     vertices[3, 2] = np.nan
     monkeypatch.setattr(scene_utils, "HOST_BOUNDS_MAX_VERTICES", 2 ** 20)
     assert np.isnan(scene_utils._vertex_bounds(scn.mitsuba_mesh(vertices, faces))[1]).all()
+
+
+def test_mesh_buffers_set_without_the_parameter_map_are_traverse_s(rng):
+    """``mitsuba_mesh`` sets its buffers and calls the mesh's ``parameters_changed`` itself
+    (``_set_buffers``): the same mesh as ``mi.traverse`` and ``SceneParameters.update`` give
+    (buffers, counts, bounding box), and the same hits traced through it."""
+    vertices, faces = _rough_tile(rng, n=9)
+    lean = scn.mitsuba_mesh(vertices, faces, bsdf=ward_bsdf_dict())
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict(ward_bsdf_dict())
+    mapped = mi.Mesh("terrain", len(vertices), len(faces), props=props)
+    params = mi.traverse(mapped)
+    params["vertex_positions"] = mi.Float(vertices.astype(np.float32).ravel())
+    params["faces"] = mi.UInt32(faces.astype(np.uint32).ravel())
+    params.update()
+    for get in (lambda m: m.vertex_positions_buffer().numpy(),
+                lambda m: m.faces_buffer().numpy(),
+                lambda m: (m.vertex_count(), m.face_count(), str(m.bbox()))):
+        a, b = get(lean), get(mapped)
+        assert (a.tobytes() == b.tobytes()) if isinstance(a, np.ndarray) else a == b
+    sx, sy = _shots(rng, k=8)
+    integ = mi.load_dict({"type": "pathlength"})
+    got = [integ.trace(mi.load_dict({"type": "scene", "t": m}), shot_x_m=sx, shot_y_m=sy,
+                       paths_per_shot=8, seed=2) for m in (lean, mapped)]
+    for name in got[0].ARRAYS:
+        assert getattr(got[0], name).tobytes() == getattr(got[1], name).tobytes(), name
+
+
+@pytest.mark.parametrize("max_depth", [1, 2])
+def test_slots_kept_in_the_trace_kernel_are_the_fetch_s(rng, max_depth):
+    """The trace's own kernel writes each slot's keep mask and shot (``_kept_slots``): the
+    fetched returns are the core's slots of non-zero weight in slot order, with shot =
+    slot // (paths x bounces) and depth = slot % bounces + 1, computed here on the host
+    from the core's raw output. Some footprints lie off the tile (slots of zero weight), so
+    the fetch's partial path (gathers by the compressed index) is taken too."""
+    vertices, faces = _rough_tile(rng)
+    scene = scn.scene_from_mesh(vertices, faces, bsdf=ward_bsdf_dict())
+    integ = mi.load_dict({"type": "pathlength", "max_depth": max_depth})
+    sx, sy = _shots(rng, k=24)
+    sx[:6] -= 40.0                                   # off the tile: nothing returns
+    ppp, seed = 8, 9
+    got = integ.trace(scene, shot_x_m=sx, shot_y_m=sy, paths_per_shot=ppp, seed=seed)
+    core, slots = integ._core(scene)
+    lo, hi = scene_utils.scene_bounds(scene)
+    z_start = float(hi[2]) + 1e-3 * max(float(hi[2] - lo[2]), 1.0) + 1e-2
+    raw = core(scene, mi.Float(sx), mi.Float(sy), ppp,
+               dr.opaque(mi.UInt32, pathlength._mix_seed(seed, 0)),
+               dr.opaque(mi.Float, z_start))
+    dr.eval(*raw)
+    t, w, x, y, z = (a.numpy() for a in raw[:5])
+    idx = np.flatnonzero(w > 0.0)
+    assert 0 < idx.size < w.size
+    want = dict(shot=idx // (ppp * slots), time_ns=t[idx], weight=w[idx], x_m=x[idx],
+                y_m=y[idx], z_m=z[idx], depth=idx % slots + 1)
+    for name, value in want.items():
+        arr = getattr(got, name)
+        assert np.array_equal(arr, value) and arr.tobytes() == value.astype(arr.dtype).tobytes()

@@ -41,11 +41,37 @@ def mitsuba_mesh(vertices: np.ndarray, faces: np.ndarray, *, bsdf: dict | mi.BSD
     v = np.ascontiguousarray(vertices, dtype=np.float32)
     f = np.ascontiguousarray(faces, dtype=np.uint32)
     mesh = mi.Mesh(name, v.shape[0], f.shape[0], props=props)
-    params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(v.ravel())
-    params["faces"] = mi.UInt32(f.ravel())
-    params.update()
+    _set_buffers(mesh, {"vertex_positions": mi.Float(v.ravel()), "faces": mi.UInt32(f.ravel())})
     return mesh
+
+
+class _MeshBuffers(mi.TraversalCallback):
+    """The named buffers of one object's own parameters (not its children's)."""
+
+    def __init__(self, names):
+        super().__init__()
+        self.names, self.found = names, {}
+
+    def put(self, name, value, flags, cpptype=None):
+        if name in self.names and not isinstance(value, mi.Object):
+            self.found[name] = (value, cpptype)
+
+
+def _set_buffers(mesh: mi.Mesh, values: dict) -> None:
+    """``mi.traverse(mesh)``, ``params[k] = v`` for each of ``values`` and
+    ``params.update()``, without the traversal of the mesh's BSDF and the parameter map
+    (~0.1 ms a corridor tile): the same buffers set, the same ``parameters_changed`` call
+    on the mesh alone (the only object they dirty), then the same evaluation."""
+    cb = _MeshBuffers(values.keys())
+    mesh.traverse(cb)
+    for key, value in values.items():
+        target, cpptype = cb.found[key]
+        if cpptype is None:
+            mi.set_property(target, value)
+        else:
+            mi.set_property(target, cpptype, value)
+    mesh.parameters_changed(list(values))
+    dr.eval()
 
 
 def scene_from_mesh(vertices: np.ndarray, faces: np.ndarray, *, bsdf=None) -> mi.Scene:
