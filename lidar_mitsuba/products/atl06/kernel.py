@@ -16,9 +16,9 @@ Python's ``min``/``max`` keep the first argument on NaN; :func:`_pmax` and :func
 the same, so NaNs propagate as in the reference. ``cache=True`` keeps the compiled code.
 
 Sorts, the main cost, are as few as the results allow, each the same to the bit (issue 43):
-values by quicksort (:mod:`~lidar_mitsuba.products.atl06.sorting`), the last iteration's sorted
-residuals reused for the final line (the same line), one argsort for the first-photon-bias
-weights and median (no searches), the densest window in one sweep (0.59x the CPU before).
+distributed into buckets (:mod:`~lidar_mitsuba.products.atl06.sorting`), the last iteration's
+sorted residuals reused for the final line (the same line), one argsort for the
+first-photon-bias weights and median (no searches), the densest window in one sweep or none.
 """
 from __future__ import annotations
 
@@ -296,9 +296,7 @@ def _weighted_median_minus_uniform(rs, ws, n_bg, half_w):
 @numba.njit(cache=True, nogil=True)
 def _span_ok(x, sel, min_photons, min_span_m):
     """``count(sel) >= min_photons and ptp(x[sel]) >= min_span_m``, and the count."""
-    n = 0
-    lo = np.inf
-    hi = -np.inf
+    n, lo, hi = 0, np.inf, -np.inf
     for i in range(x.size):
         if sel[i]:
             n += 1
@@ -322,10 +320,11 @@ def _exclusion(win, sig_r, dead_m, w0):
 
 @numba.njit(cache=True, nogil=True)
 def _densest_window(h, w0):
-    """:func:`lidar_mitsuba.products.atl06.reference._densest_window`."""
-    hs = sort(h)
-    i_best = 0
-    best = -1
+    """:func:`lidar_mitsuba.products.atl06.reference._densest_window` (photons all within
+    ``w0`` of the lowest: the first window holds them all, and no sort is needed)."""
+    if h.size and not has_nan(h) and h.max() <= h.min() + w0:
+        return (h >= h.min()) & (h <= h.min() + w0)
+    hs, i_best, best = sort(h), 0, -1
     if has_nan(h):                 # (no order: each window's end searched for, as before)
         for i in range(hs.size):
             count = first_at_least(hs, hs[i] + w0, True) - i
