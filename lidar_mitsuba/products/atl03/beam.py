@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import file as atl03_file
+from . import file as atl03_file, kernels
 from .. import h5template, h5write as h5chunks
 from ...detector import pmt
 from ... import radiometry
@@ -87,10 +87,15 @@ def _segments(along_m: np.ndarray, photon_shot: np.ndarray):
 
 
 def _ph_id_count(shot: np.ndarray, channel: np.ndarray) -> np.ndarray:
-    """1-based index of each event among the events of its shot and channel, in order."""
+    """1-based index of each event among the events of its shot and channel, in order: one
+    compiled pass over photons in shot order (:func:`.kernels.ph_id_count`), else numpy's
+    stable sort of (shot, channel)."""
     n = shot.size
     if n == 0:
         return np.zeros(0, np.uint8)
+    out = np.empty(n, np.uint8)
+    if kernels.ph_id_count(shot, channel, out):
+        return out
     key = (shot.astype(np.int64) - shot.min()) * 64 + channel.astype(np.int64)
     if key.max() < 2 ** 31:         # (a section's: an int32 sort is ~30 % faster)
         key = key.astype(np.int32)
@@ -429,7 +434,7 @@ def write_beam(f, run, sc_orient: int, *, replanned: bool = False) -> None:
             **beam_attrs(beam, sc_orient),
             "description": "one ATLAS beam: photons, geolocation, background"})
     gt = f[beam.name]
-    done = gt["heights/h_ph"].shape[0] if "heights/h_ph" in gt else 0   # earlier sections
+    done = h5chunks.rows(gt, "heights/h_ph")              # earlier sections' photons
     s = _Section(run, done)
     _write_group(gt, "heights", _heights(s))
     _write_group(gt, "geolocation", _geolocation(s, sc_orient))
