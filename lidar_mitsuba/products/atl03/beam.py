@@ -61,6 +61,7 @@ class _Section:
         (self.seg_of_shot, self.first, self.count, self.ref_shot,
          self.k0) = _segments(res.along_track_m, self.shot)
         self.gate = gate_heights_m(res.z_ref_m)       # the gates simulate() centred
+        self.saturated = _saturated_pulses(self)     # (full, near) per shot
         self.test = getattr(res, "signal_test", None)
         if self.test is None or self.test.conf is not res.signal_conf:
             # (run once by simulate(), whose signal_conf it gave, with these arguments)
@@ -205,7 +206,7 @@ def _quality(s: _Section) -> np.ndarray:
     :data:`QUALITY_WINDOWS_M`. 3 (possible TEP) never: the transmitter echo path is not
     simulated. int8."""
     q = np.zeros(s.shot.size, np.int8)
-    full, near = _saturated_pulses(s)
+    full, near = s.saturated
     sat = full | near
     if not sat.any():
         return q
@@ -224,7 +225,7 @@ def _saturation(s: _Section):
     nearly saturated (:func:`_saturated_pulses`); fill value without photons."""
     n_shots, n_seg = s.res.n_shots, s.count.size
     with_photons = np.bincount(s.shot, minlength=n_shots) > 0
-    full, near = _saturated_pulses(s)
+    full, near = s.saturated
     seg = s.seg_of_shot - s.k0
     pulses = np.bincount(seg, weights=with_photons, minlength=n_seg)
     out = []
@@ -295,13 +296,14 @@ def _bckgrd_rows(s: _Section) -> dict:
     h = res.h_m[s.order][sig]
     lo, hi = np.full(n_rows, np.inf), np.full(n_rows, -np.inf)
     at = lr[s.shot[sig]]              # (ascending: photons are in shot order)
+    signal = np.bincount(at, minlength=n_rows)
     if at.size:     # each row's extremes (ufunc.at took ~0.3 s a granule; a min is exact)
         start = np.flatnonzero(np.r_[True, at[1:] != at[:-1]])
         lo[at[start]] = np.minimum.reduceat(h, start)
         hi[at[start]] = np.maximum.reduceat(h, start)
     first = np.searchsorted(lr, np.arange(n_rows))
     return {"row": row[0] + np.arange(n_rows), "counts": np.bincount(lr[s.shot], minlength=n_rows),
-            "signal": np.bincount(lr[s.shot[sig]], minlength=n_rows),
+            "signal": signal,
             "rate_sum": np.bincount(lr, weights=rate, minlength=n_rows),
             "shots": np.bincount(lr, minlength=n_rows), "lo": lo, "hi": hi,
             "time": s.run.delta_time_s[first],
