@@ -25,8 +25,10 @@ with its fill value, as HDF5 pads an edge chunk. The compressed chunks are store
 calling thread in the order they were cut: the finished ones at every later :func:`put`, all
 once more than :data:`MAX_PENDING_BYTES` of rows wait, the rest at :func:`drain`, which
 :func:`lidar_mitsuba.products.atl03.atomic_h5file` calls before it closes a file (and :func:`discard`
-when the write fails); until then a dataset's last rows read as its fill value. Datasets with
-any other filter pipeline, and rows that begin a chunk HDF5 wrote, go through HDF5 as usual.
+when the write fails); until then a dataset's last rows read as its fill value, and its extent
+in the file may lag its rows (an appended dataset's extent is set only when needed, and at
+:func:`drain`; :func:`rows` gives its rows). Datasets with any other filter pipeline, and rows
+that begin a chunk HDF5 wrote, go through HDF5 as usual.
 Writers are expected on one thread (the pool only compresses).
 """
 from __future__ import annotations
