@@ -501,7 +501,7 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     bar = None
     if progress:      # a first run on this machine compiles the kernels: say so
         from tqdm.auto import tqdm
-        warmup.compile_kernels(atl06=seg_options.get("engine") == "compiled")
+        warmup.compile_kernels(atl06=seg_options.get("engine") == "compiled", atl03=True)
         bar = tqdm(total=sum(st.n_shots for st in streams), desc="granule", unit="shot",
                    delay=2.0, leave=False)
     files = granule_writer.writer(writer)

@@ -275,11 +275,13 @@ def _serve(conn_in: Connection, conn_out: Connection) -> None:
 
 
 def _warm_up() -> None:
-    """The writer's imports, and the compiled ATL06 fit loaded from numba's cache when it is
-    there (never compiled here: a short track does not use it), before the first section."""
+    """The writer's imports, and the compiled ATL06 fit and ATL03 fields loaded from numba's
+    cache when they are there (never compiled here: a short track does not use the fit),
+    before the first section."""
     from . import granule, precompile  # noqa: F401
-    if precompile.is_cached("atl06"):
-        precompile._atl06()
+    for stage in ("atl06", "atl03"):
+        if precompile.is_cached(stage):
+            getattr(precompile, f"_{stage}")()
 
 
 def _picklable(e: BaseException):

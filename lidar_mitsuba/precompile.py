@@ -24,12 +24,15 @@ ATL06_S = 22.0
 #: (ESTIMATE: the 2.2 s were the stencil sums alone; the footprint weights' two kernels of
 #: issue 43 took 1.5x their compile CPU under load, 0.9 against 0.6 s: 2.2 x 2.5)
 HEIGHTS_S = 5.5
+#: (ESTIMATE: ATL03's per-photon kernels compiled in ~1 s of CPU under load, 2026-11-27; x2)
+ATL03_S = 2.0
 #: each stage's numba kernels: the module (under ``lidar_mitsuba``) and the functions whose
 #: cache entries say the stage is compiled (:func:`is_cached`): the detector's, the DEM
 #: footprint means' (:mod:`lidar_mitsuba.ground.dem.heights`) and the compiled ATL06 fit's
 KERNELS = {"detector": ("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")),
            "heights": ("ground.dem.heights", ("_stencil_sums", "_ramp_arguments", "_hat_means")),
-           "atl06": ("products.atl06.kernel", ("fit_segment", "reference_heights"))}
+           "atl06": ("products.atl06.kernel", ("fit_segment", "reference_heights")),
+           "atl03": ("products.atl03.kernels", ("ph_id_count",))}
 
 
 def _detector() -> None:
@@ -61,6 +64,11 @@ def _atl06() -> None:
                        range_gate_m=30.0, z_ref_m=np.zeros(n), engine="compiled")
 
 
+def _atl03() -> None:
+    from .products.atl03 import kernels
+    kernels.ph_id_count(np.zeros(2, np.int64), np.zeros(2, np.int16), np.empty(2, np.uint8))
+
+
 def is_cached(stage: str) -> bool:
     """Whether numba's cache holds every kernel of ``stage`` (a :data:`KERNELS` key)."""
     return _cached(*KERNELS[stage])
@@ -81,9 +89,11 @@ def _cached(module: str, functions: tuple[str, ...]) -> bool:
     return True
 
 
-def compile_kernels(*, atl06: bool = False, progress: bool = True) -> float:
-    """Compile the detector's kernels (and, with ``atl06``, the compiled ATL06 fit) if they are
-    not cached yet; returns the seconds it took. With ``progress``, a bar on stderr says
+def compile_kernels(*, atl06: bool = False, atl03: bool = False, progress: bool = True
+                    ) -> float:
+    """Compile the detector's kernels (and, with ``atl06``, the compiled ATL06 fit; with
+    ``atl03``, ATL03's per-photon fields) if they are not cached yet; returns the seconds it
+    took. With ``progress``, a bar on stderr says
     "compiling kernels (first run on this machine)" and moves every half second."""
     steps = []
     if not is_cached("detector"):
@@ -92,6 +102,8 @@ def compile_kernels(*, atl06: bool = False, progress: bool = True) -> float:
         steps.append(("the DEM footprint means", HEIGHTS_S, _heights))
     if atl06 and not is_cached("atl06"):
         steps.append(("the ATL06 fit", ATL06_S, _atl06))
+    if atl03 and not is_cached("atl03"):
+        steps.append(("the ATL03 fields", ATL03_S, _atl03))
     if not steps:
         return 0.0
     t0 = time.perf_counter()

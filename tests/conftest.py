@@ -43,8 +43,8 @@ _COMPILING: list = []
 def pytest_configure(config):
     """The whole suite on xdist workers (the README's command): the numba kernels are compiled
     by the controller's own processes when their cache beside the package is cold (a fresh
-    clone, or an edited kernel): the detector's in one process and the DEM footprint means'
-    and ATL06 fit's in another, side by side (lidar_mitsuba.precompile; ~38 s and ~26 s CPU
+    clone, or an edited kernel): the detector's in one process and the DEM footprint means',
+    the ATL06 fit's and ATL03's fields' in another, side by side (lidar_mitsuba.precompile; ~38 s and ~26 s CPU
     on the 2-core VM), while the workers start and collect; no test is handed out before they
     are done (:func:`pytest_xdist_node_collection_finished`). Otherwise both workers compile
     the detector at once, each its own copy (both begin with files that detect photons), and
@@ -60,7 +60,7 @@ def pytest_configure(config):
     steps = []
     if not pc.is_cached("detector"):
         steps.append("p._detector()")
-    rest = [f"p._{stage}()" for stage in ("heights", "atl06") if not pc.is_cached(stage)]
+    rest = [f"p._{stage}()" for stage in ("heights", "atl06", "atl03") if not pc.is_cached(stage)]
     if rest:
         steps.append("; ".join(rest))
     _COMPILING.extend(subprocess.Popen([sys.executable, "-c",

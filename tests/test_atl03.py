@@ -167,3 +167,19 @@ def test_read_refuses_a_file_that_is_not_ours(tmp_path):
     with pytest.raises(ValueError, match="not a lidar_mitsuba ATL03 file"):
         atl03.read(empty)
     assert os.path.exists(other) and os.path.exists(empty)           # reading changes nothing
+
+
+def test_ph_id_count_compiled_is_the_numpy_sort(rng, monkeypatch):
+    """ATL03's ``ph_id_count`` from the compiled pass over photons in shot order
+    (products.atl03.kernels) is its numpy form's (a stable sort by shot and channel), with
+    more than 255 events of one shot and channel; photons out of shot order are left to
+    numpy."""
+    from lidar_mitsuba.products.atl03 import beam, kernels
+    shot = np.sort(rng.integers(0, 500, 4000))
+    channel = rng.integers(0, 16, shot.size).astype(np.int16)
+    shot[:300], channel[:300] = 0, 5
+    fast = beam._ph_id_count(shot, channel)
+    assert not kernels.ph_id_count(shot[::-1].copy(), channel, np.empty(shot.size, np.uint8))
+    monkeypatch.setattr(kernels, "ph_id_count", lambda *args: False)
+    np.testing.assert_array_equal(fast, beam._ph_id_count(shot, channel))
+    assert fast.dtype == np.uint8 and fast.max() == 255 and fast.min() == 1

@@ -243,14 +243,18 @@ def test_compiled_fit_in_blocks_on_threads_is_bit_identical(monkeypatch, fractal
 
 def test_the_fit_s_sorts_are_numpy_s(rng):
     """The compiled fit's sorts (lidar_mitsuba.products.atl06.sorting): ``sort`` gives
-    numpy's sorted values and ``argsort`` numpy's stable order, on the cases a quicksort and
-    a merge sort get wrong when they are wrong (sizes about the runs of 16, ties, runs
-    already sorted either way, one value repeated); a NaN gets the merge sort's order in
-    both."""
+    numpy's sorted values and ``argsort`` numpy's stable order, on the cases a quicksort, a
+    merge sort and a distribution into buckets get wrong when they are wrong (sizes about
+    the runs of 16 and the fewest distributed, ties, runs already sorted either way, one
+    value repeated, a crowded bucket beside an outlier, infinities, a spread too small to
+    scale, -0.0 beside 0.0); a NaN gets the merge sort's order in both."""
     from lidar_mitsuba.products.atl06 import sorting
     cases = [rng.normal(0, 1, n) for n in (0, 1, 2, 15, 16, 17, 33, 120, 257, 2000)]
     cases += [np.round(rng.normal(0, 3, 300)) / 3, np.sort(rng.normal(0, 1, 100)),
-              np.sort(rng.normal(0, 1, 100))[::-1].copy(), np.full(50, 0.25)]
+              np.sort(rng.normal(0, 1, 100))[::-1].copy(), np.full(50, 0.25),
+              np.r_[rng.normal(0, 0.1, 150), 1e3, -30.0],          # (a bucket of ~150)
+              np.r_[rng.normal(0, 1, 40), np.inf, -np.inf], np.r_[np.zeros(20), 5e-324],
+              np.r_[np.round(rng.normal(0, 1, 60)), np.full(9, -0.0)]]
     for a in cases:
         np.testing.assert_array_equal(sorting.sort(a), np.sort(a))
         np.testing.assert_array_equal(sorting.argsort(a), np.argsort(a, kind="stable"))

@@ -229,3 +229,27 @@ def test_groups_copied_from_a_template_are_the_groups_made_in_place(tmp_path, mo
             files[templates] = _made(f)
     assert len(files[True]) == 20
     assert files[True] == files[False]
+
+
+def test_extents_follow_the_rows_lazily(tmp_path, rng):
+    """An append counts its rows (``h5write.rows``) and the dataset's extent in the file
+    follows only when HDF5 stores a chunk at or beyond it, or at drain: it never exceeds the
+    rows, lags them between, and the closed file holds every row, through the pool's chunks
+    and through HDF5's own pipeline (a dataset without shuffle)."""
+    parts = [rng.normal(size=n) for n in (10, C - 20, 30, 2 * C, 7)]
+    path = tmp_path / "x.h5"
+    lagged = False
+    with atl03.atomic_h5file(path) as f:
+        f.create_dataset("plain", shape=(0,), maxshape=(None,), chunks=(C,), dtype=np.float64)
+        total = 0
+        for p in parts:
+            h5chunks.put(f, "a", p, "m", "x", append=True)
+            assert h5chunks.append(f, [("plain", p)]) == []
+            total += p.size
+            assert h5chunks.rows(f, "a") == h5chunks.rows(f, "plain") == total
+            assert f["a"].shape[0] <= total
+            lagged |= f["a"].shape[0] < total
+        assert lagged and h5chunks.rows(f, "missing") == 0
+    with h5py.File(path) as f:
+        for name in ("a", "plain"):
+            np.testing.assert_array_equal(f[name][:], np.concatenate(parts))

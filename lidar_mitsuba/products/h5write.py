@@ -25,8 +25,10 @@ with its fill value, as HDF5 pads an edge chunk. The compressed chunks are store
 calling thread in the order they were cut: the finished ones at every later :func:`put`, all
 once more than :data:`MAX_PENDING_BYTES` of rows wait, the rest at :func:`drain`, which
 :func:`lidar_mitsuba.products.atl03.atomic_h5file` calls before it closes a file (and :func:`discard`
-when the write fails); until then a dataset's last rows read as its fill value. Datasets with
-any other filter pipeline, and rows that begin a chunk HDF5 wrote, go through HDF5 as usual.
+when the write fails); until then a dataset's last rows read as its fill value, and its extent
+in the file may lag its rows (an appended dataset's extent is set only when needed, and at
+:func:`drain`; :func:`rows` gives its rows). Datasets with any other filter pipeline, and rows
+that begin a chunk HDF5 wrote, go through HDF5 as usual.
 Writers are expected on one thread (the pool only compresses).
 """
 from __future__ import annotations
@@ -62,7 +64,7 @@ _pending: collections.deque = collections.deque()  # (file key, [(dataset, offse
                                                     # of their compressed chunks, bytes)
 _queued = [0]                                        # bytes of rows in _pending
 _tails: dict = {}     # (file key, dataset name) -> (dataset, first row, rows, level, chunk
-                      # rows, fill value)
+                      # rows, fill value, its _Entry or None)
 _open: dict = {}            # (HDF5 file number, dataset name) -> _Entry of put(append=True)
 _made: dict = {}            # what a new dataset is made of -> (HDF5 type, creation plist, level)
 
@@ -181,15 +183,21 @@ def _num_types(dtype):
 class _Entry:
     """A dataset :func:`put` appends to, with what each append needs: its rows so far, dtype,
     filters and file. (h5py's lookup of a dataset by name, and of its shape, chunks and
-    filters, cost tens of microseconds each; a granule's ATL03 makes thousands of appends.)"""
+    filters, cost tens of microseconds each; a granule's ATL03 makes thousands of appends.)
 
-    __slots__ = ("dset", "rows", "tail_shape", "dtype", "level", "key", "chunk_rows", "fill")
+    Its extent in the file (``extent``) follows its rows (``rows``) lazily: an append only
+    counts them, and HDF5's extent is set (:meth:`sync`) before HDF5 writes rows or stores a
+    chunk beginning at or beyond it, and at :func:`drain`: once a dataset per few chunks
+    instead of once per append (a granule's ~2 700 ``H5Dset_extent`` calls)."""
+
+    __slots__ = ("dset", "rows", "extent", "tail_shape", "dtype", "level", "key", "chunk_rows",
+                 "fill")
 
     def __init__(self, dset, *, level=..., key=None, shape=None, dtype=None, chunk_rows=None,
                  fill=None):
         self.dset = dset
         shape = dset.shape if shape is None else shape     # (known for a dataset just made)
-        self.rows = shape[0]
+        self.rows = self.extent = shape[0]
         self.tail_shape = shape[1:]
         self.dtype = dset.dtype if dtype is None else np.dtype(dtype)
         self.level = _level(dset) if level is ... else level
@@ -198,13 +206,18 @@ class _Entry:
 
     def grow(self, n: int) -> None:
         self.rows += n
-        self.dset.id.set_extent((self.rows,) + self.tail_shape)
+
+    def sync(self) -> None:
+        """Set the dataset's extent in the file to its rows."""
+        if self.extent != self.rows:
+            self.dset.id.set_extent((self.rows,) + self.tail_shape)
+            self.extent = self.rows
 
     def write(self, start: int, data) -> None:
         if self.level is not None and self.chunk_rows is None:
             self.chunk_rows, self.fill = self.dset.chunks[0], self.dset.fillvalue
         _write(self.dset, start, data, dtype=self.dtype, level=self.level, key=self.key,
-               chunk_rows=self.chunk_rows, fill=self.fill)
+               chunk_rows=self.chunk_rows, fill=self.fill, entry=self)
 
 
 def _fill(fillvalue, dtype) -> np.ndarray:
@@ -252,6 +265,16 @@ def append(group, columns: list) -> list:
     return missing
 
 
+def rows(group, path: str) -> int:
+    """The rows of dataset ``group[path]``: appended so far (:func:`put`, :func:`append`:
+    their extent in the file may lag until :func:`drain`), else its extent; 0 if it does not
+    exist."""
+    entry = _open.get((group.id.fileno, f"{group.name}/{path}"))
+    if entry is not None and entry.dset.id.valid:
+        return entry.rows
+    return group[path].shape[0] if path in group else 0
+
+
 def forget(f) -> None:
     """Forget the datasets :func:`put` made in file ``f`` (it holds no waiting rows)."""
     _forget(_file_key(f))
@@ -275,9 +298,11 @@ def _level(dset) -> int | None:
     return level if level is not None and dset.chunks[1:] == dset.shape[1:] else None
 
 
-def _write(dset, start: int, data, *, dtype, level, key, chunk_rows, fill) -> None:
+def _write(dset, start: int, data, *, dtype, level, key, chunk_rows, fill,
+           entry=None) -> None:
     """Rows ``start ..`` of ``dset`` (``chunk_rows`` a chunk, padded with ``fill``): the
-    whole chunks they complete compressed on the pool as one job, the rest held."""
+    whole chunks they complete compressed on the pool as one job, the rest held. ``entry``:
+    its :class:`_Entry` (whose extent is set before HDF5 writes), if it has one."""
     data = np.ascontiguousarray(data, dtype=dtype)
     held = _tails.pop(key, None)
     if held is not None and held[1] + held[2].shape[0] != start:   # (rows written around us)
@@ -286,25 +311,29 @@ def _write(dset, start: int, data, *, dtype, level, key, chunk_rows, fill) -> No
     stop = start + data.shape[0]
     if level is None:
         if stop > start:
+            if entry is not None:
+                entry.sync()
             dset[start:stop] = data
         return
     rows, chunks = chunk_rows, []
     if held is not None:       # the waiting rows begin a chunk: these rows continue it
         head = data[:rows - held[2].shape[0]]
         start, data = start + head.shape[0], data[head.shape[0]:]
-        whole = (dset, held[1], np.concatenate([held[2], head]), level, rows, fill)
+        whole = (dset, held[1], np.concatenate([held[2], head]), level, rows, fill, entry)
         if whole[2].shape[0] < rows:                   # (still short of a chunk)
             _tails[key] = whole
             return
         chunks.append(whole)
     a = -(-start // rows) * rows                       # first chunk boundary at or after start
     if start < a:                                      # a chunk begun by someone else
+        if entry is not None:
+            entry.sync()
         dset[start:min(a, stop)] = data[:a - start]
     for c0 in range(a, stop - rows + 1, rows):
-        chunks.append((dset, c0, data[c0 - start:c0 - start + rows], level, rows, fill))
+        chunks.append((dset, c0, data[c0 - start:c0 - start + rows], level, rows, fill, entry))
     b = max(a, stop // rows * rows)
     if b < stop:
-        _tails[key] = (dset, b, data[b - start:].copy(), level, rows, fill)
+        _tails[key] = (dset, b, data[b - start:].copy(), level, rows, fill, entry)
     _submit(key[0], chunks)
     _store(block_above=MAX_PENDING_BYTES)
 
@@ -323,6 +352,9 @@ def drain(f) -> None:
     for i in range(0, len(held), DRAIN_BATCH):
         _submit(key, held[i:i + DRAIN_BATCH])
     _store(block_above=0)
+    for entry in list(_open.values()):           # every extent, once
+        if entry.key[0] == key and entry.dset.id.valid:
+            entry.sync()
     _forget(key)
 
 
@@ -345,12 +377,13 @@ def discard(f) -> None:
 
 def _submit(file_key: bytes, chunks: list) -> None:
     """Queue ``chunks`` of the file ``file_key`` names for compression, as one job of the
-    pool: each ``(dataset, first row, rows, level, chunk rows, fill value)``, ``rows`` all of
-    the chunk or its first rows (then padded with the fill value to ``chunk rows``)."""
+    pool: each ``(dataset, first row, rows, level, chunk rows, fill value, _Entry or None)``,
+    ``rows`` all of the chunk or its first rows (then padded with the fill value to ``chunk
+    rows``)."""
     if not chunks:
         return
-    future = host_pool().submit(_encode_chunks, [c[2:] for c in chunks])
-    places = [(c[0], (c[1],) + (0,) * (c[2].ndim - 1)) for c in chunks]
+    future = host_pool().submit(_encode_chunks, [c[2:6] for c in chunks])
+    places = [(c[0], (c[1],) + (0,) * (c[2].ndim - 1), c[6]) for c in chunks]
     nbytes = sum(c[4] * (c[2].nbytes // c[2].shape[0]) for c in chunks)
     with _lock:
         _pending.append((file_key, places, future, nbytes))
@@ -381,7 +414,9 @@ def _store(*, block_above: int) -> None:
                 return
             _pending.popleft()
             _queued[0] -= nbytes
-        for (dset, offset), blob in zip(places, future.result()):
+        for (dset, offset, entry), blob in zip(places, future.result()):
+            if entry is not None and entry.extent <= offset[0]:   # (the chunk within it)
+                entry.sync()
             dset.id.write_direct_chunk(offset, blob)
 
 
@@ -420,4 +455,4 @@ def _file_key(obj) -> bytes:
 
 
 __all__ = ["CHUNK_ROWS", "GZIP_LEVEL", "MAX_PENDING_BYTES", "put", "write_rows", "drain",
-           "discard", "set_attrs", "register", "append", "forget"]
+           "discard", "set_attrs", "register", "append", "rows", "forget"]

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import file as atl03_file
+from . import file as atl03_file, kernels
 from .. import h5template, h5write as h5chunks
 from ...detector import pmt
 from ... import radiometry
@@ -61,6 +61,7 @@ class _Section:
         (self.seg_of_shot, self.first, self.count, self.ref_shot,
          self.k0) = _segments(res.along_track_m, self.shot)
         self.gate = gate_heights_m(res.z_ref_m)       # the gates simulate() centred
+        self.saturated = _saturated_pulses(self)     # (full, near) per shot
         self.test = getattr(res, "signal_test", None)
         if self.test is None or self.test.conf is not res.signal_conf:
             # (run once by simulate(), whose signal_conf it gave, with these arguments)
@@ -87,10 +88,15 @@ def _segments(along_m: np.ndarray, photon_shot: np.ndarray):
 
 
 def _ph_id_count(shot: np.ndarray, channel: np.ndarray) -> np.ndarray:
-    """1-based index of each event among the events of its shot and channel, in order."""
+    """1-based index of each event among the events of its shot and channel, in order: one
+    compiled pass over photons in shot order (:func:`.kernels.ph_id_count`), else numpy's
+    stable sort of (shot, channel)."""
     n = shot.size
     if n == 0:
         return np.zeros(0, np.uint8)
+    out = np.empty(n, np.uint8)
+    if kernels.ph_id_count(shot, channel, out):
+        return out
     key = (shot.astype(np.int64) - shot.min()) * 64 + channel.astype(np.int64)
     if key.max() < 2 ** 31:         # (a section's: an int32 sort is ~30 % faster)
         key = key.astype(np.int32)
@@ -200,7 +206,7 @@ def _quality(s: _Section) -> np.ndarray:
     :data:`QUALITY_WINDOWS_M`. 3 (possible TEP) never: the transmitter echo path is not
     simulated. int8."""
     q = np.zeros(s.shot.size, np.int8)
-    full, near = _saturated_pulses(s)
+    full, near = s.saturated
     sat = full | near
     if not sat.any():
         return q
@@ -219,7 +225,7 @@ def _saturation(s: _Section):
     nearly saturated (:func:`_saturated_pulses`); fill value without photons."""
     n_shots, n_seg = s.res.n_shots, s.count.size
     with_photons = np.bincount(s.shot, minlength=n_shots) > 0
-    full, near = _saturated_pulses(s)
+    full, near = s.saturated
     seg = s.seg_of_shot - s.k0
     pulses = np.bincount(seg, weights=with_photons, minlength=n_seg)
     out = []
@@ -290,13 +296,14 @@ def _bckgrd_rows(s: _Section) -> dict:
     h = res.h_m[s.order][sig]
     lo, hi = np.full(n_rows, np.inf), np.full(n_rows, -np.inf)
     at = lr[s.shot[sig]]              # (ascending: photons are in shot order)
+    signal = np.bincount(at, minlength=n_rows)
     if at.size:     # each row's extremes (ufunc.at took ~0.3 s a granule; a min is exact)
         start = np.flatnonzero(np.r_[True, at[1:] != at[:-1]])
         lo[at[start]] = np.minimum.reduceat(h, start)
         hi[at[start]] = np.maximum.reduceat(h, start)
     first = np.searchsorted(lr, np.arange(n_rows))
     return {"row": row[0] + np.arange(n_rows), "counts": np.bincount(lr[s.shot], minlength=n_rows),
-            "signal": np.bincount(lr[s.shot[sig]], minlength=n_rows),
+            "signal": signal,
             "rate_sum": np.bincount(lr, weights=rate, minlength=n_rows),
             "shots": np.bincount(lr, minlength=n_rows), "lo": lo, "hi": hi,
             "time": s.run.delta_time_s[first],
@@ -429,7 +436,7 @@ def write_beam(f, run, sc_orient: int, *, replanned: bool = False) -> None:
             **beam_attrs(beam, sc_orient),
             "description": "one ATLAS beam: photons, geolocation, background"})
     gt = f[beam.name]
-    done = gt["heights/h_ph"].shape[0] if "heights/h_ph" in gt else 0   # earlier sections
+    done = h5chunks.rows(gt, "heights/h_ph")              # earlier sections' photons
     s = _Section(run, done)
     _write_group(gt, "heights", _heights(s))
     _write_group(gt, "geolocation", _geolocation(s, sc_orient))

@@ -147,8 +147,9 @@ def fit_segments(*, photon_along_m: np.ndarray, h_m: np.ndarray, shot: np.ndarra
                  max_iterations=int(max_iterations), min_photons=int(min_photons),
                  min_span_m=0.5 * segment_length_m, min_alive_pulses=float(min_alive_pulses),
                  max_gain=float(max_gain))
-    order = np.argsort(along, kind="stable")
-    along, h = along[order], h[order]
+    if along.size > 1 and not np.all(along[1:] >= along[:-1]):   # (a track's are in order)
+        order = np.argsort(along, kind="stable")
+        along, h = along[order], h[order]
     half = segment_length_m / 2.0
     centres = _segment_centres(shot_along, x0_m=x0_m, length_m=segment_length_m,
                                step_m=segment_step_m)

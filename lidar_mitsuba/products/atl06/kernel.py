@@ -16,9 +16,9 @@ Python's ``min``/``max`` keep the first argument on NaN; :func:`_pmax` and :func
 the same, so NaNs propagate as in the reference. ``cache=True`` keeps the compiled code.
 
 Sorts, the main cost, are as few as the results allow, each the same to the bit (issue 43):
-values by quicksort (:mod:`~lidar_mitsuba.products.atl06.sorting`), the last iteration's sorted
-residuals reused for the final line (the same line), one argsort for the first-photon-bias
-weights and median (no searches), the densest window in one sweep (0.59x the CPU before).
+distributed into buckets (:mod:`~lidar_mitsuba.products.atl06.sorting`), the last iteration's
+sorted residuals reused for the final line (the same line), one argsort for the
+first-photon-bias weights and median (no searches), the densest window in one sweep or none.
 """
 from __future__ import annotations
 
@@ -54,14 +54,12 @@ _TOO_FEW, _LOW_SNR, _LARGE_SPREAD, _FPB_DEAD, _FPB_GAIN, _FPB_DIVERGED, _NOT_CON
 
 
 @numba.njit(cache=True, nogil=True)
-def _pmax(a, b):
-    """Python's ``max(a, b)``: ``b`` only when ``b > a``."""
+def _pmax(a, b):  # Python's max(a, b): b only when b > a
     return b if b > a else a
 
 
 @numba.njit(cache=True, nogil=True)
-def _pmin(a, b):
-    """Python's ``min(a, b)``: ``b`` only when ``b < a``."""
+def _pmin(a, b):  # Python's min(a, b): b only when b < a
     return b if b < a else a
 
 
@@ -296,9 +294,7 @@ def _weighted_median_minus_uniform(rs, ws, n_bg, half_w):
 @numba.njit(cache=True, nogil=True)
 def _span_ok(x, sel, min_photons, min_span_m):
     """``count(sel) >= min_photons and ptp(x[sel]) >= min_span_m``, and the count."""
-    n = 0
-    lo = np.inf
-    hi = -np.inf
+    n, lo, hi = 0, np.inf, -np.inf
     for i in range(x.size):
         if sel[i]:
             n += 1
@@ -322,10 +318,11 @@ def _exclusion(win, sig_r, dead_m, w0):
 
 @numba.njit(cache=True, nogil=True)
 def _densest_window(h, w0):
-    """:func:`lidar_mitsuba.products.atl06.reference._densest_window`."""
-    hs = sort(h)
-    i_best = 0
-    best = -1
+    """:func:`lidar_mitsuba.products.atl06.reference._densest_window` (photons all within
+    ``w0`` of the lowest: the first window holds them all, and no sort is needed)."""
+    if h.size and not has_nan(h) and h.max() <= h.min() + w0:
+        return (h >= h.min()) & (h <= h.min() + w0)
+    hs, i_best, best = sort(h), 0, -1
     if has_nan(h):                 # (no order: each window's end searched for, as before)
         for i in range(hs.size):
             count = first_at_least(hs, hs[i] + w0, True) - i
@@ -458,35 +455,36 @@ def _first_photon_bias(r_all, win, bg, n_pulses, cfg):
         w_ext, ok_w = _dead_time_weights_ordered(r_ext, order, n_pulses, n_channels,
                                                  dead_time_ns, half_c), True
     in_win = np.abs(r_ext) < win / 2.0
-    rw = r_ext[in_win]
-    ww = w_ext[in_win]
     n_bg_true = (bg if math.isfinite(bg) else 0.0) * 1e-3 * (win / half_c) * n_pulses
-    w_sum = ww.sum()
-    n_corr = w_sum - n_bg_true
-    min_alive = np.inf
-    any_finite = False
-    all_finite = True
-    for j in range(ww.size):
-        alive = 1.0 / ww[j]
-        if math.isfinite(alive):
-            any_finite = True
-        if not math.isnan(alive):
-            min_alive = min(min_alive, alive)
-        if not math.isfinite(ww[j]):
-            all_finite = False
-    if not any_finite:
-        min_alive = np.nan
-    gain = w_sum / rw.size if rw.size else np.nan
-    if n_corr > 0:
-        centroid = np.sum(ww * rw) / n_corr
-    else:
-        centroid = np.nan
-    fpb_corr = centroid - (np.mean(rw) if rw.size else np.nan)
-    fpb_sigma = (math.sqrt(np.sum((ww * (rw - centroid)) ** 2)) / n_corr if n_corr > 0
-                 else np.nan)
+    # (the window's photons in order: the sums of numba's ww.sum(), np.sum(ww * rw), np.mean(rw))
+    m, w_sum, wr_sum, r_sum = 0, 0.0, 0.0, 0.0
+    min_alive, any_finite, all_finite = np.inf, False, True
+    for e in range(r_ext.size):
+        if in_win[e]:
+            w, r = w_ext[e], r_ext[e]
+            m, w_sum, wr_sum, r_sum = m + 1, w_sum + w, wr_sum + w * r, r_sum + r
+            alive = 1.0 / w
+            if math.isfinite(alive):
+                any_finite = True
+            if not math.isnan(alive):
+                min_alive = min(min_alive, alive)
+            if not math.isfinite(w):
+                all_finite = False
+    n_corr, min_alive = w_sum - n_bg_true, min_alive if any_finite else np.nan
+    gain = w_sum / m if m else np.nan
+    centroid = wr_sum / n_corr if n_corr > 0 else np.nan
+    fpb_corr = centroid - (r_sum / m if m else np.nan)
+    fpb_sigma = np.nan
+    if n_corr > 0:                     # (np.sum((ww * (rw - centroid)) ** 2), in one pass)
+        d2 = 0.0
+        for e in range(r_ext.size):
+            if in_win[e]:
+                d = w_ext[e] * (r_ext[e] - centroid)
+                d2 += d * d
+        fpb_sigma = math.sqrt(d2) / n_corr
     fpb_med = np.nan
     if all_finite:                 # the window's photons in their stable order (rw's argsort)
-        rs, ws = np.empty(rw.size), np.empty(rw.size)
+        rs, ws = np.empty(m), np.empty(m)
         k = 0
         for e in order:
             if in_win[e]:

@@ -1,14 +1,24 @@
 """Sorts for the compiled ATL06 fit (:mod:`lidar_mitsuba.products.atl06.kernel`), in numba.
 
 numba's own sorts take seconds each to compile, so the fit has its own: :func:`sort` (values
-only: a quicksort, ~1.2-2x the merge sort's speed at a segment's ~100 photons, whose
-comparisons, unpredictable branches, are most of a sort's cost) and :func:`argsort` (stable:
-insertion-sorted runs of 16, then bottom-up merges), and :func:`first_at_least`, numpy's
-``searchsorted``. The fit's results depend only on the sorted values, or (``argsort``) on the
-one stable order, so they are the same whichever sort gives them: a NaN, which no comparison
-orders, takes ``argsort``'s order in both (``tests/test_atl06.py`` checks the sorts against
-numpy's). (Only -0.0 and 0.0, equal to every comparison, may trade places: a residual is -0.0
-only for a photon at height -0.0 exactly on its line.)
+only) and :func:`argsort` (numpy's stable order), and :func:`first_at_least`, numpy's
+``searchsorted``. Both sorts distribute first (issue 43): each value goes to one of ``n``
+equal buckets between the array's least and greatest value (the bucket ``floor((v - min)
+n / (max - min))``, which never decreases as ``v`` grows: the buckets are in order), in the
+array's order (a counting sort: stable), then each bucket is put in order by insertion (a
+bucket of more than :data:`BUCKET_MAX` values by the comparison sorts below). A segment's
+~100-200 heights or residuals, comparison-sorted, cost ~38 ns a value, most of it branches
+mispredicted on unpredictable comparisons; distributed they cost ~10 ns (3.8x faster for
+the values, 4.2x for the order, on a strong beam's segments). The comparison sorts stay for
+what distribution cannot take (a NaN, an infinite or single value, fewer than
+:data:`DISTRIBUTE_MIN` values) and for crowded buckets: :func:`_quicksort` (Hoare's, the
+median of three) for values and :func:`_merge_argsort` (insertion-sorted runs of 16, then
+bottom-up merges) for the order. The fit's results depend only on the sorted values, or
+(``argsort``) on the one stable order, so they are the same whichever sort gives them: a
+NaN, which no comparison orders, takes :func:`_merge_argsort`'s order in both
+(``tests/test_atl06.py`` checks the sorts against numpy's). (Only -0.0 and 0.0, equal to
+every comparison, may trade places in :func:`sort`'s values: a residual is -0.0 only for a
+photon at height -0.0 exactly on its line.)
 """
 from __future__ import annotations
 
@@ -27,15 +37,118 @@ def has_nan(a):
     return False
 
 
+#: fewest values :func:`sort` and :func:`argsort` distribute into buckets (fewer are
+#: compared: a choice, not a measurement, about the comparison sorts' runs of 16)
+DISTRIBUTE_MIN = 16
+#: most values a bucket is put in order by insertion (more: by the comparison sort, so that
+#: a crowded bucket, e.g. a segment's surface photons among background spread over the
+#: gate, costs n log n, not n^2; a choice, twice the comparison sorts' runs)
+BUCKET_MAX = 32
+
+
+@numba.njit(cache=True, nogil=True)
+def _range(a):
+    """The least value of the float64 array ``a``, its buckets per unit value (``n / (max -
+    min)``), and whether distributing it is defined: at least :data:`DISTRIBUTE_MIN` values,
+    none NaN, a finite positive spread and a finite scale."""
+    lo, hi, nan = np.inf, -np.inf, False
+    for i in range(a.size):
+        v = a[i]
+        if v != v:
+            nan = True
+        lo = min(lo, v)
+        hi = max(hi, v)
+    span = hi - lo
+    ok = not nan and a.size >= DISTRIBUTE_MIN and 0.0 < span < np.inf
+    scale = a.size / span if ok else 0.0
+    return lo, scale, ok and scale < np.inf
+
+
+@numba.njit(cache=True, nogil=True)
+def _bucket(v, lo, scale, n):
+    """The bucket (0 .. n - 1) of value ``v``: ``floor((v - lo) scale)``, the greatest value's
+    (``n``) in the last; never smaller for a larger ``v`` (each step rounds monotonically)."""
+    return min(int((v - lo) * scale), n - 1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _bucket_starts(a, lo, scale):
+    """(n + 1,) the first position of each of the ``n`` buckets of ``a`` and the end."""
+    n = a.size
+    start = np.zeros(n + 1, np.int64)
+    for i in range(n):
+        start[_bucket(a[i], lo, scale, n) + 1] += 1
+    for k in range(n):
+        start[k + 1] += start[k]
+    return start
+
+
 @numba.njit(cache=True, nogil=True)
 def sort(a):
-    """The float64 array ``a`` sorted (a new array): the values of any sort, by a quicksort
-    (:func:`_quicksort`); a NaN among them takes :func:`argsort`'s order."""
-    if has_nan(a):
-        return a[argsort(a)]
-    s = a.copy()
-    _quicksort(s)
+    """The float64 array ``a`` sorted (a new array): the values of any sort, distributed into
+    buckets (see the module docstring) or by :func:`_quicksort`; a NaN among them takes
+    :func:`_merge_argsort`'s order."""
+    lo, scale, spread = _range(a)
+    if not spread:
+        if has_nan(a):
+            return a[_merge_argsort(a)]
+        s = a.copy()
+        _quicksort(s)
+        return s
+    n = a.size
+    start = _bucket_starts(a, lo, scale)
+    pos = start[:n].copy()
+    s = np.empty(n)
+    for i in range(n):
+        k = _bucket(a[i], lo, scale, n)
+        s[pos[k]] = a[i]
+        pos[k] += 1
+    for k in range(n):
+        b0, b1 = start[k], start[k + 1]
+        if b1 - b0 > BUCKET_MAX:
+            _quicksort(s[b0:b1])
+            continue
+        for i in range(b0 + 1, b1):
+            key = s[i]
+            j = i
+            while j > b0 and s[j - 1] > key:
+                s[j] = s[j - 1]
+                j -= 1
+            s[j] = key
     return s
+
+
+@numba.njit(cache=True, nogil=True)
+def argsort(a):
+    """Stable argsort of a float64 array (numpy's ``kind="stable"``): distributed into
+    buckets in the array's order, each bucket's indices by insertion on strictly greater
+    values (see the module docstring), or by :func:`_merge_argsort`."""
+    lo, scale, spread = _range(a)
+    if not spread:
+        return _merge_argsort(a)
+    n = a.size
+    start = _bucket_starts(a, lo, scale)
+    pos = start[:n].copy()
+    idx = np.empty(n, np.int64)
+    for i in range(n):
+        k = _bucket(a[i], lo, scale, n)
+        idx[pos[k]] = i
+        pos[k] += 1
+    for k in range(n):
+        b0, b1 = start[k], start[k + 1]
+        if b1 - b0 > BUCKET_MAX:         # (its indices ascend: a stable sort keeps ties so)
+            part = idx[b0:b1].copy()
+            idx[b0:b1] = part[_merge_argsort(a[part])]
+            continue
+        for i in range(b0 + 1, b1):
+            v = idx[i]
+            key = a[v]
+            j = i
+            while j > b0 and a[idx[j - 1]] > key:
+                idx[j] = idx[j - 1]
+                j -= 1
+            idx[j] = v
+    return idx
 
 
 @numba.njit(cache=True, nogil=True)
@@ -88,9 +201,9 @@ def _quicksort(s):
 
 
 @numba.njit(cache=True, nogil=True)
-def argsort(a):
-    """Stable argsort of a float64 array (insertion-sorted runs of 16, then bottom-up merges);
-    :func:`sort` where only the values are needed."""
+def _merge_argsort(a):
+    """Stable argsort of a float64 array by comparisons (insertion-sorted runs of 16, then
+    bottom-up merges): any values, NaN included."""
     n = a.size
     idx = np.arange(n)
     run = 16
