@@ -19,7 +19,9 @@ held, or a pool's state, is copied as it was and never released in the child):
   thread is unknown and refuses the fork;
 - Dr.Jit imported (its thread pool, LLVM's state: the renderer is set up after the fork);
 - numba's threading layer launched (its workers are native threads with shared queues);
-- an HDF5 file open (the child would hold its handle and HDF5's state of it).
+- an HDF5 file open (the child would hold its handle and HDF5's state of it);
+- pyproj imported (its import opens PROJ's database, SQLite, which must not be used from
+  both sides of a fork: the writer child uses PROJ).
 """
 from __future__ import annotations
 
@@ -53,6 +55,9 @@ def refusal() -> str | None:
     parallel = sys.modules.get("numba.np.ufunc.parallel")
     if parallel is not None and getattr(parallel, "_is_initialized", False):
         reasons.append("numba's threading layer is running")
+    if "pyproj" in sys.modules:
+        reasons.append("pyproj is loaded (PROJ's database, an SQLite file, is open: a "
+                       "connection must not cross a fork)")
     h5py = sys.modules.get("h5py")
     if h5py is not None and h5py.h5f.get_obj_count(h5py.h5f.OBJ_ALL, h5py.h5f.OBJ_FILE):
         reasons.append("an HDF5 file is open")

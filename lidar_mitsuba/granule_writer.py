@@ -294,11 +294,17 @@ def _serve(conn_in: Connection, conn_out: Connection) -> None:
 
 
 def _warm_up() -> None:
-    """The writer's imports, and the compiled ATL06 fit loaded from numba's cache when it is
-    there (never compiled here: a short track does not use it), before the first section."""
+    """Before the first section (while the simulating process sets its renderer up): the
+    writer's imports (inherited when forked), the compiled ATL06 fit loaded from numba's
+    cache when it is there (never compiled here: a short track does not use it), and PROJ's
+    ECEF transform that ATL03's velocities use (pyproj's import and the transform's set-up,
+    ~0.2 s of CPU the first section would pay; never imported before a fork:
+    :func:`lidar_mitsuba.forking.refusal`)."""
     from . import granule, precompile  # noqa: F401
+    from .products.atl03 import beam
     if precompile.is_cached("atl06"):
         precompile._atl06()
+    beam._to_ecef()
 
 
 def _picklable(e: BaseException):

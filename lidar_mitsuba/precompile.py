@@ -151,9 +151,12 @@ def load_kernels() -> threading.Thread | None:
     imports ``scipy.linalg``, cffi: ~0.4-0.6 s of CPU, once a process) and the first serial
     kernels it calls (the detector's :func:`~lidar_mitsuba.detector.deadtime.shot_stats`, the
     footprint means' stencil sums), from numba's cache (the first two already loaded where
-    the writer process was forked: :func:`start_numba` ran before the fork). Call it before the renderer's set-up,
-    which mostly waits with the GIL released (libLLVM, the variant's libraries: measured, a
-    spinning Python thread beside it ran for 1.65 s of its 2.05 s), so the two overlap.
+    the writer process was forked: :func:`start_numba` ran before the fork); then the
+    imports of rasterio and pyproj (~0.25 s of CPU), which the DEM's opening and the first
+    plan's geodesics would otherwise pay on the simulating thread. Call it before the
+    renderer's set-up, which mostly waits with the GIL released (libLLVM, the variant's
+    libraries: measured, a spinning Python thread beside it ran for 1.65 s of its 2.05 s),
+    so the two overlap.
 
     Returns the started thread, or ``None`` when it already ran in this process or a kernel is
     not cached yet (then the first run compiles it: :func:`compile_kernels`). The detector's
@@ -169,6 +172,7 @@ def load_kernels() -> threading.Thread | None:
     def load():
         start_numba()
         _heights()
+        import pyproj, rasterio  # noqa: E401, F401 (after the writer's fork: forking.refusal)
 
     loader = threading.Thread(target=load, name="lidar-kernels", daemon=True)
     loader.start()

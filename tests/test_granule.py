@@ -591,21 +591,31 @@ def _h5_objects(path) -> dict:
 
 #: a fresh process that starts its writer as ``simulate --dem`` does (forked: right after
 #: the imports, before the renderer) and streams :func:`test_the_writer_process_writes_the_same
-#: _files_and_reports_failures`' granule into ``folder``/forked (argv: the DEM, the folder)
+#: _files_and_reports_failures`' granule into ``folder``/forked (argv: the DEM, the folder),
+#: then one whose ATL06 path it cannot create, into ``folder``/forked_bad
 _FORKED = """
 import json, pathlib, sys
 from lidar_mitsuba import geotrack, granule, granule_writer
 w = granule_writer.writer("process")
 from lidar_mitsuba.ground import dem as dems
-surf = dems.DEMSurface(dems.DEM.open(sys.argv[1]), tile_shots=512)
-out = pathlib.Path(sys.argv[2]) / "forked"
-out.mkdir()
-granule.stream_granule(surface=surf, track=geotrack.GeoTrack(start_lat_deg=69.97,
-    start_lon_deg=-45.0, azimuth_deg=0.0), shots=400, beams="gt2l,gt3r", seed=5,
-    progress=False, max_depth=1, paths_per_shot=16, section_shots=200,
-    atl03_path=out / "a3.h5", atl06_path=out / "a6.h5", writer="process")
-print(json.dumps({"forked": w.forked, "refusal": w.refusal,
-                  "reused": granule_writer._WRITER[0] is w}))
+folder = pathlib.Path(sys.argv[2])
+kw = dict(surface=dems.DEMSurface(dems.DEM.open(sys.argv[1]), tile_shots=512),
+          track=geotrack.GeoTrack(start_lat_deg=69.97, start_lon_deg=-45.0, azimuth_deg=0.0),
+          shots=400, beams="gt2l,gt3r", seed=5, progress=False, max_depth=1,
+          paths_per_shot=16, section_shots=200, writer="process")
+for name in ("forked", "forked_bad"):
+    (folder / name).mkdir()
+granule.stream_granule(**kw, atl03_path=folder / "forked" / "a3.h5",
+                       atl06_path=folder / "forked" / "a6.h5")
+try:
+    granule.stream_granule(**kw, atl03_path=folder / "forked_bad" / "a3.h5",
+                           atl06_path=folder / "missing" / "a6.h5")
+    error = ""
+except Exception as e:
+    error = str(e)
+print(json.dumps({"forked": w.forked, "refusal": w.refusal, "error": "missing" in error,
+                  "left": sorted(p.name for p in (folder / "forked_bad").iterdir()),
+                  "reused": granule_writer._WRITER[0] is w and w.alive()}))
 """
 
 
@@ -615,7 +625,7 @@ def test_the_writer_process_writes_the_same_files_and_reports_failures(dem_path,
     and by a writer process forked from a fresh process (as ``simulate --dem`` starts it:
     it must have forked, in a process of its own beside this test's, started first).
     A failure in the writer (an ATL06 path it cannot create) stops the granule with its
-    error and leaves no file, and the same process writes the next granule."""
+    error and leaves no file, and the same process writes the next granule (forked or not)."""
     (tmp_path / "forked.py").write_text(_FORKED)
     forked = subprocess.Popen([sys.executable, str(tmp_path / "forked.py"), str(dem_path),
                                str(tmp_path)], stdout=subprocess.PIPE, text=True)
@@ -627,7 +637,7 @@ def test_the_writer_process_writes_the_same_files_and_reports_failures(dem_path,
         granule.stream_granule(**kw, atl03_path=tmp_path / mode / "a3.h5",
                                atl06_path=tmp_path / mode / "a6.h5", writer=mode)
     assert json.loads(forked.communicate(timeout=120)[0].splitlines()[-1]) == {
-        "forked": True, "refusal": None, "reused": True}
+        "forked": True, "refusal": None, "error": True, "left": [], "reused": True}
     for name in ("a3.h5", "a6.h5"):
         a, b, c = (_h5_objects(tmp_path / m / name) for m in ("inline", "process", "forked"))
         assert a.keys() == b.keys() == c.keys() and len(a) > 100
