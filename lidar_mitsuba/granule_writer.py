@@ -17,10 +17,11 @@ a campaign worker pays its start, ~1 s of imports, once); the files are the same
 as those written in the simulating process (``tests/test_granule.py``).
 
 The process is *forked* from the simulating one where that is safe
-(:func:`lidar_mitsuba.forking.refusal`: Linux, no other thread, Dr.Jit not loaded, no HDF5
-file open), as ``simulate --dem`` and bench's granule row start it, right after their
-imports: the child inherits the imports and numba's start (:func:`~lidar_mitsuba.precompile.
-start_numba`, run just before the fork) instead of paying them again (~1.1 s of CPU).
+(:func:`lidar_mitsuba.forking.refusal`: Linux, no other thread, Dr.Jit and pyproj not
+loaded, no HDF5 file open), as ``simulate --dem`` and bench's granule row start it, right
+after their imports: the child inherits the imports and numba's start
+(:func:`~lidar_mitsuba.precompile.start_numba`, run just before the fork) instead of paying
+them again (~1.1 s of CPU).
 Elsewhere (a Dask worker's threads, a process whose renderer is set up, not Linux) it is a
 fresh interpreter, ``python -m lidar_mitsuba.granule_writer``. Both serve the same pipes.
 """
