@@ -133,7 +133,8 @@ class Forked:
 
 def fork(target, *args, close: tuple[int, ...] = ()) -> Forked:
     """Fork this process (call only when :func:`refusal` is ``None``); the child closes the
-    file descriptors ``close`` (the parent's ends of its pipes), runs ``target(*args)`` and
+    file descriptors ``close`` (the parent's ends of its pipes), reads its standard input
+    from ``/dev/null`` (as a ``Popen`` with ``stdin=DEVNULL``), runs ``target(*args)`` and
     ends with ``os._exit`` (0, or 1 after printing an exception's traceback): never returning
     to the caller's code, running no ``atexit`` handler and flushing none of the parent's
     buffers (flushed here before the fork)."""
@@ -147,6 +148,9 @@ def fork(target, *args, close: tuple[int, ...] = ()) -> Forked:
     try:                                    # the child
         for fd in close:
             os.close(fd)
+        devnull = os.open(os.devnull, os.O_RDONLY)
+        os.dup2(devnull, 0)
+        os.close(devnull)
         target(*args)
         code = 0
     except KeyboardInterrupt:               # (the terminal's interrupt reaches both)
