@@ -107,10 +107,11 @@ class WriterProcess:
     def __init__(self, *, fork: bool = True):
         #: why the process was started afresh rather than forked (``None``: forked)
         self.refusal = forking.refusal() if fork else "not asked to fork"
-        self.forked = self.refusal is None
-        if self.forked:                   # the child inherits this process's imports
+        if self.refusal is None:          # the child inherits this process's imports
             from . import precompile      # and numba's start (the child's ATL06 fit needs it)
-            precompile.start_numba()
+            if precompile.start_numba():
+                self.refusal = forking.refusal()      # (still safe: it started no thread)
+        self.forked = self.refusal is None
         r_child, w_parent = os.pipe()             # parent -> child
         r_parent, w_child = os.pipe()             # child -> parent
         if self.forked:
