@@ -154,9 +154,10 @@ def load_kernels() -> threading.Thread | None:
     the writer process was forked: :func:`start_numba` ran before the fork); then the
     imports of rasterio and pyproj (~0.25 s of CPU), which the DEM's opening and the first
     plan's geodesics would otherwise pay on the simulating thread. Call it before the
-    renderer's set-up, which mostly waits with the GIL released (libLLVM, the variant's
-    libraries: measured, a spinning Python thread beside it ran for 1.65 s of its 2.05 s),
-    so the two overlap.
+    renderer's set-up, which under load mostly waits with the GIL released (libLLVM, the
+    variant's libraries: measured, a spinning Python thread beside it ran for 1.65 s of its
+    2.05 s), so the two overlap; on an idle core the set-up does not wait (0.30 s of wall
+    for 0.29 s of CPU) and the two take turns (docs/guide/campaigns.md, "Cold start").
 
     Returns the started thread, or ``None`` when it already ran in this process or a kernel is
     not cached yet (then the first run compiles it: :func:`compile_kernels`). The detector's
