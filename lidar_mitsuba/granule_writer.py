@@ -15,6 +15,15 @@ errors come back with the next section or at the close. The process lives as lon
 process that started it (:func:`writer`: one per process, reused granule after granule, so
 a campaign worker pays its start, ~1 s of imports, once); the files are the same to the bit
 as those written in the simulating process (``tests/test_granule.py``).
+
+The process is *forked* from the simulating one where that is safe
+(:func:`lidar_mitsuba.forking.refusal`: Linux, no other thread, Dr.Jit and pyproj not
+loaded, no HDF5 file open), as ``simulate --dem`` and bench's granule row start it, right
+after their imports: the child inherits the imports and numba's start
+(:func:`~lidar_mitsuba.precompile.start_numba`, run just before the fork) instead of paying
+them again (~1.1 s of CPU).
+Elsewhere (a Dask worker's threads, a process whose renderer is set up, not Linux) it is a
+fresh interpreter, ``python -m lidar_mitsuba.granule_writer``. Both serve the same pipes.
 """
 from __future__ import annotations
 
@@ -28,6 +37,8 @@ import sys
 import threading
 import traceback
 from multiprocessing.connection import Connection
+
+from . import forking
 
 #: sections waiting for the writer process before the simulating thread waits
 MAX_QUEUED = 2
@@ -93,15 +104,25 @@ class WriterProcess:
     methods, called from the simulating thread, which waits only when :data:`MAX_QUEUED`
     sections are already waiting, and at :meth:`close`."""
 
-    def __init__(self):
+    def __init__(self, *, fork: bool = True):
+        #: why the process was started afresh rather than forked (``None``: forked)
+        self.refusal = forking.refusal() if fork else "not asked to fork"
+        if self.refusal is None:          # the child inherits this process's imports
+            from . import precompile      # and numba's start (the child's ATL06 fit needs it)
+            if precompile.start_numba():
+                self.refusal = forking.refusal()      # (still safe: it started no thread)
+        self.forked = self.refusal is None
         r_child, w_parent = os.pipe()             # parent -> child
         r_parent, w_child = os.pipe()             # child -> parent
-        root = str(pathlib.Path(__file__).resolve().parents[1])
-        env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-            [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "lidar_mitsuba.granule_writer", str(r_child), str(w_child)],
-            pass_fds=(r_child, w_child), env=env, stdin=subprocess.DEVNULL)
+        if self.forked:
+            self.proc = forking.fork(_serve_fds, r_child, w_child, close=(w_parent, r_parent))
+        else:                             # a fresh interpreter, which imports them again
+            root = str(pathlib.Path(__file__).resolve().parents[1])
+            env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+                [root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "lidar_mitsuba.granule_writer", str(r_child),
+                 str(w_child)], pass_fds=(r_child, w_child), env=env, stdin=subprocess.DEVNULL)
         os.close(r_child)
         os.close(w_child)
         self.owner = os.getpid()
@@ -275,13 +296,18 @@ def _serve(conn_in: Connection, conn_out: Connection) -> None:
 
 
 def _warm_up() -> None:
-    """The writer's imports, and the compiled ATL06 fit and ATL03 fields loaded from numba's
-    cache when they are there (never compiled here: a short track does not use the fit),
-    before the first section."""
+    """Before the first section (while the simulating process sets its renderer up): the
+    writer's imports (inherited when forked), the compiled ATL06 fit and ATL03 fields loaded
+    from numba's cache when they are there (never compiled here: a short track does not use
+    the fit), and PROJ's ECEF transform that ATL03's velocities use (pyproj's import and the
+    transform's set-up, ~0.2 s of CPU the first section would pay; never imported before a
+    fork: :func:`lidar_mitsuba.forking.refusal`)."""
     from . import granule, precompile  # noqa: F401
+    from .products.atl03 import beam
     for stage in ("atl06", "atl03"):
         if precompile.is_cached(stage):
             getattr(precompile, f"_{stage}")()
+    beam._to_ecef()
 
 
 def _picklable(e: BaseException):
@@ -292,6 +318,10 @@ def _picklable(e: BaseException):
         return None
 
 
+def _serve_fds(fd_in: int, fd_out: int) -> None:
+    """:func:`_serve` on the two pipes' file descriptors (from the parent, to it)."""
+    _serve(Connection(fd_in, writable=False), Connection(fd_out, readable=False))
+
+
 if __name__ == "__main__":
-    _serve(Connection(int(sys.argv[1]), writable=False), Connection(int(sys.argv[2]),
-                                                                    readable=False))
+    _serve_fds(int(sys.argv[1]), int(sys.argv[2]))

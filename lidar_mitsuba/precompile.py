@@ -138,6 +138,21 @@ def compile_kernels(*, atl06: bool = False, atl03: bool = False, progress: bool 
     return time.perf_counter() - t0
 
 
+def start_numba() -> bool:
+    """numba's first dispatch, on this thread: its CPU target (type registries, a BLAS check
+    that imports ``scipy.linalg``, cffi: ~0.3 s of CPU, once a process) and the detector's
+    :func:`~lidar_mitsuba.detector.deadtime.shot_stats` from numba's cache. Returns whether
+    it ran: not when that kernel is not cached yet (a first run compiles it, with
+    :func:`compile_kernels`' bar). The writer process's fork calls it first
+    (:mod:`lidar_mitsuba.granule_writer`), so that the child inherits it; serial kernels
+    only: numba's threading layer stays down (a fork needs it down)."""
+    if not _cached(KERNELS["detector"][0], ("shot_stats",)):
+        return False
+    from .detector import deadtime
+    deadtime.shot_stats(np.zeros(1, np.uint32), np.ones(1, np.float32), 1)
+    return True
+
+
 #: the process in which :func:`load_kernels` ran (a forked child runs it again)
 _LOADED_PID: list = [None]
 
@@ -147,9 +162,14 @@ def load_kernels() -> threading.Thread | None:
     load on the simulating thread: numba's CPU target (its type registries, a BLAS check that
     imports ``scipy.linalg``, cffi: ~0.4-0.6 s of CPU, once a process) and the first serial
     kernels it calls (the detector's :func:`~lidar_mitsuba.detector.deadtime.shot_stats`, the
-    footprint means' stencil sums), from numba's cache. Call it before the renderer's set-up,
-    which mostly waits with the GIL released (libLLVM, the variant's libraries: measured, a
-    spinning Python thread beside it ran for 1.65 s of its 2.05 s), so the two overlap.
+    footprint means' stencil sums), from numba's cache (the first two already loaded where
+    the writer process was forked: :func:`start_numba` ran before the fork); then the
+    imports of rasterio and pyproj (~0.25 s of CPU), which the DEM's opening and the first
+    plan's geodesics would otherwise pay on the simulating thread. Call it before the
+    renderer's set-up, which under load mostly waits with the GIL released (libLLVM, the
+    variant's libraries: measured, a spinning Python thread beside it ran for 1.65 s of its
+    2.05 s), so the two overlap; on an idle core the set-up does not wait (0.30 s of wall
+    for 0.29 s of CPU) and the two take turns (docs/guide/campaigns.md, "Cold start").
 
     Returns the started thread, or ``None`` when it already ran in this process or a kernel is
     not cached yet (then the first run compiles it: :func:`compile_kernels`). The detector's
@@ -163,9 +183,9 @@ def load_kernels() -> threading.Thread | None:
         return None
 
     def load():
-        from .detector import deadtime
-        deadtime.shot_stats(np.zeros(1, np.uint32), np.ones(1, np.float32), 1)
+        start_numba()
         _heights()
+        import pyproj, rasterio  # noqa: E401, F401 (after the writer's fork: forking.refusal)
 
     loader = threading.Thread(target=load, name="lidar-kernels", daemon=True)
     loader.start()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import threading
 
 import h5py
 import numpy as np
@@ -588,11 +589,46 @@ def _h5_objects(path) -> dict:
     return out
 
 
+#: a fresh process that starts its writer as ``simulate --dem`` does (forked: right after
+#: the imports, before the renderer) and streams :func:`test_the_writer_process_writes_the_same
+#: _files_and_reports_failures`' granule into ``folder``/forked (argv: the DEM, the folder),
+#: then one whose ATL06 path it cannot create, into ``folder``/forked_bad
+_FORKED = """
+import json, pathlib, sys
+from lidar_mitsuba import geotrack, granule, granule_writer
+w = granule_writer.writer("process")
+from lidar_mitsuba.ground import dem as dems
+folder = pathlib.Path(sys.argv[2])
+kw = dict(surface=dems.DEMSurface(dems.DEM.open(sys.argv[1]), tile_shots=512),
+          track=geotrack.GeoTrack(start_lat_deg=69.97, start_lon_deg=-45.0, azimuth_deg=0.0),
+          shots=400, beams="gt2l,gt3r", seed=5, progress=False, max_depth=1,
+          paths_per_shot=16, section_shots=200, writer="process")
+for name in ("forked", "forked_bad"):
+    (folder / name).mkdir()
+granule.stream_granule(**kw, atl03_path=folder / "forked" / "a3.h5",
+                       atl06_path=folder / "forked" / "a6.h5")
+try:
+    granule.stream_granule(**kw, atl03_path=folder / "forked_bad" / "a3.h5",
+                           atl06_path=folder / "missing" / "a6.h5")
+    error = ""
+except Exception as e:
+    error = str(e)
+print(json.dumps({"forked": w.forked, "refusal": w.refusal, "error": "missing" in error,
+                  "left": sorted(p.name for p in (folder / "forked_bad").iterdir()),
+                  "reused": granule_writer._WRITER[0] is w and w.alive()}))
+"""
+
+
 def test_the_writer_process_writes_the_same_files_and_reports_failures(dem_path, tmp_path):
     """A granule written by the writer process (the default) and in the simulating thread:
-    the same objects, attributes, dataset bytes, dtypes, chunks, filters and fill values.
+    the same objects, attributes, dataset bytes, dtypes, chunks, filters and fill values;
+    and by a writer process forked from a fresh process (as ``simulate --dem`` starts it:
+    it must have forked, in a process of its own beside this test's, started first).
     A failure in the writer (an ATL06 path it cannot create) stops the granule with its
-    error and leaves no file, and the same process writes the next granule."""
+    error and leaves no file, and the same process writes the next granule (forked or not)."""
+    (tmp_path / "forked.py").write_text(_FORKED)
+    forked = subprocess.Popen([sys.executable, str(tmp_path / "forked.py"), str(dem_path),
+                               str(tmp_path)], stdout=subprocess.PIPE, text=True)
     surf = dems.DEMSurface(dems.DEM.open(dem_path), tile_shots=512)
     kw = dict(surface=surf, track=TRACK, shots=400, beams="gt2l,gt3r", seed=5,
               progress=False, max_depth=1, paths_per_shot=16, section_shots=200)
@@ -600,10 +636,13 @@ def test_the_writer_process_writes_the_same_files_and_reports_failures(dem_path,
         (tmp_path / mode).mkdir()
         granule.stream_granule(**kw, atl03_path=tmp_path / mode / "a3.h5",
                                atl06_path=tmp_path / mode / "a6.h5", writer=mode)
+    assert json.loads(forked.communicate(timeout=120)[0].splitlines()[-1]) == {
+        "forked": True, "refusal": None, "error": True, "left": [], "reused": True}
     for name in ("a3.h5", "a6.h5"):
-        a, b = (_h5_objects(tmp_path / m / name) for m in ("inline", "process"))
-        assert a.keys() == b.keys() and len(a) > 100
+        a, b, c = (_h5_objects(tmp_path / m / name) for m in ("inline", "process", "forked"))
+        assert a.keys() == b.keys() == c.keys() and len(a) > 100
         assert [k for k in a if a[k] != b[k]] == []
+        assert [k for k in a if a[k] != c[k]] == []
         if name == "a3.h5":
             h_ph = a["gt2l/heights/h_ph"]
             assert h_ph[2][0] > 1000          # (its shape: photons were written)
@@ -615,6 +654,29 @@ def test_the_writer_process_writes_the_same_files_and_reports_failures(dem_path,
     granule.stream_granule(**kw, atl03_path=tmp_path / "bad" / "a3.h5", writer="process")
     assert _h5_objects(tmp_path / "bad" / "a3.h5")["gt2l/heights/h_ph"] == \
         _h5_objects(tmp_path / "inline" / "a3.h5")["gt2l/heights/h_ph"]
+
+
+def test_the_writer_is_not_forked_beside_another_thread():
+    """A writer process is forked only where nothing makes a fork unsafe: with another
+    thread alive (as in a Dask worker) it is a fresh interpreter instead, which serves the
+    same pipes; the refusal names the thread (and, in this process, Dr.Jit)."""
+    from lidar_mitsuba import forking, granule_writer
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait, name="another-thread", daemon=True)
+    other.start()
+    try:
+        w = granule_writer.WriterProcess()
+        try:
+            assert not w.forked and "another-thread" in w.refusal
+            assert "Dr.Jit" in w.refusal and w.alive()
+            assert w.proc.args[1:3] == ["-m", "lidar_mitsuba.granule_writer"]
+        finally:
+            w.proc.terminate()           # (not waiting for its imports)
+            w.stop()
+    finally:
+        stop.set()
+        other.join()
+    assert "another-thread" not in (forking.refusal() or "")
 
 
 def test_groups_from_templates_write_the_same_files(six_beams, tmp_path, monkeypatch):

@@ -15,7 +15,7 @@ already loaded), ``of_cast`` its ratio to casting the same rays alone (:func:`ca
 the granule's ray count cast into its own corridor tiles in launches of >= 1 M lanes, with
 ``cast_cv`` the spread of its passes), ``end_to_end_s`` the first granule's end counted from
 the interpreter's start (what a cold ``lidar-mitsuba simulate`` pays: its writer process
-started before the renderer's set-up, as ``simulate --dem`` starts it) and
+forked after the imports, before the renderer's set-up, as ``simulate --dem`` starts it) and
 ``end_to_end_over_warm`` the ratio of the two.
 """
 from __future__ import annotations
@@ -227,10 +227,10 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
     cast (:func:`cast_time`); the same in CPU seconds of both processes (``cpu_s``,
     ``end_to_end_cpu_s``: from both processes' start)."""
     from ..trace.variant import ensure_renderer
-    if beams == "all":                 # as simulate --dem: the writer's imports beside ours,
-        from .. import granule_writer, precompile
-        granule_writer.writer()
-        precompile.load_kernels()      # and numba's start beside the renderer's set-up
+    if beams == "all":                 # as simulate --dem: the writer process forked from
+        from .. import granule_writer, precompile     # this one (its imports and numba's
+        granule_writer.writer()        # start inherited), before any thread or the renderer,
+        precompile.load_kernels()      # and the first kernels beside the renderer's set-up
     ensure_renderer()                  # libLLVM, variant, plugins
     from ..ground import dem
     surf = dem.DEMSurface(dem.DEM.open(dem_path))
