@@ -24,12 +24,18 @@ ATL06_S = 22.0
 #: (ESTIMATE: the 2.2 s were the stencil sums alone; the footprint weights' two kernels of
 #: issue 43 took 1.5x their compile CPU under load, 0.9 against 0.6 s: 2.2 x 2.5)
 HEIGHTS_S = 5.5
+#: the geodesics' line loop (:mod:`lidar_mitsuba.geodesic`) and the histogram test's pass over
+#: the photons (:mod:`lidar_mitsuba.products.classify`): 0.9 and ~2 s of CPU measured, under load
+GEODESIC_S = 1.0
+CLASSIFY_S = 2.0
 #: each stage's numba kernels: the module (under ``lidar_mitsuba``) and the functions whose
 #: cache entries say the stage is compiled (:func:`is_cached`): the detector's, the DEM
 #: footprint means' (:mod:`lidar_mitsuba.ground.dem.heights`) and the compiled ATL06 fit's
 KERNELS = {"detector": ("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")),
            "heights": ("ground.dem.heights", ("_stencil_sums", "_ramp_arguments", "_hat_means")),
-           "atl06": ("products.atl06.kernel", ("fit_segment", "reference_heights"))}
+           "atl06": ("products.atl06.kernel", ("fit_segment", "reference_heights")),
+           "geodesic": ("geodesic", ("direct_lines",)),
+           "classify": ("products.classify", ("_photon_cells",))}
 
 
 def _detector() -> None:
@@ -49,6 +55,17 @@ def _heights() -> None:
     a = np.full((1, 2), 0.5)
     heights._stencil_sums(np.zeros((2, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), a, a,
                           np.empty(1), np.empty(1))
+
+
+def _geodesic() -> None:
+    from . import geodesic
+    geodesic._proj()          # its check against pyproj runs the kernel
+
+
+def _classify() -> None:
+    from .products import classify
+    classify.histogram_test(shot=np.zeros(2, np.int64), h_m=np.zeros(2),
+                            gate_center_h_m=np.zeros(1), range_gate_m=30.0)
 
 
 def _atl06() -> None:
@@ -90,6 +107,10 @@ def compile_kernels(*, atl06: bool = False, progress: bool = True) -> float:
         steps.append(("the detector", DETECTOR_S, _detector))
     if not is_cached("heights"):
         steps.append(("the DEM footprint means", HEIGHTS_S, _heights))
+    if not is_cached("geodesic"):
+        steps.append(("the geodesics", GEODESIC_S, _geodesic))
+    if not is_cached("classify"):
+        steps.append(("the histogram test", CLASSIFY_S, _classify))
     if atl06 and not is_cached("atl06"):
         steps.append(("the ATL06 fit", ATL06_S, _atl06))
     if not steps:
@@ -154,6 +175,10 @@ def load_kernels() -> threading.Thread | None:
         from .detector import deadtime
         deadtime.shot_stats(np.zeros(1, np.uint32), np.ones(1, np.float32), 1)
         _heights()
+        if is_cached("geodesic"):
+            _geodesic()             # (PROJ's functions found, checked, the kernel loaded)
+        if is_cached("classify"):
+            _classify()
 
     loader = threading.Thread(target=load, name="lidar-kernels", daemon=True)
     loader.start()
