@@ -24,10 +24,12 @@ ATL06_S = 22.0
 #: (ESTIMATE: the 2.2 s were the stencil sums alone; the footprint weights' two kernels of
 #: issue 43 took 1.5x their compile CPU under load, 0.9 against 0.6 s: 2.2 x 2.5)
 HEIGHTS_S = 5.5
-#: the geodesics' line loop (:mod:`lidar_mitsuba.geodesic`) and the histogram test's pass over
-#: the photons (:mod:`lidar_mitsuba.products.classify`): 0.9 and ~2 s of CPU measured, under load
+#: the geodesics' line loop (:mod:`lidar_mitsuba.geodesic`), the histogram test's pass over
+#: the photons (:mod:`lidar_mitsuba.products.classify`) and the detector's binomial draws
+#: (:mod:`lidar_mitsuba.detector.draws`): 0.9, ~2 and ~3 s of CPU measured, under load
 GEODESIC_S = 1.0
 CLASSIFY_S = 2.0
+DRAWS_S = 3.0
 #: each stage's numba kernels: the module (under ``lidar_mitsuba``) and the functions whose
 #: cache entries say the stage is compiled (:func:`is_cached`): the detector's, the DEM
 #: footprint means' (:mod:`lidar_mitsuba.ground.dem.heights`) and the compiled ATL06 fit's
@@ -35,7 +37,8 @@ KERNELS = {"detector": ("detector.deadtime", ("detect_shots", "choose_returns", 
            "heights": ("ground.dem.heights", ("_stencil_sums", "_ramp_arguments", "_hat_means")),
            "atl06": ("products.atl06.kernel", ("fit_segment", "reference_heights")),
            "geodesic": ("geodesic", ("direct_lines",)),
-           "classify": ("products.classify", ("_photon_cells",))}
+           "classify": ("products.classify", ("_photon_cells",)),
+           "draws": ("detector.draws", ("binomial_inversion",))}
 
 
 def _detector() -> None:
@@ -66,6 +69,11 @@ def _classify() -> None:
     from .products import classify
     classify.histogram_test(shot=np.zeros(2, np.int64), h_m=np.zeros(2),
                             gate_center_h_m=np.zeros(1), range_gate_m=30.0)
+
+
+def _draws() -> None:
+    from .detector import draws
+    draws._compiled_ok()      # its check against numpy runs the kernel
 
 
 def _atl06() -> None:
@@ -111,6 +119,8 @@ def compile_kernels(*, atl06: bool = False, progress: bool = True) -> float:
         steps.append(("the geodesics", GEODESIC_S, _geodesic))
     if not is_cached("classify"):
         steps.append(("the histogram test", CLASSIFY_S, _classify))
+    if not is_cached("draws"):
+        steps.append(("the detector's draws", DRAWS_S, _draws))
     if atl06 and not is_cached("atl06"):
         steps.append(("the ATL06 fit", ATL06_S, _atl06))
     if not steps:
@@ -175,10 +185,12 @@ def load_kernels() -> threading.Thread | None:
         from .detector import deadtime
         deadtime.shot_stats(np.zeros(1, np.uint32), np.ones(1, np.float32), 1)
         _heights()
-        if is_cached("geodesic"):
-            _geodesic()             # (PROJ's functions found, checked, the kernel loaded)
-        if is_cached("classify"):
-            _classify()
+        # the simulating thread's other kernels (the geodesics' also find PROJ's functions
+        # and check them), each from the cache
+        for stage, warm in (("geodesic", _geodesic), ("classify", _classify),
+                            ("draws", _draws)):
+            if is_cached(stage):
+                warm()
 
     loader = threading.Thread(target=load, name="lidar-kernels", daemon=True)
     loader.start()

@@ -60,7 +60,7 @@ def pytest_configure(config):
     steps = []
     if not pc.is_cached("detector"):
         steps.append("p._detector()")
-    rest = [f"p._{stage}()" for stage in ("heights", "atl06", "geodesic", "classify")
+    rest = [f"p._{stage}()" for stage in ("heights", "atl06", "geodesic", "classify", "draws")
             if not pc.is_cached(stage)]
     if rest:
         steps.append("; ".join(rest))
