@@ -34,7 +34,8 @@ DRAWS_S = 3.0
 #: cache entries say the stage is compiled (:func:`is_cached`): the detector's, the DEM
 #: footprint means' (:mod:`lidar_mitsuba.ground.dem.heights`) and the compiled ATL06 fit's
 KERNELS = {"detector": ("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")),
-           "heights": ("ground.dem.heights", ("_stencil_sums", "_ramp_arguments", "_hat_means")),
+           "heights": ("ground.dem.heights", ("_stencil_sums", "_ramp_arguments", "_hat_means",
+                                              "_bilinear")),
            "atl06": ("products.atl06.kernel", ("fit_segment", "reference_heights")),
            "geodesic": ("geodesic", ("direct_lines",)),
            "classify": ("products.classify", ("_photon_cells",)),
@@ -58,6 +59,7 @@ def _heights() -> None:
     a = np.full((1, 2), 0.5)
     heights._stencil_sums(np.zeros((2, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), a, a,
                           np.empty(1), np.empty(1))
+    heights.bilinear_nan(np.zeros((3, 3)), 1.0, np.ones(1), np.ones(1))
 
 
 def _geodesic() -> None:
