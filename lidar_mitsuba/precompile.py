@@ -35,7 +35,7 @@ DRAWS_S = 3.0
 #: footprint means' (:mod:`lidar_mitsuba.ground.dem.heights`) and the compiled ATL06 fit's
 KERNELS = {"detector": ("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")),
            "heights": ("ground.dem.heights", ("_stencil_sums", "_ramp_arguments", "_hat_means",
-                                              "_bilinear")),
+                                              "_bilinear", "_on_grid")),
            "atl06": ("products.atl06.kernel", ("fit_segment", "reference_heights")),
            "geodesic": ("geodesic", ("direct_lines",)),
            "classify": ("products.classify", ("_photon_cells",)),
@@ -60,6 +60,7 @@ def _heights() -> None:
     heights._stencil_sums(np.zeros((2, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), a, a,
                           np.empty(1), np.empty(1))
     heights.bilinear_nan(np.zeros((3, 3)), 1.0, np.ones(1), np.ones(1))
+    heights._on_grid(np.ones(1), np.ones(1), np.zeros((1, 2)), 1.0, 3, 3)
 
 
 def _geodesic() -> None:

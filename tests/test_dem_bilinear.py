@@ -40,3 +40,18 @@ def test_bilinear_is_numpy_s_expression(rng):
     assert grid.shape == (20, 30)
     assert np.array_equal(grid.view(np.int64), _numpy_bilinear(
         z, g, x[:600].reshape(20, 30), np.broadcast_to(y[:30], (20, 30))).view(np.int64))
+
+
+def test_on_grid_is_numpy_s_test_of_the_grid(rng):
+    """The fold's probes on a window without nodata (``finite_at``): every shifted point on
+    the grid, as numpy's comparisons gave it, on the grid's edges and off it, NaN too."""
+    g, nx, ny = 100.0, 30, 40
+    px = np.concatenate([rng.uniform(-20.0, 2920.0, 5000), [0.0, 2900.0, -1e-9, np.nan]])
+    py = np.concatenate([rng.uniform(-20.0, 3920.0, 5000), [3900.0, 0.0, 5.0, 5.0]])
+    offs = np.array([(0.0, 0.0), (13.5, 0.0), (-13.5, 0.0), (0.0, 13.5), (0.0, -13.5)])
+    want = np.ones(px.size, bool)
+    for dx, dy in offs:
+        fx, fy = (px + dx) / g, (py + dy) / g
+        want &= (fx >= 0) & (fy >= 0) & (fx <= nx - 1) & (fy <= ny - 1)
+    got = heights._on_grid(px, py, offs, g, nx, ny)
+    assert np.array_equal(got, want) and 100 < want.sum() < want.size - 100

@@ -84,16 +84,29 @@ def finite_at(dem, x_crs: np.ndarray, y_crs: np.ndarray, offsets_m, block: int) 
     g = dem.posting_m
     for s, z, px, py in _shifted_windows(dem, x_crs, y_crs, offs, block):
         ny, nx = z.shape
-        full = bool(np.isfinite(z).all())
+        if np.isfinite(z).all():        # bilinear_nan's test of the grid, alone
+            ok[s] = _on_grid(px, py, offs, float(g), nx, ny)
+            continue
         good = np.ones(px.size, bool)
         for dx, dy in offs:
-            if full:        # bilinear_nan's test of the grid, alone
-                fx, fy = (px + dx) / g, (py + dy) / g
-                good &= (fx >= 0) & (fy >= 0) & (fx <= nx - 1) & (fy <= ny - 1)
-            else:
-                good &= np.isfinite(bilinear_nan(z, g, px + dx, py + dy))
+            good &= np.isfinite(bilinear_nan(z, g, px + dx, py + dy))
         ok[s] = good
     return ok
+
+
+@numba.njit(cache=True, nogil=True)
+def _on_grid(px, py, offsets_m, g, nx, ny):
+    """(n,) bool: whether every point (``px``, ``py``) [m] shifted by each of ``offsets_m``
+    ((k, 2) [m]) lies on an ``nx`` x ``ny`` grid of posting ``g`` [m] (:func:`bilinear_nan`'s
+    test: ``f = (p + d) / g`` within ``[0, n - 1]`` on both axes)."""
+    good = np.ones(px.size, np.bool_)
+    for i in range(px.size):
+        for k in range(offsets_m.shape[0]):
+            fx, fy = (px[i] + offsets_m[k, 0]) / g, (py[i] + offsets_m[k, 1]) / g
+            if not (fx >= 0 and fy >= 0 and fx <= nx - 1 and fy <= ny - 1):
+                good[i] = False
+                break
+    return good
 
 
 def _shifted_windows(dem, x_crs, y_crs, offs: np.ndarray, block: int):
