@@ -196,7 +196,6 @@ class GeoTrack:
         ``first`` .. ``first + n_shots - 1``, each (n_shots,) float64: positions every
         ``spacing_m`` along the track, the local direction of travel [deg clockwise from
         north] and the distance from the track's first shot [m]."""
-        geod = _geod()
         along = (int(first) + np.arange(int(n_shots), dtype=np.float64)) * float(spacing_m)
         if self.polyline is None:
             lat0 = np.full(along.shape, self.start_lat_deg, np.float64)
@@ -205,7 +204,7 @@ class GeoTrack:
             d = along
         else:
             pts = np.asarray(self.polyline, np.float64)
-            az_seg, _, seg_len = geod.inv(pts[:-1, 1], pts[:-1, 0], pts[1:, 1], pts[1:, 0])
+            az_seg, _, seg_len = _geod().inv(pts[:-1, 1], pts[:-1, 0], pts[1:, 1], pts[1:, 0])
             ends = np.concatenate([[0.0], np.cumsum(seg_len)])
             if along.size and along[-1] > ends[-1] + 1e-6:
                 raise ParameterError("shots", f"{first + n_shots} shots ({along[-1] / 1e3:.2f} km) run "
@@ -214,15 +213,25 @@ class GeoTrack:
             k = np.clip(np.searchsorted(ends, along, side="right") - 1, 0, len(seg_len) - 1)
             lat0, lon0 = pts[k, 0], pts[k, 1]
             az0, d = np.asarray(az_seg)[k], along - ends[k]
-        lon, lat, back = geod.fwd(lon0, lat0, az0, d)
-        az = np.mod(np.asarray(back) + 180.0, 360.0)        # forward azimuth at each shot
-        return np.asarray(lat), np.asarray(lon), az, along
+        from .geodesic import direct      # Geod.fwd's bits, one line for a run of shots
+        lat, lon, fwd = direct(lat0, lon0, az0, d)
+        back = np.where(fwd > 0, fwd - 180.0, fwd + 180.0)  # Geod.fwd's back azimuth, and
+        az = np.mod(back + 180.0, 360.0)                    # the forward azimuth at each shot
+        return lat, lon, az, along
 
     def beam_geolocation(self, beam: "Beam", first: int, n_shots: int, *, spacing_m: float,
                          prf_hz: float) -> tuple["Geolocation", np.ndarray]:
         """Shots ``first`` .. ``first + n_shots - 1`` of ``beam``: their
         :class:`Geolocation` (the reference track's shots moved across track to the beam,
         fired at ``prf_hz`` from ``epoch_utc``) and their along-track distance [m]."""
+        return self.beams_geolocation([beam], first, n_shots, spacing_m=spacing_m,
+                                      prf_hz=prf_hz)[0]
+
+    def beams_geolocation(self, beams: list["Beam"], first: int, n_shots: int, *,
+                          spacing_m: float, prf_hz: float
+                          ) -> list[tuple["Geolocation", np.ndarray]]:
+        """:meth:`beam_geolocation` of each of ``beams`` (the same bits), their positions
+        from one geodesic a shot on each side of the track (:func:`beams_shots`)."""
         key = (self, int(n_shots), float(spacing_m), int(first))
         last = _LAST_SHOTS[0]
         if last is not None and last[0][0] is self and last[0][1:] == key[1:]:
@@ -233,10 +242,12 @@ class GeoTrack:
             for a in shots:
                 a.setflags(write=False)
             _LAST_SHOTS[0] = (key, shots)
-        lat, lon = beam_shots(lat0, lon0, az0, beam)
-        times = delta_time_s(self.epoch_utc, n_shots, prf_hz=prf_hz, first=first)
-        return Geolocation(lat_deg=np.asarray(lat), lon_deg=np.asarray(lon),
-                           azimuth_deg=np.asarray(az0), delta_time_s=times), along
+        out = []
+        for lat, lon in beams_shots(lat0, lon0, az0, beams):
+            times = delta_time_s(self.epoch_utc, n_shots, prf_hz=prf_hz, first=first)
+            out.append((Geolocation(lat_deg=np.asarray(lat), lon_deg=np.asarray(lon),
+                                    azimuth_deg=np.asarray(az0), delta_time_s=times), along))
+        return out
 
     def beam_shot_count(self, beam: "Beam", shots: int) -> int:
         """Shots of ``beam`` in a granule of ``shots`` shots per beam: ``shots``."""
@@ -259,6 +270,40 @@ class GeoTrack:
                 "epoch_utc": self.epoch_utc}
 
 
+class SectionPlaces:
+    """Where a granule's beams' shots are, a section at a time: ``places(beam, first, n)``
+    gives shots ``first`` .. ``first + n - 1`` of ``beam`` as ``(geolocation, along_m, x_m,
+    y_m)`` (:meth:`GeoTrack.beam_geolocation`, and ``x_m``, ``y_m`` (n,) in the CRS of the
+    pyproj ``to_crs`` transformer from EPSG:4326, longitude first). On a :class:`GeoTrack`
+    the first call of a section places every one of ``beams`` (:meth:`GeoTrack.beams_geolocation`:
+    one geodesic a shot each side of the track) and projects them in one call, and the
+    section's other beams are kept for their calls (the same bits as one beam at a time:
+    every point is its own); other tracks (a real granule's twin) place one beam a call.
+    Each shot's place is its own, so a beam asked for out of turn is placed again."""
+
+    def __init__(self, track, to_crs, *, beams: list[Beam] = (), spacing_m: float,
+                 prf_hz: float):
+        self.track, self.to_crs, self.beams = track, to_crs, list(beams)
+        self.spacing_m, self.prf_hz = float(spacing_m), float(prf_hz)
+        self._last = None
+
+    def __call__(self, beam: Beam, first: int, n: int) -> tuple:
+        together = isinstance(self.track, GeoTrack) and beam in self.beams
+        beams = self.beams if together else [beam]
+        key = (int(first), int(n), tuple(b.name for b in beams))
+        if self._last is None or self._last[0] != key:
+            self._last = None                          # (the last section's, let go first)
+            kw = dict(spacing_m=self.spacing_m, prf_hz=self.prf_hz)
+            located = (self.track.beams_geolocation(beams, first, n, **kw) if together
+                       else [self.track.beam_geolocation(beam, first, n, **kw)])
+            x, y = self.to_crs.transform(np.concatenate([g.lon_deg for g, _ in located]),
+                                         np.concatenate([g.lat_deg for g, _ in located]))
+            x, y = (np.asarray(v, np.float64).reshape(len(beams), -1) for v in (x, y))
+            self._last = (key, {b.name: (*located[j], x[j], y[j])
+                                for j, b in enumerate(beams)})
+        return self._last[1][beam.name]
+
+
 #: the reference track's shots of the last :meth:`GeoTrack.beam_geolocation` call (read-only):
 #: a granule asks for the same shots of each of its six beams in turn
 _LAST_SHOTS: list = [None]
@@ -268,11 +313,27 @@ def beam_shots(lat_deg, lon_deg, azimuth_deg, beam: Beam) -> tuple[np.ndarray, n
     """The beam's footprint centres ``(lat, lon)`` [deg]: the reference track's shots moved
     ``beam.across_m`` across track along the geodesic perpendicular to the direction of
     travel (left for positive offsets)."""
-    if beam.across_m == 0:
-        return np.asarray(lat_deg, np.float64), np.asarray(lon_deg, np.float64)
-    az = np.asarray(azimuth_deg, np.float64) + (-90.0 if beam.across_m > 0 else 90.0)
-    lon, lat, _ = _geod().fwd(lon_deg, lat_deg, az, np.full(np.shape(az), abs(beam.across_m)))
-    return np.asarray(lat), np.asarray(lon)
+    return beams_shots(lat_deg, lon_deg, azimuth_deg, [beam])[0]
+
+
+def beams_shots(lat_deg, lon_deg, azimuth_deg, beams: list[Beam]
+                ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`beam_shots` of each of ``beams`` (the same bits), the beams left of the track
+    on one geodesic a shot and those right of it on another
+    (:func:`lidar_mitsuba.geodesic.fan`)."""
+    from .geodesic import fan
+    out: list = [None] * len(beams)
+    for side in (1.0, -1.0):                     # left (positive offsets), then right
+        js = [j for j, b in enumerate(beams) if b.across_m * side > 0]
+        if js:
+            az = np.asarray(azimuth_deg, np.float64) + (-90.0 if side > 0 else 90.0)
+            lat, lon = fan(lat_deg, lon_deg, az, [abs(beams[j].across_m) for j in js])
+            for r, j in enumerate(js):
+                out[j] = (lat[r].reshape(np.shape(az)), lon[r].reshape(np.shape(az)))
+    for j, b in enumerate(beams):
+        if b.across_m == 0:
+            out[j] = (np.asarray(lat_deg, np.float64), np.asarray(lon_deg, np.float64))
+    return out
 
 
 @dataclass(frozen=True)

@@ -83,7 +83,7 @@ def simulate_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
     from .run import assemble, stream
     if isinstance(beams, str):
         beams = geotrack.select_beams(beams, sc_orient)
-    ctx = _Context(surface, track, instrument_options, instrument)
+    ctx = _Context(surface, track, instrument_options, instrument, beams)
     keep = simulate_options.pop("keep_returns", False)
     runs = []
     for beam in _beam_bar(beams, progress):
@@ -107,7 +107,7 @@ class _Context:
     track's start, the CRS transform, the instrument options."""
 
     def __init__(self, surface: DEMSurface, track: GeoTrack, instrument_options: dict | None,
-                 preset: str = "paper"):
+                 preset: str = "paper", beams: list[Beam] = ()):
         from pyproj import Transformer
         self.opts = dict(instrument_options or {})
         if "beam" in self.opts:
@@ -122,6 +122,9 @@ class _Context:
         x0, y0 = self.to_crs.transform(lon0, lat0)
         self.origin = (float(np.round(x0, -3)), float(np.round(y0, -3)))
         self.surface = surface.with_origin(self.origin)     # a DEM, or a forest over one
+        self.places = geotrack.SectionPlaces(track, self.to_crs, beams=beams,
+                                             spacing_m=self.base.shot_spacing_m,
+                                             prf_hz=self.base.prf_hz)
 
     def instrument(self, beam: Beam | None) -> Instrument:
         """The instrument of ``beam`` (``None``: a strong beam, for what all beams share)."""
@@ -133,10 +136,7 @@ class _Context:
     def projected(self, beam: Beam, first: int, n: int) -> geotrack.ProjectedTrack:
         """Shots ``first`` .. ``first + n - 1`` of ``beam`` in the granule's frame, with
         their geolocation."""
-        geo, along = self.track.beam_geolocation(beam, first, n,
-                                                 spacing_m=self.base.shot_spacing_m,
-                                                 prf_hz=self.base.prf_hz)
-        x, y = self.to_crs.transform(geo.lon_deg, geo.lat_deg)
+        geo, along, x, y = self.places(beam, first, n)      # (a section's beams together)
         if not (np.isfinite(x).all() and np.isfinite(y).all()):
             raise ParameterError("track", f"{beam.name}: the track leaves the DEM's projection "
                                  f"({self.surface.dem.crs.to_string()})")
@@ -480,7 +480,7 @@ def stream_granule(*, surface: DEMSurface, track: GeoTrack, shots: int,
         beams = geotrack.select_beams(beams, sc_orient)
     if not (isinstance(section_shots, (int, np.integer)) and section_shots >= 1):
         raise ParameterError("section_shots", f"must be an integer >= 1 (got {section_shots!r})")
-    ctx = _Context(surface, track, instrument_options, instrument)
+    ctx = _Context(surface, track, instrument_options, instrument, beams)
     spacing = ctx.base.shot_spacing_m
     streams = [_BeamStream(b, track, shots, spacing=spacing, section_shots=int(section_shots))
                for b in beams]

@@ -26,13 +26,23 @@ ATL06_S = 22.0
 HEIGHTS_S = 5.5
 #: (ESTIMATE: ATL03's per-photon kernels compiled in ~1 s of CPU under load, 2026-11-27; x2)
 ATL03_S = 2.0
+#: the geodesics' line loop (:mod:`lidar_mitsuba.geodesic`), the histogram test's pass over
+#: the photons (:mod:`lidar_mitsuba.products.classify`) and the detector's binomial draws
+#: (:mod:`lidar_mitsuba.detector.draws`): 0.9, ~2 and ~3 s of CPU measured, under load
+GEODESIC_S = 1.0
+CLASSIFY_S = 2.0
+DRAWS_S = 3.0
 #: each stage's numba kernels: the module (under ``lidar_mitsuba``) and the functions whose
 #: cache entries say the stage is compiled (:func:`is_cached`): the detector's, the DEM
 #: footprint means' (:mod:`lidar_mitsuba.ground.dem.heights`) and the compiled ATL06 fit's
 KERNELS = {"detector": ("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")),
-           "heights": ("ground.dem.heights", ("_stencil_sums", "_ramp_arguments", "_hat_means")),
+           "heights": ("ground.dem.heights", ("_stencil_sums", "_ramp_arguments", "_hat_means",
+                                              "_bilinear", "_on_grid")),
            "atl06": ("products.atl06.kernel", ("fit_segment", "reference_heights")),
-           "atl03": ("products.atl03.kernels", ("ph_id_count",))}
+           "atl03": ("products.atl03.kernels", ("ph_id_count",)),
+           "geodesic": ("geodesic", ("direct_lines",)),
+           "classify": ("products.classify", ("_photon_cells",)),
+           "draws": ("detector.draws", ("binomial_inversion",))}
 
 
 def _detector() -> None:
@@ -52,6 +62,24 @@ def _heights() -> None:
     a = np.full((1, 2), 0.5)
     heights._stencil_sums(np.zeros((2, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), a, a,
                           np.empty(1), np.empty(1))
+    heights.bilinear_nan(np.zeros((3, 3)), 1.0, np.ones(1), np.ones(1))
+    heights._on_grid(np.ones(1), np.ones(1), np.zeros((1, 2)), 1.0, 3, 3)
+
+
+def _geodesic() -> None:
+    from . import geodesic
+    geodesic._proj()          # its check against pyproj runs the kernel
+
+
+def _classify() -> None:
+    from .products import classify
+    classify.histogram_test(shot=np.zeros(2, np.int64), h_m=np.zeros(2),
+                            gate_center_h_m=np.zeros(1), range_gate_m=30.0)
+
+
+def _draws() -> None:
+    from .detector import draws
+    draws._compiled_ok()      # its check against numpy runs the kernel
 
 
 def _atl06() -> None:
@@ -100,6 +128,12 @@ def compile_kernels(*, atl06: bool = False, atl03: bool = False, progress: bool 
         steps.append(("the detector", DETECTOR_S, _detector))
     if not is_cached("heights"):
         steps.append(("the DEM footprint means", HEIGHTS_S, _heights))
+    if not is_cached("geodesic"):
+        steps.append(("the geodesics", GEODESIC_S, _geodesic))
+    if not is_cached("classify"):
+        steps.append(("the histogram test", CLASSIFY_S, _classify))
+    if not is_cached("draws"):
+        steps.append(("the detector's draws", DRAWS_S, _draws))
     if atl06 and not is_cached("atl06"):
         steps.append(("the ATL06 fit", ATL06_S, _atl06))
     if atl03 and not is_cached("atl03"):
@@ -185,6 +219,12 @@ def load_kernels() -> threading.Thread | None:
     def load():
         start_numba()
         _heights()
+        # the simulating thread's other kernels (the geodesics' also find PROJ's functions
+        # and check them), each from the cache
+        for stage, warm in (("geodesic", _geodesic), ("classify", _classify),
+                            ("draws", _draws)):
+            if is_cached(stage):
+                warm()
         import pyproj, rasterio  # noqa: E401, F401 (after the writer's fork: forking.refusal)
 
     loader = threading.Thread(target=load, name="lidar-kernels", daemon=True)

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import deadtime as _deadtime
+from . import draws as _draws
 from . import impulse as _impulse
 from ..instrument import Instrument
 from .records import Detections, Returns
@@ -80,7 +81,8 @@ def _arrivals(shot, weight, *, n_shots, paths_per_shot, signal_photons, rng, exc
     if signal_scale is not None:
         mu = mu * np.asarray(signal_scale, np.float64)
     counts = rng.poisson(mu)
-    kept = rng.binomial(counts, keep_probability) if keep_probability < 1 else counts
+    kept = (_draws.binomial(rng, counts, keep_probability) if keep_probability < 1
+            else counts)                       # (numpy's draws: rng.binomial's, compiled)
     if kept.sum() == 0:
         return (np.zeros(0, np.int64), mu, counts, np.zeros(mu.size, bool),
                 np.zeros(mu.size + 1, np.int64))

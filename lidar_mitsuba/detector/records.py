@@ -43,6 +43,9 @@ class Detections:
     mean_photons_per_shot: np.ndarray
     run_out_shots: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
+    #: the fields :meth:`concatenate` makes global (each joined once, shifted)
+    _GLOBAL = ("shot", "run_out_shots", "return_index")
+
     def __len__(self) -> int:
         return int(self.shot.size)
 
@@ -53,7 +56,7 @@ class Detections:
         if len(parts) == 1 and parts[0][1] == 0 and parts[0][2] == 0:   # one chunk: as it is
             return parts[0][0]
         out = {f.name: np.concatenate([getattr(d, f.name) for d, *_ in parts])
-               for f in fields(cls)}
+               for f in fields(cls) if f.name not in cls._GLOBAL}
         out["shot"] = np.concatenate([d.shot + a for d, a, _ in parts])
         out["run_out_shots"] = np.concatenate([d.run_out_shots + a for d, a, _ in parts])
         out["return_index"] = np.concatenate(

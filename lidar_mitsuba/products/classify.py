@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy import special
 from scipy.ndimage import uniform_filter1d
@@ -77,57 +78,117 @@ def histogram_test(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.nda
     over ``block_shots`` shots] given instead of estimated from the photons (a scalar or
     (n_blocks,)), as ATL03's finder takes it from the 50-shot background rate of its tall
     band: a quiet night's gate holds too few noise photons to estimate it
-    (:func:`lidar_mitsuba.night.atl03_leak`). ``None`` (the default): estimated as above."""
+    (:func:`lidar_mitsuba.night.atl03_leak`). ``None`` (the default): estimated as above.
+
+    Computed on the cells that hold photons only (a few per cent of a track's cells): an
+    empty cell's count ``0`` is never improbable (``P(K >= 0) = 1``), so it is always a noise
+    bin, adds nothing to a block's noise total and one bin to its noise bins; the photons'
+    cells and the counts in one compiled pass (:func:`_photon_cells`). The same numbers as
+    the test over every cell (``tests/test_classify.py`` keeps that one and compares)."""
     shot = np.asarray(shot, np.int64)
     if shot.size == 0:
         return HistogramTest(np.zeros(0, np.int8), np.ones(0), np.zeros(0), int(block_shots),
                              float(bin_m))
-    rel = np.asarray(h_m, float) - np.asarray(gate_center_h_m, float)[shot] + range_gate_m / 2.0
+    gate = np.asarray(gate_center_h_m, float)
+    if shot.min() < 0 or shot.max() >= gate.size:
+        raise IndexError("shot indices must be within gate_center_h_m")
     n_bins = max(3, int(np.ceil(range_gate_m / bin_m)))
-    b = np.clip((rel / bin_m).astype(np.int64), 0, n_bins - 1)
-    block = shot // block_shots
-    n_blocks = int(block.max()) + 1
-    counts = np.bincount(block * n_bins + b, minlength=n_blocks * n_bins).reshape(n_blocks, n_bins)
+    n_blocks = int(shot.max()) // int(block_shots) + 1
+    slot, row, col, k, neighbourhood, peak = _photon_cells(
+        shot, np.asarray(h_m, float), gate, range_gate_m / 2.0, float(bin_m), n_bins,
+        int(block_shots), n_blocks)
     if noise_per_bin is None:
-        lam = _noise_level(counts, bin_m=bin_m, pool_blocks=pool_blocks)
+        lam = _sparse_noise_level(row, col, k, peak, n_bins=n_bins, n_blocks=n_blocks,
+                                  bin_m=bin_m, pool_blocks=pool_blocks)
     else:
         lam = np.array(np.broadcast_to(np.asarray(noise_per_bin, float), (n_blocks,)))
-    padded = np.pad(counts, ((0, 0), (1, 1)))
-    neighbourhood = padded[:, :-2] + padded[:, 1:-1] + padded[:, 2:]
-    # the tail probability and confidence of every (block, bin) cell, then each photon's
+    # the tail probability and confidence of every cell with photons, then each photon's
     # cell's (the test depends on the photon through its cell only; cells are fewer)
-    mean = 3.0 * lam[:, None]
-    p = np.where(mean > 0, _poisson_sf(neighbourhood - 1, np.maximum(mean, 1e-300)), 0.0)
-    cell = np.zeros(p.shape, np.int8)
-    cell[p < 1e-2] = 2
-    cell[p < 1e-4] = 3
-    cell[p < 1e-6] = 4
-    return HistogramTest(cell[block, b], p[block, b], lam, int(block_shots), float(bin_m))
+    mean = 3.0 * lam[row]
+    p = np.where(mean > 0, special.pdtrc(neighbourhood - 1, np.maximum(mean, 1e-300)), 0.0)
+    conf = np.zeros(p.shape, np.int8)
+    conf[p < 1e-2] = 2
+    conf[p < 1e-4] = 3
+    conf[p < 1e-6] = 4
+    return HistogramTest(conf[slot], p[slot], lam, int(block_shots), float(bin_m))
 
 
-def _noise_level(counts: np.ndarray, *, bin_m: float, pool_blocks: int) -> np.ndarray:
-    """(n_blocks,) each block's noise level ``lam`` from the (n_blocks, n_bins) histogram
-    ``counts``, by the iteration the module's docstring describes."""
+def _sparse_noise_level(row, col, k, peak, *, n_bins: int, n_blocks: int, bin_m: float,
+                        pool_blocks: int) -> np.ndarray:
+    """(n_blocks,) each block's noise level ``lam``, by the module docstring's iteration, from
+    the cells that hold photons (:func:`_photon_cells`: their block ``row``, bin ``col`` and
+    count ``k``; each block's fullest bin ``peak``); the empty cells are noise bins that add
+    nothing (``tests/test_classify.py`` keeps the iteration over every cell)."""
     # initial noise level: bins more than 2 m from the block's fullest bin
-    far = np.abs(np.arange(counts.shape[1])[None, :] - counts.argmax(1)[:, None]) * bin_m > 2.0
-    noise_bins = far
+    far_bins = (np.abs(np.arange(n_bins)[None, :] - np.arange(n_bins)[:, None]) * bin_m
+                > 2.0).sum(1)                      # a block's far bins, by its fullest bin
+    noise = np.abs(col - peak[row]) * bin_m > 2.0
+    n_noise = far_bins[peak]
+    sf, lam_was = np.ones(k.size), None
     for _ in range(4):
-        total = uniform_filter1d((counts * noise_bins).sum(1).astype(float), pool_blocks, mode="nearest")
-        used = uniform_filter1d(noise_bins.sum(1).astype(float), pool_blocks, mode="nearest")
-        lam = total / np.maximum(used, 1e-12)
-        noise_bins = ~(_poisson_sf(counts - 1, np.maximum(lam, 1e-12)[:, None]) < 1e-3)
-    return lam
+        total = uniform_filter1d(np.bincount(row, weights=k * noise, minlength=n_blocks),
+                                 pool_blocks, mode="nearest")
+        used = uniform_filter1d(n_noise.astype(float), pool_blocks, mode="nearest")
+        lam = np.maximum(total / np.maximum(used, 1e-12), 1e-12)
+        # (a cell's tail probability again only where its block's level moved: the same
+        # function of the same numbers)
+        again = (np.arange(k.size) if lam_was is None
+                 else np.flatnonzero((lam != lam_was)[row]))
+        sf[again] = special.pdtrc(k[again] - 1, lam[row[again]])
+        noise, lam_was = ~(sf < 1e-3), lam
+        n_noise = n_bins - np.bincount(row[~noise], minlength=n_blocks)
+    return total / np.maximum(used, 1e-12)
 
 
-def _poisson_sf(k, mu):
-    """P(K >= k + 1) for K ~ Poisson(mu), elementwise; 1 for k < 0 (what
-    ``scipy.stats.poisson.sf`` gives, from the same ``special.pdtrc``, without importing
-    scipy.stats, which costs most of a second)."""
-    k, mu = np.broadcast_arrays(np.asarray(k), np.asarray(mu, float))
-    out = np.ones(k.shape)
-    some = k >= 0                   # (empty cells, most of a quiet track, need no pdtrc)
-    out[some] = special.pdtrc(k[some], mu[some])
-    return out
+@numba.njit(cache=True, nogil=True)
+def _photon_cells(shot, h_m, gate_center_h_m, half_gate_m, bin_m, n_bins, block_shots,
+                  n_blocks):
+    """The histogram's cells that hold photons, and each photon's.
+
+    A photon's cell is ``block * n_bins + bin``: ``bin`` is ``int((h - gate[shot] +
+    half_gate) / bin_m)`` clipped to the gate's bins, as numpy's ``astype(np.int64)``
+    truncates (toward zero; a value beyond int64's range or NaN becomes its smallest,
+    clipped to bin 0), ``block`` is ``shot // block_shots``.
+
+    Returns ``(slot, row, col, count, neighbourhood, peak)``: (n,) each photon's place among
+    the (m,) cells with photons, in the order of their cell numbers; their block, bin,
+    photon count and the count of the bin and its two neighbours; (n_blocks,) each block's
+    fullest bin (the first, as ``argmax``)."""
+    n = shot.size
+    cell = np.empty(n, np.int64)
+    counts = np.zeros(n_blocks * n_bins, np.int64)
+    for i in range(n):
+        s = shot[i]
+        q = (h_m[i] - gate_center_h_m[s] + half_gate_m) / bin_m
+        b = np.int64(q) if -9.223372036854775808e18 <= q < 9.223372036854775808e18 else 0
+        b = min(max(b, 0), n_bins - 1)
+        cell[i] = (s // block_shots) * n_bins + b
+        counts[cell[i]] += 1
+    m = 0
+    for c in range(counts.size):
+        m += counts[c] > 0
+    row, col = np.empty(m, np.int64), np.empty(m, np.int64)
+    count, near = np.empty(m, np.int64), np.empty(m, np.int64)
+    peak = np.zeros(n_blocks, np.int64)
+    j = 0
+    for r in range(n_blocks):
+        top = 0
+        left = 0                                 # the count of the bin before
+        for b in range(n_bins):
+            c = r * n_bins + b
+            v = counts[c]
+            if v > top:
+                top, peak[r] = v, b
+            if v > 0:
+                row[j], col[j], count[j] = r, b, v
+                near[j] = left + v + (counts[c + 1] if b < n_bins - 1 else 0)
+                counts[c] = -1 - j               # (the cell's place, where its count was)
+                j += 1
+            left = v
+    slot = np.empty(n, np.int64)
+    for i in range(n):
+        slot[i] = -1 - counts[cell[i]]
+    return slot, row, col, count, near, peak
 
 
 def classification_rates(conf: np.ndarray, is_signal: np.ndarray, *, min_conf: int = 2) -> dict:

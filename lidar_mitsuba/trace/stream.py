@@ -214,37 +214,39 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
         launch = _on(launcher, launch)
         granule = True
     pending = None
-    try:
-        pending = launch(spans[0][1], spans[0][2], trace_seed(seed, 0)) if spans else None
-        for i, (k, a, b) in enumerate(spans):
-            t0 = time.perf_counter()
-            ret = pending.result()
-            pending = None            # its scene (a corridor tile) may go before the next's
-            if i + 1 < len(spans):    # the device traces the next chunk while we detect this
-                k1, a1, b1 = spans[i + 1]
-                pending = launch(a1, b1, trace_seed(seed, k1))
-            t1 = time.perf_counter()
-            per_shot = {} if detector_inputs is None else detector_inputs(a, b)
-            # serial while the next chunk traces, and in a granule on its last chunk too: the
-            # writer process and the next section hold the other core, and a parallel region
-            # whose second thread is not scheduled spins at its barrier
-            with serial_while(pending is not None or granule):
-                for name, inst in detectors.items():
-                    det = pmt.detect(ret, inst, detector_rng(seed, k),
-                                     gate_center_ns=gates[name][a:b], **per_shot)
-                    parts[name].append((det, a, n_returns))
-            if keep_returns:
-                kept.append((ret, a))
-            n_returns += len(ret)
-            trace_s += t1 - t0
-            detect_s += time.perf_counter() - t1
+    with serial_while(granule):        # (a granule's whole run on this thread alone)
+        try:
+            pending = launch(spans[0][1], spans[0][2], trace_seed(seed, 0)) if spans else None
+            for i, (k, a, b) in enumerate(spans):
+                t0 = time.perf_counter()
+                ret = pending.result()
+                pending = None        # its scene (a corridor tile) may go before the next's
+                if i + 1 < len(spans):    # the device traces the next chunk while we detect
+                    k1, a1, b1 = spans[i + 1]
+                    pending = launch(a1, b1, trace_seed(seed, k1))
+                t1 = time.perf_counter()
+                per_shot = {} if detector_inputs is None else detector_inputs(a, b)
+                # serial while the next chunk traces, and in a granule on every chunk (set
+                # once, above): the writer process and the next section hold the other core,
+                # and a parallel region whose second thread is not scheduled spins at its
+                # barrier
+                with serial_while(pending is not None and not granule):
+                    for name, inst in detectors.items():
+                        det = pmt.detect(ret, inst, detector_rng(seed, k),
+                                         gate_center_ns=gates[name][a:b], **per_shot)
+                        parts[name].append((det, a, n_returns))
+                if keep_returns:
+                    kept.append((ret, a))
+                n_returns += len(ret)
+                trace_s += t1 - t0
+                detect_s += time.perf_counter() - t1
+                if bar is not None:
+                    bar.update(b - a)
+        finally:
             if bar is not None:
-                bar.update(b - a)
-    finally:
-        if bar is not None:
-            bar.close()
-        if pending is not None and hasattr(pending, "exception"):
-            pending.exception()        # (a trace still on the launcher thread: let it end)
+                bar.close()
+            if pending is not None and hasattr(pending, "exception"):
+                pending.exception()    # (a trace still on the launcher thread: let it end)
     dets = {name: Detections.concatenate(p) for name, p in parts.items()}
     returns = Returns.concatenate(kept, n_shots=n_shots) if keep_returns else None
     return ChunkedRun(detections=dets, returns=returns, n_returns=n_returns,

@@ -26,20 +26,38 @@ MISSING_WEIGHT_MAX = 1e-4
 def bilinear_nan(z: np.ndarray, g: float, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bilinear look-up of the grid ``z`` (node (i, j) at (j g, i g)) [m] at (x, y) [m]; NaN
     off the grid and wherever a node with a non-zero weight is NaN (so a point on the last
-    row or column of valid pixels is defined)."""
+    row or column of valid pixels is defined). One compiled pass over the points
+    (:func:`_bilinear`, numpy's expression point by point: the same bits)."""
+    x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+    out = np.empty(x.shape)
+    _bilinear(np.asarray(z, np.float64), float(g), x.ravel(), y.ravel(), out.reshape(-1))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _bilinear(z, g, x, y, out):
+    """:func:`bilinear_nan` into ``out`` ((n,) each), in numpy's order of operations:
+    ``f = x / g``, off the grid NaN; ``i = min(int(f), n - 2)``, ``t = f - i``; the four
+    nodes' ``w z`` (0 where their weight ``w`` is 0: an edge's nodata) added to 0 in the
+    order (i, j), (i, j + 1), (i + 1, j), (i + 1, j + 1)."""
     ny, nx = z.shape
-    fx, fy = x / g, y / g
-    outside = ~((fx >= 0) & (fy >= 0) & (fx <= nx - 1) & (fy <= ny - 1))
-    fx = np.where(outside, 0.0, fx)
-    fy = np.where(outside, 0.0, fy)
-    ix = np.minimum(fx.astype(np.intp), nx - 2)
-    iy = np.minimum(fy.astype(np.intp), ny - 2)
-    tx, ty = fx - ix, fy - iy
-    out = np.zeros(np.shape(fx))
-    for w, zz in (((1 - tx) * (1 - ty), z[iy, ix]), (tx * (1 - ty), z[iy, ix + 1]),
-                  ((1 - tx) * ty, z[iy + 1, ix]), (tx * ty, z[iy + 1, ix + 1])):
-        out += np.where(w > 0, w * zz, 0.0)     # a node of weight 0 may be nodata (an edge)
-    return np.where(outside, np.nan, out)
+    for k in range(x.size):
+        fx, fy = x[k] / g, y[k] / g
+        if not (fx >= 0 and fy >= 0 and fx <= nx - 1 and fy <= ny - 1):
+            out[k] = np.nan
+            continue
+        ix, iy = min(np.intp(fx), nx - 2), min(np.intp(fy), ny - 2)
+        tx, ty = fx - ix, fy - iy
+        acc = 0.0
+        w = (1 - tx) * (1 - ty)
+        acc += w * z[iy, ix] if w > 0 else 0.0
+        w = tx * (1 - ty)
+        acc += w * z[iy, ix + 1] if w > 0 else 0.0
+        w = (1 - tx) * ty
+        acc += w * z[iy + 1, ix] if w > 0 else 0.0
+        w = tx * ty
+        acc += w * z[iy + 1, ix + 1] if w > 0 else 0.0
+        out[k] = acc
 
 
 def heights_at(dem, x_crs: np.ndarray, y_crs: np.ndarray, offsets_m, block: int
@@ -66,16 +84,29 @@ def finite_at(dem, x_crs: np.ndarray, y_crs: np.ndarray, offsets_m, block: int) 
     g = dem.posting_m
     for s, z, px, py in _shifted_windows(dem, x_crs, y_crs, offs, block):
         ny, nx = z.shape
-        full = bool(np.isfinite(z).all())
+        if np.isfinite(z).all():        # bilinear_nan's test of the grid, alone
+            ok[s] = _on_grid(px, py, offs, float(g), nx, ny)
+            continue
         good = np.ones(px.size, bool)
         for dx, dy in offs:
-            if full:        # bilinear_nan's test of the grid, alone
-                fx, fy = (px + dx) / g, (py + dy) / g
-                good &= (fx >= 0) & (fy >= 0) & (fx <= nx - 1) & (fy <= ny - 1)
-            else:
-                good &= np.isfinite(bilinear_nan(z, g, px + dx, py + dy))
+            good &= np.isfinite(bilinear_nan(z, g, px + dx, py + dy))
         ok[s] = good
     return ok
+
+
+@numba.njit(cache=True, nogil=True)
+def _on_grid(px, py, offsets_m, g, nx, ny):
+    """(n,) bool: whether every point (``px``, ``py``) [m] shifted by each of ``offsets_m``
+    ((k, 2) [m]) lies on an ``nx`` x ``ny`` grid of posting ``g`` [m] (:func:`bilinear_nan`'s
+    test: ``f = (p + d) / g`` within ``[0, n - 1]`` on both axes)."""
+    good = np.ones(px.size, np.bool_)
+    for i in range(px.size):
+        for k in range(offsets_m.shape[0]):
+            fx, fy = (px[i] + offsets_m[k, 0]) / g, (py[i] + offsets_m[k, 1]) / g
+            if not (fx >= 0 and fy >= 0 and fx <= nx - 1 and fy <= ny - 1):
+                good[i] = False
+                break
+    return good
 
 
 def _shifted_windows(dem, x_crs, y_crs, offs: np.ndarray, block: int):
