@@ -233,6 +233,55 @@ def test_background_rate_counts_and_signal_finding(dem_granule, paper_file):
                                rtol=1e-6)
 
 
+def test_reduced_background_leaves_out_exactly_the_high_confidence_photons_and_their_span():
+    """bckgrd_atlas's ``_reduced`` fields as real ATL03's rows make them
+    (``tests/test_realism.py::test_atl03_removes_exactly_its_high_confidence_photons_and_their_span``):
+    a synthetic section of two 50-shot rows. Row 0 holds three high-confidence photons
+    (conf 4, 1.5 m apart) and medium, low and noise photons outside their span: its reduced
+    count is 3 fewer, its band 1.5 m shorter, exactly; row 1 has none (conf 3, 2, 0): it keeps
+    its whole count and band. (The former rule, conf >= 2, would take 5 photons and 12 m
+    from row 0 and 2 photons from row 1.)"""
+    from types import SimpleNamespace
+    from lidar_mitsuba.products.atl03 import beam
+    inst = Instrument()
+    shot = np.array([0, 3, 10, 20, 30, 49, 50, 60, 70, 99])
+    conf = np.array([4, 4, 3, 2, 0, 4, 3, 2, 0, 0], np.int8)
+    h_m = np.array([1.0, -0.5, 5.0, -7.0, 100.0, 0.25, 0.0, 2.0, -40.0, 9.0])
+    s = SimpleNamespace(
+        res=SimpleNamespace(n_shots=100, radiometry=None, h_m=h_m), inst=inst,
+        run=SimpleNamespace(first_shot=0, delta_time_s=np.arange(100) * 1e-4),
+        conf=conf, order=slice(None), shot=shot, gate=np.zeros(100))
+    out = beam._bckgrd(beam._bckgrd_rows(s))
+    np.testing.assert_array_equal(out["bckgrd_counts"], [6, 4])
+    np.testing.assert_array_equal(out["bckgrd_counts_reduced"], [3, 4])
+    np.testing.assert_array_equal(out["bckgrd_int_height"], [inst.range_gate_m] * 2)
+    np.testing.assert_array_equal(out["bckgrd_int_height_reduced"],
+                                  [inst.range_gate_m - 1.5, inst.range_gate_m])
+
+
+def test_a_written_files_reduced_background_is_its_high_confidence_photons(paper_file):
+    """In a written one-run file, every 50-shot row's ``bckgrd_counts - bckgrd_counts_reduced``
+    is the number of its photons of ``signal_conf_ph`` 4 and the band less their height span
+    (the run's float64 heights, :func:`lidar_mitsuba.night.removed_signal`) is
+    ``bckgrd_int_height_reduced``, to the bit of its float32."""
+    from lidar_mitsuba import night
+    res, path = paper_file
+    shot = np.asarray(res.detections.shot)
+    conf = np.asarray(res.signal_conf)
+    n_rows = -(-res.n_shots // 50)
+    count, span = night.removed_signal(row=shot // 50, h_m=res.h_m, high=conf == 4,
+                                       n_rows=n_rows)
+    with h5py.File(path) as f:
+        b = f["gt1l/bckgrd_atlas"]
+        removed = b["bckgrd_counts"][()] - b["bckgrd_counts_reduced"][()]
+        reduced_m = b["bckgrd_int_height_reduced"][()]
+    np.testing.assert_array_equal(removed, count)
+    assert count.min() > 0 and np.all(span > 0)
+    gate_m = res.instrument.range_gate_m
+    np.testing.assert_array_equal(reduced_m, (gate_m - span).astype(np.float32))
+    assert np.any((conf >= 2) & (conf < 4))       # (the former rule's photons are there)
+
+
 def test_streamed_sections_keep_every_50_shot_row_whole(dem_path, tmp_path):
     """A granule streamed in sections that end inside 50-shot rows: each row counts all its
     events once (the row a section cuts is held until the next section completes it), and

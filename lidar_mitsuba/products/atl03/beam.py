@@ -284,7 +284,15 @@ _ROW_SUMS = ("counts", "signal", "rate_sum", "shots")
 
 def _bckgrd_rows(s: _Section) -> dict:
     """The run's 50-shot rows (of the whole track's grid): sums over the run's shots in each,
-    and what the row's first shot gives it (when that shot is in this run)."""
+    and what the row's first shot gives it (when that shot is in this run).
+
+    ``signal``, ``lo`` and ``hi`` are the row's high-confidence photons (``signal_conf_ph`` 4
+    for any surface type: every column we write is the one test's ``conf``), their number and
+    lowest and highest height [m]: what real ATL03 takes out of a row's histogram
+    (``bckgrd_counts - bckgrd_counts_reduced`` is their number and ``bckgrd_int_height -
+    bckgrd_int_height_reduced`` their span in every whole row of the shipped night subset,
+    ``tests/test_realism.py::test_atl03_removes_exactly_its_high_confidence_photons_and_their_span``;
+    :func:`lidar_mitsuba.night.removed_signal`)."""
     res, inst, g0 = s.res, s.inst, s.run.first_shot
     n = res.n_shots
     row = (g0 + np.arange(n)) // BCKGRD_SHOTS
@@ -292,7 +300,7 @@ def _bckgrd_rows(s: _Section) -> dict:
     n_rows = int(lr[-1]) + 1
     bg = None if res.radiometry is None else res.radiometry.background_mhz
     rate = np.broadcast_to(pmt.noise_rate_per_ns(inst, bg) * 1e9, (n,))
-    sig = s.conf >= 2
+    sig = s.conf == 4                 # high confidence (the docstring's rows)
     h = res.h_m[s.order][sig]
     lo, hi = np.full(n_rows, np.inf), np.full(n_rows, -np.inf)
     at = lr[s.shot[sig]]              # (ascending: photons are in shot order)

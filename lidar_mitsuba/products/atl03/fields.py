@@ -214,15 +214,16 @@ BCKGRD_ATLAS = {
     "bckgrd_counts": Field("i4", "counts", "ATLAS 50-shot background count",
                            "detected events (signal and noise) in the 50 shots' range gates"),
     "bckgrd_counts_reduced": Field("i4", "counts", "ATLAS 50-shot background count - reduced",
-                                   "bckgrd_counts less the events the histogram test finds "
-                                   "signal (signal_conf_ph >= 2)"),
+                                   "bckgrd_counts less the 50 shots' high-confidence "
+                                   "events (signal_conf_ph 4), as real ATL03's rows remove"),
     "bckgrd_hist_top": Field("f4", "meters", "Top of the altimetric range window",
                              "height of the top of the first shot's range gate"),
     "bckgrd_int_height": Field("f4", "meters", "Altimetric range window width",
                                "height of the range gate (Instrument.range_gate_m)"),
     "bckgrd_int_height_reduced": Field("f4", "meters", "Altimetric range window height - "
                                        "reduced", "range gate less the height span of the "
-                                       "50 shots' signal events (signal_conf_ph >= 2)"),
+                                       "50 shots' high-confidence events (signal_conf_ph 4), as "
+                                       "real ATL03's rows remove"),
     "bckgrd_rate": Field("f4", "counts / second", "Background count rate based on the ATLAS "
                          "50-shot sum", "the modelled rate of noise events the detector "
                          "records, averaged over the 50 shots: background reaching the "
