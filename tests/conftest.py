@@ -124,6 +124,19 @@ def _kernel_cache(tmp_path_factory):
         os.environ["LIDAR_MITSUBA_CACHE"] = old
 
 
+@pytest.fixture(scope="session")
+def snow_study_file(_kernel_cache):
+    """Where tests/test_bench.py's bench run leaves its snow study (``snow_bias.run(quick=True,
+    smoke=True)``, the JSON of ``bench.json["snow"]``) for notebook 02 in
+    tests/test_notebooks.py, which makes the same call: the notebook reads it back (its
+    ``SNOW_STUDY_JSON``) instead of running it again (~20 CPU-s) where the bench ran first in
+    this test run (the folder is this run's, shared by its workers: :func:`_kernel_cache`);
+    otherwise it runs the study itself."""
+    import os
+    import pathlib
+    return pathlib.Path(os.environ["LIDAR_MITSUBA_CACHE"]) / "snow_study_smoke.json"
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _free_mitsuba_objects():
     """Collect each test module's garbage when it ends (a collection costs ~0.25 s with this
