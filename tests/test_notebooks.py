@@ -7,15 +7,11 @@ import pytest
 from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((pathlib.Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
-#: a notebook's shots here (its ``QUICKSTART_SHOTS``; the others: 300): the BRDF notebook runs
-#: 119 simulations (17 surfaces x 7 BRDFs), 100 shots each cost ~0.10 CPU-s against ~0.14 at
-#: 300 (session 23); its cells print and plot what the runs give, they assert nothing on it
-SHOTS = {"01-brdf-variants.ipynb": "100"}
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
 def test_notebook_runs(path, monkeypatch, snow_study_file):
-    monkeypatch.setenv("QUICKSTART_SHOTS", SHOTS.get(path.name, "300"))
+    monkeypatch.setenv("QUICKSTART_SHOTS", "300")
     if snow_study_file.is_file():    # the snow study test_bench.py's bench run made (conftest)
         monkeypatch.setenv("SNOW_STUDY_JSON", str(snow_study_file))
     nb = nbformat.read(path, as_version=4)

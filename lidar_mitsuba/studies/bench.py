@@ -394,11 +394,12 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False, smoke: bool = False,
 
     ``smoke`` (the tests' size; implies ``quick``): the quick run with its costliest parts
     cut where no row, chart or field depends on them: the detector's cases on 5000 shots
-    once, the integrator's traces once, 500 shots end to end, each accuracy setting once (the
-    water and fog settings too: :func:`.media_accuracy.run`), two seeds for the
-    simplifications, one for the peer comparison (:func:`.peer.run`), fewer shots in the snow
-    walk and snow kernel tables of 2^12 walk photons a node (:func:`.snow_bias.run`,
-    :func:`.snow_optics.run`). Its numbers only show that the bench runs.
+    once, the integrator's traces once, 500 shots end to end, each accuracy setting once and
+    a smaller reference (the water and fog settings once too: :func:`.media_accuracy.run`),
+    two seeds for the simplifications, one for the peer comparison (:func:`.peer.run`), fewer
+    shots in the snow walk and snow kernel tables of 2^12 walk photons a node
+    (:func:`.snow_bias.run`, :func:`.snow_optics.run`). Its numbers only show that the bench
+    runs.
 
     ``variants``: Mitsuba variants to measure (default: the active one). With several, each
     variant's throughput runs in a process of its own (``out_dir/<variant>/``), the studies

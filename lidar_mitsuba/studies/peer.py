@@ -269,7 +269,8 @@ def run(*, quick: bool = False, smoke: bool = False, progress=None) -> dict:
     ``rows`` (tool, plate, paths, seconds (median), error (RMS relative L2 over seeds),
     range_bias_m (mean centroid error [m])) and ``ratios`` (mitransient time / our time at
     equal error, by log-log interpolation). ``smoke`` (the tests' size; implies ``quick``):
-    one seed a count (every row and field; its numbers only show that it runs)."""
+    one seed a count and two ranges in the float32 sweep (every row and field; its numbers
+    only show that it runs)."""
     if not available():
         return {"skipped": "mitransient is not installed: pip install 'lidar_mitsuba[bench]'"}
     quick = quick or smoke
@@ -309,7 +310,7 @@ def run(*, quick: bool = False, smoke: bool = False, progress=None) -> dict:
                 waveforms[name] = {"lo_m": tool.lo, "bin_m": FINE_BIN_M,
                                    "center_m": tool.centre_m, "fine": fine.tolist()}
     return {"rows": rows, "ratios": speed_ratios(rows), "waveforms": waveforms,
-            "float32_sweep": float32_sweep(n_ranges=4 if quick else 12),
+            "float32_sweep": float32_sweep(n_ranges=2 if smoke else 4 if quick else 12),
             "fine_bin_m": FINE_BIN_M, "coarse_bin_m": COARSE_BIN_M,
             "float32_opl_spacing_m": float(np.spacing(np.float32(2 * ORBIT_M)))}
 
