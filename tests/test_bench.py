@@ -7,6 +7,7 @@ import contextlib
 import io
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -16,9 +17,11 @@ from lidar_mitsuba.studies import accuracy, bench, breaking_points, peer
 
 
 @pytest.fixture(scope="module")
-def bench_run(tmp_path_factory):
+def bench_run(tmp_path_factory, snow_study_file):
     """One quick bench at the smoke size through the CLI; the chart functions are wrapped to
-    keep the Figures they return (same functions, same arguments: what the PNGs show)."""
+    keep the Figures they return (same functions, same arguments: what the PNGs show). Its
+    snow study is left for notebook 02 (conftest's ``snow_study_file``), written whole
+    before it is named (a worker may be reading the folder)."""
     out = tmp_path_factory.mktemp("bench") / "b"
     figs = {}
     mp = pytest.MonkeyPatch()
@@ -37,6 +40,9 @@ def bench_run(tmp_path_factory):
         mp.undo()
     assert code == 0
     doc = json.loads((out / "bench.json").read_text())
+    part = snow_study_file.with_name(f"{snow_study_file.name}.{os.getpid()}.part")
+    part.write_text(json.dumps(doc["snow"]))
+    os.replace(part, snow_study_file)
     return {"out": out, "doc": doc, "figs": figs, "printed": printed.getvalue()}
 
 

@@ -1,4 +1,5 @@
-"""Notebooks run top to bottom (small shot counts)."""
+"""Notebooks run top to bottom (small shot counts; notebook 02 reads back the snow study the
+bench run of this test run made, where it ran first: conftest's ``snow_study_file``)."""
 import pathlib
 
 import nbformat
@@ -9,8 +10,10 @@ NOTEBOOKS = sorted((pathlib.Path(__file__).resolve().parents[1] / "notebooks").g
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
-def test_notebook_runs(path, monkeypatch):
+def test_notebook_runs(path, monkeypatch, snow_study_file):
     monkeypatch.setenv("QUICKSTART_SHOTS", "300")
+    if snow_study_file.is_file():    # the snow study test_bench.py's bench run made (conftest)
+        monkeypatch.setenv("SNOW_STUDY_JSON", str(snow_study_file))
     nb = nbformat.read(path, as_version=4)
     NotebookClient(nb, timeout=600, kernel_name="python3",
                    resources={"metadata": {"path": str(path.parent)}}).execute()

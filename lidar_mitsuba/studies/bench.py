@@ -394,10 +394,12 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False, smoke: bool = False,
 
     ``smoke`` (the tests' size; implies ``quick``): the quick run with its costliest parts
     cut where no row, chart or field depends on them: the detector's cases on 5000 shots
-    once, the integrator's traces once, 500 shots end to end, each accuracy setting once, two
-    seeds for the simplifications, fewer shots in the snow walk and snow kernel tables of
-    2^12 walk photons a node (:func:`.snow_bias.run`, :func:`.snow_optics.run`). Its numbers
-    only show that the bench runs.
+    once, the integrator's traces once, 500 shots end to end, each accuracy setting once and
+    a smaller reference (the water and fog settings once too: :func:`.media_accuracy.run`),
+    two seeds for the simplifications, one for the peer comparison (:func:`.peer.run`), fewer
+    shots in the snow walk and snow kernel tables of 2^12 walk photons a node
+    (:func:`.snow_bias.run`, :func:`.snow_optics.run`). Its numbers only show that the bench
+    runs.
 
     ``variants``: Mitsuba variants to measure (default: the active one). With several, each
     variant's throughput runs in a process of its own (``out_dir/<variant>/``), the studies
@@ -423,14 +425,14 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False, smoke: bool = False,
         doc["stability"] = breaking_points.run_all(quick=quick)
         doc["accuracy_vs_time"] = accuracy.run(quick=quick, smoke=smoke)
         doc["simplifications"] = accuracy.simplifications(quick=quick, smoke=smoke)
-        doc["peer"] = peer.run(quick=quick)
+        doc["peer"] = peer.run(quick=quick, smoke=smoke)
         from . import snow_bias, track_length
         doc["track_length"] = track_length.run(out=out, quick=quick)
         doc["snow"] = snow_bias.run(quick=quick, smoke=smoke)
         doc["accuracy_vs_time"]["snow volume, 200 um"] = snow_bias.pareto_rows(doc["snow"])
         from . import media_accuracy, snow_optics
         doc["snow_optics"] = snow_optics.run(quick=quick, smoke=smoke)
-        doc["media"] = media_accuracy.run(quick=quick)
+        doc["media"] = media_accuracy.run(quick=quick, smoke=smoke)
         doc["accuracy_vs_time"].update(doc["media"])
         from . import cloud_cost
         doc["cloud"] = cloud_cost.run(quick=quick)

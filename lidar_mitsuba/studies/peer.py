@@ -264,15 +264,18 @@ def _error(h: np.ndarray, ref: np.ndarray, edges: np.ndarray) -> tuple[float, fl
     return l2, float((h @ mid - ref @ mid) / 2.0)
 
 
-def run(*, quick: bool = False, progress=None) -> dict:
+def run(*, quick: bool = False, smoke: bool = False, progress=None) -> dict:
     """Both tools, both plates, a ladder of photon counts. Returns a JSON-ready dict:
     ``rows`` (tool, plate, paths, seconds (median), error (RMS relative L2 over seeds),
     range_bias_m (mean centroid error [m])) and ``ratios`` (mitransient time / our time at
-    equal error, by log-log interpolation)."""
+    equal error, by log-log interpolation). ``smoke`` (the tests' size; implies ``quick``):
+    one seed a count and two ranges in the float32 sweep (every row and field; its numbers
+    only show that it runs)."""
     if not available():
         return {"skipped": "mitransient is not installed: pip install 'lidar_mitsuba[bench]'"}
+    quick = quick or smoke
     exps = (12, 14, 16) if quick else (12, 14, 16, 18, 20, 22)
-    seeds = (1, 2) if quick else (1, 2, 3)
+    seeds = (1,) if smoke else (1, 2) if quick else (1, 2, 3)
     tools = {
         "lidar_mitsuba (impulse + pulse)": lambda s: _Ours(s, pulse=False),
         "lidar_mitsuba (photons, pulse sampled)": lambda s: _Ours(s, pulse=True),
@@ -307,7 +310,7 @@ def run(*, quick: bool = False, progress=None) -> dict:
                 waveforms[name] = {"lo_m": tool.lo, "bin_m": FINE_BIN_M,
                                    "center_m": tool.centre_m, "fine": fine.tolist()}
     return {"rows": rows, "ratios": speed_ratios(rows), "waveforms": waveforms,
-            "float32_sweep": float32_sweep(n_ranges=4 if quick else 12),
+            "float32_sweep": float32_sweep(n_ranges=2 if smoke else 4 if quick else 12),
             "fine_bin_m": FINE_BIN_M, "coarse_bin_m": COARSE_BIN_M,
             "float32_opl_spacing_m": float(np.spacing(np.float32(2 * ORBIT_M)))}
 

@@ -89,18 +89,25 @@ def run(*, quick: bool = False, smoke: bool = False) -> dict:
     the kernel's time against the bare surface; the walk's accuracy knobs. Quick: two grain
     sizes, and kernel tables of 2^14 walk photons a node (a smoke run: building the full
     tables was two thirds of its time). ``smoke`` (the tests' size; implies ``quick``): the
-    quick run with :data:`SMOKE_WALK_SHOTS` shots in the walk's runs (the walk rows, the
-    ``max_events`` and similarity knobs; they were two thirds of a quick run's time) and
-    tables of :data:`SMOKE_TABLE_PHOTONS` walk photons a node; the kernel's bias rows keep
-    the quick run's shots."""
+    quick run with :data:`SMOKE_WALK_ROW_SHOTS` shots in the walk rows and
+    :data:`SMOKE_WALK_SHOTS` in the ``max_events`` and similarity knobs (the walk's runs were
+    two thirds of a quick run's time) and tables of :data:`SMOKE_TABLE_PHOTONS` walk photons
+    a node; the kernel's bias rows keep the quick run's shots."""
     photons = SMOKE_TABLE_PHOTONS if smoke else 1 << 14 if quick else None
     with snow_kernel.photons_per_node(photons):
         return _run(quick=quick or smoke, smoke=smoke)
 
 
 #: the walk's shots in a smoke run (quick: 400): 200 shots are 140 m of track, about five
-#: 40 m ATL06 segments for the walk rows' h_li
+#: 40 m ATL06 segments for the ``max_events`` and similarity rows' h_li
 SMOKE_WALK_SHOTS = 200
+
+#: the shots of a smoke run's walk rows (``walk``, ``cost``): they trace the automatic paths
+#: per shot, 1024 a shot (the top of the ladder; the knob rows: 64), 11.4 CPU-s at 200 um for
+#: 200 shots (session 23, the 2-core VM), two thirds of a smoke run's time. 100 shots, 70 m
+#: of track, leave two 40 m ATL06 segments for their h_li: a smoke run's rows show that the
+#: walk runs and what it costs a shot, not its bias (the quick run's 400 shots do)
+SMOKE_WALK_ROW_SHOTS = 100
 
 #: walk photons a node of a smoke run's kernel tables (quick: 2^14): a table of 2^12 builds in
 #: a third of the time (200 um: 2.5 against 8.1 s of CPU, session 21). The photon count is
@@ -117,8 +124,9 @@ def _run(*, quick: bool, smoke: bool = False) -> dict:
     kshots = 4000 if quick else 20000
     # the walk first: its rows give the reference and the cost; the kernel's first run at
     # each snowpack builds (or reads) its table, timed apart in "table_s"
-    walk = [_one(beam="strong", grain_um=g, density=densities[0], shots=shots, seed=7,
-                 paths_per_shot="auto") for g in grains]
+    walk = [_one(beam="strong", grain_um=g, density=densities[0], seed=7,
+                 shots=SMOKE_WALK_ROW_SHOTS if smoke else shots, paths_per_shot="auto")
+            for g in grains]
     bias = [_one(beam=b, grain_um=g, density=rho, shots=kshots, seed=7,
                  paths_per_shot="auto", model="kernel")
             for rho in densities for b in ("strong", "weak") for g in grains]
