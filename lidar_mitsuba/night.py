@@ -77,7 +77,8 @@ ice at night). ESTIMATE elsewhere (the forest clip removes ~5 m)."""
 
 BCKGRD_SHOTS = 50
 """Shots summed into one altimetric histogram, one row of ``bckgrd_atlas`` (ATL03 ATBD; four
-rows a 200-shot major frame, ``pce_mframe_cnt``, in the real files)."""
+rows a 200-shot major frame, ``pce_mframe_cnt``, in the real files; 200 Hz at 10 kHz): our
+ATL03 writer's rows too (``products/atl03/beam.py``)."""
 
 
 def dark_count_per_channel_hz(*, anodes: int, channels: int) -> float:

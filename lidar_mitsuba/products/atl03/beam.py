@@ -32,10 +32,10 @@ from .fields import COORDINATES, F4_FILL, GROUPS, SURFACE_TYPES
 from ...trace.stream import gate_heights_m
 from ..classify import histogram_test
 from ...constants import C_M_PER_NS
+from ...night import BCKGRD_SHOTS   # (shots per bckgrd_atlas row: one definition)
 
 SEGMENT_M = 20.0            #: ATL03 geolocation segment length [m]
 PULSES_PER_MAJOR_FRAME = 200
-BCKGRD_SHOTS = 50           #: shots per ATL03 bckgrd_atlas row (200 Hz at 10 kHz)
 _C_M_PER_S = C_M_PER_NS * 1e9
 _pending: dict = {}         # (file key, beam) -> the bckgrd_atlas row the next section continues
 
