@@ -44,6 +44,18 @@ KERNELS = {"detector": ("detector.deadtime", ("detect_shots", "choose_returns", 
            "classify": ("products.classify", ("_photon_cells",)),
            "draws": ("detector.draws", ("binomial_inversion",))}
 
+#: each stage's name on :func:`compile_kernels`' bar and its rough compile time [s], in the
+#: order they compile; ``_<stage>`` (below) runs a stage's kernels once
+STAGE_BAR = {"detector": ("the detector", DETECTOR_S),
+             "heights": ("the DEM footprint means", HEIGHTS_S),
+             "geodesic": ("the geodesics", GEODESIC_S),
+             "classify": ("the histogram test", CLASSIFY_S),
+             "draws": ("the detector's draws", DRAWS_S),
+             "atl06": ("the ATL06 fit", ATL06_S),
+             "atl03": ("the ATL03 fields", ATL03_S)}
+#: the stages :func:`compile_kernels` compiles only when asked (its ``atl06``, ``atl03``)
+_ASKED = ("atl06", "atl03")
+
 
 def _detector() -> None:
     from .detector import pmt
@@ -123,21 +135,10 @@ def compile_kernels(*, atl06: bool = False, atl03: bool = False, progress: bool 
     ``atl03``, ATL03's per-photon fields) if they are not cached yet; returns the seconds it
     took. With ``progress``, a bar on stderr says
     "compiling kernels (first run on this machine)" and moves every half second."""
-    steps = []
-    if not is_cached("detector"):
-        steps.append(("the detector", DETECTOR_S, _detector))
-    if not is_cached("heights"):
-        steps.append(("the DEM footprint means", HEIGHTS_S, _heights))
-    if not is_cached("geodesic"):
-        steps.append(("the geodesics", GEODESIC_S, _geodesic))
-    if not is_cached("classify"):
-        steps.append(("the histogram test", CLASSIFY_S, _classify))
-    if not is_cached("draws"):
-        steps.append(("the detector's draws", DRAWS_S, _draws))
-    if atl06 and not is_cached("atl06"):
-        steps.append(("the ATL06 fit", ATL06_S, _atl06))
-    if atl03 and not is_cached("atl03"):
-        steps.append(("the ATL03 fields", ATL03_S, _atl03))
+    wanted = [stage for stage in STAGE_BAR if stage not in _ASKED
+              or (atl06 if stage == "atl06" else atl03)]
+    steps = [(*STAGE_BAR[stage], globals()[f"_{stage}"]) for stage in wanted
+             if not is_cached(stage)]
     if not steps:
         return 0.0
     t0 = time.perf_counter()

@@ -63,8 +63,8 @@ def pytest_configure(config):
     steps = []
     if not pc.is_cached("detector"):
         steps.append("p._detector()")
-    rest = [f"p._{stage}()" for stage in ("heights", "atl06", "atl03", "geodesic", "classify",
-                                          "draws") if not pc.is_cached(stage)]
+    rest = [f"p._{stage}()" for stage in pc.KERNELS
+            if stage != "detector" and not pc.is_cached(stage)]
     if rest:
         steps.append("; ".join(rest))
     _COMPILING.extend(subprocess.Popen([sys.executable, "-c",
