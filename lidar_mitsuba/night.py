@@ -284,13 +284,30 @@ def removed_signal(*, row, h_m, high, n_rows: int) -> tuple[np.ndarray, np.ndarr
     Args:
         row: (n,) each photon's row; h_m: (n,) its height [m]; high: (n,) bool, high
             confidence; n_rows: rows."""
-    r = np.asarray(row, np.int64)[np.asarray(high, bool)]
-    h = np.asarray(h_m, np.float64)[np.asarray(high, bool)]
-    count = np.bincount(r, minlength=n_rows)
-    lo, hi = np.full(n_rows, np.inf), np.full(n_rows, -np.inf)
-    np.minimum.at(lo, r, h)
-    np.maximum.at(hi, r, h)
+    count, lo, hi = removed_extremes(row=row, h_m=h_m, high=high, n_rows=n_rows)
     return count, np.where(count > 0, hi - lo, 0.0)
+
+
+def removed_extremes(*, row, h_m, high, n_rows: int) -> tuple[np.ndarray, np.ndarray,
+                                                                np.ndarray]:
+    """The rule of :func:`removed_signal` as ``(count, lo, hi)``, (n_rows,) each: the number of
+    each row's high-confidence photons and their lowest and highest height [m] (``inf`` and
+    ``-inf`` in a row without one), as our ATL03 writer keeps them for rows that runs share
+    (``products/atl03/beam.py``). Photons in ascending rows (a track's, shot by shot) are
+    reduced in place; others are sorted by row first (the same numbers: a min is exact)."""
+    high = np.asarray(high, bool)
+    at = np.asarray(row, np.int64)[high]
+    h = np.asarray(h_m)[high]
+    count = np.bincount(at, minlength=n_rows)
+    lo, hi = np.full(n_rows, np.inf), np.full(n_rows, -np.inf)
+    if at.size:
+        if np.any(at[1:] < at[:-1]):
+            order = np.argsort(at, kind="stable")
+            at, h = at[order], h[order]
+        start = np.flatnonzero(np.r_[True, at[1:] != at[:-1]])
+        lo[at[start]] = np.minimum.reduceat(h, start)
+        hi[at[start]] = np.maximum.reduceat(h, start)
+    return count, lo, hi
 
 
 @dataclass
@@ -339,13 +356,16 @@ def atl03_leak(*, shot, h_m, is_signal, gate_center_h_m, range_gate_m: float, n_
     heights already moved by the snow's delay where it has one), each kept with probability
     ``keep`` (a cloud's two-way transmission), among noise photons drawn at ``noise_hz`` over
     each shot's range gate (the other terms' rate there, not the simulation's), through our
-    signal finder (:func:`~lidar_mitsuba.products.classify.histogram_test`) with its noise
-    level from the band's background rate, as ATL03's finder takes it from the 50-shot
-    ``bckgrd_rate`` (recalled from the ATL03 ATBD, not re-read here; a night's 30 m gate
-    holds ~0.02 noise photons in 200 shots, too few to estimate it from); each 50-shot row
-    then loses its high-confidence photons and their span (:func:`removed_signal`) and
-    keeps the rest. The band's rate is ``band_rate_hz`` (the other terms) plus the leak
-    itself: ``passes`` rounds, the first without it. Photons outside the gate (the snow's
+    signal finder (:func:`~lidar_mitsuba.products.classify.histogram_test`) with ATL03's
+    rule, a photon's confidence its own bin's (``neighbourhood_bins=1``: ATL03 ATBD release
+    006, section 5.1.1), and its expected background from the photon cloud (the laser's own
+    tail photons in it), as ATL03's ``signal_find_output`` shows its finder taking it at night
+    (the classify module's docstring), but never below the band's rate (ESTIMATE: a floor
+    against an estimate of nothing from a quiet gate's few photons, ~0.02 noise photons in
+    200 shots of a night's 30 m gate; how ATL03 treats a photon cloud without background was
+    not found); each 50-shot row then loses its high-confidence photons and their span
+    (:func:`removed_signal`) and keeps the rest. The band's rate is ``band_rate_hz`` (the
+    other terms) plus the leak itself: ``passes`` rounds, the first without it. Photons outside the gate (the snow's
     deepest) are never high confidence, and count: the band reaches 2.5 km below the
     surface. Afterpulses (``afterpulse_probability`` a laser photon: 10-45 m below, outside
     any span) are added as their expected number. The thinning and the noise are drawn
@@ -387,17 +407,20 @@ def _rows_left(s_shot, s_h, n_shot, n_h, *, gate, range_gate_m: float, rows: int
                rate_hz: float, afterpulse_probability: float) -> np.ndarray:
     """(4, rows): each row's laser photons, high-confidence photons, laser photons left in
     the background and span removed [m], for one draw of :func:`atl03_leak` (laser photons
-    ``s_*``, noise photons ``n_*``: shot, height [m]), the finder's noise level from
-    ``rate_hz``."""
+    ``s_*``, noise photons ``n_*``: shot, height [m]), the finder's noise level at least
+    ``rate_hz``'s."""
     from .products.classify import histogram_test
     block_shots, bin_m = 20, 0.5                    # histogram_test's defaults (our writer's)
     inside = np.abs(s_h - gate[s_shot]) <= range_gate_m / 2.0
     t_shot = np.concatenate([s_shot[inside], n_shot])
     t_h = np.concatenate([s_h[inside], n_h])
     order = np.argsort(t_shot, kind="stable")
+    # ATL03's rule (a photon's bin alone), the background from the photon cloud, at least
+    # the band's rate
     test = histogram_test(shot=t_shot[order], h_m=t_h[order], gate_center_h_m=gate,
                           range_gate_m=range_gate_m, block_shots=block_shots, bin_m=bin_m,
-                          noise_per_bin=rate_hz * 2.0 * bin_m / C_M_PER_S * block_shots)
+                          neighbourhood_bins=1,
+                          min_noise_per_bin=rate_hz * 2.0 * bin_m / C_M_PER_S * block_shots)
     high_t = np.empty(t_shot.size, bool)
     high_t[order] = test.conf == 4
     high_s = np.zeros(s_shot.size, bool)

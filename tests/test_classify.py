@@ -104,3 +104,29 @@ def test_photon_cells_truncate_as_numpy_casts(rng):
     padded = np.pad(counts.reshape(20, 60), ((0, 0), (1, 1)))
     assert np.array_equal(near, (padded[:, :-2] + padded[:, 1:-1] + padded[:, 2:]).ravel()[full])
     assert np.array_equal(peak, counts.reshape(20, 60).argmax(1))
+
+
+def test_atl03s_rule_gives_a_photon_its_own_bins_confidence():
+    """ATL03 classifies all photons of a bin alike (ATBD release 006, 5.1.1;
+    ``neighbourhood_bins=1``): a lone photon in the bin below a dense surface bin borrows that
+    bin's count under our writer's rule (its neighbourhood holds 41 photons against Poisson(3
+    lam): high confidence) and keeps its own under ATL03's (1 photon against Poisson(lam):
+    P(K >= 1) = 1 - exp(-lam)), exactly; the surface's bin is high under both. The noise level
+    estimated from a quiet gate is floored by ``min_noise_per_bin``."""
+    shot = np.r_[np.arange(20).repeat(2), 7]                    # one 20-shot block
+    h = np.r_[np.full(40, 0.25), -0.25]                         # bins 30 and 29 of 60
+    kw = dict(shot=shot, h_m=h, gate_center_h_m=np.zeros(20), range_gate_m=30.0)
+    lam = 2e-3
+    ours = classify.histogram_test(**kw, noise_per_bin=lam)
+    atl03 = classify.histogram_test(**kw, noise_per_bin=lam, neighbourhood_bins=1)
+    assert np.all(ours.conf == 4) and np.all(atl03.conf[:40] == 4)
+    assert atl03.tail_p[40] == pytest.approx(-np.expm1(-lam), rel=1e-12)
+    assert atl03.conf[40] == 2                                  # 1e-4 <= 2e-3 < 1e-2
+    assert ours.tail_p[40] == special.pdtrc(40, 3 * lam)
+    # no photon outside the surface's bins: an estimate of nothing, lifted to the floor
+    free = classify.histogram_test(**kw, neighbourhood_bins=1)
+    floored = classify.histogram_test(**kw, neighbourhood_bins=1, min_noise_per_bin=lam)
+    assert free.noise_per_bin[0] < 1e-9 and floored.noise_per_bin[0] == lam
+    assert np.array_equal(floored.conf, atl03.conf)
+    with pytest.raises(ValueError, match="neighbourhood_bins"):
+        classify.histogram_test(**kw, neighbourhood_bins=2)

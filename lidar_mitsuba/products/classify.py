@@ -19,6 +19,27 @@ conf  ATL03 meaning    rule
 ====  ===============  ======================
 
 (ATL03's 1, "buffer", is not used.) With no noise at all every photon is high confidence.
+
+**ATL03's own rule** (``neighbourhood_bins=1``, the term-5 leak's finder,
+:func:`lidar_mitsuba.night.atl03_leak`): ATL03's finder histograms the photons and classifies
+"all photons in any one bin" alike, as signal or background, with a confidence from that bin's
+own signal-to-noise ratio (ICESat-2 ATL03 ATBD, release 006, Neumann et al. 2022, section 5.1.1
+and step (f) of 5.1.4.2.5.2; NSIDC's ATL03 v006 user guide, section 2.3.1): a photon's count
+is its own bin's, ``k`` against Poisson(``lam``), not its bin's and two neighbours'. The
+default (3 bins: our writer's ``signal_conf_ph``, unchanged) lets a lone tail photon next to
+the surface's bin borrow that bin's count. What ATL03's finder does that this one does not
+(the ATBD's values for them were not found: ``snrlow``, ``snrmed``, ``e_m``, its minimum bin
+sizes): its bin height and integration time are the smallest at which it finds signal (ATBD
+5.1.1, 5.1.4.2.4; the shipped night subset's ``signal_find_output/ocean``: 0.7-2.05 m over
+86-457 shots) where ours are fixed (``bin_m``, ``block_shots``); its thresholds are on a
+bin's signal-to-noise ratio (``snrlow``, ``snrmed``) where ours are the tail probabilities
+above. Its expected background comes from the atmospheric histogram or, for a surface type
+whose ``pc_bckgrd_flag`` is set, from the photon cloud itself (ATBD 5.1.1, Table 5-2,
+Appendix A): the shipped night subset's ``signal_find_output/ocean/bckgrd_mean`` reads
+0.85-0.98 counts a bin (1.15-1.6 m over 86 shots) with a standard deviation of 2.2-3.1, not
+Poisson and 60-100 times what its 15 kHz band rate puts in such a bin (0.010-0.014): there
+the background is the photon cloud's, the laser's own tail photons in it, as the estimate
+above (``noise_per_bin=None``) makes it.
 """
 from __future__ import annotations
 
@@ -70,7 +91,8 @@ class HistogramTest:
 
 def histogram_test(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.ndarray,
                    range_gate_m: float, block_shots: int = 20, bin_m: float = 0.5,
-                   pool_blocks: int = 11, noise_per_bin=None) -> HistogramTest:
+                   pool_blocks: int = 11, noise_per_bin=None, neighbourhood_bins: int = 3,
+                   min_noise_per_bin: float = 0.0) -> HistogramTest:
     """The histogram test of :func:`signal_confidence` (same arguments), with its per-photon
     tail probabilities and per-block noise levels (blocks up to the last photon's).
 
@@ -78,7 +100,12 @@ def histogram_test(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.nda
     over ``block_shots`` shots] given instead of estimated from the photons (a scalar or
     (n_blocks,)), as ATL03's finder takes it from the 50-shot background rate of its tall
     band: a quiet night's gate holds too few noise photons to estimate it
-    (:func:`lidar_mitsuba.night.atl03_leak`). ``None`` (the default): estimated as above.
+    (:func:`lidar_mitsuba.night.atl03_leak`). ``None`` (the default): estimated as above,
+    and at least ``min_noise_per_bin`` [same units].
+
+    ``neighbourhood_bins``: 3 (the default: a photon's count is its bin's and its two
+    neighbours', against Poisson(``3 lam``)) or 1 (ATL03's rule, the module docstring's: its
+    own bin's, against Poisson(``lam``)).
 
     Computed on the cells that hold photons only (a few per cent of a track's cells): an
     empty cell's count ``0`` is never improbable (``P(K >= 0) = 1``), so it is always a noise
@@ -97,14 +124,20 @@ def histogram_test(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.nda
     slot, row, col, k, neighbourhood, peak = _photon_cells(
         shot, np.asarray(h_m, float), gate, range_gate_m / 2.0, float(bin_m), n_bins,
         int(block_shots), n_blocks)
+    if neighbourhood_bins not in (1, 3):
+        raise ValueError("neighbourhood_bins must be 1 or 3")
     if noise_per_bin is None:
         lam = _sparse_noise_level(row, col, k, peak, n_bins=n_bins, n_blocks=n_blocks,
                                   bin_m=bin_m, pool_blocks=pool_blocks)
+        if min_noise_per_bin > 0.0:
+            lam = np.maximum(lam, min_noise_per_bin)
     else:
         lam = np.array(np.broadcast_to(np.asarray(noise_per_bin, float), (n_blocks,)))
+    if neighbourhood_bins == 1:                  # ATL03's: a photon's bin alone
+        neighbourhood = k
     # the tail probability and confidence of every cell with photons, then each photon's
     # cell's (the test depends on the photon through its cell only; cells are fewer)
-    mean = 3.0 * lam[row]
+    mean = float(neighbourhood_bins) * lam[row]
     p = np.where(mean > 0, special.pdtrc(neighbourhood - 1, np.maximum(mean, 1e-300)), 0.0)
     conf = np.zeros(p.shape, np.int8)
     conf[p < 1e-2] = 2

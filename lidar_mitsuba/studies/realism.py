@@ -45,6 +45,7 @@ from .realism_inputs import (BLOWING_SNOW_TOP_M, LAYER_BASE_M, LAYER_THICKNESS_M
                              PRODUCT_SURFACES, equation_outside_fraction, ice_sheet_snow,
                              implied_cloud, layer_heights_m, pair_clouds, sea_ice_snow,
                              snow_delay, sunlit_albedo)
+from .realism_curve import background_curve  # noqa: E402  (the figure's curves)
 
 TAIL_WINDOW_M = 1.0
 """The predicted tails count the simulated surface photons within this distance [m] of their
@@ -266,9 +267,9 @@ def _signal(out: dict, rb, twin_granule, inst, band, surface: dict, z: float, *,
         out.update({k: v for k, v in sim.items() if k != "outside_fraction"})
         f_out = sim["outside_fraction"]
         if rb.signal_span_m is not None and np.isfinite(rb.signal_span_m).any():
-            # ATL03 gives each row's span: where its own finder cut (ours, run on its
-            # photons, cuts wider: docs/physics/night-floor.md); the laser photons outside
-            # it and their afterpulses are the leak
+            # ATL03 gives each row's span: where its own finder cut (ours, with ATL03's rule,
+            # run on its photons, cuts 0.88 m where it cut 1.0: docs/physics/night-floor.md);
+            # the laser photons outside it and their afterpulses are the leak
             f_out = f_out + photons["afterpulse_probability"]
             photons = None
             out["outside_fraction"] = float(np.nanmedian(f_out))
@@ -345,15 +346,17 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
     return out
 
 
-def _atl03_leak(inst, photons, *, band, seed: int, kw: dict, keep: float = 1.0) -> dict | None:
+def _atl03_leak(inst, photons, *, band, seed: int, kw: dict, keep: float = 1.0,
+                realizations: int = 32) -> dict | None:
     """Term 5 as ATL03 counts it (:func:`~lidar_mitsuba.night.atl03_leak`) on a simulation's
     ``photons`` (:func:`simulated`), each laser photon kept with probability ``keep``: noise
     photons at the rate the other terms have inside the range gate
     (:func:`~lidar_mitsuba.night.background_terms` of ``kw`` over a band that is the gate,
     centred on the surface: the air of its upper half, a cloud only where it reaches into
-    it), the finder's noise level the other terms' rate over the band (``kw``'s); its
+    it), the finder's background the photon cloud's, at least the other terms' rate over
+    the band (``kw``'s); its
     summary, or None without photons (``signal_shots=0``: the closed form with the file's
-    span)."""
+    span; ``realizations``: :func:`~lidar_mitsuba.night.atl03_leak`'s)."""
     if photons is None:
         return None
     from .. import night
@@ -363,7 +366,8 @@ def _atl03_leak(inst, photons, *, band, seed: int, kw: dict, keep: float = 1.0) 
     band_hz = night.background_terms(inst, leak_hz=0.0, **kw)["total"]
     h = float(np.nanmedian(np.atleast_1d(band.height_m)))
     leak = night.atl03_leak(**photons, noise_hz=noise_hz, band_rate_hz=band_hz,
-                            band_height_m=h, keep=keep, rng=np.random.default_rng(seed))
+                            band_height_m=h, keep=keep, rng=np.random.default_rng(seed),
+                            realizations=realizations)
     return {**leak.summary(), "gate_noise_hz": noise_hz, "band_rate_hz": band_hz}
 
 
@@ -552,30 +556,6 @@ def _forest_twins(paths, *, signal_shots: int, seed: int, progress):
         return [], {}, paired
     docs = forest_twin.twins(paths, seed=seed + 1, progress=progress)
     return docs, realism_forest.by_row(docs), paired
-
-
-def background_curve(*, elevations_deg=None, z_m: float = 0.0) -> dict:
-    """The model's background [Hz, detected] against solar elevation for ATLAS's strong and
-    weak beams over clear snow (albedo 0.9) at sea level, the 2018 energy, 21 March at 70 N
-    (Earth-Sun distance ~1 au), the polar band defaults and the lidar-equation signal for the
-    leak term, whose outside fraction is the Gaussian pulse's and the ice sheet's snow's
-    (:func:`equation_outside_fraction`; no afterpulses: the beams' own predictions, from a
-    simulation, have them): ``{"elevation_deg": [...], "strong": [...], "weak": [...]}``."""
-    from .. import night
-    from ..instrument import Instrument
-    el = np.linspace(-10.0, 35.0, 46) if elevations_deg is None else np.asarray(elevations_deg)
-    t = np.full(1, 6.6e6)                        # 2018-03-18, s since 2018-01-01
-    out = {"elevation_deg": el.tolist()}
-    for kind in ("strong", "weak"):
-        inst = Instrument.atlas(kind)
-        s = radiometric_signal(inst, z_m=z_m, surface=PRODUCT_SURFACES["land ice"])
-        f = equation_outside_fraction(inst, night.SIGNAL_SPAN_M,
-                                      surface=PRODUCT_SURFACES["land ice"])
-        out[kind] = [night.background_terms(
-            inst, delta_time_s=t, z_m=np.array([z_m]), albedo=0.9,
-            solar_elevation_deg=np.array([e]), solar_azimuth_deg=np.zeros(1),
-            signal_per_shot=s, outside_fraction=f)["total"] for e in el]
-    return out
 
 
 def format_row(r: dict) -> str:

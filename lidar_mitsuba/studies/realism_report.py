@@ -12,7 +12,8 @@ ELEVATION_RANGE_DEG = (-10.0, 35.0)
 
 def plot(doc: dict, path) -> None:
     """Background [Hz, log] against solar elevation [deg]: the model's curves (clear snow,
-    sea level; :func:`~lidar_mitsuba.studies.realism.background_curve`) and each real beam's
+    sea level, the leak as the matrix counts it:
+    :func:`~lidar_mitsuba.studies.realism_curve.background_curve`) and each real beam's
     median (filled: clear segments, open: cloudy ones; beams with the sun below -10 deg drawn
     at -10 with a left arrow), our prediction for it as a cross."""
     import matplotlib
@@ -23,7 +24,8 @@ def plot(doc: dict, path) -> None:
     fig, ax = plt.subplots(figsize=(9, 5.5))
     for kind in ("strong", "weak"):
         ax.plot(c["elevation_deg"], c[kind], color=colour[kind], lw=2,
-                label=f"model, {kind} beam (clear snow, sea level; leak: pulse and snow)")
+                label=f"model, {kind} beam (clear snow, sea level; leak as the matrix "
+                      "counts it, on photons drawn without dead time)")
     lo, hi = ELEVATION_RANGE_DEG
     for r in doc["rows"]:
         m, p = r["measured"], r["predicted"]

@@ -32,7 +32,7 @@ from .fields import COORDINATES, F4_FILL, GROUPS, SURFACE_TYPES
 from ...trace.stream import gate_heights_m
 from ..classify import histogram_test
 from ...constants import C_M_PER_NS
-from ...night import BCKGRD_SHOTS   # (shots per bckgrd_atlas row: one definition)
+from ...night import BCKGRD_SHOTS, removed_extremes   # (a bckgrd_atlas row: one definition)
 
 SEGMENT_M = 20.0            #: ATL03 geolocation segment length [m]
 PULSES_PER_MAJOR_FRAME = 200
@@ -300,17 +300,13 @@ def _bckgrd_rows(s: _Section) -> dict:
     n_rows = int(lr[-1]) + 1
     bg = None if res.radiometry is None else res.radiometry.background_mhz
     rate = np.broadcast_to(pmt.noise_rate_per_ns(inst, bg) * 1e9, (n,))
-    sig = s.conf == 4                 # high confidence (the docstring's rows)
-    h = res.h_m[s.order][sig]
-    lo, hi = np.full(n_rows, np.inf), np.full(n_rows, -np.inf)
-    at = lr[s.shot[sig]]              # (ascending: photons are in shot order)
-    signal = np.bincount(at, minlength=n_rows)
-    if at.size:     # each row's extremes (ufunc.at took ~0.3 s a granule; a min is exact)
-        start = np.flatnonzero(np.r_[True, at[1:] != at[:-1]])
-        lo[at[start]] = np.minimum.reduceat(h, start)
-        hi[at[start]] = np.maximum.reduceat(h, start)
+    # the rows' high-confidence photons and their extremes, by night's one rule (photons in
+    # shot order: ascending rows)
+    at = lr[s.shot]
+    signal, lo, hi = removed_extremes(row=at, h_m=res.h_m[s.order], high=s.conf == 4,
+                                      n_rows=n_rows)
     first = np.searchsorted(lr, np.arange(n_rows))
-    return {"row": row[0] + np.arange(n_rows), "counts": np.bincount(lr[s.shot], minlength=n_rows),
+    return {"row": row[0] + np.arange(n_rows), "counts": np.bincount(at, minlength=n_rows),
             "signal": signal,
             "rate_sum": np.bincount(lr, weights=rate, minlength=n_rows),
             "shots": np.bincount(lr, minlength=n_rows), "lo": lo, "hi": hi,
