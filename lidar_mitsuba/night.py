@@ -288,20 +288,21 @@ def removed_signal(*, row, h_m, high, n_rows: int) -> tuple[np.ndarray, np.ndarr
     return count, np.where(count > 0, hi - lo, 0.0)
 
 
-def removed_extremes(*, row, h_m, high, n_rows: int) -> tuple[np.ndarray, np.ndarray,
-                                                                np.ndarray]:
+def removed_extremes(*, row, h_m, high, n_rows: int, ascending: bool | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rule of :func:`removed_signal` as ``(count, lo, hi)``, (n_rows,) each: the number of
     each row's high-confidence photons and their lowest and highest height [m] (``inf`` and
     ``-inf`` in a row without one), as our ATL03 writer keeps them for rows that runs share
-    (``products/atl03/beam.py``). Photons in ascending rows (a track's, shot by shot) are
-    reduced in place; others are sorted by row first (the same numbers: a min is exact)."""
+    (``products/atl03/beam.py``). Photons in ascending rows (a track's, shot by shot:
+    ``ascending=True`` says so, ``None`` looks) are reduced in place; others are sorted by row
+    first (the same numbers: a min is exact)."""
     high = np.asarray(high, bool)
     at = np.asarray(row, np.int64)[high]
     h = np.asarray(h_m)[high]
     count = np.bincount(at, minlength=n_rows)
     lo, hi = np.full(n_rows, np.inf), np.full(n_rows, -np.inf)
     if at.size:
-        if np.any(at[1:] < at[:-1]):
+        if not ascending and (ascending is False or np.any(at[1:] < at[:-1])):
             order = np.argsort(at, kind="stable")
             at, h = at[order], h[order]
         start = np.flatnonzero(np.r_[True, at[1:] != at[:-1]])

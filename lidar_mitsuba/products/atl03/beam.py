@@ -304,7 +304,7 @@ def _bckgrd_rows(s: _Section) -> dict:
     # shot order: ascending rows)
     at = lr[s.shot]
     signal, lo, hi = removed_extremes(row=at, h_m=res.h_m[s.order], high=s.conf == 4,
-                                      n_rows=n_rows)
+                                      n_rows=n_rows, ascending=True)
     first = np.searchsorted(lr, np.arange(n_rows))
     return {"row": row[0] + np.arange(n_rows), "counts": np.bincount(at, minlength=n_rows),
             "signal": signal,
