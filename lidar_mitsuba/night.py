@@ -366,12 +366,13 @@ def atl03_leak(*, shot, h_m, is_signal, gate_center_h_m, range_gate_m: float, n_
     200 shots of a night's 30 m gate; how ATL03 treats a photon cloud without background was
     not found); each 50-shot row then loses its high-confidence photons and their span
     (:func:`removed_signal`) and keeps the rest. The band's rate is ``band_rate_hz`` (the
-    other terms) plus the leak itself: ``passes`` rounds, the first without it. Photons outside the gate (the snow's
-    deepest) are never high confidence, and count: the band reaches 2.5 km below the
-    surface. Afterpulses (``afterpulse_probability`` a laser photon: 10-45 m below, outside
-    any span) are added as their expected number. The thinning and the noise are drawn
-    ``realizations`` times over the same laser photons and the rows' counts averaged (the
-    laser photons' own sampling error remains: :meth:`Leak.summary`).
+    other terms) plus the leak itself: ``passes`` rounds, the first without it. Photons
+    outside the gate (the snow's deepest) are never high confidence, and count: the band
+    reaches 2.5 km below the surface. Afterpulses (``afterpulse_probability`` a laser
+    photon: 10-45 m below, outside any span) are added as their expected number. The
+    thinning and the noise are drawn ``realizations`` times over the same laser photons and
+    the rows' counts averaged (the laser photons' own sampling error remains:
+    :meth:`Leak.summary`).
 
     Args:
         shot: (n,) each photon's shot (0 .. n_shots - 1); h_m: (n,) its height [m];

@@ -98,10 +98,11 @@ def histogram_test(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.nda
 
     ``noise_per_bin``: the noise level ``lam`` [expected noise photons in one ``bin_m`` bin
     over ``block_shots`` shots] given instead of estimated from the photons (a scalar or
-    (n_blocks,)), as ATL03's finder takes it from the 50-shot background rate of its tall
-    band: a quiet night's gate holds too few noise photons to estimate it
-    (:func:`lidar_mitsuba.night.atl03_leak`). ``None`` (the default): estimated as above,
-    and at least ``min_noise_per_bin`` [same units].
+    (n_blocks,)): a tall band's rate, as ATL03's atmospheric histogram gives it where a
+    surface type's ``pc_bckgrd_flag`` is not set (the module docstring). ``None`` (the
+    default): estimated as above, and at least ``min_noise_per_bin`` [same units] (the leak's
+    finder, :func:`lidar_mitsuba.night.atl03_leak`: a quiet night's gate holds too few noise
+    photons to estimate it alone).
 
     ``neighbourhood_bins``: 3 (the default: a photon's count is its bin's and its two
     neighbours', against Poisson(``3 lam``)) or 1 (ATL03's rule, the module docstring's: its
@@ -125,7 +126,8 @@ def histogram_test(*, shot: np.ndarray, h_m: np.ndarray, gate_center_h_m: np.nda
         shot, np.asarray(h_m, float), gate, range_gate_m / 2.0, float(bin_m), n_bins,
         int(block_shots), n_blocks)
     if neighbourhood_bins not in (1, 3):
-        raise ValueError("neighbourhood_bins must be 1 or 3")
+        from ..constants import ParameterError
+        raise ParameterError("neighbourhood_bins", "must be 1 or 3")
     if noise_per_bin is None:
         lam = _sparse_noise_level(row, col, k, peak, n_bins=n_bins, n_blocks=n_blocks,
                                   bin_m=bin_m, pool_blocks=pool_blocks)
