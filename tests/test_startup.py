@@ -55,6 +55,35 @@ def test_deferred_syntax_rewrites_once_on_the_first_call(monkeypatch):
     assert np.array_equal(twin(n).numpy(), count_up(n).numpy())
 
 
+STEP_MODULE = """
+import drjit as dr
+from drjit.llvm import UInt32
+
+
+@dr.syntax
+def count_up(n):
+    i = UInt32(0)
+    while i < n:
+        i += STEP
+    return i
+"""
+
+
+def test_deferred_syntax_rewrites_the_source_as_it_was_defined(tmp_path):
+    """A module's file changed between its import and a deferred function's first call (an
+    edit, a checkout while a long process runs): the rewriting reads the source as it was
+    imported, as the eager rewriting did (here: steps of 1, not the 3 written since)."""
+    import importlib.util
+    path = tmp_path / "deferred_step.py"
+    path.write_text(STEP_MODULE.replace("STEP", "1"))
+    spec = importlib.util.spec_from_file_location("deferred_step", path)
+    module = importlib.util.module_from_spec(spec)
+    with syntax.deferred():
+        spec.loader.exec_module(module)
+    path.write_text(STEP_MODULE.replace("STEP", "3") + "\n# (longer)\n")
+    assert module.count_up(UInt32([2, 5])).numpy().tolist() == [2, 5]
+
+
 def test_mitsuba_s_deferred_integrators_render():
     """The renderer's set-up (this session's conftest) deferred Mitsuba's differentiable
     integrators' ``@dr.syntax``: the ``prb`` integrator's ``sample`` is a stand-in, and renders

@@ -13,8 +13,9 @@ functions that a lidar run never calls but one (the ``pathlength`` integrator's
 
 :func:`deferred` replaces ``drjit.syntax`` while the renderer is set up by a decorator that
 returns a stand-in for the function: on its first call the stand-in rewrites the function
-with the real ``drjit.syntax`` (the same source, the same options, the same compiled code as
-at the definition) and from then on calls the rewritten function. Only the moment of the
+with the real ``drjit.syntax`` (the same options, and the same source: the file's lines as
+they were at the definition, kept then, whatever the file holds by the first call) and from
+then on calls the rewritten function. Only the moment of the
 rewriting changes (and a failure to rewrite surfaces at the first call rather than at the
 import); the rewritten function, and so every kernel it traces, is the same.
 """
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import linecache
 import threading
 
 _lock = threading.Lock()
@@ -30,7 +32,11 @@ _lock = threading.Lock()
 def _on_first_call(eager, f, options: dict):
     """A stand-in for ``eager(f, **options)`` (``eager``: Dr.Jit's own ``syntax``) that
     rewrites ``f`` on its first call (once, under a lock) and then calls the rewritten
-    function."""
+    function. The source it rewrites is the file's as it was at the definition (its lines
+    kept then, and shown to ``inspect`` at the rewriting): a file edited or checked out
+    anew while a long process runs changes nothing, as with the eager rewriting."""
+    filename = f.__code__.co_filename
+    lines = linecache.getlines(filename, f.__globals__)       # (one read a file)
     rewritten = []
 
     @functools.wraps(f)
@@ -38,10 +44,30 @@ def _on_first_call(eager, f, options: dict):
         if not rewritten:
             with _lock:
                 if not rewritten:
-                    rewritten.append(eager(f, **options))
+                    with _source_as_defined(filename, lines):
+                        rewritten.append(eager(f, **options))
         return rewritten[0](*args, **kwargs)
 
     return stand_in
+
+
+@contextlib.contextmanager
+def _source_as_defined(filename: str, lines: list[str]):
+    """``linecache`` (which ``inspect.getsource`` reads) serves ``lines`` for ``filename``
+    within the block, whatever the file holds now (an entry without a modification time is
+    one ``linecache.checkcache`` leaves alone); its entry as it was afterwards."""
+    if not lines:                        # (no source kept: Dr.Jit reads what there is)
+        yield
+        return
+    before = linecache.cache.get(filename)
+    linecache.cache[filename] = (sum(map(len, lines)), None, lines, filename)
+    try:
+        yield
+    finally:
+        if before is None:
+            linecache.cache.pop(filename, None)
+        else:
+            linecache.cache[filename] = before
 
 
 @contextlib.contextmanager
