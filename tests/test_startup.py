@@ -100,6 +100,7 @@ def test_mitsuba_s_deferred_integrators_render():
         "emitter": {"type": "constant", "radiance": {"type": "uniform", "value": 1.0}},
         "ball": {"type": "sphere", "radius": 1.0}})
     assert hasattr(type(scene.integrator()).sample, "__wrapped__")     # the stand-in
+    assert dr.syntax is dr.ast.syntax                   # Dr.Jit's own again after the set-up
     image = np.asarray(mi.render(scene, spp=2))
     assert np.all(np.isfinite(image))
     assert np.allclose(image[0, 0], 1.0) and np.allclose(image[-1, -1], 1.0)
