@@ -28,6 +28,7 @@ fresh interpreter, ``python -m lidar_mitsuba.granule_writer``. Both serve the sa
 from __future__ import annotations
 
 import contextlib
+import gc
 import os
 import pathlib
 import pickle
@@ -39,6 +40,7 @@ import traceback
 from multiprocessing.connection import Connection
 
 from . import forking
+from .startup import frozen_start
 
 #: sections waiting for the writer process before the simulating thread waits
 MAX_QUEUED = 2
@@ -257,7 +259,9 @@ def _serve(conn_in: Connection, conn_out: Connection) -> None:
     """The writer process: one granule's files at a time, until its parent closes the pipe.
     A failure is sent back at once (``error``); the granule's later sections are dropped,
     and its close or abort answered ``done``."""
-    _warm_up()
+    with frozen_start():          # its imports and kernels, and what a fork inherited:
+        _warm_up()                # never walked by its collections (startup.py)
+    gc.enable()                   # (a fork inherits the collector off: the parent's start)
     files, failed = None, False
     while True:
         try:

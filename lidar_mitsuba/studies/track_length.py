@@ -31,8 +31,6 @@ import time
 
 import numpy as np
 
-from .. import granule
-
 #: the long test DEM: 10 km wide along the -45 meridian (a straight line x = 0 in EPSG:3413)
 DEM_WIDTH_M = 10_000.0
 DEM_POSTING_M = 100.0
@@ -136,7 +134,7 @@ def cast_time(surface, track, *, rays: int, paths_per_shot: int, shots: int,
     process: what other agents' load moves least), ``cast_tiles`` and ``cast_lanes`` (per
     launch)."""
     import drjit as dr
-    from .. import geotrack
+    from .. import geotrack, granule
     from ..ground.dem import TILE_SHOTS
     from ..trace.scene import scene_bounds
     from ..trace.variant import ensure_renderer
@@ -226,14 +224,17 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
     included) and the second (``seconds``: warm), against the time its rays alone take to
     cast (:func:`cast_time`); the same in CPU seconds of both processes (``cpu_s``,
     ``end_to_end_cpu_s``: from both processes' start)."""
-    from ..trace.variant import ensure_renderer
-    if beams == "all":                 # as simulate --dem: the writer process forked from
-        from .. import granule_writer, precompile     # this one (its imports and numba's
-        granule_writer.writer()        # start inherited), before any thread or the renderer,
-        precompile.load_kernels()      # and the first kernels beside the renderer's set-up
-    ensure_renderer()                  # libLLVM, variant, plugins
-    from ..ground import dem
-    surf = dem.DEMSurface(dem.DEM.open(dem_path))
+    from ..startup import frozen_start
+    with frozen_start():               # no garbage collection walks the start-up's objects
+        from .. import granule
+        from ..trace.variant import ensure_renderer
+        if beams == "all":             # as simulate --dem: the writer process forked from
+            from .. import granule_writer, precompile     # this one (its imports and numba's
+            granule_writer.writer()    # start inherited), before any thread or the renderer,
+            precompile.load_kernels()  # and the first kernels beside the renderer's set-up
+        ensure_renderer()              # libLLVM, variant, plugins
+        from ..ground import dem
+        surf = dem.DEMSurface(dem.DEM.open(dem_path))
     shots = int(round(length_km * 1e3 / 0.7))
     before = _peak_rss_mb()
     track = ice_sheet_track()
@@ -274,6 +275,7 @@ def _granule(surf, track, shots: int, beams: str, *, count_kernels: bool) -> dic
     distinct kernels (when counted)."""
     import tempfile
     import drjit as dr
+    from .. import granule
     with tempfile.TemporaryDirectory() as tmp:
         a3, a6 = pathlib.Path(tmp) / "ATL03.h5", pathlib.Path(tmp) / "ATL06.h5"
         t0, cpu0 = time.perf_counter(), _cpu_s()

@@ -13,6 +13,7 @@ import os
 import sys
 import threading
 
+from . import syntax
 from .libllvm import ensure_libllvm
 
 DEFAULT_VARIANT = "llvm_ad_mono"
@@ -46,6 +47,11 @@ def set_variant(name: str = DEFAULT_VARIANT) -> str:
     """
     if "drjit" not in sys.modules:          # the first use: libLLVM before Dr.Jit loads
         ensure_libllvm(required=not name.startswith("cuda"))
+    with syntax.deferred():                 # Mitsuba's and our plugins' @dr.syntax
+        return _set_variant(name)
+
+
+def _set_variant(name: str) -> str:
     import mitsuba as mi
     import lidar_mitsuba_plugins
     usable = usable_variants()
@@ -99,13 +105,14 @@ def ensure_renderer():
                     ensure_libllvm(required=not wanted.startswith("cuda"))
                 except ImportError as e:
                     raise RendererUnavailable(str(e)) from None
-            import mitsuba as mi
-            import lidar_mitsuba_plugins
-            if mi.variant() is None:
-                try:
-                    set_variant(wanted)
-                except ValueError as e:
-                    raise RendererUnavailable(f"LIDAR_MITSUBA_VARIANT: {e}") from None
-            lidar_mitsuba_plugins.install()
+            with syntax.deferred():    # @dr.syntax rewrites a function on its first call
+                import mitsuba as mi
+                import lidar_mitsuba_plugins
+                if mi.variant() is None:
+                    try:
+                        set_variant(wanted)
+                    except ValueError as e:
+                        raise RendererUnavailable(f"LIDAR_MITSUBA_VARIANT: {e}") from None
+                lidar_mitsuba_plugins.install()
             _ready = True
     return sys.modules["mitsuba"]
