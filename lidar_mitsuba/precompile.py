@@ -37,7 +37,7 @@ DRAWS_S = 3.0
 #: footprint means' (:mod:`lidar_mitsuba.ground.dem.heights`) and the compiled ATL06 fit's
 KERNELS = {"detector": ("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")),
            "heights": ("ground.dem.heights", ("_stencil_sums", "_ramp_arguments", "_hat_means",
-                                              "_bilinear", "_on_grid")),
+                                              "_bilinear", "_on_grid", "block_extents")),
            "atl06": ("products.atl06.kernel", ("fit_segment", "reference_heights")),
            "atl03": ("products.atl03.kernels", ("ph_id_count",)),
            "geodesic": ("geodesic", ("direct_lines",)),
@@ -76,6 +76,7 @@ def _heights() -> None:
                           np.empty(1), np.empty(1))
     heights.bilinear_nan(np.zeros((3, 3)), 1.0, np.ones(1), np.ones(1))
     heights._on_grid(np.ones(1), np.ones(1), np.zeros((1, 2)), 1.0, 3, 3)
+    heights.block_extents(np.ones(1), np.ones(1), 1)
 
 
 def _geodesic() -> None:

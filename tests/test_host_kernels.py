@@ -112,3 +112,24 @@ def test_a_granules_detector_runs_on_one_thread_for_every_chunk(monkeypatch):
         assert seen[:2] == [1, 1] and len(seen) == 3
         assert seen[2] == (1 if name == "granule" else every)
     runs["granule"].shutdown()
+
+
+def test_block_extents_are_numpys_minima_and_maxima():
+    """``block_extents`` (one pass) against numpy's per-block expression it replaced in
+    ``DEM.windows``: finite points only (NaN and infinite coordinates among them, a block
+    with none, a short last block, signed zeros), the same found flags and bits."""
+    rng = np.random.default_rng(5)
+    n, block = 10_000, 700
+    x, y = rng.normal(0.0, 1e5, n), rng.normal(0.0, 1e5, n)
+    x[rng.random(n) < 0.1], y[rng.random(n) < 0.1] = np.nan, np.inf
+    x[1400:2100] = np.nan                                 # block 2: no finite point
+    x[2100:2110], y[2100:2110] = -0.0, 0.0
+    found, x_lo, x_hi, y_lo, y_hi = heights.block_extents(x, y, block)
+    assert found.size == -(-n // block) and not found[2] and found.sum() == found.size - 1
+    for k, a in enumerate(range(0, n, block)):
+        xs, ys = x[a:a + block], y[a:a + block]
+        ok = np.isfinite(xs) & np.isfinite(ys)
+        assert found[k] == ok.any()
+        if ok.any():
+            want = (xs[ok].min(), xs[ok].max(), ys[ok].min(), ys[ok].max())
+            assert (x_lo[k], x_hi[k], y_lo[k], y_hi[k]) == want

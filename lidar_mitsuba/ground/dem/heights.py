@@ -109,6 +109,31 @@ def _on_grid(px, py, offsets_m, g, nx, ny):
     return good
 
 
+@numba.njit(cache=True, nogil=True)
+def block_extents(x, y, block):
+    """For each block of ``block`` consecutive points of the (n,) ``x``, ``y`` [m]: whether it
+    has a point with both coordinates finite, and the least and greatest ``x`` and ``y`` of
+    those points (what ``xs[ok].min()`` and its kin give: a minimum is exact), (n_blocks,)
+    each; one pass instead of numpy's eight a block."""
+    n_blocks = (x.size + block - 1) // block
+    found = np.zeros(n_blocks, np.bool_)
+    x_lo, x_hi = np.zeros(n_blocks), np.zeros(n_blocks)
+    y_lo, y_hi = np.zeros(n_blocks), np.zeros(n_blocks)
+    for k in range(n_blocks):
+        for i in range(k * block, min(x.size, (k + 1) * block)):
+            xi, yi = x[i], y[i]
+            if not (np.isfinite(xi) and np.isfinite(yi)):
+                continue
+            if not found[k]:
+                found[k] = True
+                x_lo[k] = x_hi[k] = xi
+                y_lo[k] = y_hi[k] = yi
+            else:
+                x_lo[k], x_hi[k] = min(x_lo[k], xi), max(x_hi[k], xi)
+                y_lo[k], y_hi[k] = min(y_lo[k], yi), max(y_hi[k], yi)
+    return found, x_lo, x_hi, y_lo, y_hi
+
+
 def _shifted_windows(dem, x_crs, y_crs, offs: np.ndarray, block: int):
     """Yield ``(slice, z, px, py)`` per block of ``block`` points (flattened): the DEM window
     read once for every shift of ``offs`` ((k, 2) [m]), and the block's points relative to
