@@ -133,3 +133,58 @@ def test_block_extents_are_numpys_minima_and_maxima():
         if ok.any():
             want = (xs[ok].min(), xs[ok].max(), ys[ok].min(), ys[ok].max())
             assert (x_lo[k], x_hi[k], y_lo[k], y_hi[k]) == want
+
+
+def _choose_returns_loop(start, weight, w_max, need, exchangeable, seed):
+    """``choose_returns`` as a plain loop, a shuffle buffer a shot (the kernel before issue
+    43's session 24 allocated one a shot): the reference for its picks."""
+    u = deadtime._uniform
+    off = np.concatenate([[0], np.cumsum(need)]).astype(np.int64)
+    out, ran_out = np.empty(off[-1], np.int64), np.zeros(need.size, bool)
+    for s, k in enumerate(need):
+        a, m = start[s], start[s + 1] - start[s]
+        scratch, pos, got, j, r = list(range(a, a + m)), off[s], 0, 0, 0
+        while got < k and j < m:
+            if exchangeable:
+                i = a + j
+            else:
+                pick = j + min(int(u(seed, s, r) * (m - j)), m - j - 1)
+                r += 1
+                i = scratch[pick]
+                scratch[pick], scratch[j] = scratch[j], i
+            j += 1
+            r += 1
+            if u(seed, s, r - 1) * w_max < weight[i]:
+                out[pos], pos, got = i, pos + 1, got + 1
+        if got < k:
+            ran_out[s] = True
+            cw = np.cumsum(weight[a:a + m])
+            while got < k:
+                if m == 0 or cw[-1] <= 0.0:
+                    out[pos] = a
+                else:
+                    out[pos] = a + min(np.searchsorted(cw, u(seed, s, r) * cw[-1], "right"),
+                                       m - 1)
+                    r += 1
+                pos, got = pos + 1, got + 1
+    return out, ran_out, off
+
+
+def test_choose_returns_blocks_pick_as_a_buffer_a_shot():
+    """``choose_returns`` (a shuffle buffer a block of 256 shots) against the plain loop
+    with one a shot: the same picks, run-out shots and offsets, for exchangeable returns and
+    shuffled ones, over 600 shots (three blocks, the last short) with shots of no returns,
+    picks past a shot's returns (the fallback by weight) and zero weights."""
+    rng = np.random.default_rng(3)
+    n_shots = 600
+    start = np.concatenate([[0], np.cumsum(rng.integers(0, 12, n_shots))]).astype(np.int64)
+    weight = rng.uniform(0.0, 1.0, start[-1])
+    weight[::9] = 0.0
+    need = rng.integers(0, 5, n_shots).astype(np.int64)
+    need[rng.random(n_shots) < 0.05] = 20                # more picks than returns
+    for exchangeable in (True, False):
+        got = deadtime.choose_returns(start, weight, 1.0, need, exchangeable, 99)
+        want = _choose_returns_loop(start, weight, 1.0, need, exchangeable, 99)
+        assert got[1].any()
+        for g, w in zip(got, want):
+            assert np.array_equal(g, w)
