@@ -50,11 +50,16 @@ def _axis_weights_numpy(p, *, posting_m, sigma_m):
 
 
 def test_footprint_weights_are_the_numpy_expressions_bits():
-    """``_axis_weights`` (``ndtr`` and ``exp`` only where ``|u| < 40``, the rest compiled)
+    """``_axis_weights`` (``ndtr`` and ``exp`` only where ``-40 < u < 9``, the rest compiled)
     against the numpy expression over every ramp: the same bits for positions swept densely
-    across the pixels (ramp arguments crossing the +-40 limit and the +-37.7 and +-38.6 where
-    ``ndtr`` and ``exp`` reach their limits), NaN positions among them, at footprint sigmas
-    from 1 mm to 30 m on 100 m and 2 m postings."""
+    across the pixels (ramp arguments crossing the -40 and 9 limits, the -37.7 and -38.6
+    where ``ndtr`` and ``exp`` reach their limits and the 8.29 from which ``ndtr`` is 1), NaN
+    positions among them, at footprint sigmas from 1 mm to 30 m on 100 m and 2 m postings;
+    and the ramp's mean over a dense sweep of ``u`` in [8.29, 40] is ``sigma u`` exactly."""
+    u = np.linspace(8.2925, 40.0, 400_001)
+    for sigma_m in (1e-3, 2.5, 30.0):
+        r = sigma_m * (u * ndtr(u) + np.exp(-0.5 * u * u) / math.sqrt(2.0 * math.pi))
+        assert r.tobytes() == (sigma_m * u).tobytes()
     for posting_m, p in ((100.0, np.linspace(-150.0, 450.0, 24_001)),
                          (2.0, np.linspace(-3.0, 5.0, 1_601))):
         p = np.concatenate([p, [np.nan, 0.0, -0.0]])
