@@ -32,6 +32,9 @@ ATL03_S = 2.0
 GEODESIC_S = 1.0
 CLASSIFY_S = 2.0
 DRAWS_S = 3.0
+#: the polar stereographic projection's loop (:mod:`lidar_mitsuba.polar_stereo`)
+#: (ESTIMATE: one small serial loop, like the geodesics')
+POLAR_STEREO_S = 1.0
 #: each stage's numba kernels: the module (under ``lidar_mitsuba``) and the functions whose
 #: cache entries say the stage is compiled (:func:`is_cached`): the detector's, the DEM
 #: footprint means' (:mod:`lidar_mitsuba.ground.dem.heights`) and the compiled ATL06 fit's
@@ -42,7 +45,8 @@ KERNELS = {"detector": ("detector.deadtime", ("detect_shots", "choose_returns", 
            "atl03": ("products.atl03.kernels", ("ph_id_count",)),
            "geodesic": ("geodesic", ("direct_lines",)),
            "classify": ("products.classify", ("_photon_cells",)),
-           "draws": ("detector.draws", ("binomial_inversion",))}
+           "draws": ("detector.draws", ("binomial_inversion",)),
+           "polar_stereo": ("polar_stereo", ("_stere_north_south",))}
 
 #: each stage's name on :func:`compile_kernels`' bar and its rough compile time [s], in the
 #: order they compile; ``_<stage>`` (below) runs a stage's kernels once
@@ -51,6 +55,7 @@ STAGE_BAR = {"detector": ("the detector", DETECTOR_S),
              "geodesic": ("the geodesics", GEODESIC_S),
              "classify": ("the histogram test", CLASSIFY_S),
              "draws": ("the detector's draws", DRAWS_S),
+             "polar_stereo": ("the polar stereographic projection", POLAR_STEREO_S),
              "atl06": ("the ATL06 fit", ATL06_S),
              "atl03": ("the ATL03 fields", ATL03_S)}
 #: the stages :func:`compile_kernels` compiles only when asked (its ``atl06``, ``atl03``)
@@ -93,6 +98,12 @@ def _classify() -> None:
 def _draws() -> None:
     from .detector import draws
     draws._compiled_ok()      # its check against numpy runs the kernel
+
+
+def _polar_stereo() -> None:
+    from . import polar_stereo
+    polar_stereo._stere_north_south(np.zeros(1), np.full(1, 70.0), False, 0.0, 1.9, 0.08,
+                                    6378137.0, 0.0, 0.0, np.empty(1), np.empty(1))
 
 
 def _atl06() -> None:
@@ -224,7 +235,7 @@ def load_kernels() -> threading.Thread | None:
         # the simulating thread's other kernels (the geodesics' also find PROJ's functions
         # and check them), each from the cache
         for stage, warm in (("geodesic", _geodesic), ("classify", _classify),
-                            ("draws", _draws)):
+                            ("draws", _draws), ("polar_stereo", _polar_stereo)):
             if is_cached(stage):
                 warm()
         import pyproj, rasterio  # noqa: E401, F401 (after the writer's fork: forking.refusal)
