@@ -109,7 +109,9 @@ def _dms_radians(text: str) -> float:
 
 
 class Projector:
-    """``project(lon_deg, lat_deg) -> (x_m, y_m)``: ``to_crs.transform`` (a pyproj
+    """A pyproj transformer's projection, compiled where PROJ's bits allow.
+
+    ``project(lon_deg, lat_deg) -> (x_m, y_m)`` is ``to_crs.transform`` (a pyproj
     Transformer from EPSG:4326, longitude first), compiled where its pipeline is a WGS84
     polar stereographic one and a check finds PROJ's bits (see the module docstring)."""
 

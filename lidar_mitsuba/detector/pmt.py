@@ -203,7 +203,7 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
 def _nan_to_inf(x: np.ndarray) -> np.ndarray:
     """``np.nan_to_num(x, nan=np.inf)`` (NaN to inf, +-inf to +-the largest float), and ``x``
     itself when every value is finite (nothing to replace: the kernels only read it), without
-    ``nan_to_num``'s ~0.1 ms of set-up a chunk."""
+    ``nan_to_num``'s set-up (17 us against 3 us a 4 096-shot chunk)."""
     return x if np.isfinite(x).all() else np.nan_to_num(x, nan=np.inf)
 
 

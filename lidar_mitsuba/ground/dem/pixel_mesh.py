@@ -18,7 +18,9 @@ from .heights import _bilinear
 @numba.njit(cache=True, nogil=True)
 def corridor_cells(z, posting_m, wx, origin_x, ox, wy, origin_y, oy, ux, uy, vx, vy, a_lo,
                    a_hi, c_lo, c_hi):
-    """The cells ``(i, j)`` (between pixel centres (i, j) and (i + 1, j + 1) of the window
+    """The corridor's cells, the first over nodata and the largest twist.
+
+    The cells ``(i, j)`` (between pixel centres (i, j) and (i + 1, j + 1) of the window
     ``z``, first pixel centred at CRS (``wx``, ``wy``) [m]) whose centre, in the frame of the
     first shot (``ox``, ``oy``) less ``origin`` [m], lies within ``a_lo .. a_hi`` along the
     chord (``ux``, ``uy``) and ``c_lo .. c_hi`` across it (``vx``, ``vy``), in row-major order
@@ -60,19 +62,24 @@ def corridor_cells(z, posting_m, wx, origin_x, ox, wy, origin_y, oy, ux, uy, vx,
 
 
 def mask_fits(n_cells: int, k: int, shape: tuple[int, int]) -> bool:
-    """Whether :func:`~lidar_mitsuba.ground.dem.tiles._split_cells` numbers the nodes by a
-    mask over the window's sub-grid (its test; else it sorts, and the tile stays numpy's)."""
+    """Whether the split numbers its nodes by a mask over the window's sub-grid.
+
+    :func:`~lidar_mitsuba.ground.dem.tiles._split_cells`' test; else it sorts, and the tile
+    stays numpy's."""
     ny, nx = shape
     return ((ny - 1) * k + 1) * ((nx - 1) * k + 1) <= 8 * n_cells * (k + 1) ** 2
 
 
 @numba.njit(cache=True, nogil=True)
 def split_mesh(i, j, k, z, posting_m, wx, origin_x, ox, wy, origin_y, oy):
-    """The cells ``(i, j)`` of the window ``z`` split ``k x k`` (where :func:`mask_fits`):
-    ``(vertices, faces)``, the sub-grid nodes in use, ascending, at ``(px + wx - origin_x -
-    ox, py + wy - origin_y - oy, bilinear height)`` [m] ((n, 3)), and two triangles a
-    sub-cell ((m, 3) int64, every cell's ``(a, b, d)`` then every cell's ``(a, d, c)``):
-    :func:`~lidar_mitsuba.ground.dem.tiles._split_cells` and ``pixel_tile``'s columns."""
+    """The corridor's cells split into a mesh, where :func:`mask_fits`.
+
+    The cells ``(i, j)`` of the window ``z`` split ``k x k``: ``(vertices, faces)``, the
+    sub-grid nodes in use, ascending, at ``px + wx - origin_x - ox``, ``py + wy - origin_y -
+    oy`` [m] and their bilinear height ((n, 3)), and two triangles a sub-cell ((m, 3) int64,
+    every cell's ``(a, b, d)`` then every cell's ``(a, d, c)``), as
+    :func:`~lidar_mitsuba.ground.dem.tiles._split_cells` and ``pixel_tile``'s columns make
+    them."""
     ny, nx = z.shape
     P = posting_m
     width = (nx - 1) * k + 1
