@@ -274,7 +274,8 @@ class SectionPlaces:
     """Where a granule's beams' shots are, a section at a time: ``places(beam, first, n)``
     gives shots ``first`` .. ``first + n - 1`` of ``beam`` as ``(geolocation, along_m, x_m,
     y_m)`` (:meth:`GeoTrack.beam_geolocation`, and ``x_m``, ``y_m`` (n,) in the CRS of the
-    pyproj ``to_crs`` transformer from EPSG:4326, longitude first). On a :class:`GeoTrack`
+    pyproj ``to_crs`` transformer from EPSG:4326, longitude first: its bits, compiled for
+    the ice sheets' polar stereographic CRSs, :class:`~lidar_mitsuba.polar_stereo.Projector`). On a :class:`GeoTrack`
     the first call of a section places every one of ``beams`` (:meth:`GeoTrack.beams_geolocation`:
     one geodesic a shot each side of the track) and projects them in one call, and the
     section's other beams are kept for their calls (the same bits as one beam at a time:
@@ -283,7 +284,9 @@ class SectionPlaces:
 
     def __init__(self, track, to_crs, *, beams: list[Beam] = (), spacing_m: float,
                  prf_hz: float):
+        from .polar_stereo import Projector
         self.track, self.to_crs, self.beams = track, to_crs, list(beams)
+        self.project = Projector(to_crs)       # (to_crs.transform's bits, compiled)
         self.spacing_m, self.prf_hz = float(spacing_m), float(prf_hz)
         self._last = None
 
@@ -296,8 +299,8 @@ class SectionPlaces:
             kw = dict(spacing_m=self.spacing_m, prf_hz=self.prf_hz)
             located = (self.track.beams_geolocation(beams, first, n, **kw) if together
                        else [self.track.beam_geolocation(beam, first, n, **kw)])
-            x, y = self.to_crs.transform(np.concatenate([g.lon_deg for g, _ in located]),
-                                         np.concatenate([g.lat_deg for g, _ in located]))
+            x, y = self.project(np.concatenate([g.lon_deg for g, _ in located]),
+                                np.concatenate([g.lat_deg for g, _ in located]))
             x, y = (np.asarray(v, np.float64).reshape(len(beams), -1) for v in (x, y))
             self._last = (key, {b.name: (*located[j], x[j], y[j])
                                 for j, b in enumerate(beams)})

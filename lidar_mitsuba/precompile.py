@@ -32,17 +32,25 @@ ATL03_S = 2.0
 GEODESIC_S = 1.0
 CLASSIFY_S = 2.0
 DRAWS_S = 3.0
+#: the polar stereographic projection's loop (:mod:`lidar_mitsuba.polar_stereo`): 0.3 s of
+#: CPU measured under load (2026-11-27), rounded up as the geodesics' is
+POLAR_STEREO_S = 1.0
+#: a DEM-pixel corridor tile's two passes (:mod:`lidar_mitsuba.ground.dem.pixel_mesh`): 2.1 s
+#: of CPU measured on a cold cache (with the bilinear look-up they call), 2026-11-27
+PIXEL_MESH_S = 2.0
 #: each stage's numba kernels: the module (under ``lidar_mitsuba``) and the functions whose
 #: cache entries say the stage is compiled (:func:`is_cached`): the detector's, the DEM
 #: footprint means' (:mod:`lidar_mitsuba.ground.dem.heights`) and the compiled ATL06 fit's
 KERNELS = {"detector": ("detector.deadtime", ("detect_shots", "choose_returns", "shot_stats")),
            "heights": ("ground.dem.heights", ("_stencil_sums", "_ramp_arguments", "_hat_means",
-                                              "_bilinear", "_on_grid")),
+                                              "_bilinear", "_on_grid", "block_extents")),
            "atl06": ("products.atl06.kernel", ("fit_segment", "reference_heights")),
            "atl03": ("products.atl03.kernels", ("ph_id_count",)),
            "geodesic": ("geodesic", ("direct_lines",)),
            "classify": ("products.classify", ("_photon_cells",)),
-           "draws": ("detector.draws", ("binomial_inversion",))}
+           "draws": ("detector.draws", ("binomial_inversion",)),
+           "polar_stereo": ("polar_stereo", ("_stere_north_south",)),
+           "pixel_mesh": ("ground.dem.pixel_mesh", ("corridor_cells", "split_mesh"))}
 
 #: each stage's name on :func:`compile_kernels`' bar and its rough compile time [s], in the
 #: order they compile; ``_<stage>`` (below) runs a stage's kernels once
@@ -51,6 +59,8 @@ STAGE_BAR = {"detector": ("the detector", DETECTOR_S),
              "geodesic": ("the geodesics", GEODESIC_S),
              "classify": ("the histogram test", CLASSIFY_S),
              "draws": ("the detector's draws", DRAWS_S),
+             "polar_stereo": ("the polar stereographic projection", POLAR_STEREO_S),
+             "pixel_mesh": ("the DEM's corridor tiles", PIXEL_MESH_S),
              "atl06": ("the ATL06 fit", ATL06_S),
              "atl03": ("the ATL03 fields", ATL03_S)}
 #: the stages :func:`compile_kernels` compiles only when asked (its ``atl06``, ``atl03``)
@@ -76,6 +86,7 @@ def _heights() -> None:
                           np.empty(1), np.empty(1))
     heights.bilinear_nan(np.zeros((3, 3)), 1.0, np.ones(1), np.ones(1))
     heights._on_grid(np.ones(1), np.ones(1), np.zeros((1, 2)), 1.0, 3, 3)
+    heights.block_extents(np.ones(1), np.ones(1), 1)
 
 
 def _geodesic() -> None:
@@ -92,6 +103,20 @@ def _classify() -> None:
 def _draws() -> None:
     from .detector import draws
     draws._compiled_ok()      # its check against numpy runs the kernel
+
+
+def _polar_stereo() -> None:
+    from . import polar_stereo
+    polar_stereo._stere_north_south(np.zeros(1), np.full(1, 70.0), False, 0.0, 1.9, 0.08,
+                                    6378137.0, 0.0, 0.0, np.empty(1), np.empty(1))
+
+
+def _pixel_mesh() -> None:
+    from .ground.dem import pixel_mesh
+    z = np.zeros((3, 3))
+    i, j, _, _ = pixel_mesh.corridor_cells(z, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
+                                           0.0, 1.0, -5.0, 5.0, -5.0, 5.0)
+    pixel_mesh.split_mesh(i, j, 1, z, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 def _atl06() -> None:
@@ -223,7 +248,8 @@ def load_kernels() -> threading.Thread | None:
         # the simulating thread's other kernels (the geodesics' also find PROJ's functions
         # and check them), each from the cache
         for stage, warm in (("geodesic", _geodesic), ("classify", _classify),
-                            ("draws", _draws)):
+                            ("draws", _draws), ("polar_stereo", _polar_stereo),
+                            ("pixel_mesh", _pixel_mesh)):
             if is_cached(stage):
                 warm()
         import pyproj, rasterio  # noqa: E401, F401 (after the writer's fork: forking.refusal)

@@ -77,6 +77,58 @@ def test_dem_heights_are_bilinear_in_the_file_pixels(tmp_path):
     assert np.isnan(surf.height_m(xc[0] - surf.origin_m[0], yc[0] - surf.origin_m[1]))
 
 
+def _pixel_tile_numpy(dem, x, y, *, reach_m, origin_m, tolerance_m):
+    """``tiles.pixel_tile`` as numpy computed it before issue 43's session 24 (the cells
+    from ``_corridor_cells``, the split from ``_split_cells``): the compiled passes' reference."""
+    import math
+    from lidar_mitsuba.ground.dem import tiles
+    z, (wx, wy), i, j, (ox, oy) = tiles._corridor_cells(dem, x, y, reach_m=reach_m,
+                                                        origin_m=origin_m)
+    P = dem.posting_m
+    z00, z10, z01, z11 = z[i, j], z[i, j + 1], z[i + 1, j], z[i + 1, j + 1]
+    bad = ~np.isfinite(z00 + z10 + z01 + z11)
+    if bad.any():
+        k = np.flatnonzero(bad)[0]
+        raise tiles.nodata_error(dem, reach_m, wx + (j[k] + 0.5) * P, wy + (i[k] + 0.5) * P)
+    twist = float(np.max(np.abs(z00 + z11 - z10 - z01), initial=0.0))
+    k = max(1, math.ceil(math.sqrt(twist / (4.0 * tolerance_m))))
+    px, py, faces = tiles._split_cells(i, j, k, z.shape, P)
+    vertices = np.column_stack([px + wx - origin_m[0] - ox, py + wy - origin_m[1] - oy,
+                                tiles.bilinear_nan(z, P, px, py)])
+    return vertices, faces, (ox, oy)
+
+
+def test_compiled_pixel_tiles_are_numpys(dem_path):
+    """``pixel_tile``'s compiled passes (``pixel_mesh``) against numpy's: the same vertices
+    (bytes), faces and origin on tracks along, across and diagonal to the grid, at
+    tolerances giving k = 1 to 5 (the diagonal's finest numbering its nodes by np.unique:
+    numpy's path), in a frame whose origin is far from the tile; and the same refusal, naming the same nodata
+    point, for a track over the DEM's hole."""
+    from lidar_mitsuba.ground.dem import tiles
+    dem = dems.DEM.open(dem_path)
+    x0, x1, y0, y1 = dem.bounds_m
+    origin = (float(np.round(x0, -3)), float(np.round(y0, -3)))
+    t = np.linspace(0.0, 1.0, 600)
+    tracks = [(0.3 * x0 + 0.7 * x1 + 0 * t, y0 + 500 + 1500 * t),          # along y
+              (x0 + 500 + 1500 * t, 0.2 * y0 + 0.8 * y1 + 0 * t),           # along x
+              (x0 + 2700 + 900 * t, y0 + 2700 + 900 * t)]                   # diagonal
+    for x, y in tracks:
+        for tol in (1.0, 0.05, 0.01, 0.002):
+            kw = dict(reach_m=13.5, origin_m=origin, tolerance_m=tol)
+            got = tiles.pixel_tile(dem, x - origin[0], y - origin[1], **kw)
+            want = _pixel_tile_numpy(dem, x - origin[0], y - origin[1], **kw)
+            assert got[0].tobytes() == want[0].tobytes() and got[0].shape == want[0].shape
+            assert got[1].dtype == want[1].dtype and np.array_equal(got[1], want[1])
+            assert got[2] == want[2]
+    x, y = x0 + 200 + 2000 * t - origin[0], y0 + 500 + 0 * t - origin[1]   # its SW hole
+    messages = []
+    for f in (tiles.pixel_tile, _pixel_tile_numpy):
+        with pytest.raises(ParameterError) as e:
+            f(dem, x, y, reach_m=13.5, origin_m=origin, tolerance_m=0.01)
+        messages.append(str(e.value))
+    assert messages[0] == messages[1]
+
+
 def test_split_cells_numbers_nodes_as_np_unique():
     """The corridor mesh numbers its sub-grid nodes ascending, each used node once, with a
     mask over the window's sub-grid where the corridor fills much of the window and with

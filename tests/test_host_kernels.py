@@ -50,11 +50,16 @@ def _axis_weights_numpy(p, *, posting_m, sigma_m):
 
 
 def test_footprint_weights_are_the_numpy_expressions_bits():
-    """``_axis_weights`` (``ndtr`` and ``exp`` only where ``|u| < 40``, the rest compiled)
+    """``_axis_weights`` (``ndtr`` and ``exp`` only where ``-40 < u < 9``, the rest compiled)
     against the numpy expression over every ramp: the same bits for positions swept densely
-    across the pixels (ramp arguments crossing the +-40 limit and the +-37.7 and +-38.6 where
-    ``ndtr`` and ``exp`` reach their limits), NaN positions among them, at footprint sigmas
-    from 1 mm to 30 m on 100 m and 2 m postings."""
+    across the pixels (ramp arguments crossing the -40 and 9 limits, the -37.7 and -38.6
+    where ``ndtr`` and ``exp`` reach their limits and the 8.29 from which ``ndtr`` is 1), NaN
+    positions among them, at footprint sigmas from 1 mm to 30 m on 100 m and 2 m postings;
+    and the ramp's mean over a dense sweep of ``u`` in [8.29, 40] is ``sigma u`` exactly."""
+    u = np.linspace(8.2925, 40.0, 400_001)
+    for sigma_m in (1e-3, 2.5, 30.0):
+        r = sigma_m * (u * ndtr(u) + np.exp(-0.5 * u * u) / math.sqrt(2.0 * math.pi))
+        assert r.tobytes() == (sigma_m * u).tobytes()
     for posting_m, p in ((100.0, np.linspace(-150.0, 450.0, 24_001)),
                          (2.0, np.linspace(-3.0, 5.0, 1_601))):
         p = np.concatenate([p, [np.nan, 0.0, -0.0]])
@@ -112,3 +117,79 @@ def test_a_granules_detector_runs_on_one_thread_for_every_chunk(monkeypatch):
         assert seen[:2] == [1, 1] and len(seen) == 3
         assert seen[2] == (1 if name == "granule" else every)
     runs["granule"].shutdown()
+
+
+def test_block_extents_are_numpys_minima_and_maxima():
+    """``block_extents`` (one pass) against numpy's per-block expression it replaced in
+    ``DEM.windows``: finite points only (NaN and infinite coordinates among them, a block
+    with none, a short last block, signed zeros), the same found flags and bits."""
+    rng = np.random.default_rng(5)
+    n, block = 10_000, 700
+    x, y = rng.normal(0.0, 1e5, n), rng.normal(0.0, 1e5, n)
+    x[rng.random(n) < 0.1], y[rng.random(n) < 0.1] = np.nan, np.inf
+    x[1400:2100] = np.nan                                 # block 2: no finite point
+    x[2100:2110], y[2100:2110] = -0.0, 0.0
+    found, x_lo, x_hi, y_lo, y_hi = heights.block_extents(x, y, block)
+    assert found.size == -(-n // block) and not found[2] and found.sum() == found.size - 1
+    for k, a in enumerate(range(0, n, block)):
+        xs, ys = x[a:a + block], y[a:a + block]
+        ok = np.isfinite(xs) & np.isfinite(ys)
+        assert found[k] == ok.any()
+        if ok.any():
+            want = (xs[ok].min(), xs[ok].max(), ys[ok].min(), ys[ok].max())
+            assert (x_lo[k], x_hi[k], y_lo[k], y_hi[k]) == want
+
+
+def _choose_returns_loop(start, weight, w_max, need, exchangeable, seed):
+    """``choose_returns`` as a plain loop, a shuffle buffer a shot (the kernel before issue
+    43's session 24 allocated one a shot): the reference for its picks."""
+    u = deadtime._uniform
+    off = np.concatenate([[0], np.cumsum(need)]).astype(np.int64)
+    out, ran_out = np.empty(off[-1], np.int64), np.zeros(need.size, bool)
+    for s, k in enumerate(need):
+        a, m = start[s], start[s + 1] - start[s]
+        scratch, pos, got, j, r = list(range(a, a + m)), off[s], 0, 0, 0
+        while got < k and j < m:
+            if exchangeable:
+                i = a + j
+            else:
+                pick = j + min(int(u(seed, s, r) * (m - j)), m - j - 1)
+                r += 1
+                i = scratch[pick]
+                scratch[pick], scratch[j] = scratch[j], i
+            j += 1
+            r += 1
+            if u(seed, s, r - 1) * w_max < weight[i]:
+                out[pos], pos, got = i, pos + 1, got + 1
+        if got < k:
+            ran_out[s] = True
+            cw = np.cumsum(weight[a:a + m])
+            while got < k:
+                if m == 0 or cw[-1] <= 0.0:
+                    out[pos] = a
+                else:
+                    out[pos] = a + min(np.searchsorted(cw, u(seed, s, r) * cw[-1], "right"),
+                                       m - 1)
+                    r += 1
+                pos, got = pos + 1, got + 1
+    return out, ran_out, off
+
+
+def test_choose_returns_blocks_pick_as_a_buffer_a_shot():
+    """``choose_returns`` (a shuffle buffer a block of 256 shots) against the plain loop
+    with one a shot: the same picks, run-out shots and offsets, for exchangeable returns and
+    shuffled ones, over 600 shots (three blocks, the last short) with shots of no returns,
+    picks past a shot's returns (the fallback by weight) and zero weights."""
+    rng = np.random.default_rng(3)
+    n_shots = 600
+    start = np.concatenate([[0], np.cumsum(rng.integers(0, 12, n_shots))]).astype(np.int64)
+    weight = rng.uniform(0.0, 1.0, start[-1])
+    weight[::9] = 0.0
+    need = rng.integers(0, 5, n_shots).astype(np.int64)
+    need[rng.random(n_shots) < 0.05] = 20                # more picks than returns
+    for exchangeable in (True, False):
+        got = deadtime.choose_returns(start, weight, 1.0, need, exchangeable, 99)
+        want = _choose_returns_loop(start, weight, 1.0, need, exchangeable, 99)
+        assert got[1].any()
+        for g, w in zip(got, want):
+            assert np.array_equal(g, w)

@@ -183,3 +183,13 @@ def test_dead_time_masks_event_by_event(rng, dead):
     assert np.array_equal(pmt.paralyzable_mask(group, t, dead), loop_paralyzable(group, t, dead))
     assert np.array_equal(pmt.nonparalyzable_mask(group, t, dead),
                           loop_nonparalyzable(group, t, dead))
+
+
+def test_gate_openings_are_nan_to_num_s():
+    """``detect``'s gate openings for its kernel (``_nan_to_inf``) are ``np.nan_to_num(x,
+    nan=np.inf)``'s: finite openings as they are, and NaN, +inf and -inf replaced."""
+    from lidar_mitsuba.detector.pmt import _nan_to_inf
+    x = np.array([1.5, -2.0, 0.0, -0.0, 3.3e6])
+    assert _nan_to_inf(x).tobytes() == np.nan_to_num(x, nan=np.inf).tobytes()
+    y = np.array([1.5, np.nan, np.inf, -np.inf, -0.0])
+    assert _nan_to_inf(y).tobytes() == np.nan_to_num(y, nan=np.inf).tobytes()

@@ -14,6 +14,9 @@ import numba
 import numpy as np
 
 _INSERTION_MAX = 160     # longer shots are sorted with argsort
+#: shots per block of :func:`detect_shots` and :func:`choose_returns` (blocks run in
+#: parallel, each reusing its buffers)
+BLOCK_SHOTS = 256
 
 
 @numba.njit(inline="always")
@@ -54,53 +57,70 @@ def choose_returns(start, weight, w_max, need, exchangeable, seed):
         off[s + 1] = off[s] + need[s]
     out = np.empty(off[n_shots], np.int64)
     ran_out = np.zeros(n_shots, np.bool_)
-    for s in numba.prange(n_shots):
-        k = need[s]
-        if k == 0:
-            continue
-        a, b = start[s], start[s + 1]
-        m = b - a
-        scratch = np.empty(0 if exchangeable else m, np.int64)
+    n_blocks = (n_shots + BLOCK_SHOTS - 1) // BLOCK_SHOTS
+    for blk in numba.prange(n_blocks):
+        # one shuffle buffer a block of shots (none when exchangeable), not one a shot: an
+        # allocation a shot was two thirds of the kernel's time on single-bounce returns
+        s0, s1 = blk * BLOCK_SHOTS, min(n_shots, (blk + 1) * BLOCK_SHOTS)
+        cap = 0
         if not exchangeable:
-            for j in range(m):
-                scratch[j] = a + j
-        pos = off[s]
-        got = 0
-        j = 0
-        r = 0
-        while got < k and j < m:
-            if exchangeable:
-                i = a + j
-            else:
-                pick = j + min(int(_uniform(seed, s, r) * (m - j)), m - j - 1)
-                r += 1
-                i = scratch[pick]
-                scratch[pick] = scratch[j]
-                scratch[j] = i
-            j += 1
-            u = _uniform(seed, s, r)
-            r += 1
-            if u * w_max < weight[i]:
-                out[pos] = i
-                pos += 1
-                got += 1
-        if got < k:                      # fallback: with replacement, by weight
-            ran_out[s] = True
-            cw = np.empty(m, np.float64)
-            acc = 0.0
-            for i in range(m):
-                acc += weight[a + i]
-                cw[i] = acc
-            while got < k:
-                if acc <= 0.0:
-                    out[pos] = a
-                else:
-                    u = _uniform(seed, s, r) * acc
-                    r += 1
-                    out[pos] = a + min(np.searchsorted(cw, u, side="right"), m - 1)
-                pos += 1
-                got += 1
+            for s in range(s0, s1):
+                cap = max(cap, start[s + 1] - start[s])
+        scratch = np.empty(cap, np.int64)
+        for s in range(s0, s1):
+            _choose_shot(s, start, weight, w_max, need, exchangeable, seed, off, out, ran_out,
+                         scratch)
     return out, ran_out, off
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _choose_shot(s, start, weight, w_max, need, exchangeable, seed, off, out, ran_out, scratch):
+    """Shot ``s``'s picks of :func:`choose_returns` into ``out`` from ``off[s]`` on
+    (``scratch``: at least its returns' room when not ``exchangeable``)."""
+    k = need[s]
+    if k == 0:
+        return
+    a, b = start[s], start[s + 1]
+    m = b - a
+    if not exchangeable:
+        for j in range(m):
+            scratch[j] = a + j
+    pos = off[s]
+    got = 0
+    j = 0
+    r = 0
+    while got < k and j < m:
+        if exchangeable:
+            i = a + j
+        else:
+            pick = j + min(int(_uniform(seed, s, r) * (m - j)), m - j - 1)
+            r += 1
+            i = scratch[pick]
+            scratch[pick] = scratch[j]
+            scratch[j] = i
+        j += 1
+        u = _uniform(seed, s, r)
+        r += 1
+        if u * w_max < weight[i]:
+            out[pos] = i
+            pos += 1
+            got += 1
+    if got < k:                      # fallback: with replacement, by weight
+        ran_out[s] = True
+        cw = np.empty(m, np.float64)
+        acc = 0.0
+        for i in range(m):
+            acc += weight[a + i]
+            cw[i] = acc
+        while got < k:
+            if acc <= 0.0:
+                out[pos] = a
+            else:
+                u = _uniform(seed, s, r) * acc
+                r += 1
+                out[pos] = a + min(np.searchsorted(cw, u, side="right"), m - 1)
+            pos += 1
+            got += 1
 
 
 @numba.njit(cache=True, nogil=True)
@@ -268,10 +288,6 @@ def _shot_events(s, sig_start, sig_time, sig_anode, sig_index, g0, gate_ns, nois
         read += 1
     _dead_time(w, t_buf, a_buf, r_buf, last, per_ch, dead_time_ns, paralyzable)
     return w
-
-
-#: shots per block of :func:`detect_shots` (blocks run in parallel, each reusing its buffers)
-BLOCK_SHOTS = 256
 
 
 @numba.njit(cache=True, nogil=True)

@@ -184,7 +184,7 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
     index_type = np.int32 if len(returns) < 2 ** 31 else np.int64
     shot, time_ns, anode, index, _ = _deadtime.detect_shots(
         sig_start, sig_time, anode.astype(np.int16),
-        idx.astype(index_type), np.nan_to_num(gate_start, nan=np.inf), float(gate_ns), noise_rate,
+        idx.astype(index_type), _nan_to_inf(gate_start), float(gate_ns), noise_rate,
         instrument.anodes, instrument.channels, float(instrument.effective_dead_time_ns),
         instrument.paralyzable, int(rng.integers(0, 2 ** 62)))
     if response.afterpulse_probability > 0:
@@ -198,6 +198,13 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
                       anode=anode, time_ns=time_ns, return_index=index, is_signal=index >= 0,
                       hit_xyz_m=hit, arrivals_per_shot=counts, mean_photons_per_shot=mu,
                       run_out_shots=np.flatnonzero(run_out).astype(np.int64))
+
+
+def _nan_to_inf(x: np.ndarray) -> np.ndarray:
+    """``np.nan_to_num(x, nan=np.inf)`` (NaN to inf, +-inf to +-the largest float), and ``x``
+    itself when every value is finite (nothing to replace: the kernels only read it), without
+    ``nan_to_num``'s set-up (17 us against 3 us a 4 096-shot chunk)."""
+    return x if np.isfinite(x).all() else np.nan_to_num(x, nan=np.inf)
 
 
 def _with_afterpulses(shot, time_ns, anode, index, *, instrument, response, rng, gate_end_ns):

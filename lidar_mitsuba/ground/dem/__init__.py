@@ -109,14 +109,16 @@ def _whole_band(path, width: int, height: int):
     return z
 
 
-def _slice_padded(z: np.ndarray, row0: int, row1: int, col0: int, col1: int) -> np.ndarray:
-    """Rows ``row0 .. row1`` and columns ``col0 .. col1`` (inclusive) of ``z``, NaN where
-    they fall off it (as a boundless read fills them)."""
+def _slice_padded_south_up(z: np.ndarray, row0: int, row1: int, col0: int, col1: int
+                           ) -> np.ndarray:
+    """Rows ``row0 .. row1`` and columns ``col0 .. col1`` (inclusive) of ``z`` turned over
+    (row ``k`` is row ``row1 - k`` of ``z``), contiguous, NaN where they fall off it (as a
+    boundless read fills them)."""
     out = np.full((row1 - row0 + 1, col1 - col0 + 1), np.nan)
     r0, r1 = max(row0, 0), min(row1, z.shape[0] - 1)
     c0, c1 = max(col0, 0), min(col1, z.shape[1] - 1)
     if r0 <= r1 and c0 <= c1:
-        out[r0 - row0:r1 - row0 + 1, c0 - col0:c1 - col0 + 1] = z[r0:r1 + 1, c0:c1 + 1]
+        out[row1 - r1:row1 - r0 + 1, c0 - col0:c1 - col0 + 1] = z[r0:r1 + 1, c0:c1 + 1][::-1]
     return out
 
 
@@ -185,6 +187,11 @@ class DEM:
         """The pixels covering ``[x0, x1] x [y0, y1]`` [m] (plus one on every side):
         ``(z, (ox, oy))``, ``z`` (ny, nx) float64 [m] with rows running south to north and
         ``z[0, 0]`` the pixel centred at (ox, oy); nodata and pixels off the DEM are NaN."""
+        return self._window(_whole_band(self.path, self.width, self.height), x0, x1, y0, y1)
+
+    def _window(self, whole, x0: float, x1: float, y0: float, y1: float):
+        """:meth:`read_window` from ``whole`` (:func:`_whole_band`: the DEM in memory, or
+        ``None``: read from the file)."""
         tr, g = self.transform, self.posting_m
         col0 = math.floor((x0 - tr.c) / g - 0.5) - 1
         col1 = math.ceil((x1 - tr.c) / g - 0.5) + 1
@@ -193,35 +200,38 @@ class DEM:
         check_memory("dem", 8.0 * (col1 - col0 + 1) * (row1 - row0 + 1),
                      f"a DEM window of {col1 - col0 + 1} x {row1 - row0 + 1} pixels",
                      "use a shorter track chunk")
-        whole = _whole_band(self.path, self.width, self.height)
-        if whole is not None:
-            z = _slice_padded(whole, row0, row1, col0, col1)
-        else:
-            rio = _rasterio()
-            win = rio.windows.Window(col0, row0, col1 - col0 + 1, row1 - row0 + 1)
-            inside = col0 >= 0 and row0 >= 0 and col1 < self.width and row1 < self.height
-            ds = _open_for_reading(self.path)       # (boundless reads go through a slow VRT)
-            z = ds.read(1, window=win, boundless=not inside, masked=True,
-                        fill_value=self.nodata if self.nodata is not None else np.nan)
-            z = np.ma.filled(z.astype(np.float64), np.nan)
-            z[~np.isfinite(z)] = np.nan
         origin = (tr.c + (col0 + 0.5) * g, tr.f - (row1 + 0.5) * g)
-        return np.ascontiguousarray(z[::-1]), origin     # the file's rows run north to south
+        if whole is not None:          # (the file's rows run north to south: turned over)
+            return _slice_padded_south_up(whole, row0, row1, col0, col1), origin
+        rio = _rasterio()
+        win = rio.windows.Window(col0, row0, col1 - col0 + 1, row1 - row0 + 1)
+        inside = col0 >= 0 and row0 >= 0 and col1 < self.width and row1 < self.height
+        ds = _open_for_reading(self.path)       # (boundless reads go through a slow VRT)
+        z = ds.read(1, window=win, boundless=not inside, masked=True,
+                    fill_value=self.nodata if self.nodata is not None else np.nan)
+        z = np.ma.filled(z.astype(np.float64), np.nan)
+        z[~np.isfinite(z)] = np.nan
+        return np.ascontiguousarray(z[::-1]), origin
 
     def windows(self, x: np.ndarray, y: np.ndarray, *, pad_m: float, block: int):
         """Yield ``(slice, z, origin)`` over consecutive blocks of ``block`` points (``x``,
         ``y``: (n,) CRS [m]), each block's window (:meth:`read_window`, ``pad_m`` [m] beyond
         its finite points) read once (points along a track are local in blocks); ``z`` is
-        None for a block without a finite point."""
-        for a in range(0, x.size, block):
+        None for a block without a finite point. The blocks' extents come from one compiled
+        pass (:func:`~lidar_mitsuba.ground.dem.heights.block_extents`: numpy's minima and
+        maxima of each block's finite points, the same numbers)."""
+        from .heights import block_extents
+        x = np.ascontiguousarray(x, np.float64)
+        y = np.ascontiguousarray(y, np.float64)
+        found, x_lo, x_hi, y_lo, y_hi = block_extents(x, y, int(block))
+        whole = _whole_band(self.path, self.width, self.height)
+        for k, a in enumerate(range(0, x.size, block)):
             s = slice(a, min(x.size, a + block))
-            xs, ys = x[s], y[s]
-            ok = np.isfinite(xs) & np.isfinite(ys)
-            if not ok.any():
+            if not found[k]:
                 yield s, None, None
                 continue
-            z, origin = self.read_window(xs[ok].min() - pad_m, xs[ok].max() + pad_m,
-                                         ys[ok].min() - pad_m, ys[ok].max() + pad_m)
+            z, origin = self._window(whole, x_lo[k] - pad_m, x_hi[k] + pad_m,
+                                     y_lo[k] - pad_m, y_hi[k] + pad_m)
             yield s, z, origin
 
 

@@ -83,38 +83,47 @@ def pixel_tile(dem, x: np.ndarray, y: np.ndarray, *, reach_m: float,
     z01`` deviates from two triangles by at most ``|t| / 4`` (at its centre), a sub-cell by
     ``|t| / (4 k^2)``: the tile's ``k`` is the smallest with every cell within
     ``tolerance_m`` [m]. On a smooth 100 m DEM this is ~2 000 triangles per 2.9 km tile where
-    a 1 m grid has ~160 000.
+    a 1 m grid has ~160 000. The cells, their twist and the split mesh come from two compiled
+    passes (:mod:`lidar_mitsuba.ground.dem.pixel_mesh`: numpy's expressions of
+    :func:`_corridor_cells` and :func:`_split_cells`, the same bits), numpy's where the
+    window's sub-grid is too large for a mask (a diagonal track).
 
     Returns:
         ``(vertices, faces, (ox, oy))``: (n, 3) [m] relative to the first shot ``(ox, oy)``
         (heights absolute), (m, 3) triangles with normals up.
     """
-    z, (wx, wy), i, j, (ox, oy) = _corridor_cells(dem, x, y, reach_m=reach_m,
-                                                  origin_m=origin_m)
+    from . import pixel_mesh
+    z, (wx, wy), (ox, oy), frame = _corridor_frame(dem, x, y, reach_m=reach_m,
+                                                   origin_m=origin_m)
     P = dem.posting_m
-    z00, z10, z01, z11 = z[i, j], z[i, j + 1], z[i + 1, j], z[i + 1, j + 1]
-    bad = ~np.isfinite(z00 + z10 + z01 + z11)
-    if bad.any():
-        k = np.flatnonzero(bad)[0]
-        raise nodata_error(dem, reach_m, wx + (j[k] + 0.5) * P, wy + (i[k] + 0.5) * P)
-    twist = float(np.max(np.abs(z00 + z11 - z10 - z01), initial=0.0))
+    # (wx, origin, ox) apart: numpy's "(q + 0.5) P + wx - origin - ox" runs left to right
+    offsets = (float(wx), float(origin_m[0]), float(ox), float(wy), float(origin_m[1]),
+               float(oy))
+    i, j, bad, twist = pixel_mesh.corridor_cells(np.ascontiguousarray(z, np.float64),
+                                                 float(P), *offsets, *frame)
+    if bad >= 0:
+        raise nodata_error(dem, reach_m, wx + (j[bad] + 0.5) * P, wy + (i[bad] + 0.5) * P)
     k = max(1, math.ceil(math.sqrt(twist / (4.0 * tolerance_m))))
     check_memory("mesh_grid_m", MESH_BYTES_PER_VERTEX * i.size * (k + 1) ** 2,
                  f"a DEM-pixel tile of {i.size} cells split {k} x {k}",
                  "give mesh_grid_m (a grid along the track)")
+    if pixel_mesh.mask_fits(i.size, k, z.shape):
+        return (*pixel_mesh.split_mesh(i, j, k, np.ascontiguousarray(z, np.float64), float(P),
+                                       *offsets), (ox, oy))
     px, py, faces = _split_cells(i, j, k, z.shape, P)
     vertices = np.column_stack([px + wx - origin_m[0] - ox, py + wy - origin_m[1] - oy,
                                 bilinear_nan(z, P, px, py)])
     return vertices, faces, (ox, oy)
 
 
-def _corridor_cells(dem, x: np.ndarray, y: np.ndarray, *, reach_m: float,
+def _corridor_frame(dem, x: np.ndarray, y: np.ndarray, *, reach_m: float,
                     origin_m: tuple[float, float]):
     """The DEM window under the corridor (the band of the shots ``reach_m`` [m] about their
-    chord) and its cells within reach: ``(z, (wx, wy), i, j, (ox, oy))``, ``z`` the window
-    (:meth:`~lidar_mitsuba.ground.dem.DEM.read_window`) whose first pixel is centred at CRS (wx, wy)
-    [m], cell ``(i[k], j[k])`` the square between pixel centres (i, j) and (i + 1, j + 1),
-    and (ox, oy) the first shot."""
+    chord): ``(z, (wx, wy), (ox, oy), (ux, uy, vx, vy, a0 - h, a1 + h, c0 - h, c1 + h))``,
+    ``z`` the window (:meth:`~lidar_mitsuba.ground.dem.DEM.read_window`) whose first pixel is
+    centred at CRS (wx, wy) [m], (ox, oy) the first shot, (ux, uy) the chord's direction and
+    (vx, vy) its left, and the band's bounds along and across it widened by ``h``, a cell's
+    centre to its corners [m]."""
     (ox, oy), (ux, uy), along, across = chord_frame(x, y)
     vx, vy = -uy, ux
     P = dem.posting_m
@@ -125,13 +134,27 @@ def _corridor_cells(dem, x: np.ndarray, y: np.ndarray, *, reach_m: float,
                for a in (a0, a1) for c in (c0, c1)]
     cx, cy = np.array(corners).T + np.array(origin_m)[:, None]
     z, (wx, wy) = dem.read_window(cx.min(), cx.max(), cy.min(), cy.max())
+    return z, (wx, wy), (ox, oy), (float(ux), float(uy), float(vx), float(vy),
+                                   float(a0 - half), float(a1 + half), float(c0 - half),
+                                   float(c1 + half))
+
+
+def _corridor_cells(dem, x: np.ndarray, y: np.ndarray, *, reach_m: float,
+                    origin_m: tuple[float, float]):
+    """The DEM window under the corridor (:func:`_corridor_frame`) and its cells within
+    reach, in numpy (what :func:`lidar_mitsuba.ground.dem.pixel_mesh.corridor_cells`
+    computes, and its tests' reference): ``(z, (wx, wy), i, j, (ox, oy))``, cell ``(i[k],
+    j[k])`` the square between pixel centres (i, j) and (i + 1, j + 1)."""
+    z, (wx, wy), (ox, oy), (ux, uy, vx, vy, a_lo, a_hi, c_lo, c_hi) = _corridor_frame(
+        dem, x, y, reach_m=reach_m, origin_m=origin_m)
+    P = dem.posting_m
     ny, nx = z.shape
     # cells (i, j) between pixel centres (i, j) .. (i + 1, j + 1), centres in the local frame
     jc = (np.arange(nx - 1) + 0.5) * P + wx - origin_m[0] - ox
     ic = (np.arange(ny - 1) + 0.5) * P + wy - origin_m[1] - oy
     A = jc[None, :] * ux + ic[:, None] * uy
     C = jc[None, :] * vx + ic[:, None] * vy
-    keep = (A >= a0 - half) & (A <= a1 + half) & (C >= c0 - half) & (C <= c1 + half)
+    keep = (A >= a_lo) & (A <= a_hi) & (C >= c_lo) & (C <= c_hi)
     i, j = np.nonzero(keep)
     return z, (wx, wy), i, j, (ox, oy)
 
