@@ -161,3 +161,103 @@ def test_gate_centre_is_the_round_trip_to_the_reference():
     z = np.array([0.0, 10.0, -5.5])
     np.testing.assert_allclose(chunks.gate_center_ns(inst(), z), 2 * (ALT - z) / C_M_PER_NS,
                                rtol=1e-15)
+
+
+class _Built:
+    """What a stand-in tiling's prepare builds for a chunk: its shots and the thread that
+    built it."""
+
+    def __init__(self, a, b):
+        import threading
+        self.span, self.thread = (a, b), threading.current_thread().name
+
+
+class _PreparedSource(SeededSource):
+    """A stand-in for a granule's :class:`~lidar_mitsuba.trace.stream.TiledSource`: chunks
+    launched on the trace launcher thread, each taking the tile :meth:`prepare` built for it
+    (built here on launch when none was), and a log of both, in order."""
+
+    def __init__(self):
+        super().__init__()
+        self.log, self.ready = [], {}
+
+    def prepare(self, a, b):
+        self.log.append(("prepare", a, b))
+        self.ready[(a, b)] = _Built(a, b)
+
+    def launch(self, a, b, seed):
+        import threading
+        built = self.ready.pop((a, b), None) or _Built(a, b)
+        self.log.append(("launch", a, b, built.thread, threading.current_thread().name))
+        return _Ready(self(a, b, seed))
+
+
+class _Ready:
+    def __init__(self, returns):
+        self.returns = returns
+
+    def result(self):
+        return self.returns
+
+
+def test_a_granule_s_stream_builds_each_next_tile_here_while_the_launcher_traces(
+        z_ref, monkeypatch):
+    """With the trace launcher (a granule's stream), chunk k + 1's tile is prepared on the
+    stream's own thread before chunk k's returns are waited for, and its launch, on the
+    launcher thread, takes that tile; the first chunk's is the one the plan built. The
+    detections are those of the same source run without the launcher, to the bit."""
+    from concurrent.futures import ThreadPoolExecutor
+    import threading
+    pool = ThreadPoolExecutor(1, thread_name_prefix="test-trace")
+    monkeypatch.setattr(chunks, "trace_launcher", lambda: pool)
+    src = _PreparedSource()
+    try:
+        run = chunks.run(source=src, detectors={"run": inst()}, z_ref_m=z_ref, seed=7,
+                         chunk_shots=CHUNK)
+    finally:
+        pool.shutdown()
+    here = threading.current_thread().name
+    spans = [(0, 300), (300, 600), (600, 900), (900, 1000)]
+    assert [e[1:3] for e in src.log if e[0] == "prepare"] == spans[1:]
+    launches = [e for e in src.log if e[0] == "launch"]
+    assert [e[1:3] for e in launches] == spans
+    assert all(e[4].startswith("test-trace") for e in launches)
+    assert [e[3] == here for e in launches] == [False, True, True, True]
+    for k, (a, b) in enumerate(spans[1:], 1):        # prepared before the launch it feeds
+        assert src.log.index(("prepare", a, b)) < src.log.index(launches[k])
+    assert not src.ready
+    plain = chunks.run(source=SeededSource(), detectors={"run": inst()}, z_ref_m=z_ref,
+                       seed=7, chunk_shots=CHUNK)
+    assert_detections_equal(run.detections["run"], plain.detections["run"])
+
+
+def test_chunk_tiles_build_a_prepared_tile_from_what_was_prepared():
+    """:class:`~lidar_mitsuba.ground.surface.ChunkTiles`: ``tile(a, b, prepared)`` builds
+    from ``prepared`` (what a tiling's ``prepare(a, b)`` made ahead: a DEM's corridor mesh),
+    ``tile(a, b)`` from the shots alone; the first chunk's tile is the one built at the
+    start; what a tile does to its user (``_use``) happens in ``tile``, in order."""
+    from lidar_mitsuba.ground.surface import ChunkTiles
+
+    class Stub(ChunkTiles):
+        def prepare(self, a, b):
+            return ("mesh", a, b)
+
+        def _build(self, a, b, prepared=None):
+            self.builds.append((a, b, prepared))
+            return (f"scene{a}", self.x_m[a:b], self.y_m[a:b], None, b - a)
+
+        def _use(self, built):
+            self.used.append(built[0])
+
+    Stub.builds, Stub.used = [], []
+    t = Stub(np.arange(10.0), np.zeros(10), reach_m=1.0, bsdf=None, chunk_shots=4)
+    assert t.builds == [(0, 4, None)]                     # the plan's first tile
+    assert t.tile(0, 4)[0] == "scene0"
+    ahead = t.prepare(4, 8)
+    assert t.builds == [(0, 4, None)] and t.used == ["scene0"]
+    scene, x, *_ = t.tile(4, 8, ahead)
+    assert scene == "scene4" and t.builds[-1] == (4, 8, ("mesh", 4, 8))
+    np.testing.assert_array_equal(x, np.arange(4.0, 8.0))
+    assert t.tile(8, 10)[0] == "scene8" and t.builds[-1] == (8, 10, None)
+    assert t.used == ["scene0", "scene4", "scene8"]
+    assert t.stats() == {"tiles": 3, "max_tile_triangles": 4}

@@ -803,3 +803,28 @@ def test_make_dem_writes_a_dem_that_opens_and_refuses_bad_sizes(tmp_path, capsys
         bad = tmp_path / "bad.tif"           # (in process: tests/cli_checks.py)
         err = bad_call(["make-dem", "--out", str(bad)] + args, capsys)
         assert f"error: {option}:" in err and not bad.exists()
+
+
+def test_a_corridor_tile_from_its_prepared_mesh_is_the_tile(dem_path):
+    """A granule's stream makes the next corridor tile's mesh on its own thread
+    (:meth:`~lidar_mitsuba.ground.dem.CorridorTiles.prepare`) and the trace launcher loads
+    it: the tile is the one built from the shots alone, buffer for buffer (vertices, faces,
+    the shots' local positions and offsets), for the pixel mesh and the grid mesh."""
+    from lidar_mitsuba.ground.brdf import ward_bsdf_dict
+    d = dems.DEM.open(dem_path)
+    for surf in (dems.DEMSurface(d), dems.DEMSurface(d, mesh_grid_m=2.0)):
+        cx, cy = surf.centre_xy_m()
+        t = np.arange(600) * 0.7 - 200.0
+        x, y = cx + 0.3 * t, cy + t
+        tiles = dems.CorridorTiles(surf, x, y, reach_m=14.0, bsdf=ward_bsdf_dict(),
+                                   chunk_shots=200)
+        mesh = tiles.prepare(200, 400)
+        ahead, plain = tiles.tile(200, 400, mesh), tiles.tile(200, 400)
+        assert ahead[0] is not plain[0]
+        for a, b in zip(ahead[1:3] + ahead[3], plain[1:3] + plain[3]):
+            np.testing.assert_array_equal(a, b)
+        (ma,), (mb,) = ahead[0].shapes(), plain[0].shapes()
+        for buf in ("vertex_positions_buffer", "faces_buffer"):
+            np.testing.assert_array_equal(getattr(ma, buf)().numpy(), getattr(mb, buf)().numpy())
+        assert ma.vertex_count() > 100 and ma.face_count() == mb.face_count()
+    assert tiles.stats()["tiles"] == 2

@@ -374,10 +374,11 @@ class Tiling:
     triangles: int = 0
     chunk_shots: int = 1
 
-    def tile(self, a: int, b: int):
+    def tile(self, a: int, b: int, prepared=None):
         """``(scene, x_local_m, y_local_m, offsets_m)`` of shots ``a`` .. ``b - 1``: the scene
         they are traced in, their positions in it, and three arrays (dx, dy, dz) [m] that
-        put the returns back on the track (the integrator's ``offset_m``)."""
+        put the returns back on the track (the integrator's ``offset_m``); ``prepared``: what
+        a tiling's ``prepare(a, b)`` gave, the numpy part done ahead (:class:`ChunkTiles`)."""
         raise NotImplementedError
 
     def release(self) -> None:
@@ -412,7 +413,7 @@ class OneTile(Tiling):
         self.x_local_m, self.y_local_m = x_local_m, y_local_m
         self.offsets_m = tuple(np.asarray(d, np.float64) for d in offsets_m)
 
-    def tile(self, a: int, b: int):
+    def tile(self, a: int, b: int, prepared=None):
         return (self.scene, self.x_local_m[a:b], self.y_local_m[a:b],
                 tuple(d[a:b] for d in self.offsets_m))
 
@@ -438,20 +439,20 @@ class ChunkTiles(Tiling):
         self.scene, self.x_local_m, self.y_local_m, _, self.triangles = self._first[:5]
         self.count, self.max_triangles = 0, 0
 
-    def _build(self, a: int, b: int) -> tuple:
+    def _build(self, a: int, b: int, prepared=None) -> tuple:
         """``(scene, x_local_m, y_local_m, offsets_m, triangles, ...)`` of shots ``a`` ..
         ``b - 1`` (:meth:`Tiling.tile`'s four, the tile's triangles, and whatever a
-        subclass's :meth:`_use` needs)."""
+        subclass's :meth:`_use` needs), from :meth:`prepare`'s ``prepared`` if given."""
         raise NotImplementedError
 
     def _use(self, built: tuple) -> None:
         """Called with a tile's :meth:`_build` tuple as it is handed to the stream."""
 
-    def tile(self, a: int, b: int):
+    def tile(self, a: int, b: int, prepared=None):
         if a == 0 and self._first is not None:
             out, self._first = self._first, None
         else:
-            out = self._build(a, b)
+            out = self._build(a, b) if prepared is None else self._build(a, b, prepared)
         self.count += 1
         self.max_triangles = max(self.max_triangles, out[4])
         self._use(out)

@@ -107,9 +107,22 @@ class TiledSource:
 
     def __init__(self, integrator, tiling, *, paths_per_shot: int):
         self.integrator, self.tiling, self.paths_per_shot = integrator, tiling, int(paths_per_shot)
+        self._prepared: dict = {}       # (a, b) -> the tiling's prepare(a, b), until launched
+
+    def prepare(self, a: int, b: int) -> None:
+        """Do now, on this thread, the numpy part of shots ``a`` .. ``b - 1``'s tile (a
+        corridor tile's mesh: :meth:`~lidar_mitsuba.ground.dem.CorridorTiles.prepare`; a
+        tiling without one has nothing to do) for their :meth:`launch` to take, maybe on
+        another thread: a granule's stream meshes the next tile while the trace launcher
+        traces this one. (Not the scene: built on this thread while the launcher's kernel
+        runs, both wait for each other, ~2x the trace and ~10x the build.)"""
+        prepare = getattr(self.tiling, "prepare", None)
+        if prepare is not None:
+            self._prepared[(a, b)] = prepare(a, b)
 
     def launch(self, a: int, b: int, seed: int):
-        scene, x_local, y_local, offsets = self.tiling.tile(a, b)
+        scene, x_local, y_local, offsets = self.tiling.tile(a, b,
+                                                            self._prepared.pop((a, b), None))
         return self.integrator.launch(scene, shot_x_m=x_local, shot_y_m=y_local,
                                       paths_per_shot=self.paths_per_shot, seed=seed,
                                       offset_m=offsets)
@@ -128,6 +141,8 @@ class GatedSource:
 
     def __init__(self, source, *, gate_center_ns: np.ndarray, gate_ns: float):
         self.source, self.center, self.half = source, np.asarray(gate_center_ns), gate_ns / 2
+        if hasattr(source, "prepare"):          # (TiledSource.prepare: the mesh made ahead)
+            self.prepare = source.prepare
 
     def launch(self, a: int, b: int, seed: int):
         return _Gated(self.source.launch(a, b, seed), self.center[a:b], self.half)
@@ -206,19 +221,19 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
     trace_s = detect_s = 0.0
     bar = _progress_bar(n_shots, progress)
     spans = [(k, a, min(n_shots, a + per)) for k, a in enumerate(range(0, n_shots, per))]
-    launch = getattr(source, "launch", None)
-    granule = False         # a granule's sections: the detector always on this thread alone
-    if launch is None:
-        launch = (lambda a, b, s: _Done(source(a, b, s)))
-    elif (launcher := trace_launcher()) is not None:     # a granule's one-thread trace
-        launch = _on(launcher, launch)
-        granule = True
+    # granule: a granule's sections (its one-thread trace on the launcher, the detector
+    # always on this thread alone); prepare: a chunk's numpy part done here, ahead
+    launch, granule, prepare = _launching(source)
     pending = None
     with serial_while(granule):        # (a granule's whole run on this thread alone)
         try:
             pending = launch(spans[0][1], spans[0][2], trace_seed(seed, 0)) if spans else None
             for i, (k, a, b) in enumerate(spans):
                 t0 = time.perf_counter()
+                if prepare is not None and i + 1 < len(spans):
+                    # the next chunk's mesh made here while the launcher traces this one
+                    # (this thread would only wait: the trace is the longer of the two)
+                    prepare(spans[i + 1][1], spans[i + 1][2])
                 ret = pending.result()
                 pending = None        # its scene (a corridor tile) may go before the next's
                 if i + 1 < len(spans):    # the device traces the next chunk while we detect
@@ -251,6 +266,18 @@ def run(*, source: Source, detectors: Mapping[str, Instrument], z_ref_m: np.ndar
     returns = Returns.concatenate(kept, n_shots=n_shots) if keep_returns else None
     return ChunkedRun(detections=dets, returns=returns, n_returns=n_returns,
                       timings_s={"trace_s": trace_s, "detect_s": detect_s})
+
+
+def _launching(source):
+    """``(launch, granule, prepare)`` for :func:`run`: how a chunk is launched (on the trace
+    launcher thread when there is one: a granule's), whether it is a granule's, and the
+    source's ``prepare`` (a granule's only, else ``None``)."""
+    launch = getattr(source, "launch", None)
+    if launch is None:
+        return (lambda a, b, s: _Done(source(a, b, s))), False, None
+    if (launcher := trace_launcher()) is not None:
+        return _on(launcher, launch), True, getattr(source, "prepare", None)
+    return launch, False, None
 
 
 def _on(launcher, launch):

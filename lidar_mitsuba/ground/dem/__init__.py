@@ -354,25 +354,31 @@ class DEMSurface(Surface):
                              chunk_shots=min(int(chunk_shots), self.tile_shots))
 
     def corridor_tile(self, x_m: np.ndarray, y_m: np.ndarray, *, reach_m: float,
-                      bsdf):
+                      bsdf, mesh: tuple | None = None):
         """Mesh the corridor of one chunk's shots and load it (``bsdf``: the ground's BSDF,
-        loaded or its dict, or a snow volume: :func:`~lidar_mitsuba.trace.scene.scene_from_mesh`).
+        loaded or its dict, or a snow volume: :func:`~lidar_mitsuba.trace.scene.scene_from_mesh`;
+        ``mesh``: :meth:`corridor_mesh` of the same shots, made already).
+        Returns ``(scene, origin_xy_m, triangles)``; the shots trace at ``(x - ox, y - oy)``.
+        """
+        vertices, faces, origin = (self.corridor_mesh(x_m, y_m, reach_m=reach_m)
+                                   if mesh is None else mesh)
+        from ...trace import scene as scn
+        return scn.scene_from_mesh(vertices, faces, bsdf=bsdf), origin, int(len(faces))
+
+    def corridor_mesh(self, x_m: np.ndarray, y_m: np.ndarray, *, reach_m: float) -> tuple:
+        """The corridor mesh of one chunk's shots, numpy alone (any thread): ``(vertices,
+        faces, (ox, oy))``, relative to the first shot (ox, oy).
 
         With ``mesh_grid_m`` the grid is aligned with the chord from the first to the last
         shot and covers every shot ``reach_m`` [m] about it
         (:func:`lidar_mitsuba.ground.dem.tiles.grid_tile`); without it the mesh is the DEM's own
-        pixels (:meth:`pixel_tile`). Both are expressed relative to the first shot.
-        Returns ``(scene, origin_xy_m, triangles)``; the shots trace at ``(x - ox, y - oy)``.
-        """
+        pixels (:meth:`pixel_tile`)."""
         if self.mesh_grid_m is None:
-            vertices, faces, origin = self.pixel_tile(x_m, y_m, reach_m=reach_m)
-        else:
-            vertices, faces, origin = tiles.grid_tile(
-                np.asarray(x_m, np.float64), np.asarray(y_m, np.float64), reach_m=reach_m,
-                grid_m=self.mesh_grid_m, height_m=self.height_m, dem=self.dem,
-                origin_m=self.origin_m)
-        from ...trace import scene as scn
-        return scn.scene_from_mesh(vertices, faces, bsdf=bsdf), origin, int(len(faces))
+            return self.pixel_tile(x_m, y_m, reach_m=reach_m)
+        return tiles.grid_tile(
+            np.asarray(x_m, np.float64), np.asarray(y_m, np.float64), reach_m=reach_m,
+            grid_m=self.mesh_grid_m, height_m=self.height_m, dem=self.dem,
+            origin_m=self.origin_m)
 
     def pixel_tile(self, x_m: np.ndarray, y_m: np.ndarray, *, reach_m: float
                    ) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
@@ -441,10 +447,17 @@ class CorridorTiles(ChunkTiles):
             self._loaded_bsdf = ensure_renderer().load_dict(self.bsdf)
         return self._loaded_bsdf
 
-    def _build(self, a: int, b: int):
+    def prepare(self, a: int, b: int) -> tuple:
+        """The corridor mesh of shots ``a`` .. ``b - 1`` (:meth:`DEMSurface.corridor_mesh`:
+        numpy alone, so a granule's stream makes the next one on its own thread while the
+        trace launcher traces, and the launcher only loads it), for :meth:`tile`."""
+        return self.surface.corridor_mesh(self.x_m[a:b], self.y_m[a:b], reach_m=self.reach_m)
+
+    def _build(self, a: int, b: int, prepared: tuple | None = None):
         x, y = self.x_m[a:b], self.y_m[a:b]
         scene, (ox, oy), triangles = self.surface.corridor_tile(x, y, reach_m=self.reach_m,
-                                                                bsdf=self._tile_bsdf())
+                                                                bsdf=self._tile_bsdf(),
+                                                                mesh=prepared)
         n = b - a
         return (scene, x - ox, y - oy, (np.full(n, ox), np.full(n, oy), np.zeros(n)),
                 triangles)
