@@ -297,14 +297,14 @@ def _serve(conn_in: Connection, conn_out: Connection) -> None:
 
 def _warm_up() -> None:
     """Before the first section (while the simulating process sets its renderer up): the
-    writer's imports (inherited when forked), the compiled ATL06 fit and ATL03 fields loaded
-    from numba's cache when they are there (never compiled here: a short track does not use
-    the fit), and PROJ's ECEF transform that ATL03's velocities use (pyproj's import and the
+    writer's imports (inherited when forked), the compiled ATL06 fit, ATL03 fields and HDF5
+    chunks' shuffle loaded from numba's cache when they are there (never compiled here: a
+    short track does not use the fit), and PROJ's ECEF transform that ATL03's velocities use (pyproj's import and the
     transform's set-up, ~0.2 s of CPU the first section would pay; never imported before a
     fork: :func:`lidar_mitsuba.forking.refusal`)."""
     from . import granule, precompile  # noqa: F401
     from .products.atl03 import beam
-    for stage in ("atl06", "atl03"):
+    for stage in ("atl06", "atl03", "h5"):
         if precompile.is_cached(stage):
             getattr(precompile, f"_{stage}")()
     beam._to_ecef()

@@ -133,13 +133,16 @@ def _described(obj):
 
 def test_set_attrs_and_new_datasets_are_what_h5py_makes(tmp_path):
     """``set_attrs`` writes each value as ``obj.attrs[name] = value`` would (type, size,
-    charset, shape, value; an existing one replaced; other kinds of value through h5py), and
+    charset, shape, value; an existing one replaced; fixed-length byte strings by HDF5's own
+    calls too; other kinds of value, ``bytes`` among them, through h5py), and
     a dataset ``put`` makes from the first one's creation properties (the second of a kind)
     has h5py's type, chunks, filters, fill value and extent."""
     values = {"units": "meters", "long_name": "hauteur é", "_FillValue": np.float32(3.4e38),
               "valid_max": np.asarray(120, np.int8), "flag_values": np.asarray([0, 1, 2],
                                                                               np.int16),
-              "frame": np.asarray([1.5, -2.0]), "n": 3, "x": 0.5, "words": ["a", "bc"]}
+              "frame": np.asarray([1.5, -2.0]), "n": 3, "x": 0.5, "words": ["a", "bc"],
+              "fixed": np.bytes_(b"2019-06-01T00:00Z"), "fixed_rows": np.array([b"a", b"bcd"]),
+              "vlen": b"bytes"}
     with h5py.File(tmp_path / "a.h5", "w") as f:
         ours, theirs = f.create_group("ours"), f.create_group("theirs")
         ours.attrs["units"] = np.int64(7)              # replaced
@@ -253,3 +256,18 @@ def test_extents_follow_the_rows_lazily(tmp_path, rng):
     with h5py.File(path) as f:
         for name in ("a", "plain"):
             np.testing.assert_array_equal(f[name][:], np.concatenate(parts))
+
+
+@pytest.mark.parametrize("size", (2, 4, 8, 3))
+def test_the_compiled_shuffle_is_numpys_byte_transpose(size):
+    """HDF5's byte shuffle by words (products.h5kernels) moves the very bytes of numpy's
+    transposed copy of the (n, size) byte matrix (what _encode did), for element counts
+    that are and are not a multiple of the size (a byte loop then), one chunk's included."""
+    from lidar_mitsuba.products import h5kernels
+    gen = np.random.default_rng(size)
+    for n in (0, 1, size - 1, size, 7, 8, 9, 64, 1001, C, C + 3):
+        src = gen.integers(0, 256, n * size).astype(np.uint8)
+        out = np.full_like(src, 7)
+        h5kernels.shuffle(src, size, out)
+        np.testing.assert_array_equal(out, np.ascontiguousarray(src.reshape(-1, size).T)
+                                      .reshape(-1))
