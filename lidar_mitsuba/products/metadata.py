@@ -163,31 +163,54 @@ def _text(attrs: dict) -> dict:
     return {k: np.bytes_(v if isinstance(v, bytes) else str(v).encode()) for k, v in attrs.items()}
 
 
+#: the bounds :func:`extend_extent` last wrote to each of the files it wrote last, by HDF5's
+#: file number (never reused in a process): ``{fileno: {attribute: value}}``, oldest first
+_BOUNDS: dict = {}
+_BOUNDS_FILES = 8
+
+
 def extend_extent(f, lat_deg, lon_deg) -> None:
     """Widen the file's latitude and longitude bounds (``METADATA/Extent`` and the root
     ``geospatial_*`` attributes) to take in these shots (longitudes as they are: a track
     across the antimeridian gets -180 to 180). Only the bounds that move are written again
-    (the root's copy with each), read back by HDF5's own calls: a granule calls this once
-    a section and file (h5py's attribute objects cost ~1 ms a call)."""
+    (the root's copy with each); the bounds written last are remembered (:data:`_BOUNDS`),
+    else read back: a granule calls this once a section and file, and h5py's attribute
+    objects cost ~1 ms a call."""
     if np.size(lat_deg) == 0:
         return
     g = f.require_group("METADATA/Extent")
-    bounds = {"southBoundLatitude": (np.min(lat_deg), min, "geospatial_lat_min"),
-              "northBoundLatitude": (np.max(lat_deg), max, "geospatial_lat_max"),
-              "westBoundLongitude": (np.min(lon_deg), min, "geospatial_lon_min"),
-              "eastBoundLongitude": (np.max(lon_deg), max, "geospatial_lon_max")}
+    fileno = f.id.fileno
+    known = _BOUNDS.pop(fileno, None)
+    if known is None:
+        known = {k: _float_attr(g, k) for k in _PICKS}
+        known.update((copy, _float_attr(f, copy)) for copy in _COPIES.values())
+    values = {"southBoundLatitude": np.min(lat_deg), "northBoundLatitude": np.max(lat_deg),
+              "westBoundLongitude": np.min(lon_deg), "eastBoundLongitude": np.max(lon_deg)}
     extent, root = {}, {}
-    for key, (v, pick, copy) in bounds.items():
-        was = _float_attr(g, key)
-        now = np.float64(v if was is None else pick(float(v), was))
-        if was is None or now != was or _float_attr(f, copy) is None:
+    for key, v in values.items():
+        was, copy = known[key], _COPIES[key]
+        now = np.float64(v if was is None else _PICKS[key](float(v), was))
+        if was is None or now != was or known[copy] is None:
             extent[key] = root[copy] = now
+            known[key] = known[copy] = float(now)
     for key, units in (("geospatial_lat_units", "degrees_north"),
                        ("geospatial_lon_units", "degrees_east")):
-        if not h5a.exists(f.id, key.encode()):
-            root[key] = units
+        if not known.get(key):
+            if not h5a.exists(f.id, key.encode()):
+                root[key] = units
+            known[key] = True
     _set_attrs(g, extent)
     _set_attrs(f, root)
+    _BOUNDS[fileno] = known
+    while len(_BOUNDS) > _BOUNDS_FILES:
+        del _BOUNDS[next(iter(_BOUNDS))]
+
+
+_PICKS = {"southBoundLatitude": min, "northBoundLatitude": max, "westBoundLongitude": min,
+          "eastBoundLongitude": max}
+_COPIES = {"southBoundLatitude": "geospatial_lat_min", "northBoundLatitude":
+           "geospatial_lat_max", "westBoundLongitude": "geospatial_lon_min",
+           "eastBoundLongitude": "geospatial_lon_max"}
 
 
 def _float_attr(obj, name: str) -> float | None:

@@ -23,6 +23,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from h5py import h5a
 
 from . import file as atl03_file, kernels
 from .. import h5template, h5write as h5chunks
@@ -38,6 +39,8 @@ SEGMENT_M = 20.0            #: ATL03 geolocation segment length [m]
 PULSES_PER_MAJOR_FRAME = 200
 _C_M_PER_S = C_M_PER_NS * 1e9
 _pending: dict = {}         # (file key, beam) -> the bckgrd_atlas row the next section continues
+_groups: dict = {}          # (HDF5 file number, path) -> the h5py.Group write_beam made or
+                            # opened there (a file being written: dropped by flush, discard)
 
 
 # --------------------------------------------------------------------------- the run's rows
@@ -345,8 +348,9 @@ def _bckgrd(rows: dict) -> dict:
             "tlm_height_band1": rows["gate"], "tlm_top_band1": rows["top"]}
 
 
-def _append_bckgrd(gt, s: _Section) -> None:
-    """Append the run's complete 50-shot rows; hold a row the next run continues."""
+def _append_bckgrd(gt, s: _Section, *, at: tuple | None = None) -> None:
+    """Append the run's complete 50-shot rows; hold a row the next run continues (``at``:
+    as :func:`_write_group`'s)."""
     key = (h5chunks._file_key(gt), gt.name)
     rows = _bckgrd_rows(s)
     held = _pending.pop(key, None)
@@ -355,7 +359,7 @@ def _append_bckgrd(gt, s: _Section) -> None:
     if (s.run.first_shot + s.res.n_shots) % BCKGRD_SHOTS:       # the last row goes on
         _pending[key] = {k: v[-1:] for k, v in rows.items()}
         rows = {k: v[:-1] for k, v in rows.items()}
-    _write_group(gt, "bckgrd_atlas", _bckgrd(rows))
+    _write_group(gt, "bckgrd_atlas", _bckgrd(rows), at=at)
 
 
 def flush(f) -> None:
@@ -363,6 +367,7 @@ def flush(f) -> None:
     key = h5chunks._file_key(f)
     for k in [k for k in _pending if k[0] == key]:
         _write_group(f[k[1]], "bckgrd_atlas", _bckgrd(_pending.pop(k)))
+    _forget_groups(f)
 
 
 def discard(f) -> None:
@@ -370,21 +375,37 @@ def discard(f) -> None:
     key = h5chunks._file_key(f)
     for k in [k for k in _pending if k[0] == key]:
         del _pending[k]
+    _forget_groups(f)
+
+
+def _forget_groups(f) -> None:
+    fileno = f.id.fileno
+    for k in [k for k in _groups if k[0] == fileno]:
+        del _groups[k]
+
+
+def _group(parent, fileno: int, path: str, name: str):
+    """``parent[name]`` (``parent`` at ``path`` in the file numbered ``fileno``) as this
+    module last made or opened it, or ``None``: h5py's lookups of a name cost ~50 us each,
+    and each section of each beam asks for ~15 groups."""
+    g = _groups.get((fileno, f"{path}/{name}"))
+    return g if g is not None and g.id.valid else None
 
 
 # --------------------------------------------------------------------------- writing
-def _write_group(gt, name: str, values: dict) -> None:
+def _write_group(gt, name: str, values: dict, *, at: tuple | None = None) -> None:
     """Append ``values`` to group ``gt/name`` as its fields (:data:`GROUPS`) say: dtype,
     constants for the fields not given, attributes and the ``delta_time`` dimension scale
     when the group is new (its datasets copied from a template:
-    :mod:`lidar_mitsuba.products.h5template`)."""
+    :mod:`lidar_mitsuba.products.h5template`). ``at``: ``(HDF5 file number, gt's path)``,
+    where the group is kept from section to section (:func:`_group`)."""
     spec = GROUPS[name]
     extra = set(values) - set(spec)
     if extra:
         raise KeyError(f"{name}: not ATL03 fields: {sorted(extra)}")
     n = len(values["delta_time"])
     coordinates = COORDINATES.get(name, "delta_time")
-    columns = []
+    columns, made = [], []
     for field_name, fld in spec.items():
         v = values.get(field_name, fld.const)
         note = fld.model_note
@@ -395,11 +416,17 @@ def _write_group(gt, name: str, values: dict) -> None:
         data = np.asarray(v)
         if data.ndim == 0 or data.shape[0] != n:
             data = np.broadcast_to(data, (n,) + fld.shape)
-        columns.append((field_name, data.astype(fld.dtype, copy=False), fld.units,
-                        fld.description,
+        data = data.astype(fld.dtype, copy=False)
+        columns.append((field_name, data, fld.units, fld.description,
                         functools.partial(_field_attrs, fld, note, coordinates, field_name),
                         fld.fill))
-    g, new = h5template.put_group(gt, name, columns)
+        made.append((field_name, note, data.dtype.str, data.shape[1:]))
+    held = None if at is None else _group(gt, at[0], at[1], name)
+    # (the template's key: the group's fields, notes, dtypes and row shapes make its specs)
+    g, new = h5template.put_group(gt, name, columns, key=("atl03", name, tuple(made)),
+                                  group=held)
+    if at is not None and held is None:
+        _groups[(at[0], f"{at[1]}/{name}")] = g
     if new:
         atl03_file.dimension_scale(g)
 
@@ -439,28 +466,39 @@ def write_beam(f, run, sc_orient: int, *, replanned: bool = False) -> None:
     differs from the section before) adds ``{"first_shot", "config"}`` of its own to the JSON
     list ``section_configs``, so the file says what every section was simulated with."""
     beam = run.beam
-    if beam.name not in f:                                # (the first section's)
-        h5chunks.set_attrs(f.create_group(beam.name), {
-            **beam_attrs(beam, sc_orient),
-            "description": "one ATLAS beam: photons, geolocation, background"})
-    gt = f[beam.name]
+    fileno = f.id.fileno
+    gt = _group(f, fileno, "", beam.name)
+    if gt is None:
+        if beam.name not in f:                            # (the first section's)
+            h5chunks.set_attrs(f.create_group(beam.name), {
+                **beam_attrs(beam, sc_orient),
+                "description": "one ATLAS beam: photons, geolocation, background"})
+        gt = _groups[(fileno, f"/{beam.name}")] = f[beam.name]
+    at = (fileno, f"/{beam.name}")
     done = h5chunks.rows(gt, "heights/h_ph")              # earlier sections' photons
     s = _Section(run, done)
-    _write_group(gt, "heights", _heights(s))
-    _write_group(gt, "geolocation", _geolocation(s, sc_orient))
-    _write_group(gt, "geophys_corr", _geophys(s))
-    _append_bckgrd(gt, s)
+    _write_group(gt, "heights", _heights(s), at=at)
+    _write_group(gt, "geolocation", _geolocation(s, sc_orient), at=at)
+    _write_group(gt, "geophys_corr", _geophys(s), at=at)
+    _append_bckgrd(gt, s, at=at)
     found = _signal_find(s)
     for surface in SURFACE_TYPES:
-        _write_group(gt, f"signal_find_output/{surface}", found)
-    truth = f.require_group("truth").require_group(beam.name)
+        _write_group(gt, f"signal_find_output/{surface}", found, at=at)
+    truth = _group(f, fileno, "/truth", beam.name)
+    if truth is None:
+        truth = _groups[(fileno, f"/truth/{beam.name}")] = \
+            f.require_group("truth").require_group(beam.name)
     groups: dict = {}
     for group, name, data, units, desc in truth_fields(s.res, order=s.order,
                                                        first_shot=run.first_shot):
         groups.setdefault(group, []).append((name, data, units, desc, {}, None))
     for group, columns in groups.items():
-        h5template.put_group(truth, group, columns)
-    if "config" not in truth.attrs:                       # (the first section's)
+        held = _group(truth, fileno, f"/truth/{beam.name}", group)
+        key = ("truth", group, tuple((c[0], np.asarray(c[1]).dtype.str, np.shape(c[1])[1:],
+                                      c[2], c[3]) for c in columns))
+        g, _ = h5template.put_group(truth, group, columns, key=key, group=held)
+        _groups[(fileno, f"/truth/{beam.name}/{group}")] = g
+    if not h5a.exists(truth.id, b"config"):               # (the first section's)
         truth.attrs["config"] = json.dumps(s.res.config)
     elif replanned:                                       # a section with a model of its own
         past = json.loads(truth.attrs.get("section_configs", "[]"))
