@@ -29,7 +29,7 @@ from . import file as atl03_file, kernels
 from .. import h5template, h5write as h5chunks
 from ...detector import pmt
 from ... import radiometry
-from .fields import COORDINATES, F4_FILL, GROUPS, SURFACE_TYPES
+from .fields import COORDINATES, F4_FILL, GROUPS, HEIGHTS, SURFACE_TYPES
 from ...trace.stream import gate_heights_m
 from ..classify import histogram_test
 from ...constants import C_M_PER_NS
@@ -58,9 +58,10 @@ class _Section:
         # per-photon fields are views, not gathered copies)
         self.order = (slice(None) if shot.size < 2 or bool(np.all(shot[1:] >= shot[:-1]))
                       else np.argsort(shot, kind="stable"))
-        self.shot = shot[self.order].astype(np.int64)              # local to this run
+        # (read only: views where the photons' own arrays already have these dtypes)
+        self.shot = shot[self.order].astype(np.int64, copy=False)  # local to this run
         self.channel = det.channel[self.order]
-        self.conf = np.asarray(res.signal_conf)[self.order].astype(np.int8)
+        self.conf = np.asarray(res.signal_conf)[self.order].astype(np.int8, copy=False)
         (self.seg_of_shot, self.first, self.count, self.ref_shot,
          self.k0) = _segments(res.along_track_m, self.shot)
         self.gate = gate_heights_m(res.z_ref_m)       # the gates simulate() centred
@@ -118,17 +119,21 @@ def _heights(s: _Section) -> dict:
     p = s.test.tail_p[s.order]
     base = 1 if run.beam.strength == "strong" else 17
     gshot = run.first_shot + np.arange(res.n_shots, dtype=np.int64)   # (per shot, gathered)
-    return {
+    f = HEIGHTS                # (per-shot values in the file's dtype, then gathered: the same
+    return {                   # values as gathered, then converted)
         "lat_ph": run.lat_deg[shot], "lon_ph": run.lon_deg[shot], "h_ph": res.h_m[s.order],
         "delta_time": run.delta_time_s[shot],
-        "dist_ph_along": (res.along_track_m - SEGMENT_M * s.seg_of_shot)[shot],
-        "dist_ph_across": np.zeros(shot.size),
+        "dist_ph_along": (res.along_track_m - SEGMENT_M * s.seg_of_shot).astype(
+            f["dist_ph_along"].dtype)[shot],
+        "dist_ph_across": np.zeros(shot.size, f["dist_ph_across"].dtype),
         "signal_conf_ph": np.repeat(s.conf[:, None], len(SURFACE_TYPES), axis=1),
         "weight_ph": np.round(255.0 * np.clip(-np.log10(np.maximum(p, 1e-300)) / 6.0, 0, 1)),
         "ph_id_count": _ph_id_count(shot, s.channel),
         "ph_id_channel": s.channel.astype(np.int64) + base,
-        "ph_id_pulse": (gshot % PULSES_PER_MAJOR_FRAME + 1)[shot],
-        "pce_mframe_cnt": (gshot // PULSES_PER_MAJOR_FRAME)[shot],
+        "ph_id_pulse": (gshot % PULSES_PER_MAJOR_FRAME + 1).astype(
+            f["ph_id_pulse"].dtype)[shot],
+        "pce_mframe_cnt": (gshot // PULSES_PER_MAJOR_FRAME).astype(
+            f["pce_mframe_cnt"].dtype)[shot],
         "quality_ph": _quality(s),
     }
 
