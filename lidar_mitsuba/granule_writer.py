@@ -38,6 +38,8 @@ import threading
 import traceback
 from multiprocessing.connection import Connection
 
+import numpy as np
+
 from . import forking
 
 #: sections waiting for the writer process before the simulating thread waits
@@ -222,7 +224,9 @@ def _receive(conn: Connection):
     head = conn.recv_bytes()
     buffers = []
     for n in sizes:
-        b = bytearray(n)                 # writable, as the arrays were
+        # writable, as the arrays were; not zero-filled first (bytearray(n) wrote every
+        # byte of a granule's ~170 MB once more before the pipe's bytes overwrote them)
+        b = np.empty(n, np.uint8)
         if n:
             conn.recv_bytes_into(b)
         else:
