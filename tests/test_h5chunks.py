@@ -271,3 +271,32 @@ def test_the_compiled_shuffle_is_numpys_byte_transpose(size):
         h5kernels.shuffle(src, size, out)
         np.testing.assert_array_equal(out, np.ascontiguousarray(src.reshape(-1, size).T)
                                       .reshape(-1))
+
+
+def test_extend_extent_keeps_the_running_bounds_with_or_without_its_memory(tmp_path, rng):
+    """``metadata.extend_extent`` writes only the bounds that move and remembers what it
+    wrote: after calls on interleaved files (more than it remembers, so some are read back
+    from the file), each file's ``METADATA/Extent`` bounds and root ``geospatial_*`` copies
+    are the running minima and maxima of every call's shots, as float64, with the units."""
+    from lidar_mitsuba.products import metadata
+    files = [h5py.File(tmp_path / f"{i}.h5", "w") for i in range(metadata._BOUNDS_FILES + 3)]
+    want = [None] * len(files)
+    for _ in range(3):
+        for i, f in enumerate(files):
+            lat, lon = rng.uniform(-80, 80, 50), rng.uniform(-180, 180, 50)
+            metadata.extend_extent(f, lat, lon)
+            now = (lat.min(), lat.max(), lon.min(), lon.max())
+            want[i] = now if want[i] is None else (min(want[i][0], now[0]),
+                                                  max(want[i][1], now[1]),
+                                                  min(want[i][2], now[2]),
+                                                  max(want[i][3], now[3]))
+    for f, (s, n, w, e) in zip(files, want):
+        ext = f["METADATA/Extent"].attrs
+        got = [ext[k] for k in ("southBoundLatitude", "northBoundLatitude",
+                                "westBoundLongitude", "eastBoundLongitude")]
+        assert got == [s, n, w, e] and all(isinstance(v, np.float64) for v in got)
+        assert [f.attrs[k] for k in ("geospatial_lat_min", "geospatial_lat_max",
+                                     "geospatial_lon_min", "geospatial_lon_max")] == got
+        assert (f.attrs["geospatial_lat_units"], f.attrs["geospatial_lon_units"]) == \
+            ("degrees_north", "degrees_east")
+        f.close()

@@ -221,7 +221,10 @@ def _quality(s: _Section) -> np.ndarray:
     h = np.asarray(s.res.h_m, np.float64)[s.order]
     top = np.full(sat.size, -np.inf)
     surf = s.conf >= 2
-    np.maximum.at(top, s.shot[surf], h[surf])
+    at = s.shot[surf]              # (ascending: photons are in shot order; the maximum of
+    if at.size:                    # each shot's run is exact, as np.maximum.at's, NaN too)
+        start = np.flatnonzero(np.r_[True, at[1:] != at[:-1]])
+        top[at[start]] = np.maximum.reduceat(h[surf], start)
     depth = np.where(sat[s.shot], top[s.shot] - h, -np.inf)
     for lo, hi, flag in QUALITY_WINDOWS_M:
         q[(depth > lo) & (depth <= hi)] = flag
@@ -254,9 +257,10 @@ def _velocity_enu(lat_deg, lon_deg, t_s, at) -> np.ndarray:
     difference of its neighbours' ECEF positions on the ellipsoid, in the local frame."""
     n = lat_deg.size
     i0, i1 = np.maximum(at - 1, 0), np.minimum(at + 1, n - 1)
-    ecef = _to_ecef()
-    p0 = np.column_stack(ecef.transform(lon_deg[i0], lat_deg[i0], np.zeros(at.size)))
-    p1 = np.column_stack(ecef.transform(lon_deg[i1], lat_deg[i1], np.zeros(at.size)))
+    both = np.concatenate([i0, i1])          # (one call: PROJ transforms point by point)
+    p = np.column_stack(_to_ecef().transform(lon_deg[both], lat_deg[both],
+                                             np.zeros(both.size)))
+    p0, p1 = p[:at.size], p[at.size:]
     dt = t_s[i1] - t_s[i0]
     v = (p1 - p0) / np.where(dt > 0, dt, np.inf)[:, None]
     lat, lon = np.deg2rad(lat_deg[at]), np.deg2rad(lon_deg[at])
