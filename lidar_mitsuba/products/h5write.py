@@ -249,11 +249,12 @@ class _Entry:
             self.dset.id.set_extent((self.rows,) + self.tail_shape)
             self.extent = self.rows
 
-    def write(self, start: int, data) -> None:
+    def write(self, start: int, data, *, chunks: list | None = None) -> None:
+        """Rows ``start ..`` (:func:`_write`; ``chunks``: where their whole chunks go)."""
         if self.level is not None and self.chunk_rows is None:
             self.chunk_rows, self.fill = self.dset.chunks[0], self.dset.fillvalue
         _write(self.dset, start, data, dtype=self.dtype, level=self.level, key=self.key,
-               chunk_rows=self.chunk_rows, fill=self.fill, entry=self)
+               chunk_rows=self.chunk_rows, fill=self.fill, entry=self, out=chunks)
 
 
 def _fill(fillvalue, dtype) -> np.ndarray:
@@ -283,7 +284,7 @@ def append(group, columns: list) -> list:
     :func:`put` made, or :func:`register` took), as ``put(..., append=True)`` does. Returns
     the paths of those that do not exist (nothing appended to them)."""
     fileno, gname = group.id.fileno, group.name
-    missing = []
+    missing, chunks, fkey = [], [], None
     for path, data in columns:
         data = np.asarray(data)
         entry = _open.get((fileno, f"{gname}/{path}"))
@@ -297,7 +298,11 @@ def append(group, columns: list) -> list:
             continue
         start = entry.rows
         entry.grow(data.shape[0])
-        entry.write(start, data)
+        entry.write(start, data, chunks=chunks)
+        fkey = entry.key[0]
+    if chunks:            # (the whole chunks of every dataset: one pool job, as one append's)
+        _submit(fkey, chunks)
+        _store(block_above=MAX_PENDING_BYTES)
     return missing
 
 
@@ -345,10 +350,12 @@ def _level(dset) -> int | None:
 
 
 def _write(dset, start: int, data, *, dtype, level, key, chunk_rows, fill,
-           entry=None) -> None:
+           entry=None, out: list | None = None) -> None:
     """Rows ``start ..`` of ``dset`` (``chunk_rows`` a chunk, padded with ``fill``): the
     whole chunks they complete compressed on the pool as one job, the rest held. ``entry``:
-    its :class:`_Entry` (whose extent is set before HDF5 writes), if it has one."""
+    its :class:`_Entry` (whose extent is set before HDF5 writes), if it has one. ``out``: a
+    list the whole chunks are added to instead (the caller queues them: :func:`append`'s
+    datasets' chunks make one pool job, as the chunks of one dataset's append do)."""
     data = np.ascontiguousarray(data, dtype=dtype)
     held = _tails.pop(key, None)
     if held is not None and held[1] + held[2].shape[0] != start:   # (rows written around us)
@@ -380,6 +387,9 @@ def _write(dset, start: int, data, *, dtype, level, key, chunk_rows, fill,
     b = max(a, stop // rows * rows)
     if b < stop:
         _tails[key] = (dset, b, data[b - start:].copy(), level, rows, fill, entry)
+    if out is not None:
+        out.extend(chunks)
+        return
     _submit(key[0], chunks)
     _store(block_above=MAX_PENDING_BYTES)
 
