@@ -393,11 +393,11 @@ def _forget_groups(f) -> None:
         del _groups[k]
 
 
-def _group(parent, fileno: int, path: str, name: str):
-    """``parent[name]`` (``parent`` at ``path`` in the file numbered ``fileno``) as this
-    module last made or opened it, or ``None``: h5py's lookups of a name cost ~50 us each,
-    and each section of each beam asks for ~15 groups."""
-    g = _groups.get((fileno, f"{path}/{name}"))
+def _group(fileno: int, path: str):
+    """The group at ``path`` of the file numbered ``fileno`` (``f.id.fileno``) as this module
+    last made or opened it, or ``None``: h5py's lookups of a name cost ~50 us each, and each
+    section of each beam asks for ~15 groups."""
+    g = _groups.get((fileno, path))
     return g if g is not None and g.id.valid else None
 
 
@@ -430,7 +430,7 @@ def _write_group(gt, name: str, values: dict, *, at: tuple | None = None) -> Non
                         functools.partial(_field_attrs, fld, note, coordinates, field_name),
                         fld.fill))
         made.append((field_name, note, data.dtype.str, data.shape[1:]))
-    held = None if at is None else _group(gt, at[0], at[1], name)
+    held = None if at is None else _group(at[0], f"{at[1]}/{name}")
     # (the template's key: the group's fields, notes, dtypes and row shapes make its specs)
     g, new = h5template.put_group(gt, name, columns, key=("atl03", name, tuple(made)),
                                   group=held)
@@ -476,7 +476,7 @@ def write_beam(f, run, sc_orient: int, *, replanned: bool = False) -> None:
     list ``section_configs``, so the file says what every section was simulated with."""
     beam = run.beam
     fileno = f.id.fileno
-    gt = _group(f, fileno, "", beam.name)
+    gt = _group(fileno, f"/{beam.name}")
     if gt is None:
         if beam.name not in f:                            # (the first section's)
             h5chunks.set_attrs(f.create_group(beam.name), {
@@ -493,7 +493,7 @@ def write_beam(f, run, sc_orient: int, *, replanned: bool = False) -> None:
     found = _signal_find(s)
     for surface in SURFACE_TYPES:
         _write_group(gt, f"signal_find_output/{surface}", found, at=at)
-    truth = _group(f, fileno, "/truth", beam.name)
+    truth = _group(fileno, f"/truth/{beam.name}")
     if truth is None:
         truth = _groups[(fileno, f"/truth/{beam.name}")] = \
             f.require_group("truth").require_group(beam.name)
@@ -502,7 +502,7 @@ def write_beam(f, run, sc_orient: int, *, replanned: bool = False) -> None:
                                                        first_shot=run.first_shot):
         groups.setdefault(group, []).append((name, data, units, desc, {}, None))
     for group, columns in groups.items():
-        held = _group(truth, fileno, f"/truth/{beam.name}", group)
+        held = _group(fileno, f"/truth/{beam.name}/{group}")
         key = ("truth", group, tuple((c[0], np.asarray(c[1]).dtype.str, np.shape(c[1])[1:],
                                       c[2], c[3]) for c in columns))
         g, _ = h5template.put_group(truth, group, columns, key=key, group=held)
