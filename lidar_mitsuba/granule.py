@@ -233,12 +233,11 @@ def write_atl06(granule: Granule, path: str | os.PathLike, **options) -> pathlib
 
 
 def _atl06_header(f, granule, instruments, t_first, t_last, *, path, atl03_path=None):
-    f.attrs["short_name"] = "ATL06"
-    f.attrs["title"] = "simulated ATLAS/ICESat-2 L3A Land Ice Height"
-    f.attrs["description"] = ("Simulated land-ice heights (lidar_mitsuba.products.atl06: 40 m "
-                              "segments every 20 m, first-photon-bias corrected)")
-    f.attrs["lidar_mitsuba_version"] = __version__
-    f.attrs["config"] = json.dumps(granule.config)
+    h5chunks.set_attrs(f, {
+        "short_name": "ATL06", "title": "simulated ATLAS/ICESat-2 L3A Land Ice Height",
+        "description": ("Simulated land-ice heights (lidar_mitsuba.products.atl06: 40 m "
+                        "segments every 20 m, first-photon-bias corrected)"),
+        "lidar_mitsuba_version": __version__, "config": json.dumps(granule.config)})
     _ancillary(f, instruments, t_first, t_last)
     li = f["ancillary_data"].create_group("land_ice")
     _ds(li, "t_dead", np.array([instruments[0][1].effective_dead_time_ns * 1e-9]),

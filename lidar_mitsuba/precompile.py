@@ -26,6 +26,8 @@ ATL06_S = 22.0
 HEIGHTS_S = 5.5
 #: (ESTIMATE: ATL03's per-photon kernels compiled in ~1 s of CPU under load, 2026-11-27; x2)
 ATL03_S = 2.0
+#: (ESTIMATE: the HDF5 chunks' byte shuffle, four small loops, like ATL03's kernel; x2)
+H5_S = 2.0
 #: the geodesics' line loop (:mod:`lidar_mitsuba.geodesic`), the histogram test's pass over
 #: the photons (:mod:`lidar_mitsuba.products.classify`) and the detector's binomial draws
 #: (:mod:`lidar_mitsuba.detector.draws`): 0.9, ~2 and ~3 s of CPU measured, under load
@@ -46,6 +48,7 @@ KERNELS = {"detector": ("detector.deadtime", ("detect_shots", "choose_returns", 
                                               "_bilinear", "_on_grid", "block_extents")),
            "atl06": ("products.atl06.kernel", ("fit_segment", "reference_heights")),
            "atl03": ("products.atl03.kernels", ("ph_id_count",)),
+           "h5": ("products.h5kernels", ("shuffle",)),
            "geodesic": ("geodesic", ("direct_lines",)),
            "classify": ("products.classify", ("_photon_cells",)),
            "draws": ("detector.draws", ("binomial_inversion",)),
@@ -62,7 +65,8 @@ STAGE_BAR = {"detector": ("the detector", DETECTOR_S),
              "polar_stereo": ("the polar stereographic projection", POLAR_STEREO_S),
              "pixel_mesh": ("the DEM's corridor tiles", PIXEL_MESH_S),
              "atl06": ("the ATL06 fit", ATL06_S),
-             "atl03": ("the ATL03 fields", ATL03_S)}
+             "atl03": ("the ATL03 fields", ATL03_S),
+             "h5": ("the HDF5 chunks' shuffle", H5_S)}
 #: the stages :func:`compile_kernels` compiles only when asked (its ``atl06``, ``atl03``)
 _ASKED = ("atl06", "atl03")
 
@@ -132,6 +136,13 @@ def _atl06() -> None:
 def _atl03() -> None:
     from .products.atl03 import kernels
     kernels.ph_id_count(np.zeros(2, np.int64), np.zeros(2, np.int16), np.empty(2, np.uint8))
+
+
+def _h5() -> None:
+    from .products import h5kernels
+    for size in h5kernels.SIZES:        # (each size's loop, and the byte loop)
+        for n in (size, 1):
+            h5kernels.shuffle(np.zeros(n * size, np.uint8), size, np.empty(n * size, np.uint8))
 
 
 def is_cached(stage: str) -> bool:

@@ -183,3 +183,36 @@ def test_ph_id_count_compiled_is_the_numpy_sort(rng, monkeypatch):
     monkeypatch.setattr(kernels, "ph_id_count", lambda *args: False)
     np.testing.assert_array_equal(fast, beam._ph_id_count(shot, channel))
     assert fast.dtype == np.uint8 and fast.max() == 255 and fast.min() == 1
+
+
+def test_quality_ph_by_runs_of_shots_is_the_unbuffered_maximum():
+    """``quality_ph`` takes each saturated pulse's highest surface event by a maximum over the
+    shot's run of photons (photons in shot order) instead of ``np.maximum.at``: the same flags
+    for random sections with NaN heights, empty shots and both kinds of saturation."""
+    import types
+    from lidar_mitsuba.products.atl03 import beam
+    gen = np.random.default_rng(3)
+    flagged = 0
+    for _ in range(100):
+        n_shots, n = 50, int(gen.integers(0, 400))
+        shot = np.sort(gen.integers(0, n_shots, n))
+        h = gen.normal(0.0, 20.0, n)
+        h[gen.random(n) < 0.02] = np.nan
+        conf = gen.integers(0, 5, n).astype(np.int8)
+        full = gen.random(n_shots) < 0.3
+        near = (gen.random(n_shots) < 0.3) & ~full
+        s = types.SimpleNamespace(shot=shot, conf=conf, saturated=(full, near),
+                                  order=slice(None), res=types.SimpleNamespace(h_m=h))
+        top = np.full(n_shots, -np.inf)                 # the numpy form it replaced
+        surf = conf >= 2
+        with np.errstate(invalid="ignore"):
+            np.maximum.at(top, shot[surf], h[surf])
+            depth = np.where((full | near)[shot], top[shot] - h, -np.inf)
+        want = np.zeros(n, np.int8)
+        for lo, hi, flag in beam.QUALITY_WINDOWS_M:
+            want[(depth > lo) & (depth <= hi)] = flag
+        with np.errstate(invalid="ignore"):
+            got = beam._quality(s)
+        np.testing.assert_array_equal(got, want)
+        flagged += int((want > 0).sum())
+    assert flagged > 0                                  # (the windows were reached)

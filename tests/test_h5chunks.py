@@ -133,13 +133,16 @@ def _described(obj):
 
 def test_set_attrs_and_new_datasets_are_what_h5py_makes(tmp_path):
     """``set_attrs`` writes each value as ``obj.attrs[name] = value`` would (type, size,
-    charset, shape, value; an existing one replaced; other kinds of value through h5py), and
+    charset, shape, value; an existing one replaced; fixed-length byte strings by HDF5's own
+    calls too; other kinds of value, ``bytes`` among them, through h5py), and
     a dataset ``put`` makes from the first one's creation properties (the second of a kind)
     has h5py's type, chunks, filters, fill value and extent."""
     values = {"units": "meters", "long_name": "hauteur é", "_FillValue": np.float32(3.4e38),
               "valid_max": np.asarray(120, np.int8), "flag_values": np.asarray([0, 1, 2],
                                                                               np.int16),
-              "frame": np.asarray([1.5, -2.0]), "n": 3, "x": 0.5, "words": ["a", "bc"]}
+              "frame": np.asarray([1.5, -2.0]), "n": 3, "x": 0.5, "words": ["a", "bc"],
+              "fixed": np.bytes_(b"2019-06-01T00:00Z"), "fixed_rows": np.array([b"a", b"bcd"]),
+              "vlen": b"bytes"}
     with h5py.File(tmp_path / "a.h5", "w") as f:
         ours, theirs = f.create_group("ours"), f.create_group("theirs")
         ours.attrs["units"] = np.int64(7)              # replaced
@@ -253,3 +256,47 @@ def test_extents_follow_the_rows_lazily(tmp_path, rng):
     with h5py.File(path) as f:
         for name in ("a", "plain"):
             np.testing.assert_array_equal(f[name][:], np.concatenate(parts))
+
+
+@pytest.mark.parametrize("size", (2, 4, 8, 3))
+def test_the_compiled_shuffle_is_numpys_byte_transpose(size):
+    """HDF5's byte shuffle by words (products.h5kernels) moves the very bytes of numpy's
+    transposed copy of the (n, size) byte matrix (what _encode did), for element counts
+    that are and are not a multiple of the size (a byte loop then), one chunk's included."""
+    from lidar_mitsuba.products import h5kernels
+    gen = np.random.default_rng(size)
+    for n in (0, 1, size - 1, size, 7, 8, 9, 64, 1001, C, C + 3):
+        src = gen.integers(0, 256, n * size).astype(np.uint8)
+        out = np.full_like(src, 7)
+        h5kernels.shuffle(src, size, out)
+        np.testing.assert_array_equal(out, np.ascontiguousarray(src.reshape(-1, size).T)
+                                      .reshape(-1))
+
+
+def test_extend_extent_keeps_the_running_bounds_with_or_without_its_memory(tmp_path, rng):
+    """``metadata.extend_extent`` writes only the bounds that move and remembers what it
+    wrote: after calls on interleaved files (more than it remembers, so some are read back
+    from the file), each file's ``METADATA/Extent`` bounds and root ``geospatial_*`` copies
+    are the running minima and maxima of every call's shots, as float64, with the units."""
+    from lidar_mitsuba.products import metadata
+    files = [h5py.File(tmp_path / f"{i}.h5", "w") for i in range(metadata._BOUNDS_FILES + 3)]
+    want = [None] * len(files)
+    for _ in range(3):
+        for i, f in enumerate(files):
+            lat, lon = rng.uniform(-80, 80, 50), rng.uniform(-180, 180, 50)
+            metadata.extend_extent(f, lat, lon)
+            now = (lat.min(), lat.max(), lon.min(), lon.max())
+            want[i] = now if want[i] is None else (min(want[i][0], now[0]),
+                                                  max(want[i][1], now[1]),
+                                                  min(want[i][2], now[2]),
+                                                  max(want[i][3], now[3]))
+    for f, (s, n, w, e) in zip(files, want):
+        ext = f["METADATA/Extent"].attrs
+        got = [ext[k] for k in ("southBoundLatitude", "northBoundLatitude",
+                                "westBoundLongitude", "eastBoundLongitude")]
+        assert got == [s, n, w, e] and all(isinstance(v, np.float64) for v in got)
+        assert [f.attrs[k] for k in ("geospatial_lat_min", "geospatial_lat_max",
+                                     "geospatial_lon_min", "geospatial_lon_max")] == got
+        assert (f.attrs["geospatial_lat_units"], f.attrs["geospatial_lon_units"]) == \
+            ("degrees_north", "degrees_east")
+        f.close()

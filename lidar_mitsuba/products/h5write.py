@@ -16,7 +16,10 @@ dataset declares (``tests/test_h5chunks.py``); only the compressed bytes differ 
 
 The whole chunks one append completes are compressed as one job of the pool (a job per
 chunk cost more in futures and locks than ISA-L took on a small chunk), and at
-:func:`drain` the waiting rows of :data:`DRAIN_BATCH` datasets make a job.
+:func:`drain` the waiting rows of :data:`DRAIN_BATCH` datasets make a job; a job of at most
+:data:`INLINE_BYTES` (a header's one-row datasets) is compressed in the calling thread. The
+shuffle of 2-, 4- and 8-byte elements is compiled (:mod:`lidar_mitsuba.products.h5kernels`:
+the same bytes as numpy's transposed copy, ~8x faster).
 
 Rows that do not fill a chunk wait in memory (one partial chunk per dataset) for the next
 append of the same dataset, so a granule streamed section by section never has HDF5 read back,
@@ -34,6 +37,8 @@ Writers are expected on one thread (the pool only compresses).
 from __future__ import annotations
 
 import collections
+import concurrent.futures
+import sys
 import threading
 import zlib
 
@@ -46,6 +51,7 @@ try:
 except ImportError:        # (a platform without its wheel: zlib, slower)
     _isal = None
 
+from . import h5kernels
 from ..machine import host_pool
 
 #: rows per chunk along axis 0 of the datasets :func:`put` creates (a (n, k) dataset's chunk
@@ -57,8 +63,14 @@ GZIP_LEVEL = 1
 ISAL_LEVEL = 2
 #: bytes of uncompressed rows allowed to wait for compression before :func:`put` blocks
 MAX_PENDING_BYTES = 256 * 2 ** 20
+#: chunks of at most this many bytes (a job's, padded) are compressed in the calling thread:
+#: a pool job (its future, lock and wake-up, ~30-50 us of CPU) costs more than ISA-L takes on
+#: them (~1 GB/s here: ~4 us a 4 KiB job). ESTIMATE: the break-even, not measured finely; a
+#: granule's header datasets (~120 a granule, a few to a few hundred bytes) fall under it
+INLINE_BYTES = 4096
 
 _H5Z_FILTER_DEFLATE, _H5Z_FILTER_SHUFFLE = 1, 2
+_LITTLE = sys.byteorder == "little"     # (the compiled shuffle reads words as this host's)
 _lock = threading.Lock()
 _pending: collections.deque = collections.deque()  # (file key, [(dataset, offset)], future
                                                     # of their compressed chunks, bytes)
@@ -95,7 +107,7 @@ def put(group, name: str, data, units: str, description: str, *, append: bool = 
             start = entry.rows
             entry.grow(data.shape[0])
             entry.write(start, data)
-            return entry.dset
+            return entry.dataset()
         d, level = _create(group, name, data, CHUNK_ROWS, fillvalue)
         path = key[1] if not key[1].startswith("//") else key[1][1:]     # (d.name)
         entry = _open[key] = _Entry(d, level=level, key=(_file_key(group), path),
@@ -103,10 +115,15 @@ def put(group, name: str, data, units: str, description: str, *, append: bool = 
                                     chunk_rows=CHUNK_ROWS, fill=_fill(fillvalue, data.dtype))
         entry.grow(data.shape[0])
         entry.write(0, data)
-    else:
-        d, _ = _create(group, name, data, max(1, min(CHUNK_ROWS, data.shape[0])), fillvalue)
-        d.resize(data.shape[0], axis=0)
-        write_rows(d, 0, data)
+    else:                   # (its level, chunk rows and fill value known: not asked of HDF5)
+        rows = max(1, min(CHUNK_ROWS, data.shape[0]))
+        d, level = _create(group, name, data, rows, fillvalue)
+        d.id.set_extent(data.shape)
+        if level is None:
+            write_rows(d, 0, data)
+        else:
+            _write(d, 0, data, dtype=d.dtype, level=level, key=(_file_key(d), d.name),
+                   chunk_rows=rows, fill=_fill(fillvalue, d.dtype))
     set_attrs(d, {"units": units, "description": description}, new=True)
     return d
 
@@ -135,15 +152,16 @@ def _create(group, name, data, rows, fillvalue):
 def set_attrs(obj, values: dict, *, new: bool = False) -> None:
     """Set the attributes ``values`` (name -> value) of the HDF5 object ``obj``, as
     ``obj.attrs[name] = value`` does (an existing one replaced): a ``str`` as a scalar
-    variable-length UTF-8 string, a numeric numpy array or scalar with its dtype and shape.
-    These two go straight to HDF5 with types and dataspaces made once (h5py's own path costs
-    ~3x more per attribute, and an ATL03 granule has ~4 600); any other value through h5py.
-    ``new``: ``obj`` was just made and has none of them (none is looked for)."""
+    variable-length UTF-8 string, a numeric or fixed-length byte string numpy array or scalar
+    with its dtype and shape. These go straight to HDF5 with
+    types and dataspaces made once (h5py's own path costs ~3x more per attribute, and an ATL03
+    granule has ~4 600); any other value through h5py. ``new``: ``obj`` was just made and has
+    none of them (none is looked for)."""
     oid = obj.id
     for name, value in values.items():
         if isinstance(value, str):
             data, (htype, mtype) = np.array(value, dtype=_STR), _str_types()
-        elif isinstance(value, (np.ndarray, np.generic)) and value.dtype.kind in "biuf":
+        elif isinstance(value, (np.ndarray, np.generic)) and value.dtype.kind in "biufS":
             data = np.asarray(value, order="C")      # (a 0-d array stays 0-d)
             htype, mtype = _num_types(data.dtype)
         else:
@@ -180,6 +198,19 @@ def _num_types(dtype):
     return _types[dtype.str]
 
 
+class _Bare:
+    """A dataset's HDF5 id where h5py's object is not needed (:func:`register`'s: an
+    ``h5py.Dataset`` costs ~35 us to make, its transfer property list among it); h5py's
+    object is made only to write rows through HDF5 (rare: a chunk begun by HDF5)."""
+    __slots__ = ("id",)
+
+    def __init__(self, did):
+        self.id = did
+
+    def __setitem__(self, index, value):
+        h5py.Dataset(self.id)[index] = value
+
+
 class _Entry:
     """A dataset :func:`put` appends to, with what each append needs: its rows so far, dtype,
     filters and file. (h5py's lookup of a dataset by name, and of its shape, chunks and
@@ -207,17 +238,23 @@ class _Entry:
     def grow(self, n: int) -> None:
         self.rows += n
 
+    def dataset(self) -> h5py.Dataset:
+        """The dataset, as h5py's object."""
+        d = self.dset
+        return d if isinstance(d, h5py.Dataset) else h5py.Dataset(d.id)
+
     def sync(self) -> None:
         """Set the dataset's extent in the file to its rows."""
         if self.extent != self.rows:
             self.dset.id.set_extent((self.rows,) + self.tail_shape)
             self.extent = self.rows
 
-    def write(self, start: int, data) -> None:
+    def write(self, start: int, data, *, chunks: list | None = None) -> None:
+        """Rows ``start ..`` (:func:`_write`; ``chunks``: where their whole chunks go)."""
         if self.level is not None and self.chunk_rows is None:
             self.chunk_rows, self.fill = self.dset.chunks[0], self.dset.fillvalue
         _write(self.dset, start, data, dtype=self.dtype, level=self.level, key=self.key,
-               chunk_rows=self.chunk_rows, fill=self.fill, entry=self)
+               chunk_rows=self.chunk_rows, fill=self.fill, entry=self, out=chunks)
 
 
 def _fill(fillvalue, dtype) -> np.ndarray:
@@ -236,7 +273,7 @@ def register(group, paths: list, *, levels: list, dtypes: list, tails: list,
     fileno, gname, fkey, gid = group.id.fileno, group.name, _file_key(group), group.id
     for path, level, dtype, tail, fill in zip(paths, levels, dtypes, tails, fills):
         name = f"{gname}/{path}"
-        d = h5py.Dataset(h5d.open(gid, path.encode()))
+        d = _Bare(h5d.open(gid, path.encode()))
         _open[(fileno, name)] = _Entry(d, level=level, key=(fkey, name.replace("//", "/", 1)),
                                        shape=(0,) + tuple(tail), dtype=dtype,
                                        chunk_rows=CHUNK_ROWS, fill=fill)
@@ -247,7 +284,7 @@ def append(group, columns: list) -> list:
     :func:`put` made, or :func:`register` took), as ``put(..., append=True)`` does. Returns
     the paths of those that do not exist (nothing appended to them)."""
     fileno, gname = group.id.fileno, group.name
-    missing = []
+    missing, chunks, fkey = [], [], None
     for path, data in columns:
         data = np.asarray(data)
         entry = _open.get((fileno, f"{gname}/{path}"))
@@ -261,8 +298,22 @@ def append(group, columns: list) -> list:
             continue
         start = entry.rows
         entry.grow(data.shape[0])
-        entry.write(start, data)
+        entry.write(start, data, chunks=chunks)
+        fkey = entry.key[0]
+    if chunks:            # (the whole chunks of every dataset: one pool job, as one append's)
+        _submit(fkey, chunks)
+        _store(block_above=MAX_PENDING_BYTES)
     return missing
+
+
+def dataset_id(fileno: int, path: str):
+    """``(HDF5 id, row shape)`` of the open dataset at ``path`` (its full name) of the file
+    numbered ``fileno`` (``group.id.fileno``) that :func:`put` or :func:`register` made, or
+    ``None``."""
+    entry = _open.get((fileno, path))
+    if entry is None or not entry.dset.id.valid:
+        return None
+    return entry.dset.id, entry.tail_shape
 
 
 def rows(group, path: str) -> int:
@@ -299,10 +350,12 @@ def _level(dset) -> int | None:
 
 
 def _write(dset, start: int, data, *, dtype, level, key, chunk_rows, fill,
-           entry=None) -> None:
+           entry=None, out: list | None = None) -> None:
     """Rows ``start ..`` of ``dset`` (``chunk_rows`` a chunk, padded with ``fill``): the
     whole chunks they complete compressed on the pool as one job, the rest held. ``entry``:
-    its :class:`_Entry` (whose extent is set before HDF5 writes), if it has one."""
+    its :class:`_Entry` (whose extent is set before HDF5 writes), if it has one. ``out``: a
+    list the whole chunks are added to instead (the caller queues them: :func:`append`'s
+    datasets' chunks make one pool job, as the chunks of one dataset's append do)."""
     data = np.ascontiguousarray(data, dtype=dtype)
     held = _tails.pop(key, None)
     if held is not None and held[1] + held[2].shape[0] != start:   # (rows written around us)
@@ -334,6 +387,9 @@ def _write(dset, start: int, data, *, dtype, level, key, chunk_rows, fill,
     b = max(a, stop // rows * rows)
     if b < stop:
         _tails[key] = (dset, b, data[b - start:].copy(), level, rows, fill, entry)
+    if out is not None:
+        out.extend(chunks)
+        return
     _submit(key[0], chunks)
     _store(block_above=MAX_PENDING_BYTES)
 
@@ -382,9 +438,13 @@ def _submit(file_key: bytes, chunks: list) -> None:
     rows``)."""
     if not chunks:
         return
-    future = host_pool().submit(_encode_chunks, [c[2:6] for c in chunks])
-    places = [(c[0], (c[1],) + (0,) * (c[2].ndim - 1), c[6]) for c in chunks]
     nbytes = sum(c[4] * (c[2].nbytes // c[2].shape[0]) for c in chunks)
+    if nbytes <= INLINE_BYTES:         # (a pool job costs more than these bytes' deflate)
+        future = concurrent.futures.Future()
+        future.set_result(_encode_chunks([c[2:6] for c in chunks]))
+    else:
+        future = host_pool().submit(_encode_chunks, [c[2:6] for c in chunks])
+    places = [(c[0], (c[1],) + (0,) * (c[2].ndim - 1), c[6]) for c in chunks]
     with _lock:
         _pending.append((file_key, places, future, nbytes))
         _queued[0] += nbytes
@@ -423,9 +483,13 @@ def _store(*, block_above: int) -> None:
 def _encode(piece: np.ndarray, level: int) -> bytes:
     """One whole chunk as HDF5's shuffle and deflate filters store it."""
     size = piece.dtype.itemsize
-    planes = piece.reshape(-1).view(np.uint8).reshape(-1, size)
-    if size > 1:                 # byte i of every element together (HDF5's shuffle filter)
-        planes = np.ascontiguousarray(planes.T)
+    planes = piece.reshape(-1).view(np.uint8)
+    if size in h5kernels.SIZES and _LITTLE:     # byte i of every element together (HDF5's
+        out = np.empty_like(planes)             # shuffle filter), a word at a time
+        h5kernels.shuffle(planes, size, out)
+        planes = out
+    elif size > 1:
+        planes = np.ascontiguousarray(planes.reshape(-1, size).T)
     if _isal is not None:
         return _isal.compress(planes, ISAL_LEVEL)
     return zlib.compress(planes, level)
@@ -455,4 +519,4 @@ def _file_key(obj) -> bytes:
 
 
 __all__ = ["CHUNK_ROWS", "GZIP_LEVEL", "MAX_PENDING_BYTES", "put", "write_rows", "drain",
-           "discard", "set_attrs", "register", "append", "rows", "forget"]
+           "discard", "set_attrs", "register", "append", "rows", "dataset_id", "forget"]

@@ -37,6 +37,7 @@ import re
 import uuid
 
 import numpy as np
+from h5py import h5a
 
 from .. import __version__
 
@@ -100,37 +101,38 @@ def write_metadata(f, *, short_name: str, path: str | os.PathLike, config: dict,
                 f"Monte Carlo simulation by lidar_mitsuba {__version__}; the configuration is in "
                 "Lineage/SIM and ProcessStep/PGE.")
     credit = f"simulated by lidar_mitsuba {__version__} (not NASA ICESat-2 data)"
-    m.create_group("DatasetIdentification").attrs.update(_text({
+    _set_attrs(m.create_group("DatasetIdentification"), _text({
         "shortName": short_name, "VersionID": version, "fileName": file_name,
         "uuid": product_uuid(short_name, file_name, config), "abstract": abstract,
         "purpose": f"simulated {long_name}", "language": "eng", "characterSet": "utf8",
         "spatialRepresentationType": "along-track", "topicCategory": "geoscientificInformation",
         "status": "onGoing", "originatorOrganizationName": "lidar_mitsuba (simulation)",
-        "credit": credit}))
-    m.create_group("SeriesIdentification").attrs.update(_text({
+        "credit": credit}), new=True)
+    _set_attrs(m.create_group("SeriesIdentification"), _text({
         "shortName": short_name, "VersionID": version, "longName": f"{long_name} (simulated)",
         "format": "HDF", "formatVersion": "5", "abstract": abstract, "credit": credit,
-        "mission": "ICESat-2 (simulated by lidar_mitsuba)"}))
+        "mission": "ICESat-2 (simulated by lidar_mitsuba)"}), new=True)
     _acquisition(m, instruments)
     lin = m.create_group("Lineage")
-    lin.create_group("SIM").attrs.update(_text({
+    _set_attrs(lin.create_group("SIM"), _text({
         "shortName": "SIM", "version": __version__, "fileName": file_name,
         "description": "simulated by lidar_mitsuba: photons traced by a first-principles Monte "
         "Carlo simulation (Mitsuba 3) through a modelled ATLAS detector, not ATL02 telemetry; "
         "runTimeParameters: the simulation's configuration (JSON)",
-        "runTimeParameters": cfg}))
+        "runTimeParameters": cfg}), new=True)
     for name, p in (inputs or {}).items():
         in_name, in_version = release_of(p)
-        lin.create_group(name).attrs.update(_text({
+        _set_attrs(lin.create_group(name), _text({
             "shortName": name, "version": in_version, "fileName": in_name,
             "uuid": product_uuid(name, in_name, config),
-            "description": f"simulated {PRODUCTS[name][0]} of the same run (lidar_mitsuba)"}))
-    m.create_group("ProcessStep/PGE").attrs.update(_text({
+            "description": f"simulated {PRODUCTS[name][0]} of the same run (lidar_mitsuba)"}),
+            new=True)
+    _set_attrs(m.create_group("ProcessStep/PGE"), _text({
         "identifier": "lidar_mitsuba", "softwareTitle": "lidar_mitsuba (simulation)",
         "softwareVersion": __version__, "runTimeParameters": cfg,
-        "processDescription": f"SIMULATED DATA. {process}"}))
-    m.create_group("Extent").attrs.update(_text({"rangeBeginningDateTime": t_first,
-                                                 "rangeEndingDateTime": t_last}))
+        "processDescription": f"SIMULATED DATA. {process}"}), new=True)
+    _set_attrs(m.create_group("Extent"), _text({"rangeBeginningDateTime": t_first,
+                                                "rangeEndingDateTime": t_last}), new=True)
 
 
 def _acquisition(m, instruments) -> None:
@@ -138,13 +140,21 @@ def _acquisition(m, instruments) -> None:
     beams = ", ".join(f"{b.name} ({b.strength})" for b, _ in instruments)
     inst = instruments[0][1]
     acq = m.create_group("AcquisitionInformation")
-    acq.create_group("lidar").attrs.update(_text({
+    _set_attrs(acq.create_group("lidar"), _text({
         "identifier": "ATLAS (simulated)", "type": "Laser Altimeter",
         "wavelength": f"{inst.wavelength_nm:g} nm", "pulse_rate": f"{inst.prf_hz:g} pps",
-        "description": f"simulated photon-counting lidar, beams {beams}"}))
-    acq.create_group("platform").attrs.update(_text({
+        "description": f"simulated photon-counting lidar, beams {beams}"}), new=True)
+    _set_attrs(acq.create_group("platform"), _text({
         "identifier": "ICESat-2 (simulated)", "type": "Spacecraft",
-        "description": f"nadir-pointing, {inst.altitude_m / 1e3:g} km above the heights' datum"}))
+        "description": f"nadir-pointing, {inst.altitude_m / 1e3:g} km above the heights' datum"}),
+        new=True)
+
+
+def _set_attrs(obj, values: dict, *, new: bool = False) -> None:
+    """:func:`lidar_mitsuba.products.h5write.set_attrs` (h5py's attributes' types, at a third
+    of h5py's cost: a file's METADATA has ~60 attributes)."""
+    from .h5write import set_attrs
+    set_attrs(obj, values, new=new)
 
 
 def _text(attrs: dict) -> dict:
@@ -153,24 +163,61 @@ def _text(attrs: dict) -> dict:
     return {k: np.bytes_(v if isinstance(v, bytes) else str(v).encode()) for k, v in attrs.items()}
 
 
+#: the bounds :func:`extend_extent` last wrote to each of the files it wrote last, by HDF5's
+#: file number (never reused in a process): ``{fileno: {attribute: value}}``, oldest first
+_BOUNDS: dict = {}
+_BOUNDS_FILES = 8
+
+
 def extend_extent(f, lat_deg, lon_deg) -> None:
     """Widen the file's latitude and longitude bounds (``METADATA/Extent`` and the root
     ``geospatial_*`` attributes) to take in these shots (longitudes as they are: a track
-    across the antimeridian gets -180 to 180)."""
+    across the antimeridian gets -180 to 180). Only the bounds that move are written again
+    (the root's copy with each); the bounds written last are remembered (:data:`_BOUNDS`),
+    else read back: a granule calls this once a section and file, and h5py's attribute
+    objects cost ~1 ms a call."""
     if np.size(lat_deg) == 0:
         return
-    from .h5write import set_attrs       # (h5py's attributes' types, at a third of the cost)
     g = f.require_group("METADATA/Extent")
-    e = g.attrs
-    bounds = {"southBoundLatitude": (np.min(lat_deg), min), "northBoundLatitude":
-              (np.max(lat_deg), max), "westBoundLongitude": (np.min(lon_deg), min),
-              "eastBoundLongitude": (np.max(lon_deg), max)}
-    now = {key: np.float64(pick(float(v), float(e[key])) if key in e else v)
-           for key, (v, pick) in bounds.items()}
-    set_attrs(g, now)
-    set_attrs(f, {"geospatial_lat_min": now["southBoundLatitude"],
-                  "geospatial_lat_max": now["northBoundLatitude"],
-                  "geospatial_lon_min": now["westBoundLongitude"],
-                  "geospatial_lon_max": now["eastBoundLongitude"],
-                  "geospatial_lat_units": "degrees_north",
-                  "geospatial_lon_units": "degrees_east"})
+    fileno = f.id.fileno
+    known = _BOUNDS.pop(fileno, None)
+    if known is None:
+        known = {k: _float_attr(g, k) for k in _PICKS}
+        known.update((copy, _float_attr(f, copy)) for copy in _COPIES.values())
+    values = {"southBoundLatitude": np.min(lat_deg), "northBoundLatitude": np.max(lat_deg),
+              "westBoundLongitude": np.min(lon_deg), "eastBoundLongitude": np.max(lon_deg)}
+    extent, root = {}, {}
+    for key, v in values.items():
+        was, copy = known[key], _COPIES[key]
+        now = np.float64(v if was is None else _PICKS[key](float(v), was))
+        if was is None or now != was or known[copy] is None:
+            extent[key] = root[copy] = now
+            known[key] = known[copy] = float(now)
+    for key, units in (("geospatial_lat_units", "degrees_north"),
+                       ("geospatial_lon_units", "degrees_east")):
+        if not known.get(key):
+            if not h5a.exists(f.id, key.encode()):
+                root[key] = units
+            known[key] = True
+    _set_attrs(g, extent)
+    _set_attrs(f, root)
+    _BOUNDS[fileno] = known
+    while len(_BOUNDS) > _BOUNDS_FILES:
+        del _BOUNDS[next(iter(_BOUNDS))]
+
+
+_PICKS = {"southBoundLatitude": min, "northBoundLatitude": max, "westBoundLongitude": min,
+          "eastBoundLongitude": max}
+_COPIES = {"southBoundLatitude": "geospatial_lat_min", "northBoundLatitude":
+           "geospatial_lat_max", "westBoundLongitude": "geospatial_lon_min",
+           "eastBoundLongitude": "geospatial_lon_max"}
+
+
+def _float_attr(obj, name: str) -> float | None:
+    """The scalar float attribute ``name`` of ``obj`` (``None``: it has none)."""
+    b = name.encode()
+    if not h5a.exists(obj.id, b):
+        return None
+    out = np.empty((), np.float64)
+    h5a.open(obj.id, b).read(out)
+    return float(out)

@@ -23,12 +23,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from h5py import h5a
 
 from . import file as atl03_file, kernels
 from .. import h5template, h5write as h5chunks
 from ...detector import pmt
 from ... import radiometry
-from .fields import COORDINATES, F4_FILL, GROUPS, SURFACE_TYPES
+from .fields import COORDINATES, F4_FILL, GROUPS, HEIGHTS, SURFACE_TYPES
 from ...trace.stream import gate_heights_m
 from ..classify import histogram_test
 from ...constants import C_M_PER_NS
@@ -38,6 +39,8 @@ SEGMENT_M = 20.0            #: ATL03 geolocation segment length [m]
 PULSES_PER_MAJOR_FRAME = 200
 _C_M_PER_S = C_M_PER_NS * 1e9
 _pending: dict = {}         # (file key, beam) -> the bckgrd_atlas row the next section continues
+_groups: dict = {}          # (HDF5 file number, path) -> the h5py.Group write_beam made or
+                            # opened there (a file being written: dropped by flush, discard)
 
 
 # --------------------------------------------------------------------------- the run's rows
@@ -55,9 +58,10 @@ class _Section:
         # per-photon fields are views, not gathered copies)
         self.order = (slice(None) if shot.size < 2 or bool(np.all(shot[1:] >= shot[:-1]))
                       else np.argsort(shot, kind="stable"))
-        self.shot = shot[self.order].astype(np.int64)              # local to this run
+        # (read only: views where the photons' own arrays already have these dtypes)
+        self.shot = shot[self.order].astype(np.int64, copy=False)  # local to this run
         self.channel = det.channel[self.order]
-        self.conf = np.asarray(res.signal_conf)[self.order].astype(np.int8)
+        self.conf = np.asarray(res.signal_conf)[self.order].astype(np.int8, copy=False)
         (self.seg_of_shot, self.first, self.count, self.ref_shot,
          self.k0) = _segments(res.along_track_m, self.shot)
         self.gate = gate_heights_m(res.z_ref_m)       # the gates simulate() centred
@@ -115,17 +119,21 @@ def _heights(s: _Section) -> dict:
     p = s.test.tail_p[s.order]
     base = 1 if run.beam.strength == "strong" else 17
     gshot = run.first_shot + np.arange(res.n_shots, dtype=np.int64)   # (per shot, gathered)
-    return {
+    f = HEIGHTS                # (per-shot values in the file's dtype, then gathered: the same
+    return {                   # values as gathered, then converted)
         "lat_ph": run.lat_deg[shot], "lon_ph": run.lon_deg[shot], "h_ph": res.h_m[s.order],
         "delta_time": run.delta_time_s[shot],
-        "dist_ph_along": (res.along_track_m - SEGMENT_M * s.seg_of_shot)[shot],
-        "dist_ph_across": np.zeros(shot.size),
+        "dist_ph_along": (res.along_track_m - SEGMENT_M * s.seg_of_shot).astype(
+            f["dist_ph_along"].dtype)[shot],
+        "dist_ph_across": np.zeros(shot.size, f["dist_ph_across"].dtype),
         "signal_conf_ph": np.repeat(s.conf[:, None], len(SURFACE_TYPES), axis=1),
         "weight_ph": np.round(255.0 * np.clip(-np.log10(np.maximum(p, 1e-300)) / 6.0, 0, 1)),
         "ph_id_count": _ph_id_count(shot, s.channel),
         "ph_id_channel": s.channel.astype(np.int64) + base,
-        "ph_id_pulse": (gshot % PULSES_PER_MAJOR_FRAME + 1)[shot],
-        "pce_mframe_cnt": (gshot // PULSES_PER_MAJOR_FRAME)[shot],
+        "ph_id_pulse": (gshot % PULSES_PER_MAJOR_FRAME + 1).astype(
+            f["ph_id_pulse"].dtype)[shot],
+        "pce_mframe_cnt": (gshot // PULSES_PER_MAJOR_FRAME).astype(
+            f["pce_mframe_cnt"].dtype)[shot],
         "quality_ph": _quality(s),
     }
 
@@ -213,7 +221,10 @@ def _quality(s: _Section) -> np.ndarray:
     h = np.asarray(s.res.h_m, np.float64)[s.order]
     top = np.full(sat.size, -np.inf)
     surf = s.conf >= 2
-    np.maximum.at(top, s.shot[surf], h[surf])
+    at = s.shot[surf]              # (ascending: photons are in shot order; the maximum of
+    if at.size:                    # each shot's run is exact, as np.maximum.at's, NaN too)
+        start = np.flatnonzero(np.r_[True, at[1:] != at[:-1]])
+        top[at[start]] = np.maximum.reduceat(h[surf], start)
     depth = np.where(sat[s.shot], top[s.shot] - h, -np.inf)
     for lo, hi, flag in QUALITY_WINDOWS_M:
         q[(depth > lo) & (depth <= hi)] = flag
@@ -246,9 +257,10 @@ def _velocity_enu(lat_deg, lon_deg, t_s, at) -> np.ndarray:
     difference of its neighbours' ECEF positions on the ellipsoid, in the local frame."""
     n = lat_deg.size
     i0, i1 = np.maximum(at - 1, 0), np.minimum(at + 1, n - 1)
-    ecef = _to_ecef()
-    p0 = np.column_stack(ecef.transform(lon_deg[i0], lat_deg[i0], np.zeros(at.size)))
-    p1 = np.column_stack(ecef.transform(lon_deg[i1], lat_deg[i1], np.zeros(at.size)))
+    both = np.concatenate([i0, i1])          # (one call: PROJ transforms point by point)
+    p = np.column_stack(_to_ecef().transform(lon_deg[both], lat_deg[both],
+                                             np.zeros(both.size)))
+    p0, p1 = p[:at.size], p[at.size:]
     dt = t_s[i1] - t_s[i0]
     v = (p1 - p0) / np.where(dt > 0, dt, np.inf)[:, None]
     lat, lon = np.deg2rad(lat_deg[at]), np.deg2rad(lon_deg[at])
@@ -341,8 +353,9 @@ def _bckgrd(rows: dict) -> dict:
             "tlm_height_band1": rows["gate"], "tlm_top_band1": rows["top"]}
 
 
-def _append_bckgrd(gt, s: _Section) -> None:
-    """Append the run's complete 50-shot rows; hold a row the next run continues."""
+def _append_bckgrd(gt, s: _Section, *, at: tuple | None = None) -> None:
+    """Append the run's complete 50-shot rows; hold a row the next run continues (``at``:
+    as :func:`_write_group`'s)."""
     key = (h5chunks._file_key(gt), gt.name)
     rows = _bckgrd_rows(s)
     held = _pending.pop(key, None)
@@ -351,7 +364,7 @@ def _append_bckgrd(gt, s: _Section) -> None:
     if (s.run.first_shot + s.res.n_shots) % BCKGRD_SHOTS:       # the last row goes on
         _pending[key] = {k: v[-1:] for k, v in rows.items()}
         rows = {k: v[:-1] for k, v in rows.items()}
-    _write_group(gt, "bckgrd_atlas", _bckgrd(rows))
+    _write_group(gt, "bckgrd_atlas", _bckgrd(rows), at=at)
 
 
 def flush(f) -> None:
@@ -359,6 +372,7 @@ def flush(f) -> None:
     key = h5chunks._file_key(f)
     for k in [k for k in _pending if k[0] == key]:
         _write_group(f[k[1]], "bckgrd_atlas", _bckgrd(_pending.pop(k)))
+    _forget_groups(f)
 
 
 def discard(f) -> None:
@@ -366,21 +380,37 @@ def discard(f) -> None:
     key = h5chunks._file_key(f)
     for k in [k for k in _pending if k[0] == key]:
         del _pending[k]
+    _forget_groups(f)
+
+
+def _forget_groups(f) -> None:
+    fileno = f.id.fileno
+    for k in [k for k in _groups if k[0] == fileno]:
+        del _groups[k]
+
+
+def _group(fileno: int, path: str):
+    """The group at ``path`` of the file numbered ``fileno`` (``f.id.fileno``) as this module
+    last made or opened it, or ``None``: h5py's lookups of a name cost ~50 us each, and each
+    section of each beam asks for ~15 groups."""
+    g = _groups.get((fileno, path))
+    return g if g is not None and g.id.valid else None
 
 
 # --------------------------------------------------------------------------- writing
-def _write_group(gt, name: str, values: dict) -> None:
+def _write_group(gt, name: str, values: dict, *, at: tuple | None = None) -> None:
     """Append ``values`` to group ``gt/name`` as its fields (:data:`GROUPS`) say: dtype,
     constants for the fields not given, attributes and the ``delta_time`` dimension scale
     when the group is new (its datasets copied from a template:
-    :mod:`lidar_mitsuba.products.h5template`)."""
+    :mod:`lidar_mitsuba.products.h5template`). ``at``: ``(HDF5 file number, gt's path)``,
+    where the group is kept from section to section (:func:`_group`)."""
     spec = GROUPS[name]
     extra = set(values) - set(spec)
     if extra:
         raise KeyError(f"{name}: not ATL03 fields: {sorted(extra)}")
     n = len(values["delta_time"])
     coordinates = COORDINATES.get(name, "delta_time")
-    columns = []
+    columns, made = [], []
     for field_name, fld in spec.items():
         v = values.get(field_name, fld.const)
         note = fld.model_note
@@ -391,11 +421,17 @@ def _write_group(gt, name: str, values: dict) -> None:
         data = np.asarray(v)
         if data.ndim == 0 or data.shape[0] != n:
             data = np.broadcast_to(data, (n,) + fld.shape)
-        columns.append((field_name, data.astype(fld.dtype, copy=False), fld.units,
-                        fld.description,
+        data = data.astype(fld.dtype, copy=False)
+        columns.append((field_name, data, fld.units, fld.description,
                         functools.partial(_field_attrs, fld, note, coordinates, field_name),
                         fld.fill))
-    g, new = h5template.put_group(gt, name, columns)
+        made.append((field_name, note, data.dtype.str, data.shape[1:]))
+    held = None if at is None else _group(at[0], f"{at[1]}/{name}")
+    # (the template's key: the group's fields, notes, dtypes and row shapes make its specs)
+    g, new = h5template.put_group(gt, name, columns, key=("atl03", name, tuple(made)),
+                                  group=held)
+    if at is not None and held is None:
+        _groups[(at[0], f"{at[1]}/{name}")] = g
     if new:
         atl03_file.dimension_scale(g)
 
@@ -435,28 +471,39 @@ def write_beam(f, run, sc_orient: int, *, replanned: bool = False) -> None:
     differs from the section before) adds ``{"first_shot", "config"}`` of its own to the JSON
     list ``section_configs``, so the file says what every section was simulated with."""
     beam = run.beam
-    if beam.name not in f:                                # (the first section's)
-        h5chunks.set_attrs(f.create_group(beam.name), {
-            **beam_attrs(beam, sc_orient),
-            "description": "one ATLAS beam: photons, geolocation, background"})
-    gt = f[beam.name]
+    fileno = f.id.fileno
+    gt = _group(fileno, f"/{beam.name}")
+    if gt is None:
+        if beam.name not in f:                            # (the first section's)
+            h5chunks.set_attrs(f.create_group(beam.name), {
+                **beam_attrs(beam, sc_orient),
+                "description": "one ATLAS beam: photons, geolocation, background"})
+        gt = _groups[(fileno, f"/{beam.name}")] = f[beam.name]
+    at = (fileno, f"/{beam.name}")
     done = h5chunks.rows(gt, "heights/h_ph")              # earlier sections' photons
     s = _Section(run, done)
-    _write_group(gt, "heights", _heights(s))
-    _write_group(gt, "geolocation", _geolocation(s, sc_orient))
-    _write_group(gt, "geophys_corr", _geophys(s))
-    _append_bckgrd(gt, s)
+    _write_group(gt, "heights", _heights(s), at=at)
+    _write_group(gt, "geolocation", _geolocation(s, sc_orient), at=at)
+    _write_group(gt, "geophys_corr", _geophys(s), at=at)
+    _append_bckgrd(gt, s, at=at)
     found = _signal_find(s)
     for surface in SURFACE_TYPES:
-        _write_group(gt, f"signal_find_output/{surface}", found)
-    truth = f.require_group("truth").require_group(beam.name)
+        _write_group(gt, f"signal_find_output/{surface}", found, at=at)
+    truth = _group(fileno, f"/truth/{beam.name}")
+    if truth is None:
+        truth = _groups[(fileno, f"/truth/{beam.name}")] = \
+            f.require_group("truth").require_group(beam.name)
     groups: dict = {}
     for group, name, data, units, desc in truth_fields(s.res, order=s.order,
                                                        first_shot=run.first_shot):
         groups.setdefault(group, []).append((name, data, units, desc, {}, None))
     for group, columns in groups.items():
-        h5template.put_group(truth, group, columns)
-    if "config" not in truth.attrs:                       # (the first section's)
+        held = _group(fileno, f"/truth/{beam.name}/{group}")
+        key = ("truth", group, tuple((c[0], np.asarray(c[1]).dtype.str, np.shape(c[1])[1:],
+                                      c[2], c[3]) for c in columns))
+        g, _ = h5template.put_group(truth, group, columns, key=key, group=held)
+        _groups[(fileno, f"/truth/{beam.name}/{group}")] = g
+    if not h5a.exists(truth.id, b"config"):               # (the first section's)
         truth.attrs["config"] = json.dumps(s.res.config)
     elif replanned:                                       # a section with a model of its own
         past = json.loads(truth.attrs.get("section_configs", "[]"))

@@ -38,27 +38,25 @@ def header(f, granule, instruments, t_first, t_last, *, path=None) -> None:
     and ``frame_origin_m``; ``instruments``: ``[(beam, instrument), ...]``; ``t_first``,
     ``t_last``: the first and last shot times [s since 2018-01-01]; ``path``: where the file
     will be (its name gives the metadata's file name and release; default ``f``'s own)."""
-    f.attrs["short_name"] = "ATL03"
-    f.attrs["title"] = "simulated ATLAS/ICESat-2 L2A Global Geolocated Photon Data"
-    f.attrs["description"] = ("Simulated by lidar_mitsuba (first-principles Monte Carlo): "
-                              "photon heights over a simulated surface; /truth holds the "
-                              "simulation truth")
-    f.attrs.update({"Conventions": "CF-1.6", "featureType": "trajectory",
-                    "granule_type": "ATL03", "identifier_product_type": "ATL03",
-                    "level": "L2", "processing_level": "2A",
-                    "lidar_mitsuba_version": __version__, "config": json.dumps(granule.config),
-                    "time_coverage_start": utc(t_first), "time_coverage_end": utc(t_last)})
+    h5chunks.set_attrs(f, {
+        "short_name": "ATL03",
+        "title": "simulated ATLAS/ICESat-2 L2A Global Geolocated Photon Data",
+        "description": ("Simulated by lidar_mitsuba (first-principles Monte Carlo): photon "
+                        "heights over a simulated surface; /truth holds the simulation truth"),
+        "Conventions": "CF-1.6", "featureType": "trajectory",
+        "granule_type": "ATL03", "identifier_product_type": "ATL03",
+        "level": "L2", "processing_level": "2A",
+        "lidar_mitsuba_version": __version__, "config": json.dumps(granule.config),
+        "time_coverage_start": utc(t_first), "time_coverage_end": utc(t_last)})
     ancillary(f, instruments, t_first, t_last)
     orbit_info(f, granule, t_first)
     metadata(f, granule, instruments, t_first, t_last,
              path=f.filename if path is None else path)
     column_scales(f)
-    t = f.require_group("truth")
-    t.attrs["crs"] = granule.crs
-    t.attrs["frame_origin_m"] = np.asarray(granule.frame_origin_m, np.float64)
-    t.attrs["description"] = (
-        "simulation truth per beam; positions x, y in the CRS of attribute crs less "
-        "frame_origin_m [m], z and heights above the heights' datum [m]")
+    h5chunks.set_attrs(f.require_group("truth"), {
+        "crs": granule.crs, "frame_origin_m": np.asarray(granule.frame_origin_m, np.float64),
+        "description": "simulation truth per beam; positions x, y in the CRS of attribute crs "
+                       "less frame_origin_m [m], z and heights above the heights' datum [m]"})
 
 
 def ancillary(f, instruments, t_first, t_last) -> None:
@@ -154,19 +152,28 @@ def dimension_scale(g) -> None:
     the root ``ds_surf_type`` or ``ds_xyz`` that of a second axis, as in real granules (xarray
     then names those dimensions ``delta_time``, ``ds_surf_type``, ``ds_xyz``)."""
     # (HDF5's own calls, as h5py's make_scale and attach_scale make them, in its order: the
-    # group's members by name; h5py's objects for each member cost ~5x more)
-    t = g["delta_time"].id
-    h5ds.set_scale(t, b"delta_time")
+    # group's members by name; h5py's objects for each member cost ~5x more. The datasets
+    # the writer made are not opened again: h5write holds their ids and row shapes)
+    fileno, prefix = g.id.fileno, g.name + "/"
     columns = {}
+
+    def opened(name: bytes):
+        known = h5chunks.dataset_id(fileno, prefix + name.decode())
+        if known is not None:
+            return known
+        obj = h5o.open(g.id, name)
+        return (obj, obj.shape[1:]) if isinstance(obj, h5d.DatasetID) else (None, None)
+
+    t = opened(b"delta_time")[0]
+    h5ds.set_scale(t, b"delta_time")
     for name in g.id:
         if name == b"delta_time":
             continue
-        ds = h5o.open(g.id, name)
-        if not isinstance(ds, h5d.DatasetID):
+        ds, tail = opened(name)
+        if ds is None:
             continue
         h5ds.attach_scale(ds, t, 0)
-        shape = ds.shape
-        if len(shape) == 2:
-            if shape[1] not in columns:
-                columns[shape[1]] = g.file[_COLUMN_SCALES[shape[1]]].id
-            h5ds.attach_scale(ds, columns[shape[1]], 1)
+        if len(tail) == 1:
+            if tail[0] not in columns:
+                columns[tail[0]] = h5d.open(g.id, f"/{_COLUMN_SCALES[tail[0]]}".encode())
+            h5ds.attach_scale(ds, columns[tail[0]], 1)
