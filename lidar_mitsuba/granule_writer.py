@@ -2,8 +2,8 @@
 
 :class:`GranuleFiles` holds the two files of one granule open and appends each section as
 it comes: its ATL03 rows (:func:`lidar_mitsuba.products.atl03.beam.write_beam`) and its ATL06
-fit (:class:`lidar_mitsuba.granule._Fits`, on a thread of its own); both files are written
-atomically (a failure leaves neither).
+fit (:class:`lidar_mitsuba.granule_products._Fits`, on a thread of its own); both files are
+written atomically (a failure leaves neither).
 
 :class:`WriterProcess` runs a :class:`GranuleFiles` in a process of its own, so the
 simulating thread never waits for HDF5 nor shares its interpreter lock with the writer (a
@@ -58,27 +58,27 @@ class GranuleFiles:
 
     def __init__(self, *, meta, instruments, t_first: float, t_last: float, atl03_path,
                  atl06_path, sc_orient: int, segment_options: dict, beams):
-        from . import granule
+        from . import granule_products as products
         from .products.atl03 import atomic_h5file
-        self.granule, self.sc_orient, self.fits = granule, int(sc_orient), None
+        self.products, self.sc_orient, self.fits = products, int(sc_orient), None
         self.stack = contextlib.ExitStack()
         try:
             self.f3 = self.stack.enter_context(atomic_h5file(atl03_path))
-            granule._atl03_header(self.f3, meta, instruments, t_first, t_last, path=atl03_path)
+            products._atl03_header(self.f3, meta, instruments, t_first, t_last, path=atl03_path)
             if atl06_path is not None:
                 f6 = self.stack.enter_context(atomic_h5file(atl06_path))
-                granule._atl06_header(f6, meta, instruments, t_first, t_last, path=atl06_path,
+                products._atl06_header(f6, meta, instruments, t_first, t_last, path=atl06_path,
                                       atl03_path=atl03_path)
-                self.fits = self.stack.enter_context(granule._Fits(f6, sc_orient))
+                self.fits = self.stack.enter_context(products._Fits(f6, sc_orient))
         except BaseException:
             self.abort()
             raise
-        self.segments = {b.name: granule._SegmentStream(dict(segment_options)) for b in beams}
+        self.segments = {b.name: products._SegmentStream(dict(segment_options)) for b in beams}
 
     def section(self, run, *, replanned: bool, last: bool) -> None:
         """Append one section (a :class:`~lidar_mitsuba.products.record.BeamRun`) to ATL03
         and hand it to the ATL06 fits (``last``: the beam's last section)."""
-        self.granule._beam_atl03(self.f3, run, self.sc_orient, replanned=replanned)
+        self.products._beam_atl03(self.f3, run, self.sc_orient, replanned=replanned)
         if self.fits is not None:
             self.fits.submit(run.beam, self.segments[run.beam.name], run, last=last)
             self.fits.write()
@@ -324,7 +324,7 @@ def _warm_up() -> None:
     short track does not use the fit), and PROJ's ECEF transform that ATL03's velocities use (pyproj's import and the
     transform's set-up, ~0.2 s of CPU the first section would pay; never imported before a
     fork: :func:`lidar_mitsuba.forking.refusal`)."""
-    from . import granule, precompile  # noqa: F401
+    from . import granule_products, precompile  # noqa: F401
     from .products.atl03 import beam
     for stage in ("atl06", "atl03", "h5"):
         if precompile.is_cached(stage):

@@ -101,3 +101,28 @@ def test_stats_and_segments_run_without_a_renderer(tmp_path):
         assert json.loads(r.stdout)
     beam = lm.read_atl03(path)
     assert np.allclose(beam["h_m"], res.h_m)
+
+
+#: what only the writer process needs (h5py, the product writers): issue 43's cold start
+WRITER_ONLY = ("h5py", "lidar_mitsuba.granule_products", "lidar_mitsuba.products.atl03",
+               "lidar_mitsuba.products.atl06", "lidar_mitsuba.products.h5write",
+               "lidar_mitsuba.products.h5template", "lidar_mitsuba.products.metadata")
+
+
+def test_the_simulating_side_imports_no_writer():
+    """The simulating process of a granule run (``simulate --dem``, bench's granule row)
+    imports neither h5py nor the product writers before its first granule: the writer process
+    imports them itself, after its fork; ``granule``'s writer names still resolve, on use."""
+    code = ("import sys\n"
+            "import lidar_mitsuba.granule, lidar_mitsuba.granule_writer\n"
+            "import lidar_mitsuba.studies.track_length, lidar_mitsuba.cli.simulate\n"
+            f"print([m for m in {WRITER_ONLY!r} if m in sys.modules])\n"
+            "from lidar_mitsuba import granule, granule_products as p\n"
+            "print(granule.write_atl03.__module__, granule._SegmentStream is p._SegmentStream,\n"
+            "      granule._Fits is p._Fits, granule._atl03_header is p._atl03_header)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=300, cwd=ROOT, env=_env())
+    assert r.returncode == 0, r.stderr
+    first, second = r.stdout.strip().splitlines()
+    assert first == "[]"
+    assert second == "lidar_mitsuba.granule True True True"

@@ -15,6 +15,10 @@ import numpy as np
 
 from ..geotrack import Beam, GeoTrack, beam_layout
 
+#: ATL03 geolocation segment length [m] (ATL03 ATBD: 20 m along-track geolocation segments);
+#: here, with no h5py, for the simulating side's sections (lidar_mitsuba.granule)
+SEGMENT_M = 20.0
+
 #: the beam group a single-beam file uses for each beam strength (spacecraft orientation 0)
 BEAM_GROUPS = {"strong": "gt1l", "weak": "gt1r"}
 

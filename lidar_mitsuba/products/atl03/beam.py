@@ -32,10 +32,10 @@ from ... import radiometry
 from .fields import COORDINATES, F4_FILL, GROUPS, HEIGHTS, SURFACE_TYPES
 from ...trace.stream import gate_heights_m
 from ..classify import histogram_test
+from ..record import SEGMENT_M  # noqa: F401 (ATL03's 20 m segments: one definition)
 from ...constants import C_M_PER_NS
 from ...night import BCKGRD_SHOTS, removed_extremes   # (a bckgrd_atlas row: one definition)
 
-SEGMENT_M = 20.0            #: ATL03 geolocation segment length [m]
 PULSES_PER_MAJOR_FRAME = 200
 _C_M_PER_S = C_M_PER_NS * 1e9
 _pending: dict = {}         # (file key, beam) -> the bckgrd_atlas row the next section continues
