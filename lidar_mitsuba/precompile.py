@@ -165,12 +165,18 @@ def _cached(module: str, functions: tuple[str, ...]) -> bool:
     return True
 
 
+def _compiling(i: int, steps: list) -> str:
+    """The compile bar's words while step ``i`` of ``steps`` compiles (one short line: a long
+    one wraps, and a terminal then repeats it at every refresh)."""
+    return f"compiling kernels {i + 1}/{len(steps)} ({steps[i][0]}), once per machine"
+
+
 def compile_kernels(*, atl06: bool = False, atl03: bool = False, progress: bool = True
                     ) -> float:
     """Compile the detector's kernels (and, with ``atl06``, the compiled ATL06 fit; with
     ``atl03``, ATL03's per-photon fields) if they are not cached yet; returns the seconds it
-    took. With ``progress``, a bar on stderr says
-    "compiling kernels (first run on this machine)" and moves every half second."""
+    took. With ``progress``, a bar on stderr names the stage compiling (one short line:
+    :func:`_compiling`) and moves every half second."""
     wanted = [stage for stage in STAGE_BAR if stage not in _ASKED
               or (atl06 if stage == "atl06" else atl03)]
     steps = [(*STAGE_BAR[stage], globals()[f"_{stage}"]) for stage in wanted
@@ -180,9 +186,12 @@ def compile_kernels(*, atl06: bool = False, atl03: bool = False, progress: bool 
     t0 = time.perf_counter()
     errors: list[BaseException] = []
 
+    current = [0]                           # the step compiling now (the bar names it)
+
     def work():
         try:
-            for _, _, fn in steps:
+            for i, (_, _, fn) in enumerate(steps):
+                current[0] = i
                 fn()
         except BaseException as e:          # raised again in the caller's thread
             errors.append(e)
@@ -193,13 +202,12 @@ def compile_kernels(*, atl06: bool = False, atl03: bool = False, progress: bool 
     if progress:
         from tqdm.auto import tqdm
         total = sum(s for _, s, _ in steps)
-        names = " and ".join(n for n, _, _ in steps)
         bar = tqdm(total=round(total), unit="s", file=sys.stderr, leave=False,
-                   desc=f"first run on this machine: compiling {names} (cached for later runs)",
-                   bar_format="{desc}: {elapsed} of ~{total}s")
+                   desc=_compiling(0, steps), bar_format="{desc}: {elapsed} of ~{total}s")
     while worker.is_alive():
         worker.join(0.5)
-        if bar is not None:
+        if bar is not None:           # one short line (a long one wraps and repeats)
+            bar.set_description_str(_compiling(current[0], steps), refresh=False)
             bar.n = min(round(time.perf_counter() - t0), bar.total)
             bar.refresh()
     if bar is not None:

@@ -193,3 +193,14 @@ def test_choose_returns_blocks_pick_as_a_buffer_a_shot():
         assert got[1].any()
         for g, w in zip(got, want):
             assert np.array_equal(g, w)
+
+
+def test_the_compile_bar_is_one_short_line_naming_the_stage():
+    """The first run's compile bar names the stage compiling now, on one line that a
+    100-column terminal holds with its timer (a long line wraps and repeats at each refresh)."""
+    from lidar_mitsuba import precompile
+    steps = [(*precompile.STAGE_BAR[s], None) for s in precompile.STAGE_BAR]
+    for i, (name, _, _) in enumerate(steps):
+        words = precompile._compiling(i, steps)
+        assert name in words and f"{i + 1}/{len(steps)}" in words
+        assert len(words) + len(": 00:00 of ~99s") <= 100, words
