@@ -52,7 +52,7 @@ def plot(doc: dict, path) -> None:
     ax.set_ylabel("background rate, detected [Hz]")
     ax.set_title("ATLAS background against solar elevation: model and real files")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left")
+    ax.legend(fontsize=8, loc="lower right", framealpha=0.9)
     fig.tight_layout()
     fig.savefig(pathlib.Path(path), dpi=110)
     plt.close(fig)
