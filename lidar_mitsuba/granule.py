@@ -178,19 +178,6 @@ def write_atl06(granule: Granule, path: str | os.PathLike, **options) -> pathlib
     return granule_products.write_atl06(granule, path, **options)
 
 
-#: the writers' names this module once held, now :mod:`lidar_mitsuba.granule_products`'s
-#: (imported on first use: the simulating process never needs h5py nor the writers)
-_MOVED = ("_atl03_header", "_atl06_header", "_beam_atl03", "_beam_atl06", "_Fits",
-          "_SegmentStream", "_ATL06_NAMES", "_ATL06_PROCESS")
-
-
-def __getattr__(name: str):
-    if name in _MOVED:
-        from . import granule_products
-        return getattr(granule_products, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 # --------------------------------------------------------------------------- streamed granules
 SECTION_SHOTS = 1 << 16
 """Shots per section of a streamed granule (about 46 km): memory is bounded by a section."""

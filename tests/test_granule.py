@@ -593,15 +593,16 @@ def test_a_failed_fit_leaves_neither_file(dem_path, tmp_path, monkeypatch):
     """The ATL06 fits run on a thread of their own beside the simulation: a fit that fails
     (here the third) stops the granule with its error, and neither file is left (written
     in this process, where the failing fit is patched in)."""
+    from lidar_mitsuba import granule_products
     calls = []
-    real = granule._SegmentStream.fit
+    real = granule_products._SegmentStream.fit
 
     def failing(self, run, *, last):
         calls.append(run.beam.name)
         if len(calls) == 3:
             raise RuntimeError("fit failed")
         return real(self, run, last=last)
-    monkeypatch.setattr(granule._SegmentStream, "fit", failing)
+    monkeypatch.setattr(granule_products._SegmentStream, "fit", failing)
     surf = dems.DEMSurface(dems.DEM.open(dem_path), tile_shots=512)
     a3, a6 = tmp_path / "f3.h5", tmp_path / "f6.h5"
     with pytest.raises(RuntimeError, match="fit failed"):
