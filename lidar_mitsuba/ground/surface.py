@@ -452,7 +452,7 @@ class ChunkTiles(Tiling):
         if a == 0 and self._first is not None:
             out, self._first = self._first, None
         else:
-            out = self._build(a, b) if prepared is None else self._build(a, b, prepared)
+            out = self._build(a, b, prepared)
         self.count += 1
         self.max_triangles = max(self.max_triangles, out[4])
         self._use(out)

@@ -317,9 +317,10 @@ class _ForestTiles(ChunkTiles):
         if built[5] is not None and self.integrator is not None:
             self.integrator.set_tile(built[5])
 
-    def _build(self, a: int, b: int):
+    def _build(self, a: int, b: int, prepared=None):
         """``(scene, x_local, y_local, offsets, triangles, tile)`` of shots ``a`` .. ``b - 1``
-        (``tile``: turbid and gap over a DEM, :func:`.turbid.tile_crowns`; else None)."""
+        (``tile``: turbid and gap over a DEM, :func:`.turbid.tile_crowns`; else None;
+        ``prepared`` is always None: a forest's tiles have no ``prepare``)."""
         forest, x, y, n = self.forest, self.x_m[a:b], self.y_m[a:b], b - a
         if hasattr(forest.ground, "corridor_tile"):            # a DEM: its own tiles
             ground, (ox, oy), tri = forest.ground.corridor_tile(x, y, reach_m=self.reach_m,
