@@ -134,7 +134,7 @@ class RunPlan:
         site, geolocation, radiometry: where on the Earth, each shot's place and time, and (a
             link budget) its radiometry.
         timings_s: wall time of each step [s] (the stream adds its own); t0: the start.
-        tiling: the scenes the chunks trace (:class:`~lidar_mitsuba.ground.surface.Tiling`:
+        tiling: the scenes the chunks trace (:class:`~lidar_mitsuba.ground.tiling.Tiling`:
             one for every chunk, or a DEM's corridor tile per chunk); ``plan.scene`` is the
             first chunk's.
         cloud: the cloud over the track (:class:`~lidar_mitsuba.atmosphere.cloud_layer.Cloud`), or

@@ -100,7 +100,7 @@ traced = TracedSource
 
 
 class TiledSource:
-    """A source over a surface's :class:`~lidar_mitsuba.ground.surface.Tiling`: each chunk is
+    """A source over a surface's :class:`~lidar_mitsuba.ground.tiling.Tiling`: each chunk is
     traced in the scene the tiling gives it (one scene for every chunk, or a DEM's corridor
     tile per chunk), its returns put back on the track on the device (the integrator's
     ``offset_m``)."""

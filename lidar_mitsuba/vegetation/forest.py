@@ -284,7 +284,7 @@ class ForestSurface(Surface):
 
 class _ForestTiles(ChunkTiles):
     """A forest's tiling: every chunk of shots traces its own corridor tile, built when the
-    chunk is launched (:class:`~lidar_mitsuba.ground.surface.ChunkTiles`): the ground's mesh
+    chunk is launched (:class:`~lidar_mitsuba.ground.tiling.ChunkTiles`): the ground's mesh
     over the chunk's shots ``reach_m`` about them (a plane's or a heightfield's in the frame
     of the chunk's first shot, unwrapped; a DEM's own corridor tile) and the stand's trees
     there (:meth:`ForestSurface.with_vegetation`); turbid and gap crowns over a DEM: the

@@ -429,7 +429,7 @@ class CorridorTiles(ChunkTiles):
     """A DEM's tiling: every chunk of shots traces its own corridor tile
     (:meth:`DEMSurface.corridor_tile`), meshed when the chunk is launched and dropped with
     its trace, so memory is one or two tiles for any track
-    (:class:`~lidar_mitsuba.ground.surface.ChunkTiles`)."""
+    (:class:`~lidar_mitsuba.ground.tiling.ChunkTiles`)."""
 
     def __init__(self, surface: DEMSurface, x_m, y_m, *, reach_m: float, bsdf,
                  chunk_shots: int):
