@@ -59,10 +59,11 @@ class Surface:
               y_local_m: np.ndarray, dz_m: np.ndarray, reach_m: float, bsdf,
               crop: bool, chunk_shots: int) -> "Tiling":
         """The scenes the shots at (``x_m``, ``y_m``) [m] are traced in, chunk by chunk
-        (:class:`Tiling`). Here one scene for every chunk (:class:`OneTile`): the surface's
-        mesh, cropped to ``reach_m`` around the folded positions (``x_local_m``,
-        ``y_local_m``) when ``crop``, the offsets ``(x - x_local, y - y_local, dz)`` putting
-        the returns back on the track. A DEM yields a corridor tile per chunk instead."""
+        (:class:`~lidar_mitsuba.ground.tiling.Tiling`). Here one scene for every chunk
+        (:class:`~lidar_mitsuba.ground.tiling.OneTile`): the surface's mesh, cropped to
+        ``reach_m`` around the folded positions (``x_local_m``, ``y_local_m``) when ``crop``,
+        the offsets ``(x - x_local, y - y_local, dz)`` putting the returns back on the track.
+        A DEM yields a corridor tile per chunk instead."""
         bounds = None
         if crop:
             bounds = (float(x_local_m.min()) - reach_m, float(x_local_m.max()) + reach_m,
