@@ -195,7 +195,8 @@ def cloud_alternatives(rb, cloud, *, product: str, band_top_m: float,
     top ``band_top_m`` [m above the surface], each of those depths as one layer above the
     band: the file does not say how the depth splits between its layers, and only the part
     inside the band adds backscatter to the background (the other limit, all of it in the
-    lowest layer, is the matrix's own). Each: ``{"dataset", "from", "circular",
+    lowest layer, is the matrix's own); the others only where every segment is cloudy (a
+    beam with clear segments is judged on those). Each: ``{"dataset", "from", "circular",
     "above_band", "cloud", "signal_cloud"}``, ``signal_cloud`` the same layer with the depth
     that reflectance implies on the beam's own segments that measure the signal
     (:func:`signal_segments`; the signal is a median over those, the background over all)."""
@@ -205,6 +206,8 @@ def cloud_alternatives(rb, cloud, *, product: str, band_top_m: float,
     name, where, circular = REFLECTANCES.get(product, ("reflectance", "the product's", False))
     out = [{"dataset": name, "from": where, "circular": circular, "above_band": False,
             "cloud": cloud, "signal_cloud": _on_signal_segments(rb, cloud, rb.reflectance)}]
+    if rb.clear is None or np.any(rb.clear):
+        return out          # a beam with clear segments is judged on them: its cloud alone
     other = getattr(rb, "reflectance_photons", None)
     c = None if other is None else implied_cloud(rb, reflectance=other)
     if c is not None:
