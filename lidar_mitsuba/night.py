@@ -187,9 +187,9 @@ def background_terms(instrument, *, delta_time_s, z_m, albedo: float, solar_elev
         t_cloud, cloud_ib = cloud_backscatter(cloud)
         air_above = float(link.atmosphere.transmission(z0 + cloud.top_m, wavelength_nm=lam)
                           ** 2)
-        # the part of the layer inside the band (ESTIMATE: its backscatter taken uniform
-        # in height; exact for a layer wholly inside or outside the band)
-        in_band = max(0.0, min(cloud.top_m, top) - cloud.base_m) / (cloud.top_m - cloud.base_m)
+        # the part of the layer's attenuated backscatter inside the band: its share from
+        # below the band's top, the light dimmed on its way into the layer from above
+        in_band = cloud.backscatter_share_below(top)
         cloud_hz = per_sr * cloud_ib * air_above * in_band / band_s
     lo, hi = z0, z0 + max(top, 0.0)
     if cloud is not None:             # the air below the cloud dimmed by it, above it not

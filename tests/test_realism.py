@@ -586,3 +586,109 @@ def test_the_forest_pairs_rows_are_judged_against_its_twin(monkeypatch, tmp_path
     assert again["ATL08"]["predicted"]["signal_per_shot"] == pytest.approx(0.2)
     lone = realism.run([shutil.copy(a08, tmp_path)], None, signal_shots=0)["rows"][0]
     assert lone["verdict"] == "surface missing" and "pair" in lone["reason"]
+
+
+# ------------------------------------------------------------------------------ cloudy verdicts
+def test_a_layers_backscatter_inside_the_band_is_its_share_below_the_top():
+    """The share of a uniform layer's attenuated backscatter below a height: the closed form
+    against the lidar equation's integral of beta exp(-2 eta s (top - z)) on 20 001 heights
+    (trapezoids: error ~1e-9 here), 0 and 1 at the layer's ends; night's cloud term takes it."""
+    c = Cloud(1.5, 500.0, 1500.0, multiple_scattering_eta=0.7)
+    s, eta = c.extinction_per_m, c.multiple_scattering_eta
+    z = np.linspace(c.base_m, c.top_m, 20001)
+    y = np.exp(-2.0 * eta * s * (c.top_m - z))
+    for cut in (600.0, 1000.0, 1400.0):
+        k = z <= cut
+        share = np.trapezoid(y[k], z[k]) / np.trapezoid(y, z)
+        assert c.backscatter_share_below(cut) == pytest.approx(share, rel=1e-6)
+    assert c.backscatter_share_below(400.0) == 0.0 and c.backscatter_share_below(2e3) == 1.0
+    # its lower half: (exp(-eta tau) - exp(-2 eta tau)) / (1 - exp(-2 eta tau)), not 1/2
+    e = math.exp(-eta * c.optical_depth)
+    assert c.backscatter_share_below(1000.0) == pytest.approx(e / (1.0 + e), rel=1e-12)
+    inst = Instrument.atlas()
+    kw = dict(delta_time_s=np.array([3.5e7]), z_m=np.zeros(1), albedo=0.9,
+              solar_elevation_deg=np.array([-30.0]), solar_azimuth_deg=np.zeros(1), leak_hz=0.0)
+    whole = night.background_terms(inst, cloud=c, band=night.HistogramBand(
+        top_above_surface_m=2500.0), **kw)["cloud"]
+    part = night.background_terms(inst, cloud=c, band=night.HistogramBand(
+        top_above_surface_m=1000.0), **kw)["cloud"]
+    assert part == pytest.approx(whole * c.backscatter_share_below(1000.0), rel=1e-9)
+
+
+def test_the_clouds_a_files_inputs_allow():
+    """Each reflectance's depth -ln(r / 0.9) / 2 (no clear segment), the signal's from the
+    segments that measure it, the layer above the band only where ATL09 found several layers
+    and the lowest lies inside the band; a weak beam's layers are its flags' beam's."""
+    from lidar_mitsuba.studies.realism_inputs import cloud_alternatives
+    t_a, t_b, t_s = 1.5, 1.0, 0.6
+    r = np.full(4, 0.9 * math.exp(-2 * t_a))
+    r[0] = 0.9 * math.exp(-2 * t_s)                 # the one segment with a signal
+    b = _beam(r, [False] * 4, [3] * 4)
+    b.reflectance_photons = np.full(4, 0.9 * math.exp(-2 * t_b))
+    b.signal_per_shot = np.array([1.0, np.nan, np.nan, np.nan])
+    b.layer_count = np.array([2, 2, 2, 1.0])
+    alts = cloud_alternatives(b, realism.implied_cloud(b), product="ATL07", band_top_m=2500.0)
+    assert [(a["dataset"], a["above_band"]) for a in alts] == [
+        ("asr_25", False), ("height_segment_asr_calc", False), ("asr_25", True),
+        ("height_segment_asr_calc", True)]
+    assert [a["circular"] for a in alts] == [False, True, False, True]
+    assert alts[0]["cloud"].optical_depth == pytest.approx(t_a, abs=1e-3)
+    assert alts[0]["signal_cloud"].optical_depth == pytest.approx(t_s, abs=1e-3)
+    assert alts[1]["cloud"].optical_depth == pytest.approx(t_b, abs=1e-3)
+    assert (alts[0]["cloud"].base_m, alts[0]["cloud"].top_m) == (500.0, 1500.0)
+    assert (alts[2]["cloud"].base_m, alts[3]["cloud"].base_m) == (2500.0, 2500.0)
+    assert alts[2]["cloud"].optical_depth == alts[0]["cloud"].optical_depth
+    one = _beam(r, [False] * 4, [3] * 4)
+    one.layer_count = np.ones(4)
+    assert len(cloud_alternatives(one, realism.implied_cloud(one), product="ATL07",
+                                  band_top_m=2500.0)) == 1
+    # the weak beam's layers are its flags' beam's; a layer above the band stays one
+    assert len(cloud_alternatives(one, realism.implied_cloud(one), product="ATL07",
+                                  band_top_m=2500.0, flags=b)) == 2
+    high = _beam(r, [False] * 4, [1] * 4)
+    high.layer_count = np.full(4, 2.0)
+    assert len(cloud_alternatives(high, realism.implied_cloud(high), product="ATL07",
+                                  band_top_m=2500.0)) == 1
+
+
+def _cloudy_row(preds, measured, *, circular=(False, True), above=None):
+    """A row of a beam all cloudy: ``preds`` [(signal, background Hz)] over its clouds (the
+    matrix's first), ``measured`` (signal, background Hz)."""
+    above = above or [False] * len(preds)
+    alts = [{"dataset": ("asr_25", "height_segment_asr_calc")[k % 2], "from": "test",
+             "circular": circular[k % 2], "above_band": above[k], "optical_depth": 1.0 + k,
+             "base_m": 500.0 if not above[k] else 2500.0, "top_m": 1500.0,
+             "signal": s, "background_hz": bg} for k, (s, bg) in enumerate(preds)]
+    return {"product": "ATL07", "cloud": {"from": "the file's reflectance", "optical_depth": 1.0},
+            "measured": {"signal_cloudy": measured[0], "background_cloudy_hz": measured[1]},
+            "predicted": {"signal_cloudy": preds[0][0], "background_cloudy_hz": preds[0][1],
+                          "cloud_alternatives": alts}}
+
+
+def test_a_cloudy_beams_verdict_brackets_the_clouds_its_file_allows():
+    """agrees with the matrix's cloud; cloud uncertain where the clouds' predictions are
+    further apart than the agreement range tells apart and the measurement lies in their
+    bracket; disagrees where no cloud of the bracket can agree, or where they pin it down."""
+    from lidar_mitsuba.studies.realism_cloudy import cloudy_verdict, judge, spread_limit
+    assert spread_limit(realism.BACKGROUND_AGREES) == 2.0
+    assert spread_limit(realism.SIGNAL_AGREES) == 1.4
+    j = judge([0.5, 1.2], 1.0, realism.SIGNAL_AGREES)
+    assert (j["ratio"], j["lo"], j["hi"], j["agrees"], j["reaches"], j["wide"]) == (
+        0.5, 0.5, 1.2, False, True, True)
+    assert judge([1.0], None, realism.SIGNAL_AGREES) is None
+    v, why = cloudy_verdict(_cloudy_row([(1.0, 1e4), (1.9, 1e4)], (1.1, 1e4)))
+    assert v == "agrees" and "signal x0.91" in why and "signal x0.91-1.73" in why
+    v, why = cloudy_verdict(_cloudy_row([(0.5, 1e4), (1.1, 1e4)], (1.0, 1e4)))
+    assert v == "cloud uncertain" and "asr_25" in why and "height_segment_asr_calc" in why
+    assert "tau 1" in why and "tau 2" in why and "signal x0.50-1.10" in why
+    v, why = cloudy_verdict(_cloudy_row([(0.5, 1e4), (0.6, 1e4)], (1.0, 1e4)))
+    assert v == "disagrees" and "signal x0.50" in why          # pinned down (1.2 apart)
+    v, why = cloudy_verdict(_cloudy_row([(0.2, 1e4), (0.5, 1e4)], (1.0, 1e4)))
+    assert v == "disagrees"                                     # no cloud reaches 0.7
+    # the background: all in the lowest layer or above the band (not in the file)
+    v, why = cloudy_verdict(_cloudy_row([(1.0, 3e4), (1.0, 2e3)], (1.0, 5e3),
+                                        circular=(False, False), above=[False, True]))
+    assert v == "cloud uncertain" and "background x0.40-6.00" in why and "above it" in why
+    v, why = cloudy_verdict(_cloudy_row([(1.0, 3e4), (1.0, 2e4)], (1.0, 5e3),
+                                        circular=(False, False), above=[False, True]))
+    assert v == "disagrees" and "background x6.00" in why

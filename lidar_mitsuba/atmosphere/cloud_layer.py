@@ -170,6 +170,21 @@ class Cloud:
         return ((1.0 - math.exp(-2.0 * eta * tau)) * self.single_scattering_albedo
                 * self.backscatter_phase_per_sr / (2.0 * eta))
 
+    def backscatter_share_below(self, z_m: float) -> float:
+        """The share of :meth:`integrated_backscatter_sr` returned from heights below ``z_m``
+        [m above the surface]: light that reaches a depth ``d`` below the top is dimmed by
+        ``exp(-2 eta s d)`` (``s`` the extinction), so the layer's part below ``z`` returns
+        ``(exp(-2 eta s (top - z)) - exp(-2 eta tau)) / (1 - exp(-2 eta tau))`` of it (the
+        lidar equation through a uniform layer, as :meth:`backscatter_weight`); 1 at or above
+        the top, 0 at or below the base."""
+        if self.clear or z_m <= self.base_m:
+            return 0.0
+        if z_m >= self.top_m:
+            return 1.0
+        k = 2.0 * self.multiple_scattering_eta * self.extinction_per_m
+        whole = math.exp(-2.0 * self.multiple_scattering_eta * self.optical_depth)
+        return (math.exp(-k * (self.top_m - z_m)) - whole) / (1.0 - whole)
+
     @property
     def backscatter_phase_per_sr(self) -> float:
         """p(pi) [1/sr]: ``1 / (albedo S)`` with a lidar ratio (beta = sigma_s p(pi) =

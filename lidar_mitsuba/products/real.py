@@ -61,11 +61,18 @@ class RealBeam:
         reflectance: the apparent surface reflectance the product measured (ATL06 ``r_eff``,
             ATL07 ``asr_25``), or None: with the clear segments', the cloud's optical depth
             (:func:`~lidar_mitsuba.products.cloud_flags.implied_optical_depth`).
+        reflectance_photons: a second apparent reflectance made from the altimetric photons
+            whose rate is the signal (ATL07 ``heights/height_segment_asr_calc``:
+            ``photon_rate`` over a constant of the beam), or None: independent of the
+            background, not of the signal.
         ice_fraction: the sea-ice concentration where the product gives it (ATL07
             ``stats/ice_conc`` [%] / 100, from passive microwave), or None.
         layer_class: ATL09's multiple-scattering warning ``msw_flag`` copied by ATL06 and
             ATL07 (the height class of the lowest layer's base: 3 below 1 km, 2 1-3 km, 1
             above 3 km, 4-5 blowing snow, 0 none, -1 unknown), or None.
+        layer_count: the number of layers ATL09's layer finder found (ATL06
+            ``cloud_flg_atm``, ATL07 ``cloud_flag_atm``; ``msw_flag`` places only the lowest),
+            or None.
         band_height_m, band_top_above_surface_m, signal_span_m: the background histogram's
             band (ATL03 ``bckgrd_atlas``; ATL07 ``background_int_height``), or None.
         full_sat_fract, near_sat_fract: ATL03's saturation fractions, or None.
@@ -88,7 +95,9 @@ class RealBeam:
     signal_per_shot: np.ndarray | None = None
     clear: np.ndarray | None = None
     reflectance: np.ndarray | None = None
+    reflectance_photons: np.ndarray | None = None
     layer_class: np.ndarray | None = None
+    layer_count: np.ndarray | None = None
     ice_fraction: np.ndarray | None = None
     band_height_m: np.ndarray | None = None
     band_top_above_surface_m: np.ndarray | None = None
@@ -387,7 +396,8 @@ def _atl06(g, **beam) -> RealBeam | None:
                     solar_elevation_deg=_num(gp, "solar_elevation"),
                     solar_azimuth_deg=_num(gp, "solar_azimuth"), background_hz=bg,
                     signal_per_shot=sig, clear=clear, reflectance=r_eff,
-                    layer_class=_num(gp, "msw_flag"), surface="land ice",
+                    layer_class=_num(gp, "msw_flag"), layer_count=_num(gp, "cloud_flg_atm"),
+                    surface="land ice",
                     notes={"background": "geophysical/bckgrd",
                            "signal": "(n_fit_photons - background in the window) / "
                            "n_seg_pulses, quality 0",
@@ -427,7 +437,9 @@ def _atl07(g, **beam) -> RealBeam | None:
                     solar_elevation_deg=_num(geo, "solar_elevation"),
                     solar_azimuth_deg=_num(geo, "solar_azimuth"),
                     background_hz=_num(st, "backgr_r_200"), signal_per_shot=rate, clear=clear,
-                    reflectance=asr, layer_class=_num(st, "msw_flag"), band_height_m=band,
+                    reflectance=asr, reflectance_photons=_num(hts, "height_segment_asr_calc"),
+                    layer_class=_num(st, "msw_flag"), layer_count=_num(st, "cloud_flag_atm"),
+                    band_height_m=band,
                     ice_fraction=None if conc is None else conc / 100.0, surface="sea ice",
                     notes={"background": "stats/backgr_r_200 (ATL03's 50-shot rate)",
                            "signal": "stats/photon_rate on snow-covered ice (type 1)",
@@ -471,7 +483,8 @@ READ_DATASETS = {
         "fit_statistics/w_surface_window_final")),
     "ATL07": tuple("sea_ice_segments/" + k for k in (
         "delta_time", "latitude", "longitude", "heights/height_segment_height",
-        "heights/height_segment_type", "geophysical/height_segment_mss",
+        "heights/height_segment_type", "heights/height_segment_asr_calc",
+        "geophysical/height_segment_mss",
         "geolocation/solar_elevation", "geolocation/solar_azimuth", "stats/photon_rate",
         "stats/asr_25", "stats/cloud_flag_asr", "stats/cloud_flag_atm", "stats/msw_flag",
         "stats/ice_conc",

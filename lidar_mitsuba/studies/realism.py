@@ -42,8 +42,10 @@ TAIL_M = 0.20
 segment's median [m]."""
 
 from .realism_inputs import (BLOWING_SNOW_TOP_M, LAYER_BASE_M, LAYER_THICKNESS_M,  # noqa: F401
-                             PRODUCT_SURFACES, equation_outside_fraction, ice_sheet_snow,
-                             implied_cloud, layer_heights_m, pair_clouds, sea_ice_snow,
+                             PRODUCT_SURFACES, cloud_alternatives,
+                             equation_outside_fraction, ice_sheet_snow,
+                             implied_cloud, layer_heights_m, pair_clouds, pair_flags,
+                             sea_ice_snow,
                              snow_delay, sunlit_albedo)
 from .realism_curve import background_curve  # noqa: E402  (the figure's curves)
 
@@ -248,6 +250,11 @@ def _band(rb):
     return band
 
 
+def band_top_m(rb) -> float:
+    """The top of the beam's histogram band above the surface [m] (:func:`_band`'s median)."""
+    return float(np.nanmedian(np.atleast_1d(_band(rb).top_above_surface_m)))
+
+
 def _signal(out: dict, rb, twin_granule, inst, band, surface: dict, z: float, *,
             signal_shots: int, seed: int, forest: dict | None):
     """The beam's signal into ``out`` (the forest twin's, a short simulation's or the lidar
@@ -283,7 +290,7 @@ def _signal(out: dict, rb, twin_granule, inst, band, surface: dict, z: float, *,
 
 
 def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
-              forest: dict | None = None) -> dict:
+              forest: dict | None = None, alternatives: list | None = None) -> dict:
     """The model's background (term by term), signal and shape for one beam (``twin_granule``:
     the file's twin, for ``signal_shots > 0``; ``forest``: a forest row's signal and surface
     from its twin, :func:`~lidar_mitsuba.studies.realism_forest.prediction`, in place of the
@@ -292,7 +299,9 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
     signal (ESTIMATE: the clear signal dimmed by the cloud's two-way transmission; through dead
     time that overstates the loss dead time takes from the dimmer return, without it, with
     ``signal_shots=0``, it ignores dead time; the cloud's forward scattering is the cloud
-    model's, not here)."""
+    model's, not here); with ``alternatives``
+    (:func:`~lidar_mitsuba.studies.realism_inputs.cloud_alternatives`, ``cloud`` first), the
+    same for each other cloud the file allows (``cloud_alternatives``)."""
     from .. import night
     surface = PRODUCT_SURFACES.get(rb.surface, PRODUCT_SURFACES["land"])
     range_m = _range_m(rb)
@@ -333,17 +342,54 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
     if leak:
         out["leak"] = leak
     if cloud is not None:
-        transmission = night.cloud_backscatter(cloud)[0]
-        out["signal_cloudy"] = out["signal_per_shot"] * transmission
-        leak = _atl03_leak(inst, photons, band=band, seed=seed + 3, keep=transmission,
-                           kw={**kw, "cloud": cloud})
-        cloudy = night.background_terms(inst, signal_per_shot=out["signal_cloudy"],
-                                        cloud=cloud, leak_hz=leak and leak["leak_hz"], **kw)
+        sig, leak, cloudy = _cloudy(out["signal_per_shot"], inst, photons, band=band, kw=kw,
+                                    cloud=cloud, seed=seed + 3, signal_cloud=alternatives
+                                    and alternatives[0]["signal_cloud"])
+        out["signal_cloudy"] = sig
         if leak:
             out["leak_cloudy"] = leak
         out["background_cloudy_terms_hz"] = cloudy
         out["background_cloudy_hz"] = cloudy["total"]
+    if cloud is not None and alternatives:
+        out["cloud_alternatives"] = _alternative_rates(out, alternatives, inst, photons,
+                                                       band=band, kw=kw, seed=seed + 3)
     return out
+
+
+def _cloudy(signal_per_shot: float, inst, photons, *, band, kw: dict, cloud, seed: int,
+            signal_cloud=None):
+    """``(signal, leak, background terms)`` under ``cloud`` on the cloudy segments: the clear
+    signal dimmed by the two-way transmission of ``signal_cloud`` (the cloud over the
+    segments that measure the signal; default ``cloud``), the leak as ATL03 counts it of the
+    laser photons ``cloud`` keeps, the background term by term
+    (:func:`~lidar_mitsuba.night.background_terms` with ``cloud``)."""
+    from .. import night
+    transmission = night.cloud_backscatter(cloud)[0]
+    sig = signal_per_shot * night.cloud_backscatter(signal_cloud or cloud)[0]
+    leak = _atl03_leak(inst, photons, band=band, seed=seed, keep=transmission,
+                       kw={**kw, "cloud": cloud})
+    terms = night.background_terms(inst, signal_per_shot=signal_per_shot * transmission,
+                                   cloud=cloud, leak_hz=leak and leak["leak_hz"], **kw)
+    return sig, leak, terms
+
+
+def _alternative_rates(out: dict, alternatives: list, inst, photons, *, band, kw: dict,
+                       seed: int) -> list[dict]:
+    """Each cloud of ``alternatives`` with the signal and background [Hz] it predicts
+    (:func:`_cloudy`; the first is ``out``'s own cloud)."""
+    rows = []
+    for k, a in enumerate(alternatives):
+        if k == 0:
+            sig, bg = out["signal_cloudy"], out["background_cloudy_hz"]
+        else:
+            sig, _, terms = _cloudy(out["signal_per_shot"], inst, photons, band=band, kw=kw,
+                                    cloud=a["cloud"], seed=seed + 1000 * k,
+                                    signal_cloud=a["signal_cloud"])
+            bg = terms["total"]
+        rows.append({**{key: a[key] for key in ("dataset", "from", "circular", "above_band")},
+                     **a["cloud"].to_dict(), "signal": sig, "background_hz": bg,
+                     "signal_optical_depth": a["signal_cloud"].optical_depth})
+    return rows
 
 
 def _atl03_leak(inst, photons, *, band, seed: int, kw: dict, keep: float = 1.0,
@@ -379,7 +425,8 @@ def _ratio(pred, meas) -> float | None:
 
 
 def verdict(row: dict) -> tuple[str, str]:
-    """``(verdict, reason)`` for a beam's row: agrees / disagrees / cloud missing / surface
+    """``(verdict, reason)`` for a beam's row: agrees / disagrees / cloud uncertain (a beam
+    all cloudy: :mod:`~lidar_mitsuba.studies.realism_cloudy`) / cloud missing / surface
     missing / not simulated / not measured, the reason naming the quantity that decides it
     (a forest row with its twin: :func:`~lidar_mitsuba.studies.realism_forest.verdict`)."""
     m, p = row["measured"], row["predicted"]
@@ -401,7 +448,8 @@ def verdict(row: dict) -> tuple[str, str]:
     if cloudy and m["background_cloudy_hz"] is None and m["signal_cloudy"] is None:
         return "not measured", "the file gives neither a background nor a signal rate"
     if cloudy and "background_cloudy_hz" in p:
-        return _cloudy_verdict(row)
+        from .realism_cloudy import cloudy_verdict
+        return cloudy_verdict(row)
     if cloudy:
         return "cloud missing", ("every segment is cloudy by the product's flags, the file "
                                  "gives no reflectance to read its cloud from and none is given "
@@ -424,32 +472,6 @@ def verdict(row: dict) -> tuple[str, str]:
     if bad:
         return "disagrees", ", ".join(bad) + cloud
     return "agrees", (f"background x{_fmt(bg)}, signal x{_fmt(sig)}" + cloud)
-
-
-def _cloudy_verdict(row: dict) -> tuple[str, str]:
-    """A beam whose segments are all cloudy, against the model with the cloud given or the one
-    its reflectance implies (:func:`implied_cloud`). ATL06's ``r_eff`` is its fitted photons'
-    rate, so with the cloud it implies only the background is a prediction; ATL07's
-    ``asr_25`` comes from ATL09's atmospheric profile, not the altimetric photons that make
-    ``photon_rate``."""
-    m, p = row["measured"], row["predicted"]
-    bg = _ratio(p["background_cloudy_hz"], m["background_cloudy_hz"])
-    sig = _ratio(p["signal_cloudy"], m["signal_cloudy"])
-    row["background_cloudy_ratio"], row["signal_cloudy_ratio"] = bg, sig
-    c = row.get("cloud") or {}
-    implied = c.get("from") == "the file's reflectance"
-    given = ("with the cloud given" if not implied else
-             f"with the cloud its reflectance implies (tau {c['optical_depth']:g})") + \
-        ", on cloudy segments"
-    if implied and row["product"] == "ATL06":         # r_eff is the fitted photons' own rate
-        sig = None
-        given += " (signal not compared: r_eff is made from it)"
-    bad = [f"{k} x{v:.2f}" for k, v, (lo, hi) in (("background", bg, BACKGROUND_AGREES),
-                                                  ("signal", sig, SIGNAL_AGREES))
-           if v is not None and not lo <= v <= hi]
-    if bad:
-        return "disagrees", f"{given}: " + ", ".join(bad)
-    return "agrees", f"{given}: background x{_fmt(bg)}, signal x{_fmt(sig)}"
 
 
 def _fmt(v) -> str:
@@ -507,19 +529,23 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
         files.append({"file": path.name, "product": rf.product, "release": rf.release,
                       "missing": rf.missing_line()})
         implied = pair_clouds(rf.beams) if cloud is None else {}
+        flags = pair_flags(rf.beams) if cloud is None else {}
         for rb in rf.beams:
             if tg is not None and rb.name not in {b.beam.name for b in tg.beams}:
                 continue                          # no two segments in a row: no shots
             sky = cloud if cloud is not None else implied[rb.name]
             fdoc = forest.get((path.name, rb.name))
             fp = None if fdoc is None else realism_forest.prediction(fdoc, rf.product)
+            alts = [] if cloud is not None else cloud_alternatives(
+                rb, sky, product=rf.product, band_top_m=band_top_m(rb), flags=flags[rb.name])
             row = {"file": path.name, "product": rf.product, "beam": rb.name,
                    "strength": rb.strength, "measured": measured(rf, rb),
                    "cloud": None if sky is None else {
                        **sky.to_dict(), "from": "given" if cloud is not None else
                        "the file's reflectance"},
                    "predicted": predicted(rb, tg, signal_shots=signal_shots,
-                                          seed=seed + 7 * k, cloud=sky, forest=fp)}
+                                          seed=seed + 7 * k, cloud=sky, forest=fp,
+                                          alternatives=alts)}
             if fp is not None:
                 row["measured"]["signal_forest"] = fp["signal_measured"]
             elif row["predicted"]["surface_missing"]:

@@ -92,9 +92,11 @@ BLOWING_SNOW_TOP_M = 100.0
 (ESTIMATE: ATL09's blowing snow lies in the lowest few hundred metres)."""
 
 
-def implied_cloud(rb):
+def implied_cloud(rb, *, reflectance=None, segments=None):
     """The cloud a real beam's own cloudy segments imply, or None. Its optical depth: the
     median ``tau = -ln(r / r_clear) / 2`` of the cloudy segments' apparent reflectance ``r``
+    (``reflectance``: one of the beam's, default its first, ``rb.reflectance``; ``segments``:
+    a mask of the segments to take, default all)
     (:func:`~lidar_mitsuba.products.cloud_flags.implied_optical_depth`: the two-way
     attenuation of the surface's return, a slight underestimate where forward-scattered light
     comes back too), ``r_clear`` the median of the beam's clear segments' (its own
@@ -107,14 +109,15 @@ def implied_cloud(rb):
     from ..atmosphere.cloud_layer import MAX_OPTICAL_DEPTH, Cloud
     from ..products.cloud_flags import implied_optical_depth
     from ..products.real import SNOW_REFLECTANCE
-    r, clear = rb.reflectance, rb.clear
+    r, clear = rb.reflectance if reflectance is None else reflectance, rb.clear
     if r is None or clear is None or clear.all():
         return None
     r_clear = _median(r[clear]) if clear.any() else None
-    tau = _median(implied_optical_depth(r[~clear], r_clear or SNOW_REFLECTANCE))
+    cloudy = ~clear if segments is None else ~clear & np.asarray(segments, bool)
+    tau = _median(implied_optical_depth(r[cloudy], r_clear or SNOW_REFLECTANCE))
     if tau is None or not tau > 0:
         return None
-    base, top = layer_heights_m(None if rb.layer_class is None else rb.layer_class[~clear])
+    base, top = layer_heights_m(None if rb.layer_class is None else rb.layer_class[cloudy])
     return Cloud.water(round(min(tau, MAX_OPTICAL_DEPTH), 3), base, top)
 
 
@@ -123,21 +126,118 @@ def pair_clouds(beams) -> dict:
     strong beam's where that has one: the two beams of a pair are 90 m apart across the track
     and see one cloud, and ATL09, whose ``msw_flag`` and apparent reflectance ATL06 and ATL07
     copy (their attributes: "from the backscatter profile using the DDA layer finder", source
-    "Atmosphere ATBD"), profiles the atmosphere with the strong beams only (ATL09's three
-    profiles; recalled, not re-read here), so a weak beam's flags are its partner's, resampled
+    "Atmosphere ATBD"), profiles the atmosphere with the strong beams only ("NRB profiles are
+    generated from the strong beam only of each beam pair", NSIDC's ICESat-2 Level-2 product
+    page), so a weak beam's flags are its partner's, resampled
     at fewer, longer segments. ESTIMATE that they are the better of the two. Without this a
     pair's beams got clouds of different heights (Baffin night gt3l below 1 km, gt3r at
     1-3 km) and the night's strong:weak ratio of the model 6.9 against 3.9 for the other
     pair."""
-    own = {rb.name: (rb.strength, implied_cloud(rb)) for rb in beams}
+    own = {rb.name: implied_cloud(rb) for rb in beams}
+    return {name: own[flags.name] if own[name] is not None else None
+            for name, flags in pair_flags(beams).items()}
+
+
+def pair_flags(beams) -> dict:
+    """Each beam's name to the beam whose ATL09 flags give its cloud (:func:`pair_clouds`): its
+    pair's strong beam for a weak beam where that has a cloud, itself otherwise."""
+    by = {rb.name: rb for rb in beams}
     out = {}
-    for name, (strength, c) in own.items():
-        partner = own.get(name[:3] + ("r" if name[3] == "l" else "l"))
-        if strength == "weak" and partner is not None and partner[0] == "strong" \
-                and partner[1] is not None and c is not None:
-            c = partner[1]
-        out[name] = c
+    for name, rb in by.items():
+        partner = by.get(name[:3] + ("r" if name[3] == "l" else "l"))
+        out[name] = partner if (rb.strength == "weak" and partner is not None
+                                and partner.strength == "strong"
+                                and implied_cloud(partner) is not None) else rb
     return out
+
+
+REFLECTANCES = {
+    "ATL06": ("r_eff", "ATL06's, from its fitted photons", True),
+    "ATL07": ("asr_25", "ATL09's, from the strong beam's 25 Hz profile", False),
+}
+"""Each product's first apparent reflectance (``RealBeam.reflectance``): its dataset, where it
+comes from, and whether it is made from the photons whose rate is the signal (then a signal
+predicted with its cloud is circular). The descriptions are the files' own attributes and the
+products' documentation: ATL06 ``r_eff`` "Effective reflectance, uncorrected for atmospheric
+effects", source its ATBD's section 3.1.5.4 (the segment's signal photons per pulse against a
+unit reflector's: recalled, not re-read); ATL07 ``asr_25`` "Apparent surface reflectance at 25 hz, averaged to the sea ice
+segment", source "Sea Ice ATBD", ATL09's ASR from the atmospheric profiles, which ATLAS makes
+for the strong beams only (NSIDC's ICESat-2 Level-2 product page: 400-shot sums, ~30 m bins,
+13.75 km above the DEM to 0.25 km below it, the ground included)."""
+PHOTON_REFLECTANCE = ("height_segment_asr_calc", "ATL07's, from photon_rate", True)
+"""ATL07's second reflectance (``RealBeam.reflectance_photons``), "Computed apparent surface
+reflectance for the sea ice segment": in the real files ``photon_rate / asr_calc`` is one
+constant a beam (sd/mean 0.2-5 %), so it is the photon rate rescaled."""
+LAYER_COUNT = {"ATL06": "cloud_flg_atm", "ATL07": "cloud_flag_atm"}
+"""The dataset that counts ATL09's layers (the files: "Number of layers found from the
+backscatter profile using the DDA layer finder")."""
+
+
+def layer_count(rb) -> int | None:
+    """The most frequent number of layers ATL09 found over the beam's cloudy segments, or
+    None without the flag."""
+    n = getattr(rb, "layer_count", None)
+    if n is None or rb.clear is None:
+        return None
+    n = np.asarray(n, np.float64)[~np.asarray(rb.clear, bool)]
+    n = n[np.isfinite(n) & (n >= 0)].astype(int)
+    return int(np.bincount(n).argmax()) if n.size else None
+
+
+def cloud_alternatives(rb, cloud, *, product: str, band_top_m: float,
+                       flags=None) -> list[dict]:
+    """Every cloud the file's inputs allow for a beam's cloudy segments, the matrix's own
+    ``cloud`` (:func:`pair_clouds`) first: the same layer with the optical depth each other
+    reflectance of the beam implies (:data:`PHOTON_REFLECTANCE`, the same rule, its own
+    clear segments or snow's 0.9), and, where ATL09 found several layers
+    (:func:`layer_count` of ``flags``, the beam whose flags gave ``cloud``: :func:`pair_flags`;
+    default ``rb``, >= 2) and the lowest, the one ``msw_flag`` places, lies below the band's
+    top ``band_top_m`` [m above the surface], each of those depths as one layer above the
+    band: the file does not say how the depth splits between its layers, and only the part
+    inside the band adds backscatter to the background (the other limit, all of it in the
+    lowest layer, is the matrix's own); the others only where every segment is cloudy (a
+    beam with clear segments is judged on those). Each: ``{"dataset", "from", "circular",
+    "above_band", "cloud", "signal_cloud"}``, ``signal_cloud`` the same layer with the depth
+    that reflectance implies on the beam's own segments that measure the signal
+    (:func:`signal_segments`; the signal is a median over those, the background over all)."""
+    import dataclasses
+    if cloud is None:
+        return []
+    name, where, circular = REFLECTANCES.get(product, ("reflectance", "the product's", False))
+    out = [{"dataset": name, "from": where, "circular": circular, "above_band": False,
+            "cloud": cloud, "signal_cloud": _on_signal_segments(rb, cloud, rb.reflectance)}]
+    if rb.clear is None or np.any(rb.clear):
+        return out          # a beam with clear segments is judged on them: its cloud alone
+    other = getattr(rb, "reflectance_photons", None)
+    c = None if other is None else implied_cloud(rb, reflectance=other)
+    if c is not None:
+        name, where, circular = PHOTON_REFLECTANCE
+        own = dataclasses.replace(cloud, optical_depth=c.optical_depth)
+        out.append({"dataset": name, "from": where, "circular": circular, "above_band": False,
+                    "cloud": own, "signal_cloud": _on_signal_segments(rb, own, other)})
+    n = layer_count(rb if flags is None else flags)
+    if n is not None and n >= 2 and cloud.base_m < band_top_m:
+        out += [{**a, "above_band": True, "cloud": dataclasses.replace(
+            a["cloud"], base_m=band_top_m, top_m=band_top_m + LAYER_THICKNESS_M)}
+            for a in list(out)]
+    return out
+
+
+def signal_segments(rb) -> np.ndarray | None:
+    """The segments where the product measured a signal (a finite ``signal_per_shot``: ATL07's
+    snow-covered ice with a ``photon_rate``, ATL06's quality-0 fits), or None."""
+    s = rb.signal_per_shot
+    return None if s is None else np.isfinite(np.asarray(s, np.float64))
+
+
+def _on_signal_segments(rb, cloud, reflectance):
+    """``cloud`` with the optical depth ``reflectance`` implies on the beam's cloudy segments
+    that measure the signal (:func:`signal_segments`), or ``cloud`` itself where none has it."""
+    import dataclasses
+    seg = signal_segments(rb)
+    c = None if seg is None or reflectance is None else implied_cloud(
+        rb, reflectance=reflectance, segments=seg)
+    return cloud if c is None else dataclasses.replace(cloud, optical_depth=c.optical_depth)
 
 
 def layer_heights_m(layer_class) -> tuple[float, float]:

@@ -77,6 +77,16 @@ def report_md(doc: dict) -> str:
              "Nothing is fitted to a file. Background: measured median on clear / cloudy "
              "segments against the model (clear sky; with the cloud the file implies or the "
              "one given, for the cloudy segments); signal: photons per shot.", "",
+             "Verdicts: **agrees** (background within 0.5-2x and signal within 0.7-1.4x of "
+             "the measured; a beam all cloudy, with the cloud its file implies or the one "
+             "given); **disagrees** (outside, for every cloud the file's inputs allow, or for "
+             "one they pin down); **cloud uncertain** (a beam all cloudy whose file's inputs "
+             "disagree on the cloud by more than those ranges can tell apart: its "
+             "reflectances' optical depths, or, where ATL09 found several layers, how the "
+             "depth splits between the band and above it; the measured value lies inside "
+             "what they bracket, and the reason names the datasets, their depths and the "
+             "bracket); **cloud missing** (all cloudy, no reflectance and no cloud given); "
+             "**surface missing**, **not simulated**, **not measured**.", "",
              "## Files", ""]
     lines += [f"- {f['missing']} (release {f['release'] or '?'})" for f in doc["files"]]
     lines += ["", "## Beams", "",
