@@ -305,7 +305,8 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
             ``shot`` (uint32), ``time_ns`` (float64 round-trip time [ns] from the pulse
             centre's emission), ``weight`` (float32), ``x_m``, ``y_m``, ``z_m`` (float32
             vertex position [m]), ``depth`` (uint8, 1 = first surface). The returns are
-            compacted on the device (``dr.compress``): only the kept ones cross to the host.
+            compacted on the device (``dr.compress``): only the kept ones cross to the host
+            (on the CPU backend, whose slots are host memory, numpy picks them).
         """
         return self.launch(scene, shot_x_m=shot_x_m, shot_y_m=shot_y_m,
                            paths_per_shot=paths_per_shot, seed=seed,
