@@ -305,7 +305,8 @@ class PathLengthIntegrator(mi.SamplingIntegrator):
             ``shot`` (uint32), ``time_ns`` (float64 round-trip time [ns] from the pulse
             centre's emission), ``weight`` (float32), ``x_m``, ``y_m``, ``z_m`` (float32
             vertex position [m]), ``depth`` (uint8, 1 = first surface). The returns are
-            compacted on the device (``dr.compress``): only the kept ones cross to the host.
+            compacted on the device (``dr.compress``): only the kept ones cross to the host
+            (on the CPU backend, whose slots are host memory, numpy picks them).
         """
         return self.launch(scene, shot_x_m=shot_x_m, shot_y_m=shot_y_m,
                            paths_per_shot=paths_per_shot, seed=seed,
@@ -371,6 +372,8 @@ class PendingReturns:
         t, w, x, y, z = out[:5]
         depth_of_slot = out[5] if len(out) > 5 else None      # cores that record it per slot
         keep, shot = kept
+        if keep is None:                                  # the CPU backend: on the host
+            return self._fetch_host(out, shot, n_shots)
         idx = dr.compress(keep)                           # synchronises; keeps slot order
         if dr.width(idx) == 0:
             return Returns.empty(n_shots=n_shots, paths_per_shot=self.paths_per_shot)
@@ -391,6 +394,31 @@ class PendingReturns:
                        y_m=host[4], z_m=host[5], depth=depth, n_shots=n_shots,
                        paths_per_shot=self.paths_per_shot)
 
+    def _fetch_host(self, out, shot, n_shots: int) -> Returns:
+        """:meth:`_fetch` on the CPU backend, where the slots are host memory: the slots of
+        non-zero weight picked by numpy (``w > 0`` in float32, in slot order, as the
+        device's mask and ``dr.compress``), without the compress kernel and the mask; every
+        slot kept (single bounce on terrain) reads the arrays as they are."""
+        host = [a.numpy() for a in (shot, *out[:5])]
+        keep = host[2] > 0.0
+        idx = None
+        if not keep.all():
+            idx = np.flatnonzero(keep)
+            host = [a[idx] for a in host]
+        if host[0].size == 0:
+            return Returns.empty(n_shots=n_shots, paths_per_shot=self.paths_per_shot)
+        if len(out) > 5:                               # cores that record it per slot
+            d = out[5].numpy()
+            depth = np.minimum(d if idx is None else d[idx], 255).astype(np.uint8)
+        elif self.max_depth > 1:
+            slot = np.arange(keep.size, dtype=np.uint32) if idx is None else idx
+            depth = (slot % self.max_depth + 1).astype(np.uint8)
+        else:
+            depth = np.ones(host[0].size, np.uint8)
+        return Returns(shot=host[0], time_ns=host[1], weight=host[2], x_m=host[3],
+                       y_m=host[4], z_m=host[5], depth=depth, n_shots=n_shots,
+                       paths_per_shot=self.paths_per_shot)
+
 
 def _moved(out: tuple, shift: tuple[np.ndarray, np.ndarray, np.ndarray], *,
            slots_per_shot: int) -> tuple:
@@ -403,29 +431,41 @@ def _moved(out: tuple, shift: tuple[np.ndarray, np.ndarray, np.ndarray], *,
     t, w, x, y, z = out[:5]
     shot = None
 
-    def per_slot(d: np.ndarray):
+    def same(d: np.ndarray) -> bool:
+        return bool(d.size and np.all(d == d[0]))
+
+    def per_slot(d: np.ndarray, constant: bool):
         nonlocal shot
-        if d.size and np.all(d == d[0]):
+        if constant:
             return dr.opaque(mi.Float64, float(d[0]))
         if shot is None:
             shot = _quotient(dr.arange(mi.UInt32, dr.width(w)), slots_per_shot)
         return dr.gather(mi.Float64, mi.Float64(d), shot)
 
-    dx, dy, dz, dt = (per_slot(d) for d in (*shift, 2.0 * shift[2] / C_M_PER_NS))
+    constant = [same(d) for d in shift]
+    dx, dy, dz = (per_slot(d, c) for d, c in zip(shift, constant))
+    if constant[2]:       # every shot's -2 dz / c the same: from the one value, as numpy would
+        dt = dr.opaque(mi.Float64, 2.0 * float(shift[2][0]) / C_M_PER_NS)
+    else:
+        d = 2.0 * shift[2] / C_M_PER_NS
+        dt = per_slot(d, same(d))
     t = t - dt
     x, y, z = (mi.Float(mi.Float64(a) + d) for a, d in ((x, dx), (y, dy), (z, dz)))
     return (t, w, x, y, z, *out[5:])
 
 
-def _kept_slots(out: tuple, slots_per_shot: int) -> tuple[mi.Bool, mi.UInt32]:
+def _kept_slots(out: tuple, slots_per_shot: int) -> tuple[mi.Bool | None, mi.UInt32]:
     """Per slot of a core's output ``(t, w, ...)``: whether it returns (non-zero weight:
     the slots the fetch keeps) and its shot, evaluated with ``out`` in the trace's own
     kernel (asynchronous on CUDA). Each was a kernel of its own in the fetch, a pass over
-    the weights for the mask and one over the kept slots for the shot: the same values."""
+    the weights for the mask and one over the kept slots for the shot: the same values.
+    On the CPU backend the mask is ``None``: the host reads every slot there anyway and
+    tests the weights itself (:meth:`PendingReturns._fetch`)."""
     w = out[1]
-    kept = (w > 0.0, _quotient(dr.arange(mi.UInt32, dr.width(w)), slots_per_shot))
-    dr.eval(*out, *kept)
-    return kept
+    shot = _quotient(dr.arange(mi.UInt32, dr.width(w)), slots_per_shot)
+    keep = None if dr.backend_v(w) == dr.JitBackend.LLVM else w > 0.0
+    dr.eval(*out, shot, *([] if keep is None else [keep]))
+    return keep, shot
 
 
 def _checked_shots(shot_x_m, shot_y_m, paths_per_shot: int, offset_m):

@@ -40,10 +40,15 @@ def scene_bounds(scene: mi.Scene) -> tuple[np.ndarray, np.ndarray]:
     Raises ``ValueError`` for a scene without shapes, or whose shapes all have non-finite
     coordinates (e.g. a NaN in a transform).
     """
+    shapes = scene.shapes()
+    if len(shapes) == 1 and shapes[0].is_mesh() and shapes[0].vertex_count():
+        lo, hi = _vertex_bounds(shapes[0])          # one mesh (a corridor tile): its own
+        if np.isfinite(lo).all() and np.isfinite(hi).all() and (lo <= hi).all():
+            return lo, hi                           # bounds, as the loop below gives them
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
     n_bad = 0
-    for shape in scene.shapes():
+    for shape in shapes:
         if shape.is_mesh():
             if not shape.vertex_count():
                 continue

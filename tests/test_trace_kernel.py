@@ -1,7 +1,8 @@
 """The first-surface trace's shortcuts give the bits of the long way (issue 43): a scene of
 one mesh traced without the shape and BSDF registries' calls, folded shots put back in the
-trace's own kernel, a small mesh's bounds read on the host. Exact comparisons: each shortcut
-does the same float operations in the same order, so any difference is a bug, not noise."""
+trace's own kernel, a small mesh's bounds read on the host, the kept slots picked on the host
+on the CPU backend. Exact comparisons: each shortcut does the same float
+operations in the same order, so any difference is a bug, not noise."""
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -66,6 +67,7 @@ def test_folded_shots_put_back_in_the_kernel_are_returns_moved(rng):
     plain = integ.trace(scene, shot_x_m=sx, shot_y_m=sy, paths_per_shot=8, seed=5)
     # a corridor tile's offsets (one value for every shot) and per-shot ones
     for d in ((np.full(k, -3456.25), np.full(k, 1.2e5), np.zeros(k)),
+              (np.full(k, 12.5), np.full(k, -7.25), np.full(k, 0.3711)),   # one dt, one value
               (rng.normal(0, 1e3, k), np.full(k, 7.0), rng.normal(0, 2.0, k))):
         moved = integ.trace(scene, shot_x_m=sx, shot_y_m=sy, paths_per_shot=8, seed=5,
                             offset_m=d)
@@ -143,3 +145,47 @@ def test_slots_kept_in_the_trace_kernel_are_the_fetch_s(rng, max_depth):
     for name, value in want.items():
         arr = getattr(got, name)
         assert np.array_equal(arr, value) and arr.tobytes() == value.astype(arr.dtype).tobytes()
+
+
+def _device_kept(out, slots_per_shot):
+    """``_kept_slots`` as off the CPU backend: the keep mask from the trace's kernel, so the
+    fetch compacts on the device (``dr.compress`` and gathers)."""
+    w = out[1]
+    kept = (w > 0.0, pathlength._quotient(dr.arange(mi.UInt32, dr.width(w)), slots_per_shot))
+    dr.eval(*out, *kept)
+    return kept
+
+
+@pytest.mark.parametrize("max_depth", [1, 2])
+@pytest.mark.parametrize("off_tile", [False, True])
+def test_the_host_fetch_is_the_device_fetch(rng, monkeypatch, max_depth, off_tile):
+    """On the CPU backend the fetch picks the slots of non-zero weight with numpy (no keep
+    mask in the kernel, no compress kernel): the same returns, to the bit, as the device's
+    compress and gathers, whether every slot returns (single bounce on terrain) or not."""
+    vertices, faces = _rough_tile(rng)
+    scene = scn.scene_from_mesh(vertices, faces, bsdf=ward_bsdf_dict())
+    integ = mi.load_dict({"type": "pathlength", "max_depth": max_depth})
+    sx, sy = _shots(rng, k=24)
+    if off_tile:
+        sx[:6] -= 40.0                               # nothing returns from these
+    host = integ.trace(scene, shot_x_m=sx, shot_y_m=sy, paths_per_shot=8, seed=4)
+    monkeypatch.setattr(pathlength, "_kept_slots", _device_kept)
+    device = integ.trace(scene, shot_x_m=sx, shot_y_m=sy, paths_per_shot=8, seed=4)
+    assert len(host) > 0 and (len(host) < 24 * 8 * max_depth) == (off_tile or max_depth > 1)
+    for name in host.ARRAYS:
+        a, b = getattr(host, name), getattr(device, name)
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name
+
+
+def test_one_mesh_s_bounds_are_its_vertices_extremes(rng):
+    """A scene of one mesh is bounded by its vertex buffer's float32 extremes directly (the
+    general loop's union of one); a non-finite vertex still refuses the scene."""
+    vertices, faces = _rough_tile(rng, n=9)
+    lo, hi = scene_utils.scene_bounds(scn.scene_from_mesh(vertices, faces))
+    v32 = vertices.astype(np.float32)
+    assert lo.dtype == hi.dtype == np.float64
+    assert lo.tobytes() == v32.min(axis=0).astype(np.float64).tobytes()
+    assert hi.tobytes() == v32.max(axis=0).astype(np.float64).tobytes()
+    vertices[5, 0] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        scene_utils.scene_bounds(scn.scene_from_mesh(vertices, faces))
