@@ -224,17 +224,11 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
     included) and the second (``seconds``: warm), against the time its rays alone take to
     cast (:func:`cast_time`); the same in CPU seconds of both processes (``cpu_s``,
     ``end_to_end_cpu_s``: from both processes' start)."""
-    from ..startup import frozen_start
-    with frozen_start():               # no garbage collection walks the start-up's objects
-        from .. import granule
-        from ..trace.variant import ensure_renderer
-        if beams == "all":             # as simulate --dem: the writer process forked from
-            from .. import granule_writer, precompile     # this one (its imports and numba's
-            granule_writer.writer()    # start inherited), before any thread or the renderer,
-            precompile.load_kernels()  # and the first kernels beside the renderer's set-up
-        ensure_renderer()              # libLLVM, variant, plugins
-        from ..ground import dem
-        surf = dem.DEMSurface(dem.DEM.open(dem_path))
+    from ..startup import granule_process
+    granule_process()                  # as simulate --dem starts (its imports first)
+    from .. import granule
+    from ..ground import dem
+    surf = dem.DEMSurface(dem.DEM.open(dem_path))
     shots = int(round(length_km * 1e3 / 0.7))
     before = _peak_rss_mb()
     track = ice_sheet_track()
@@ -344,4 +338,6 @@ if __name__ == "__main__":
     ap.add_argument("km", type=float)
     ap.add_argument("beams", nargs="?", default="gt2l")
     a = ap.parse_args()
+    from ..startup import own_process
+    own_process()                      # the collector as the command launcher sets it
     print(json.dumps(measure(a.dem, a.km, a.beams)))
