@@ -31,10 +31,12 @@ import contextlib
 import gc
 
 #: the youngest generation's collection threshold in a process of our own (CPython's default
-#: is 700 new container objects): a granule makes and drops many small containers, and its
-#: collections took 0.21 s of a six-beam 100 km granule at 700 against 0.10 s at 10 000
-#: (measured when the command launcher adopted it, 5c7d8bc; the older generations keep
-#: CPython's 10 and 10)
+#: is 700 new container objects; the older generations keep CPython's 10 and 10): a granule
+#: makes and drops many small containers, and its collections took 0.21 s of a six-beam
+#: 100 km granule at 700 against 0.10 s at 10 000 when the command launcher adopted it
+#: (5c7d8bc). With the start-up's objects frozen (:func:`frozen_start`) they cost ~3 ms a
+#: granule at either (bench's granule, 2026-11-28: 9 young collections at 700, 1 at 10 000):
+#: kept so that bench's rows and the commands run alike
 GEN0_THRESHOLD = 10_000
 
 

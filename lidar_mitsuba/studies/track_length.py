@@ -14,8 +14,9 @@ worker does: ``seconds`` is the second (warm: renderer, kernels, writer process 
 already loaded), ``of_cast`` its ratio to casting the same rays alone (:func:`cast_time`:
 the granule's ray count cast into its own corridor tiles in launches of >= 1 M lanes, with
 ``cast_cv`` the spread of its passes), ``end_to_end_s`` the first granule's end counted from
-the interpreter's start (what a cold ``lidar-mitsuba simulate`` pays: its writer process
-forked after the imports, before the renderer's set-up, as ``simulate --dem`` starts it) and
+the interpreter's start (what a cold ``lidar-mitsuba simulate --dem`` pays: the process starts
+as that command's does, through :func:`lidar_mitsuba.startup.granule_process`, with the
+collector set as the command launcher sets it, :func:`lidar_mitsuba.startup.own_process`) and
 ``end_to_end_over_warm`` the ratio of the two.
 """
 from __future__ import annotations
