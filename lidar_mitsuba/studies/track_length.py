@@ -4,7 +4,9 @@ meridian of a long synthetic ice-sheet DEM, streamed into ATL03 and ATL06 files
 RSS is its own.
 
 Reported per length: shots, sections, corridor tiles, wall time, shots/s, the process's
-peak RSS and its RSS before the run (imports, DEM opened), ``working_mb`` = peak - before,
+peak RSS and its RSS before the run (the process started as ``simulate --dem`` starts:
+imports, the writer process forked, numba's kernels loaded, the renderer set up; the DEM
+opened), ``working_mb`` = peak - before,
 the size of the files written, and ``kernels``, the distinct Dr.Jit kernels the run
 launched (up to 100 km): it must not grow with the tiles (each new kernel is an LLVM or CUDA
 compile, ~0.2 s, that the disk cache hides only on a repeat of the same terrain).
