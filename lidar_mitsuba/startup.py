@@ -18,12 +18,26 @@ collections would otherwise also write to the inherited objects' headers, copyin
 pages). Only for a process of our own (a command's, bench's row's, the writer process's):
 frozen objects are never collected, so cyclic garbage made before the block's end (a
 caller's, in a library call) would stay for the process's life. The command launcher
-(``lidar_mitsuba_cli``) freezes its imports the same way.
+(``lidar_mitsuba_cli``) freezes its imports the same way and raises the youngest generation's
+threshold (:func:`own_process`).
+
+:func:`granule_process` is the one start of a process that simulates granules over DEMs:
+``lidar-mitsuba simulate --dem`` and bench's granule rows
+(:mod:`lidar_mitsuba.studies.track_length`) both call it, so that bench times what users run.
 """
 from __future__ import annotations
 
 import contextlib
 import gc
+
+#: the youngest generation's collection threshold in a process of our own (CPython's default
+#: is 700 new container objects; the older generations keep CPython's 10 and 10): a granule
+#: makes and drops many small containers, and its collections took 0.21 s of a six-beam
+#: 100 km granule at 700 against 0.10 s at 10 000 when the command launcher adopted it
+#: (5c7d8bc). With the start-up's objects frozen (:func:`frozen_start`) they cost ~3 ms a
+#: granule at either (bench's granule, 2026-11-28: 9 young collections at 700, 1 at 10 000):
+#: kept so that bench's rows and the commands run alike
+GEN0_THRESHOLD = 10_000
 
 
 @contextlib.contextmanager
@@ -40,3 +54,34 @@ def frozen_start():
         gc.freeze()
         if was_on:
             gc.enable()
+
+
+def own_process() -> None:
+    """The collector's settings for the whole life of a process of our own (a command's,
+    bench's rows'), from its start: every object alive frozen (:func:`gc.freeze`: the imports
+    so far are never walked) and the youngest generation collected every
+    :data:`GEN0_THRESHOLD` new containers. Not for a caller's process (a notebook's, the
+    tests'): its cyclic garbage made so far would never be collected."""
+    gc.freeze()
+    gc.set_threshold(GEN0_THRESHOLD, 10, 10)
+
+
+def granule_process():
+    """Start a process of our own that simulates granules over DEMs (``simulate --dem``,
+    bench's granule rows), in this order, within :func:`frozen_start`: the granule's imports;
+    the writer process forked from this one (:func:`lidar_mitsuba.granule_writer.writer`:
+    before any thread or the renderer, so that it inherits the imports and numba's start);
+    the first kernels loading from numba's cache on a thread
+    (:func:`lidar_mitsuba.precompile.load_kernels`); the renderer's set-up
+    (:func:`lidar_mitsuba.trace.variant.ensure_renderer`). Returns the ``mitsuba`` module.
+    Cheap when it already ran in this process (each step is once a process).
+
+    Raises:
+        RendererUnavailable: no usable libLLVM or variant (as ``ensure_renderer``).
+    """
+    with frozen_start():         # no garbage collection walks the start-up's objects
+        from . import granule, granule_writer, precompile    # noqa: F401
+        from .trace.variant import ensure_renderer
+        granule_writer.writer()
+        precompile.load_kernels()
+        return ensure_renderer()

@@ -148,3 +148,62 @@ def test_frozen_start_pauses_the_collector_and_freezes_what_is_alive():
     out = json.loads(r.stdout)
     assert out["before"] and not out["inside"] and out["after"] and out["kept_off"]
     assert out["frozen"] > 1000
+
+
+def test_simulate_dem_and_bench_s_granule_rows_start_through_one_helper(monkeypatch, tmp_path):
+    """``simulate --dem`` and bench's granule rows (``track_length.measure``) start their
+    process through :func:`lidar_mitsuba.startup.granule_process`, first (before the DEM is
+    opened or an option checked), so that bench times the start users run."""
+    import pytest
+    from lidar_mitsuba import startup
+    from lidar_mitsuba.cli import main
+    from lidar_mitsuba.studies import track_length
+
+    class Started(Exception):
+        pass
+
+    calls = []
+
+    def start():
+        calls.append(len(calls))
+        raise Started
+
+    monkeypatch.setattr(startup, "granule_process", start)
+    with pytest.raises(Started):
+        track_length.measure(str(tmp_path / "none.tif"), 1.0, "all")
+    with pytest.raises(Started):
+        main(["simulate", "--dem", str(tmp_path / "none.tif"), "--track", "70,-45,0",
+              "--out", str(tmp_path / "o.h5")])
+    assert calls == [0, 1]
+
+
+GRANULE_PROCESS = """
+import gc, json, os, sys, threading
+from lidar_mitsuba import startup
+startup.own_process()
+out = {"threshold": gc.get_threshold()[0], "frozen_early": gc.get_freeze_count() > 0,
+       "drjit_before": "drjit" in sys.modules}
+mi = startup.granule_process()
+from lidar_mitsuba import granule_writer, precompile
+w = granule_writer._WRITER[0]
+out.update(variant=mi.variant(), forked=w.forked, alive=w.alive(),
+           loaded=precompile._LOADED_PID[0] == os.getpid(), gc_on=gc.isenabled(),
+           again=startup.granule_process() is mi and granule_writer._WRITER[0] is w)
+print(json.dumps(out))
+"""
+
+
+def test_granule_process_forks_the_writer_loads_kernels_and_sets_the_renderer_up():
+    """In a fresh interpreter (a process of our own): :func:`~lidar_mitsuba.startup.own_process`
+    freezes what is alive and raises the youngest generation's threshold; then
+    :func:`~lidar_mitsuba.startup.granule_process` forks the writer process (Dr.Jit not loaded
+    before it), starts the kernels' loading, sets the default variant up and leaves the
+    collector on; a second call starts nothing new."""
+    from lidar_mitsuba.startup import GEN0_THRESHOLD
+    r = subprocess.run([sys.executable, "-c", GRANULE_PROCESS], capture_output=True,
+                       text=True, timeout=300, check=True)
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out["threshold"] == GEN0_THRESHOLD and out["frozen_early"]
+    assert not out["drjit_before"] and out["variant"] == "llvm_ad_mono"
+    assert out["forked"] and out["alive"] and out["gc_on"] and out["again"]
+    assert out["loaded"]

@@ -359,11 +359,9 @@ def _cloud_kw(a) -> dict:
 
 def _simulate_dem(a, out, plot) -> int:
     """``simulate --dem``: a granule of up to six beams along a ground track."""
-    from ..startup import frozen_start
-    with frozen_start():            # no garbage collection walks the imports' objects
-        from .. import geotrack, granule, granule_writer, precompile
-        granule_writer.writer()     # its process, forked before any thread or the renderer
-        precompile.load_kernels()   # the first kernels, beside the renderer's set-up
+    from ..startup import granule_process
+    granule_process()               # the writer process, the first kernels, the renderer
+    from .. import geotrack, granule
     atl06_out = out_path(a.atl06, (".h5", ".hdf5"), "--atl06") if a.atl06 else None
     if a.scene is not None:
         raise UsageError("--scene", "give --dem or --scene, not both")

@@ -4,7 +4,9 @@ meridian of a long synthetic ice-sheet DEM, streamed into ATL03 and ATL06 files
 RSS is its own.
 
 Reported per length: shots, sections, corridor tiles, wall time, shots/s, the process's
-peak RSS and its RSS before the run (imports, DEM opened), ``working_mb`` = peak - before,
+peak RSS and its RSS before the run (the process started as ``simulate --dem`` starts:
+imports, the writer process forked, numba's kernels loaded, the renderer set up; the DEM
+opened), ``working_mb`` = peak - before,
 the size of the files written, and ``kernels``, the distinct Dr.Jit kernels the run
 launched (up to 100 km): it must not grow with the tiles (each new kernel is an LLVM or CUDA
 compile, ~0.2 s, that the disk cache hides only on a repeat of the same terrain).
@@ -14,8 +16,9 @@ worker does: ``seconds`` is the second (warm: renderer, kernels, writer process 
 already loaded), ``of_cast`` its ratio to casting the same rays alone (:func:`cast_time`:
 the granule's ray count cast into its own corridor tiles in launches of >= 1 M lanes, with
 ``cast_cv`` the spread of its passes), ``end_to_end_s`` the first granule's end counted from
-the interpreter's start (what a cold ``lidar-mitsuba simulate`` pays: its writer process
-forked after the imports, before the renderer's set-up, as ``simulate --dem`` starts it) and
+the interpreter's start (what a cold ``lidar-mitsuba simulate --dem`` pays: the process starts
+as that command's does, through :func:`lidar_mitsuba.startup.granule_process`, with the
+collector set as the command launcher sets it, :func:`lidar_mitsuba.startup.own_process`) and
 ``end_to_end_over_warm`` the ratio of the two.
 """
 from __future__ import annotations
@@ -224,17 +227,11 @@ def measure(dem_path: str, length_km: float, beams: str = "gt2l") -> dict:
     included) and the second (``seconds``: warm), against the time its rays alone take to
     cast (:func:`cast_time`); the same in CPU seconds of both processes (``cpu_s``,
     ``end_to_end_cpu_s``: from both processes' start)."""
-    from ..startup import frozen_start
-    with frozen_start():               # no garbage collection walks the start-up's objects
-        from .. import granule
-        from ..trace.variant import ensure_renderer
-        if beams == "all":             # as simulate --dem: the writer process forked from
-            from .. import granule_writer, precompile     # this one (its imports and numba's
-            granule_writer.writer()    # start inherited), before any thread or the renderer,
-            precompile.load_kernels()  # and the first kernels beside the renderer's set-up
-        ensure_renderer()              # libLLVM, variant, plugins
-        from ..ground import dem
-        surf = dem.DEMSurface(dem.DEM.open(dem_path))
+    from ..startup import granule_process
+    granule_process()                  # as simulate --dem starts (its imports first)
+    from .. import granule
+    from ..ground import dem
+    surf = dem.DEMSurface(dem.DEM.open(dem_path))
     shots = int(round(length_km * 1e3 / 0.7))
     before = _peak_rss_mb()
     track = ice_sheet_track()
@@ -344,4 +341,6 @@ if __name__ == "__main__":
     ap.add_argument("km", type=float)
     ap.add_argument("beams", nargs="?", default="gt2l")
     a = ap.parse_args()
+    from ..startup import own_process
+    own_process()                      # the collector as the command launcher sets it
     print(json.dumps(measure(a.dem, a.km, a.beams)))
