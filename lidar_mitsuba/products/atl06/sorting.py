@@ -152,6 +152,58 @@ def argsort(a):
 
 
 @numba.njit(cache=True, nogil=True)
+def sort_and_order(a):
+    """``(sort(a), argsort(a))``, at the cost of the order and a gather: the values are
+    :func:`sort`'s to the bit, ``a[argsort(a)]`` (both sorts put equal values in the same
+    places, and equal values have the same bits, but for -0.0 and 0.0: an array with a zero
+    gets :func:`sort`'s values and no order, an empty one)."""
+    for i in range(a.size):
+        if a[i] == 0.0:
+            return sort(a), np.empty(0, np.int64)
+    order = argsort(a)
+    return a[order], order
+
+
+@numba.njit(cache=True, nogil=True)
+def merged_order(r, ext, sel, sel_order, r_ext):
+    """``argsort(r_ext)`` of ``r_ext = r[ext]`` (the stable order) from ``sel_order``, the
+    stable order of ``r[sel]``, when the selection ``sel`` is within ``ext`` and the rest of
+    ``r[ext]`` lie above all of it (as a fit's window lies within its extended window): the
+    selection's order, then the rest's, sorted on their own (a few values). Otherwise
+    ``argsort(r_ext)`` itself: the same order either way."""
+    n_rest = r_ext.size - sel_order.size
+    if n_rest < 0:
+        return argsort(r_ext)
+    at_sel = np.empty(sel_order.size, np.int64)   # each selected value's place in r_ext
+    rest_at, rest = np.empty(n_rest, np.int64), np.empty(n_rest)
+    e = j = m = 0
+    top = -np.inf                                 # (the selection's greatest value)
+    for i in range(r.size):
+        if sel[i]:
+            if not ext[i] or j == sel_order.size or r[i] != r[i]:
+                return argsort(r_ext)
+            at_sel[j] = e
+            top = max(top, r[i])
+            j += 1
+        elif ext[i]:
+            if m == n_rest:
+                return argsort(r_ext)
+            rest_at[m], rest[m] = e, r[i]
+            m += 1
+        e += ext[i]
+    if j != sel_order.size or (m and not rest.min() > top):
+        return argsort(r_ext)
+    order = np.empty(r_ext.size, np.int64)
+    for k in range(j):
+        order[k] = at_sel[sel_order[k]]
+    if m:
+        rest_order = argsort(rest)
+        for k in range(m):
+            order[j + k] = rest_at[rest_order[k]]
+    return order
+
+
+@numba.njit(cache=True, nogil=True)
 def _quicksort(s):
     """Sort ``s`` in place (no NaN in it): Hoare's partition about the median of three, the
     smaller part first (a stack of log2 n), runs of 16 or fewer by insertion."""
