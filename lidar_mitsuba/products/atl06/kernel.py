@@ -274,7 +274,7 @@ def _densest_window(h, w0):
 def _first_window(x, h, x_shot, gate_c, has_gate, sel, cfg):
     """:func:`lidar_mitsuba.products.atl06.reference._first_window`, the selection ``sel`` updated in
     place (an array returned in a tuple costs reference counting on every call): (ok, W,
-    sigma_r, bckgrd)."""
+    sigma_r, bckgrd); sigma_r 0 where its exact value below w0 / 10 changes nothing."""
     ok, a, b, _ = _line_fit(x, h, sel)
     if not ok:
         return False, 0.0, 0.0, 0.0
@@ -286,8 +286,11 @@ def _first_window(x, h, x_shot, gate_c, has_gate, sel, cfg):
         bg = 0.0
     sigma_exp = math.hypot(cfg[_SIGMA_PULSE_M], cfg[_FOOTPRINT_SIGMA_M] * b)
     r0 = r_all[sel]
-    sig_r = _robust_spread(sort(r0), _background_per_m(bg, x_shot.size, half_c) * w0,
-                           r0.min(), r0.min() + w0, cfg[_IQR_SCALE])
+    lo, iqr_scale = r0.min(), cfg[_IQR_SCALE]
+    # sigma_r is at most the residuals' span / IQR per sigma: under w0 / 10 (twice over),
+    # neither W nor the refinement's first exclusion zone depends on it, nor its sort is done
+    sig_r = 0.0 if (r0.max() - lo) * 2.0 <= w0 / 10.0 * iqr_scale else _robust_spread(
+        sort(r0), _background_per_m(bg, x_shot.size, half_c) * w0, lo, lo + w0, iqr_scale)
     win = _pmax(w0, 6.0 * _pmax(_pmin(sig_r, 5.0), sigma_exp))
     new = np.abs(r_all) < win / 2.0
     if _span_ok(x, new, int(cfg[_MIN_PHOTONS]), cfg[_MIN_SPAN_M])[0]:
