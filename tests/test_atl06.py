@@ -262,6 +262,32 @@ def test_the_fit_s_sorts_are_numpy_s(rng):
     np.testing.assert_array_equal(sorting.sort(a), a[sorting.argsort(a)])
 
 
+def test_the_fit_s_reused_orders_are_its_sorts(rng):
+    """The orders the compiled fit reuses instead of sorting again (issue 43) are the sorts'
+    to the bit: ``sort_and_order`` gives ``sort``'s values and ``argsort``'s order (no order
+    for an array with a zero, whose -0.0 and 0.0 may trade places); ``merged_order`` gives
+    ``argsort`` of the extended window's residuals from the window's order, on windows of
+    ties, an empty one, one without residuals above it, and where its preconditions fail (a
+    selection outside the extended window, or not below the rest: then argsort itself)."""
+    from lidar_mitsuba.products.atl06 import sorting
+    cases = [rng.normal(0, 1, n) for n in (1, 2, 15, 16, 17, 120, 257)]
+    cases += [np.round(rng.normal(0, 3, 300)) / 3, np.r_[rng.normal(0, 0.1, 150), 1e3, -30.0],
+              np.r_[np.round(rng.normal(0, 1, 60)), np.full(9, -0.0)], np.zeros(0)]
+    for a in cases:
+        values, order = sorting.sort_and_order(a)
+        assert values.tobytes() == sorting.sort(a).tobytes()
+        expect = np.argsort(a, kind="stable") if not (a == 0).any() else np.zeros(0, int)
+        np.testing.assert_array_equal(order, expect)
+    for r in (np.round(rng.normal(0, 2, 300), 2), rng.normal(0, 1, 40), np.zeros(0)):
+        for half_w, extra in ((1.5, 0.9), (3.0, 0.9), (10.0, 0.0), (0.0, 0.9)):
+            ext = (r > -half_w) & (r < half_w + extra)
+            for sel in (np.abs(r) < half_w, np.abs(r - 0.3) < half_w, rng.random(r.size) < 0.5):
+                got = sorting.merged_order(r, ext, sel, sorting.argsort(r[sel]), r[ext])
+                np.testing.assert_array_equal(got, np.argsort(r[ext], kind="stable"))
+            got = sorting.merged_order(r, ext, ext & False, np.zeros(0, np.int64), r[ext])
+            np.testing.assert_array_equal(got, np.argsort(r[ext], kind="stable"))
+
+
 def test_dead_time_weights_from_the_residuals_order_are_the_searched_ones(rng):
     """The non-paralyzable dead-time weights from the residuals' sorted order (both ends of
     each photon's dead-time window moving up, no search) equal, bit for bit, those found by

@@ -6,7 +6,8 @@ describes the algorithm, and the tests compare the two on the same segments): th
 removes the per-segment Python overhead (~0.9 ms a segment, 44 % of a DEM granule's time).
 Each step of the reference has its twin here under the same name (``_densest_window``,
 ``_first_window``, ``_refine_window``, ``_final_spread_and_background``, ``_formal_errors``,
-``_first_photon_bias``), and :func:`fit_segment` strings them together as the reference does.
+``_first_photon_bias``; the dead-time weights' in :mod:`~lidar_mitsuba.products.atl06.dead_time`),
+and :func:`fit_segment` strings them together as the reference does.
 :func:`fit_all` runs its segments one after the other (``parallel=True`` made the compile twice
 as long) without the GIL: :func:`lidar_mitsuba.products.atl06._fit_compiled` gives contiguous blocks of
 segments to the host's threads (a sweep task's thread count included).
@@ -17,8 +18,9 @@ the same, so NaNs propagate as in the reference. ``cache=True`` keeps the compil
 
 Sorts, the main cost, are as few as the results allow, each the same to the bit (issue 43):
 distributed into buckets (:mod:`~lidar_mitsuba.products.atl06.sorting`), the last iteration's
-sorted residuals reused for the final line (the same line), one argsort for the
-first-photon-bias weights and median (no searches), the densest window in one sweep or none.
+line, residuals and their sort reused as the final line's (the same line), the
+first-photon-bias order (weights, median) merged from that sort's order and the few residuals
+above the window (:func:`~.sorting.merged_order`), the densest window in one sweep or none.
 """
 from __future__ import annotations
 
@@ -28,7 +30,8 @@ import numba
 import numpy as np
 
 from ...numeric import pairwise_sum
-from .sorting import argsort, first_at_least, has_nan, sort
+from .dead_time import _dead_time_weights, _dead_time_weights_ordered
+from .sorting import argsort, first_at_least, has_nan, merged_order, sort, sort_and_order
 
 #: output columns, in order (ints travel as floats and are converted by the caller)
 OUT_FIELDS = ("n_seg_pulses", "flags", "n_fit_photons", "h_li", "h_li_sigma", "h_mean",
@@ -196,80 +199,6 @@ def _background(x_shot, gate_c, has_gate, a, b, r_all, excl, cfg):
 
 
 @numba.njit(cache=True, nogil=True)
-def _dead_time_weights(t, n_pulses, n_channels, dead_time_ns, paralyzable):
-    """:func:`lidar_mitsuba.products.first_photon_bias.dead_time_weights` (500 iterations, tol 1e-10): (w, ok)."""
-    n = t.size
-    w = np.ones(n)
-    ok = True
-    if n == 0 or dead_time_ns <= 0:
-        return w, ok
-    npc = float(max(n_pulses * n_channels - 1, 1))
-    order = argsort(t)
-    ts = t[order]
-    lo = np.empty(n, np.int64)
-    hi = np.empty(n, np.int64)
-    for j in range(n):
-        lo[j] = first_at_least(ts, ts[j] - dead_time_ns, True)
-        hi[j] = first_at_least(ts, ts[j], False)
-    if not paralyzable:      # (the weights of _dead_time_weights_ordered; kept for the twin)
-        for j in range(n):
-            alive = 1.0 - (hi[j] - lo[j]) / npc
-            w[order[j]] = 1.0 / alive if alive > 0 else np.nan
-        return w, ok
-    ws = np.ones(n)
-    cw = np.zeros(n + 1)
-    new = np.empty(n)
-    ok = False
-    for _ in range(500):
-        for j in range(n):
-            cw[j + 1] = cw[j] + ws[j]
-        finite = True
-        for j in range(n):
-            new[j] = math.exp((cw[hi[j]] - cw[lo[j]]) / npc)
-            if not math.isfinite(new[j]):
-                finite = False
-        if not finite:
-            ws[:] = new
-            break
-        worst = 0.0
-        for j in range(n):
-            worst = max(worst, abs(new[j] - ws[j]) / new[j])
-        ws[:] = new
-        if worst < 1e-10:
-            ok = True
-            break
-    for j in range(n):
-        w[order[j]] = ws[j]
-    return w, ok
-
-
-@numba.njit(cache=True, nogil=True)
-def _dead_time_weights_ordered(r, order, n_pulses, n_channels, dead_time_ns, half_c):
-    """:func:`_dead_time_weights` of the non-paralyzable detector at the times ``t = -r /
-    half_c`` [ns] of the residuals ``r`` [m], given ``order``, ``r``'s stable argsort (NaN-free
-    ``r``): the same weights. ``t`` runs up along ``order`` reversed, so both ends of each
-    photon's dead-time window [t - dead time, t) only move up along it (no search)."""
-    n = r.size
-    w = np.ones(n)
-    if n == 0 or dead_time_ns <= 0:
-        return w
-    npc = float(max(n_pulses * n_channels - 1, 1))
-    ts = np.empty(n)
-    for j in range(n):
-        ts[j] = -r[order[n - 1 - j]] / half_c
-    lo = 0
-    hi = 0
-    for j in range(n):
-        while hi < n and ts[hi] < ts[j]:                  # first_at_least(ts, t, False)
-            hi += 1
-        while lo < n and ts[lo] <= ts[j] - dead_time_ns:  # first_at_least(ts, t - tau, True)
-            lo += 1
-        alive = 1.0 - (hi - lo) / npc
-        w[order[n - 1 - j]] = 1.0 / alive if alive > 0 else np.nan
-    return w
-
-
-@numba.njit(cache=True, nogil=True)
 def _weighted_median_minus_uniform(rs, ws, n_bg, half_w):
     """:func:`lidar_mitsuba.products.first_photon_bias.weighted_median_minus_uniform` of the
     residuals ``rs`` in their stable order and their weights ``ws`` in the same order."""
@@ -345,7 +274,7 @@ def _densest_window(h, w0):
 def _first_window(x, h, x_shot, gate_c, has_gate, sel, cfg):
     """:func:`lidar_mitsuba.products.atl06.reference._first_window`, the selection ``sel`` updated in
     place (an array returned in a tuple costs reference counting on every call): (ok, W,
-    sigma_r, bckgrd)."""
+    sigma_r, bckgrd); sigma_r 0 where its exact value below w0 / 10 changes nothing."""
     ok, a, b, _ = _line_fit(x, h, sel)
     if not ok:
         return False, 0.0, 0.0, 0.0
@@ -357,8 +286,11 @@ def _first_window(x, h, x_shot, gate_c, has_gate, sel, cfg):
         bg = 0.0
     sigma_exp = math.hypot(cfg[_SIGMA_PULSE_M], cfg[_FOOTPRINT_SIGMA_M] * b)
     r0 = r_all[sel]
-    sig_r = _robust_spread(sort(r0), _background_per_m(bg, x_shot.size, half_c) * w0,
-                           r0.min(), r0.min() + w0, cfg[_IQR_SCALE])
+    lo, iqr_scale = r0.min(), cfg[_IQR_SCALE]
+    # sigma_r is at most the residuals' span / IQR per sigma: under w0 / 10 (twice over),
+    # neither W nor the refinement's first exclusion zone depends on it, nor its sort is done
+    sig_r = 0.0 if (r0.max() - lo) * 2.0 <= w0 / 10.0 * iqr_scale else _robust_spread(
+        sort(r0), _background_per_m(bg, x_shot.size, half_c) * w0, lo, lo + w0, iqr_scale)
     win = _pmax(w0, 6.0 * _pmax(_pmin(sig_r, 5.0), sigma_exp))
     new = np.abs(r_all) < win / 2.0
     if _span_ok(x, new, int(cfg[_MIN_PHOTONS]), cfg[_MIN_SPAN_M])[0]:
@@ -369,17 +301,19 @@ def _first_window(x, h, x_shot, gate_c, has_gate, sel, cfg):
 @numba.njit(cache=True, nogil=True)
 def _refine_window(x, h, x_shot, gate_c, has_gate, sel, win, sig_r, bg, cfg):
     """:func:`lidar_mitsuba.products.atl06.reference._refine_window`, the selection ``sel`` updated
-    in place: (W, bckgrd, iterations, converged, the sorted residuals of its last line, and
-    whether ``sel`` is still that line's selection: then the final line is that line)."""
+    in place: (W, bckgrd, iterations, converged, ``fresh``: ``sel`` is still its last line's
+    selection, then the final line, and that line: a, b, cov00, residuals, and its selection's
+    residuals sorted and their stable order: :func:`.sorting.sort_and_order`)."""
     n_pulses, half_c, iqr_scale = x_shot.size, cfg[_HALF_C], cfg[_IQR_SCALE]
     dead_m = cfg[_DEAD_TIME_NS] * half_c
     min_photons, min_span_m = int(cfg[_MIN_PHOTONS]), cfg[_MIN_SPAN_M]
     bg_per_m = _background_per_m(bg, n_pulses, half_c)
     it = 0
     converged = fresh = False
-    rs = np.empty(0)
+    a = b = cov00 = 0.0
+    rs, r_all, order = np.empty(0), np.empty(0), np.empty(0, np.int64)
     for it in range(1, int(cfg[_MAX_ITERATIONS]) + 1):
-        ok, a, b, _ = _line_fit(x, h, sel)
+        ok, a, b, cov00 = _line_fit(x, h, sel)
         if not ok:
             fresh = False
             break
@@ -390,7 +324,7 @@ def _refine_window(x, h, x_shot, gate_c, has_gate, sel, win, sig_r, bg, cfg):
         if math.isfinite(bg_i):
             bg = bg_i
             bg_per_m = _background_per_m(bg, n_pulses, half_c)
-        rs, fresh = sort(r0), True
+        (rs, order), fresh = sort_and_order(r0), True
         sig_r = _pmin(5.0, _robust_spread(rs, bg_per_m * win, -win / 2.0, win / 2.0,
                                           iqr_scale))
         sigma_exp = math.hypot(cfg[_SIGMA_PULSE_M], cfg[_FOOTPRINT_SIGMA_M] * b)
@@ -405,7 +339,7 @@ def _refine_window(x, h, x_shot, gate_c, has_gate, sel, win, sig_r, bg, cfg):
             break
         sel[:] = new
         fresh = False
-    return win, bg, it, converged, rs, fresh
+    return win, bg, it, converged, fresh, (a, b, cov00, r_all, rs, order)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -440,14 +374,16 @@ def _formal_errors(r0, b, cov00, win, n_bg_out, exposure_ns, n_pulses, cfg):
 
 
 @numba.njit(cache=True, nogil=True)
-def _first_photon_bias(r_all, win, bg, n_pulses, cfg):
+def _first_photon_bias(r_all, win, bg, n_pulses, cfg, sel, sel_order):
     """:func:`lidar_mitsuba.products.atl06.reference._first_photon_bias`: (fpb_corr_m,
-    fpb_corr_sigma_m, fpb_med_corr_m, fpb_gain, fpb_min_alive, fpb_n_corr, flags)."""
+    fpb_corr_sigma_m, fpb_med_corr_m, fpb_gain, fpb_min_alive, fpb_n_corr, flags);
+    ``sel_order``: ``r_all[sel]``'s stable order where known (else empty: no merge)."""
     n_channels, dead_time_ns, half_c = int(cfg[_N_CHANNELS]), cfg[_DEAD_TIME_NS], cfg[_HALF_C]
     dead_m = dead_time_ns * half_c
     ext = (r_all > -win / 2.0) & (r_all < win / 2.0 + 2.0 * dead_m)
     r_ext = r_all[ext]
-    order = argsort(r_ext)                  # (r_ext has no NaN: it passed two comparisons)
+    order = (merged_order(r_all, ext, sel, sel_order, r_ext) if sel_order.size  # (no NaN in
+             else argsort(r_ext))                                     # r_ext: 2 comparisons)
     if cfg[_PARALYZABLE] != 0.0:
         w_ext, ok_w = _dead_time_weights(-r_ext / half_c, n_pulses, n_channels, dead_time_ns,
                                          True)
@@ -523,26 +459,29 @@ def fit_segment(x, h, x_shot, gate_c, has_gate, cfg, out):
     if not ok:
         out[_FLAGS] = _TOO_FEW
         return
-    win, bg, it, converged, rs, fresh = _refine_window(x, h, x_shot, gate_c, has_gate, sel,
-                                                       win, sig_r, bg, cfg)
+    win, bg, it, converged, fresh, last = _refine_window(x, h, x_shot, gate_c, has_gate, sel,
+                                                         win, sig_r, bg, cfg)
     flags = 0
     if not converged and it >= int(cfg[_MAX_ITERATIONS]):
         flags |= _NOT_CONVERGED
-    ok, a, b, cov00 = _line_fit(x, h, sel)                     # the final line
-    if not ok:
-        out[_FLAGS] = flags | _TOO_FEW
-        return
-    r_all = h - (a + b * x)
+    if fresh:          # the final line is the last iteration's (sel is still its selection)
+        a, b, cov00, r_all, rs, order = last
+    else:
+        ok, a, b, cov00 = _line_fit(x, h, sel)                     # the final line
+        if not ok:
+            out[_FLAGS] = flags | _TOO_FEW
+            return
+        r_all, order = h - (a + b * x), np.empty(0, np.int64)
     r0 = r_all[sel]
     n_fit = r0.size
-    if not fresh:                  # (else the final line is the last iteration's)
+    if not fresh:
         rs = sort(r0)
     sig_r, n_bg_out, exposure_ns, bg = _final_spread_and_background(
         x_shot, gate_c, has_gate, a, b, r_all, rs, win, bg, cfg)
     n_noise_obs, h_rms, sigma_h_mean = _formal_errors(r0, b, cov00, win, n_bg_out, exposure_ns,
                                                       n_pulses, cfg)
     fpb_corr, fpb_sigma, fpb_med, gain, min_alive, n_corr, fpb_flags = _first_photon_bias(
-        r_all, win, bg, n_pulses, cfg)
+        r_all, win, bg, n_pulses, cfg, sel, order)
     flags |= fpb_flags
     snr = (n_fit - n_noise_obs) / n_noise_obs if n_noise_obs > 0 else np.inf
     if n_fit - n_noise_obs < 5.0 * math.sqrt(_pmax(n_noise_obs, 1.0)):

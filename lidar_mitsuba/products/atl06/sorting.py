@@ -18,7 +18,10 @@ bottom-up merges) for the order. The fit's results depend only on the sorted val
 NaN, which no comparison orders, takes :func:`_merge_argsort`'s order in both
 (``tests/test_atl06.py`` checks the sorts against numpy's). (Only -0.0 and 0.0, equal to
 every comparison, may trade places in :func:`sort`'s values: a residual is -0.0 only for a
-photon at height -0.0 exactly on its line.)
+photon at height -0.0 exactly on its line.) Each value's bucket is worked out once, and
+where no bucket is crowded one insertion pass over the distributed values puts every bucket
+in order (a value never passes one of a lower bucket, which is smaller): the same result as
+bucket by bucket, ~20 % less time on a strong beam's segments (issue 43).
 """
 from __future__ import annotations
 
@@ -72,15 +75,22 @@ def _bucket(v, lo, scale, n):
 
 
 @numba.njit(cache=True, nogil=True)
-def _bucket_starts(a, lo, scale):
-    """(n + 1,) the first position of each of the ``n`` buckets of ``a`` and the end."""
+def _buckets(a, lo, scale):
+    """Each value's bucket (:func:`_bucket`), the (n + 1,) first position of each of the
+    ``n`` buckets of ``a`` and the end, and whether a bucket holds more than
+    :data:`BUCKET_MAX` values."""
     n = a.size
+    bucket = np.empty(n, np.int64)
     start = np.zeros(n + 1, np.int64)
     for i in range(n):
-        start[_bucket(a[i], lo, scale, n) + 1] += 1
+        k = _bucket(a[i], lo, scale, n)
+        bucket[i] = k
+        start[k + 1] += 1
+    crowded = False
     for k in range(n):
+        crowded = crowded or start[k + 1] > BUCKET_MAX
         start[k + 1] += start[k]
-    return start
+    return bucket, start, crowded
 
 
 @numba.njit(cache=True, nogil=True)
@@ -96,59 +106,121 @@ def sort(a):
         _quicksort(s)
         return s
     n = a.size
-    start = _bucket_starts(a, lo, scale)
+    bucket, start, crowded = _buckets(a, lo, scale)
     pos = start[:n].copy()
     s = np.empty(n)
     for i in range(n):
-        k = _bucket(a[i], lo, scale, n)
+        k = bucket[i]
         s[pos[k]] = a[i]
         pos[k] += 1
+    if not crowded:      # one pass by insertion: no value passes a smaller bucket's (the
+        _insertion(s)    # buckets are in order), so each bucket is put in order on its own
+        return s
     for k in range(n):
         b0, b1 = start[k], start[k + 1]
         if b1 - b0 > BUCKET_MAX:
             _quicksort(s[b0:b1])
-            continue
-        for i in range(b0 + 1, b1):
-            key = s[i]
-            j = i
-            while j > b0 and s[j - 1] > key:
-                s[j] = s[j - 1]
-                j -= 1
-            s[j] = key
+        else:
+            _insertion(s[b0:b1])
     return s
+
+
+@numba.njit(cache=True, nogil=True)
+def _insertion(s):
+    """Sort ``s`` in place by insertion (stable)."""
+    for i in range(1, s.size):
+        key = s[i]
+        j = i
+        while j > 0 and s[j - 1] > key:
+            s[j] = s[j - 1]
+            j -= 1
+        s[j] = key
 
 
 @numba.njit(cache=True, nogil=True)
 def argsort(a):
     """Stable argsort of a float64 array (numpy's ``kind="stable"``): distributed into
     buckets in the array's order, each bucket's indices by insertion on strictly greater
-    values (see the module docstring), or by :func:`_merge_argsort`."""
+    values, the values moved beside them (see the module docstring), or by
+    :func:`_merge_argsort`."""
     lo, scale, spread = _range(a)
     if not spread:
         return _merge_argsort(a)
     n = a.size
-    start = _bucket_starts(a, lo, scale)
+    bucket, start, crowded = _buckets(a, lo, scale)
     pos = start[:n].copy()
     idx = np.empty(n, np.int64)
+    s = np.empty(n)
     for i in range(n):
-        k = _bucket(a[i], lo, scale, n)
-        idx[pos[k]] = i
+        k = bucket[i]
+        idx[pos[k]], s[pos[k]] = i, a[i]
         pos[k] += 1
-    for k in range(n):
-        b0, b1 = start[k], start[k + 1]
-        if b1 - b0 > BUCKET_MAX:         # (its indices ascend: a stable sort keeps ties so)
+    for k in range(n if crowded else 1):
+        b0, b1 = (start[k], start[k + 1]) if crowded else (0, n)   # (one pass, as sort's)
+        if b1 - b0 > BUCKET_MAX and crowded:  # (its indices ascend: a stable sort keeps ties)
             part = idx[b0:b1].copy()
             idx[b0:b1] = part[_merge_argsort(a[part])]
             continue
         for i in range(b0 + 1, b1):
-            v = idx[i]
-            key = a[v]
+            v, key = idx[i], s[i]
             j = i
-            while j > b0 and a[idx[j - 1]] > key:
-                idx[j] = idx[j - 1]
+            while j > b0 and s[j - 1] > key:
+                idx[j], s[j] = idx[j - 1], s[j - 1]
                 j -= 1
-            idx[j] = v
+            idx[j], s[j] = v, key
     return idx
+
+
+@numba.njit(cache=True, nogil=True)
+def sort_and_order(a):
+    """``(sort(a), argsort(a))``, at the cost of the order and a gather: the values are
+    :func:`sort`'s to the bit, ``a[argsort(a)]`` (both sorts put equal values in the same
+    places, and equal values have the same bits, but for -0.0 and 0.0: an array with a zero
+    gets :func:`sort`'s values and no order, an empty one)."""
+    for i in range(a.size):
+        if a[i] == 0.0:
+            return sort(a), np.empty(0, np.int64)
+    order = argsort(a)
+    return a[order], order
+
+
+@numba.njit(cache=True, nogil=True)
+def merged_order(r, ext, sel, sel_order, r_ext):
+    """``argsort(r_ext)`` of ``r_ext = r[ext]`` (the stable order) from ``sel_order``, the
+    stable order of ``r[sel]``, when the selection ``sel`` is within ``ext`` and the rest of
+    ``r[ext]`` lie above all of it (as a fit's window lies within its extended window): the
+    selection's order, then the rest's, sorted on their own (a few values). Otherwise
+    ``argsort(r_ext)`` itself: the same order either way."""
+    n_rest = r_ext.size - sel_order.size
+    if n_rest < 0:
+        return argsort(r_ext)
+    at_sel = np.empty(sel_order.size, np.int64)   # each selected value's place in r_ext
+    rest_at, rest = np.empty(n_rest, np.int64), np.empty(n_rest)
+    e = j = m = 0
+    top = -np.inf                                 # (the selection's greatest value)
+    for i in range(r.size):
+        if sel[i]:
+            if not ext[i] or j == sel_order.size or r[i] != r[i]:
+                return argsort(r_ext)
+            at_sel[j] = e
+            top = max(top, r[i])
+            j += 1
+        elif ext[i]:
+            if m == n_rest:
+                return argsort(r_ext)
+            rest_at[m], rest[m] = e, r[i]
+            m += 1
+        e += ext[i]
+    if j != sel_order.size or (m and not rest.min() > top):
+        return argsort(r_ext)
+    order = np.empty(r_ext.size, np.int64)
+    for k in range(j):
+        order[k] = at_sel[sel_order[k]]
+    if m:
+        rest_order = argsort(rest)
+        for k in range(m):
+            order[j + k] = rest_at[rest_order[k]]
+    return order
 
 
 @numba.njit(cache=True, nogil=True)
