@@ -138,6 +138,19 @@ def _insertion(s):
 
 
 @numba.njit(cache=True, nogil=True)
+def _insertion_order(idx, s):
+    """:func:`_insertion` of the values ``s`` in place, their indices ``idx`` moved beside
+    them (stable: only a strictly greater value moves up)."""
+    for i in range(1, s.size):
+        v, key = idx[i], s[i]
+        j = i
+        while j > 0 and s[j - 1] > key:
+            idx[j], s[j] = idx[j - 1], s[j - 1]
+            j -= 1
+        idx[j], s[j] = v, key
+
+
+@numba.njit(cache=True, nogil=True)
 def argsort(a):
     """Stable argsort of a float64 array (numpy's ``kind="stable"``): distributed into
     buckets in the array's order, each bucket's indices by insertion on strictly greater
@@ -155,19 +168,16 @@ def argsort(a):
         k = bucket[i]
         idx[pos[k]], s[pos[k]] = i, a[i]
         pos[k] += 1
-    for k in range(n if crowded else 1):
-        b0, b1 = (start[k], start[k + 1]) if crowded else (0, n)   # (one pass, as sort's)
-        if b1 - b0 > BUCKET_MAX and crowded:  # (its indices ascend: a stable sort keeps ties)
+    if not crowded:      # one pass by insertion, as sort's
+        _insertion_order(idx, s)
+        return idx
+    for k in range(n):
+        b0, b1 = start[k], start[k + 1]
+        if b1 - b0 > BUCKET_MAX:         # (its indices ascend: a stable sort keeps ties so)
             part = idx[b0:b1].copy()
             idx[b0:b1] = part[_merge_argsort(a[part])]
-            continue
-        for i in range(b0 + 1, b1):
-            v, key = idx[i], s[i]
-            j = i
-            while j > b0 and s[j - 1] > key:
-                idx[j], s[j] = idx[j - 1], s[j - 1]
-                j -= 1
-            idx[j], s[j] = v, key
+        else:
+            _insertion_order(idx[b0:b1], s[b0:b1])
     return idx
 
 
