@@ -135,19 +135,22 @@ def pair_clouds(beams) -> dict:
     pair."""
     own = {rb.name: implied_cloud(rb) for rb in beams}
     return {name: own[flags.name] if own[name] is not None else None
-            for name, flags in pair_flags(beams).items()}
+            for name, flags in pair_flags(beams, clouds=own).items()}
 
 
-def pair_flags(beams) -> dict:
+def pair_flags(beams, *, clouds: dict | None = None) -> dict:
     """Each beam's name to the beam whose ATL09 flags give its cloud (:func:`pair_clouds`): its
-    pair's strong beam for a weak beam where that has a cloud, itself otherwise."""
+    pair's strong beam for a weak beam where that has a cloud, itself otherwise (``clouds``:
+    each beam's :func:`implied_cloud` by name, where the caller has them)."""
     by = {rb.name: rb for rb in beams}
+    if clouds is None:
+        clouds = {name: implied_cloud(rb) for name, rb in by.items()}
     out = {}
     for name, rb in by.items():
         partner = by.get(name[:3] + ("r" if name[3] == "l" else "l"))
         out[name] = partner if (rb.strength == "weak" and partner is not None
                                 and partner.strength == "strong"
-                                and implied_cloud(partner) is not None) else rb
+                                and clouds[partner.name] is not None) else rb
     return out
 
 
