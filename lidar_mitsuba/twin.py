@@ -187,6 +187,25 @@ class TwinGranule:
                              f"{', '.join(b.beam.name for b in self.beams)})")
 
 
+def sea_ice_surface(*, lat_deg: float, size_m: float | None = None):
+    """``(surface, reason)``: the surface a twin of sea ice at ``lat_deg`` [deg] is simulated
+    over, the one place ``validate``'s sea-ice twin and the realism matrix's sea-ice rows take
+    it from: rough sea ice of the published preset the site's ice gets
+    (:func:`~lidar_mitsuba.ground.sea_ice_surface.site_preset`: the central Arctic pack's
+    Fram Strait roughness with ridge sails; ``SurfaceSpec(kind="sea_ice")`` on a ``size_m``
+    tile, the default 1024 m without), or ``None`` (flat snow) for other sea ice, with the
+    reason either way. Chosen by the ice's age and region, nothing from the file's photons."""
+    from .ground import sea_ice_surface as sis
+    from .ground.surface import SurfaceSpec
+    preset, why = sis.site_preset(lat_deg=float(lat_deg))
+    if preset is None:
+        return None, why
+    p = sis.PRESETS[preset]
+    return SurfaceSpec(kind="sea_ice", surface_rms_m=p["rms_m"],
+                       surface_corr_m=p["corr_length_m"], surface_ridges=p["ridges"],
+                       **({} if size_m is None else {"size_m": float(size_m)})), why
+
+
 def read(path: str | os.PathLike, *, beams: str = "all", prf_hz: float = 10e3) -> TwinGranule:
     """The shots of the beams of a real ICESat-2 file (ATL03, ATL06, ATL07 or ATL08, any
     release; ``beams``: ``all``, ``strong``, ``weak`` or names) from its segments

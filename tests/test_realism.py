@@ -372,6 +372,18 @@ def test_validate_real_runs_over_the_shipped_files_and_simulates_a_beam(tmp_path
     assert p["shots"] == 60 and p["signal_per_shot"] > 0 and "spread_robust_m" in p
     assert p["energy_source"] == "tx_pulse_energy"
     assert row["measured"]["spread_robust_m"] > 0
+    # the central Arctic subset over validate's rough sea ice (twin.sea_ice_surface), its
+    # shape judged by issue 41's rule, the ratios and their SEs from the counted tails
+    assert "rough: 16 cm rms" in p["surface"] and "Fram Strait" in p["surface_why"]
+    sv, m = row["shape"], row["measured"]
+    assert sv["spread_ratio"] == p["spread_robust_m"] / m["spread_robust_m"]
+    for side in ("below", "above"):
+        f, n = p[f"tail_{side}"], p["shape_photons"]
+        assert p[f"tail_{side}_se"] == pytest.approx(math.sqrt(f * (1 - f) / n))
+        assert sv[f"tail_{side}_agrees"] == (0.5 <= sv[f"tail_{side}_ratio"] <= 2.0)
+    assert sv["verdict"] in ("agrees", "disagrees") and "without_snow_delay" in p
+    md = (tmp_path / "realism.md").read_text()
+    assert "rough: 16 cm rms" in md and f"**{sv['verdict']}**" in md
     # the leak: ATL03 gives its finder's span, so the laser photons outside it and their
     # afterpulses; without the span (ATL06, ATL07), those our finder leaves in two 50-shot
     # rows (the second of 10 shots) of the same simulation
@@ -381,8 +393,9 @@ def test_validate_real_runs_over_the_shipped_files_and_simulates_a_beam(tmp_path
     assert p["background_terms_hz"]["leak"] == pytest.approx(
         p["signal_per_shot"] * p["outside_fraction"] / band_s, rel=1e-12)
     rb.signal_span_m = None
+    rb.lat_deg = rb.lat_deg - 18.0      # seasonal ice's latitude: flat snow (and no rough tile)
     q = realism.predicted(rb, twin.read(twin.REAL_SUBSET), signal_shots=60, seed=0)
-    assert q["signal_per_shot"] == p["signal_per_shot"]
+    assert "(flat" in q["surface"] and "first-year" in q["surface_why"]
     leak = q["leak"]
     assert q["leak_from"].startswith("our signal finder") and leak["rows"] == 2
     assert q["background_terms_hz"]["leak"] == leak["leak_hz"] > 0

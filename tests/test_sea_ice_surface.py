@@ -81,3 +81,21 @@ def test_the_built_in_spec_and_its_record():
     with pytest.raises(ParameterError) as e:          # not silently ignored elsewhere
         SurfaceSpec(kind="fractal", surface_rms_m=0.09)
     assert e.value.name == "surface_rms_m"
+
+
+def test_which_ice_gets_a_preset():
+    """One rule for validate's sea-ice twin and the realism matrix's sea-ice rows: the
+    central Arctic pack (the shipped subset, 87.3 N) gets the Fram Strait preset, the spec
+    ``validate`` always ran (so its twin is the same to the bit); seasonal ice (Baffin Bay's
+    ATL07, 69 N; the Southern Ocean) stays flat."""
+    from lidar_mitsuba import twin
+    assert sis.site_preset(lat_deg=87.3)[0] == sis.DEFAULT_PRESET == "fram_strait"
+    assert sis.site_preset(lat_deg=sis.CENTRAL_ARCTIC_LAT_DEG)[0] == "fram_strait"
+    for lat in (69.3, 79.9, -65.0, float("nan")):
+        preset, why = sis.site_preset(lat_deg=lat)
+        assert preset is None and "first-year" in why
+    spec, why = twin.sea_ice_surface(lat_deg=87.3)
+    assert spec == SurfaceSpec(kind="sea_ice") and "Fram Strait" in why
+    assert twin.sea_ice_surface(lat_deg=87.3, size_m=256.0)[0] == SurfaceSpec(kind="sea_ice",
+                                                                               size_m=256.0)
+    assert twin.sea_ice_surface(lat_deg=69.3)[0] is None

@@ -84,6 +84,35 @@ DEFAULT_PRESET = "fram_strait"
 the published Fram Strait ice samples it (the ice near the pole drifts out through Fram
 Strait); ``nansen_basin`` is the younger, smoother published value."""
 
+CENTRAL_ARCTIC_LAT_DEG = 80.0
+"""Sea ice at or north of this latitude [deg] is the central Arctic pack (ESTIMATE: the
+Arctic basin north of Fram Strait's ~79-80 N and of most of the marginal seas' shelves, where
+the older ice that survives the summer circulates before the transpolar drift carries it out
+through Fram Strait; the multiyear ice of the Beaufort Sea and the Canadian archipelago
+further south is not placed here). Not a fitted value: no real file lies near it (the shipped
+ATL03 subset at 87.3 N, the ATL07 files in Baffin Bay at 69 N)."""
+
+
+def site_preset(*, lat_deg: float) -> tuple[str | None, str]:
+    """Which published roughness preset (:data:`PRESETS`) sea ice at ``lat_deg`` [deg] gets,
+    and why: the central Arctic pack (:data:`CENTRAL_ARCTIC_LAT_DEG` and north) is the older,
+    deformed ice whose roughness Beckers et al. 2015 measured where it leaves the Arctic, in
+    Fram Strait (:data:`DEFAULT_PRESET`, with the Arctic laser profiles' ridge sails); any
+    other sea ice (the marginal seas, Baffin Bay, the Southern Ocean: mostly seasonal
+    first-year ice) gets ``None``, flat snow: no published first-year roughness at the
+    footprint scale was readable here (docs/physics/sea-ice-surface.md). Chosen by the ice's
+    age and region, never by a comparison with a real file."""
+    if math.isfinite(lat_deg) and lat_deg >= CENTRAL_ARCTIC_LAT_DEG:
+        return DEFAULT_PRESET, (
+            f"central Arctic pack ({lat_deg:.1f} N, at or north of "
+            f"{CENTRAL_ARCTIC_LAT_DEG:g} N): older, deformed ice, whose published roughness "
+            "is Fram Strait's, where it drifts out (Beckers et al. 2015; ridge sails: "
+            "Castellani et al. 2014)")
+    return None, (f"sea ice at {lat_deg:.1f} deg, outside the central Arctic pack (north of "
+                  f"{CENTRAL_ARCTIC_LAT_DEG:g} N): seasonal first-year ice, for which no "
+                  "published roughness preset exists here; flat snow")
+
+
 ACF = "exponential"
 """The autocorrelation's form: ESTIMATE (the usual model of a random rough surface, and the
 one whose e-folding length is the correlation length the ATM study quotes; its definition of

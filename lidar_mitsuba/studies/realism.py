@@ -37,25 +37,17 @@ BACKGROUND_AGREES = (0.5, 2.0)
 """Predicted / measured background within this range agrees (issue 41's criterion)."""
 SIGNAL_AGREES = (0.7, 1.4)
 """Predicted / measured signal photons per shot within this range agrees (issue 41)."""
-TAIL_M = 0.20
-"""ATL03 tails: the fraction of surface photons farther than this below / above their
-segment's median [m]."""
 
 from .realism_inputs import (BLOWING_SNOW_TOP_M, LAYER_BASE_M, LAYER_THICKNESS_M,  # noqa: F401
                              PRODUCT_SURFACES, cloud_alternatives,
                              equation_outside_fraction, ice_sheet_snow,
                              implied_cloud, layer_heights_m, pair_clouds, pair_flags,
-                             sea_ice_snow,
+                             product_surface, sea_ice_snow,
                              snow_delay, sunlit_albedo)
 from .realism_curve import background_curve  # noqa: E402  (the figure's curves)
-
-TAIL_WINDOW_M = 1.0
-"""The predicted tails count the simulated surface photons within this distance [m] of their
-median, as ATL03's ``signal_conf_ph >= 3`` photons lie over flat ice (ESTIMATE: the reach of
-the product's signal finder, not a physical parameter; the shipped night subset's
-high-confidence photons lie within -1.0 .. +0.7 m of their segment's median): photons the
-snow returns from deeper down are low-confidence there, and background here."""
-
+from .realism_shape import (SEGMENT_M, TAIL_M, TAIL_WINDOW_M,  # noqa: E402,F401
+                            atl03_shape as _atl03_shape, segment_residuals_m, shape_stats,
+                            shape_verdict)
 
 def real_files(paths=None) -> list[pathlib.Path]:
     """The ``.h5`` files among ``paths`` (files or folders; folders give their ``*.h5``,
@@ -111,28 +103,6 @@ def _mean(a) -> float | None:
     return float(a.mean()) if a.size else None
 
 
-def _atl03_shape(path, beam: str) -> dict:
-    """Robust spread and tails of an ATL03 beam's surface photons about each segment's
-    median (:func:`~lidar_mitsuba.products.atl03.rates.atl03_rates`, the code validate uses)."""
-    from ..products.atl03.rates import atl03_rates
-    try:
-        r = atl03_rates(path, beam)
-    except KeyError:
-        return {}
-    res = np.asarray(r["residuals_m"])
-    return shape_stats(res)
-
-
-def shape_stats(residuals_m) -> dict:
-    """Robust sd (1.4826 MAD) of height residuals [m] and their tails below / above
-    ``TAIL_M``."""
-    res = np.asarray(residuals_m, np.float64)
-    if res.size < 10:
-        return {}
-    return {"spread_robust_m": float(1.4826 * np.median(np.abs(res - np.median(res)))),
-            "tail_below": float(np.mean(res < -TAIL_M)), "tail_above": float(np.mean(res > TAIL_M))}
-
-
 # ------------------------------------------------------------------------------ predicted
 def beam_energy(rb) -> tuple[float, str]:
     """A real beam's pulse energy [uJ] and its source (:func:`~lidar_mitsuba.twin.beam_energy_uj`)."""
@@ -180,9 +150,12 @@ def radiometric_signal(inst, *, z_m: float, surface: dict) -> float:
 
 def simulated(twin_granule, name: str, *, surface: dict, shots: int, seed: int,
               spans_m) -> dict:
-    """A short simulation of the beam's first ``shots`` shots over a flat surface (the
-    product's, :data:`PRODUCT_SURFACES`): detected signal per shot through dead time, the
-    spread and tails of its surface photons (within :data:`TAIL_WINDOW_M`), saturation as our
+    """A short simulation of the beam's first ``shots`` shots over the product's surface
+    (:func:`~lidar_mitsuba.studies.realism_inputs.product_surface`: flat, or the rough sea ice
+    of its ``relief``): detected signal per shot through dead time, the spread and tails of
+    its surface photons about each 20 m segment's median (:func:`segment_residuals_m`; with
+    the snow's delay, and under ``without_snow_delay`` without it, as ``validate``'s sea-ice
+    twin has them), saturation as our
     ATL03 writes it, the fraction of signal photons outside each of ``spans_m`` (the leak
     term as it was, kept for comparison) and ``photons``, what ATL03's count of the leak
     needs (:func:`~lidar_mitsuba.night.atl03_leak`; not for the report). Over snow, the
@@ -194,7 +167,8 @@ def simulated(twin_granule, name: str, *, surface: dict, shots: int, seed: int,
     from ..ground.surface import SurfaceSpec
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        g = twin.simulate_over_surface(twin_granule, surface=SurfaceSpec(kind="flat"),
+        g = twin.simulate_over_surface(twin_granule,
+                                       surface=surface.get("relief") or SurfaceSpec(kind="flat"),
                                        beams=name, shots=shots, seed=seed,
                                        progress=False, water_wind_mps=surface.get("water"))
     res = g.beams[0].result
@@ -212,11 +186,13 @@ def simulated(twin_granule, name: str, *, surface: dict, shots: int, seed: int,
            "full_sat_fract": float(np.mean(surface_events >= ch)),
            "near_sat_fract": float(np.mean((surface_events >= np.ceil(0.75 * ch))
                                            & (surface_events < ch)))}
-    res_m = dh - np.median(dh) if dh.size else dh
-    out.update(shape_stats(res_m[np.abs(res_m) <= TAIL_WINDOW_M]) if dh.size else {})
-    out["outside_fraction"] = outside_fraction(dh, spans_m)
     h = res.h_m.copy()                   # every photon, the laser's moved by the snow's delay
     h[sig] += dh - res.dh_m[sig]
+    along = res.along_track_m[det.shot[sig]] - res.along_track_m[0]
+    out.update(shape_stats(segment_residuals_m(h[sig], along)))
+    if pack is not None:                 # validate's twin has no snow delay: the same without
+        out["without_snow_delay"] = shape_stats(segment_residuals_m(res.h_m[sig], along))
+    out["outside_fraction"] = outside_fraction(dh, spans_m)
     from ..detector.impulse import response_of
     from ..trace.stream import gate_heights_m
     out["photons"] = {"shot": det.shot, "h_m": h, "is_signal": sig, "n_shots": n,
@@ -303,12 +279,13 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
     (:func:`~lidar_mitsuba.studies.realism_inputs.cloud_alternatives`, ``cloud`` first), the
     same for each other cloud the file allows (``cloud_alternatives``)."""
     from .. import night
-    surface = PRODUCT_SURFACES.get(rb.surface, PRODUCT_SURFACES["land"])
+    surface = product_surface(rb)
     range_m = _range_m(rb)
     inst = beam_instrument(rb, range_m=range_m)
     z = float(np.clip(_median(rb.surface_h_m) or 0.0, -500.0, 9000.0))
     band = _band(rb)
     out = {"surface": surface["name"], "surface_missing": bool(surface.get("missing")),
+           **({"surface_why": surface["relief_why"]} if "relief_why" in surface else {}),
            "range_m": range_m, "pulse_energy_uj": float(inst.link_budget.pulse_energy_uj),
            "energy_source": beam_energy(rb)[1], "band_from_file": band.from_file}
     f_out, photons, leak_signal = _signal(out, rb, twin_granule, inst, band, surface, z,
@@ -552,6 +529,9 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
                 row["predicted"]["missing"] = realism_forest.missing(
                     signal_shots=signal_shots, paired=path.name in paired)
             row["verdict"], row["reason"] = verdict(row)
+            shape = shape_verdict(row["measured"], row["predicted"])
+            if shape is not None:                 # ATL03: issue 41's spread and tails
+                row["shape"] = shape
             rows.append(row)
             if progress is not None:
                 progress(format_row(row))

@@ -36,7 +36,7 @@ PRODUCT_SURFACES = {
     "land ice": {"name": "ice-sheet snow (flat, Ward snow, wind-packed snow's delay)",
                  "albedo": 0.9, "water": None, "snow": ice_sheet_snow},
     "sea ice": {"name": "snow-covered sea ice (flat, Ward snow, the floe's snow's delay)",
-                "albedo": 0.9, "water": None, "snow": sea_ice_snow},
+                "albedo": 0.9, "water": None, "snow": sea_ice_snow, "ice_concentration": True},
     "ocean": {"name": "open water (water BSDF, 5 m/s wind)", "albedo": 0.06, "water": 5.0},
     "inland water": {"name": "open water (water BSDF, 5 m/s wind)", "albedo": 0.06,
                      "water": 5.0},
@@ -49,7 +49,31 @@ ice, ATL08: land, ATL03: its ``surf_type``) and its Lambertian albedo for sunlig
 albedo at moderate sun) at an ESTIMATE 5 m/s wind, land 0.1 (ESTIMATE: conifer canopy in the
 green; a flat plate: a land row's surface is its forest twin where the file's ATL03 + ATL08
 pair has one, :mod:`~lidar_mitsuba.studies.realism_forest`, and missing otherwise). Snow surfaces also delay the share of their return that
-their volume scatters back (``snow``: the pack, :mod:`lidar_mitsuba.ground.snow.delay`)."""
+their volume scatters back (``snow``: the pack, :mod:`lidar_mitsuba.ground.snow.delay`).
+Sea ice is flat here; :func:`product_surface` gives it the relief its site's ice has."""
+
+
+def product_surface(rb) -> dict:
+    """The surface of a real beam ``rb``'s row: its product's (:data:`PRODUCT_SURFACES`), and
+    for sea ice the relief the twin of ice at the beam's median latitude gets
+    (:func:`~lidar_mitsuba.twin.sea_ice_surface`, ``validate``'s too: the central Arctic
+    pack's published Fram Strait roughness with ridge sails under the same Ward snow and
+    snow delay; flat elsewhere, no first-year preset existing) as ``relief`` (a
+    :class:`~lidar_mitsuba.ground.surface.SurfaceSpec`, None for flat) with its reason
+    ``relief_why``."""
+    surface = PRODUCT_SURFACES.get(rb.surface, PRODUCT_SURFACES["land"])
+    if surface is not PRODUCT_SURFACES["sea ice"]:
+        return surface
+    from ..twin import sea_ice_surface
+    lat = _median(getattr(rb, "lat_deg", None))
+    spec, why = sea_ice_surface(lat_deg=float("nan") if lat is None else lat)
+    if spec is None:
+        return {**surface, "relief": None, "relief_why": why}
+    ridges = "" if spec.surface_ridges == "none" else f", ridge sails {spec.surface_ridges}"
+    name = (f"snow-covered sea ice (rough: {100 * spec.surface_rms_m:.0f} cm rms, "
+            f"{spec.surface_corr_m:g} m correlation length{ridges}, as validate's twin; "
+            "Ward snow, the floe's snow's delay)")
+    return {**surface, "name": name, "relief": spec, "relief_why": why}
 
 
 def sunlit_albedo(rb, surface: dict) -> float:
@@ -58,7 +82,7 @@ def sunlit_albedo(rb, surface: dict) -> float:
     A_water`` with open water's 0.06 (:data:`PRODUCT_SURFACES`' ``ocean``; the sky's light
     is reflected over kilometres, the concentration's passive-microwave cells are 25 km)."""
     c = getattr(rb, "ice_fraction", None)
-    if surface is not PRODUCT_SURFACES["sea ice"] or c is None:
+    if not surface.get("ice_concentration") or c is None:
         return float(surface["albedo"])
     c = _median(c)
     if c is None:

@@ -126,21 +126,39 @@ def report_md(doc: dict) -> str:
     shape = [r for r in doc["rows"] if "spread_robust_m" in r["measured"]]
     if shape:
         lines += ["", "## ATL03: spread, tails, saturation", "",
-                  f"| file | beam | spread measured / predicted [cm] | tails below / above "
-                  f"{100 * 0.2:.0f} cm, measured | predicted | full / near saturated, measured "
-                  "| predicted |", "|---|---|---|---|---|---|---|"]
+                  "Spread: robust sd of the surface photons about each 20 m segment's median; "
+                  f"tails: the fractions beyond -/+{100 * 0.2:.0f} cm, +- their binomial "
+                  "standard errors; verdict by issue 41's rule (spread within 30 %, each tail "
+                  "within a factor 2) on the predicted surface named.", "",
+                  "| file | beam | spread measured / predicted [cm] | tails below / above, "
+                  "measured | predicted | surface | shape verdict | full / near saturated, "
+                  "measured | predicted |", "|---|---|---|---|---|---|---|---|---|"]
         for r in shape:
-            m, p = r["measured"], r["predicted"]
-            lines.append(
-                f"| {r['file']} | {r['beam']} | {_f(100 * m['spread_robust_m'], '.1f')} / "
-                f"{_f(100 * p['spread_robust_m'], '.1f') if 'spread_robust_m' in p else '-'} | "
-                f"{_f(m.get('tail_below'), '.3f')} / {_f(m.get('tail_above'), '.3f')} | "
-                f"{_f(p.get('tail_below'), '.3f')} / {_f(p.get('tail_above'), '.3f')} | "
-                f"{_f(m['full_sat_fract'], '.3f')} / {_f(m['near_sat_fract'], '.3f')} | "
-                f"{_f(p.get('full_sat_fract'), '.3f')} / {_f(p.get('near_sat_fract'), '.3f')} |")
+            lines.append(_shape_line(r))
     n = {}
     for r in doc["rows"]:
         n[r["verdict"]] = n.get(r["verdict"], 0) + 1
     lines += ["", ", ".join(f"{v} {k}" for k, v in sorted(n.items())) + ".", "",
               "![background against solar elevation](realism_background.png)", ""]
     return "\n".join(lines)
+
+
+def _tails(d: dict) -> str:
+    if d.get("tail_below") is None:
+        return "-"
+    return " / ".join(f"{d[f'tail_{k}']:.3f}" + (f" +- {d[f'tail_{k}_se']:.3f}"
+                                                   if f"tail_{k}_se" in d else "")
+                      for k in ("below", "above"))
+
+
+def _shape_line(r: dict) -> str:
+    """One ATL03 row of the shape table: measured and predicted spread and tails, the
+    surface they were predicted over, issue 41's verdict with its ratios."""
+    m, p = r["measured"], r["predicted"]
+    sv = r.get("shape")
+    verdict = "-" if sv is None else f"**{sv['verdict']}**: {sv['reason']}"
+    return (f"| {r['file']} | {r['beam']} | {_f(100 * m['spread_robust_m'], '.1f')} / "
+            f"{_f(100 * p['spread_robust_m'], '.1f') if 'spread_robust_m' in p else '-'} | "
+            f"{_tails(m)} | {_tails(p)} | {p['surface']} ({p.get('shots', 0)} shots) | "
+            f"{verdict} | {_f(m['full_sat_fract'], '.3f')} / {_f(m['near_sat_fract'], '.3f')} | "
+            f"{_f(p.get('full_sat_fract'), '.3f')} / {_f(p.get('near_sat_fract'), '.3f')} |")
