@@ -154,8 +154,8 @@ def simulated(twin_granule, name: str, *, surface: dict, shots: int, seed: int,
     (:func:`~lidar_mitsuba.studies.realism_inputs.product_surface`: flat, or the rough sea ice
     of its ``relief``): detected signal per shot through dead time, the spread and tails of
     its surface photons about each 20 m segment's median (:func:`segment_residuals_m`; with
-    the snow's delay, and under ``without_snow_delay`` without it, as ``validate``'s sea-ice
-    twin has them), saturation as our
+    the snow's delay, and over rough sea ice under ``without_snow_delay`` without it, as
+    ``validate``'s sea-ice twin has them), saturation as our
     ATL03 writes it, the fraction of signal photons outside each of ``spans_m`` (the leak
     term as it was, kept for comparison) and ``photons``, what ATL03's count of the leak
     needs (:func:`~lidar_mitsuba.night.atl03_leak`; not for the report). Over snow, the
@@ -190,8 +190,9 @@ def simulated(twin_granule, name: str, *, surface: dict, shots: int, seed: int,
     h[sig] += dh - res.dh_m[sig]
     along = res.along_track_m[det.shot[sig]] - res.along_track_m[0]
     out.update(shape_stats(segment_residuals_m(h[sig], along)))
-    if pack is not None:                 # validate's twin has no snow delay: the same without
-        out["without_snow_delay"] = shape_stats(segment_residuals_m(res.h_m[sig], along))
+    if pack is not None and surface.get("relief") is not None:   # as validate's rough twin:
+        out["without_snow_delay"] = shape_stats(   # no snow delay
+            segment_residuals_m(res.h_m[sig], along))
     out["outside_fraction"] = outside_fraction(dh, spans_m)
     from ..detector.impulse import response_of
     from ..trace.stream import gate_heights_m
@@ -529,7 +530,8 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
                 row["predicted"]["missing"] = realism_forest.missing(
                     signal_shots=signal_shots, paired=path.name in paired)
             row["verdict"], row["reason"] = verdict(row)
-            shape = shape_verdict(row["measured"], row["predicted"])
+            shape = (None if row["predicted"]["surface_missing"] else
+                     shape_verdict(row["measured"], row["predicted"]))
             if shape is not None:                 # ATL03: issue 41's spread and tails
                 row["shape"] = shape
             rows.append(row)
