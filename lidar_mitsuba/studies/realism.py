@@ -6,9 +6,12 @@ For each beam: the measured background (clear and cloudy segments apart) against
 model's (:func:`lidar_mitsuba.night.background_terms`: dark counts, sunlight, the air's and a
 cloud's backscatter, the laser's own photons the product's signal finder leaves), the signal
 photons per shot on clear segments against a short simulation of the file's own shots over
-the surface a user would choose knowing only the product (:data:`PRODUCT_SURFACES`) through
+the surface a user would choose knowing only the product (:data:`PRODUCT_SURFACES`; sea ice
+of the central Arctic pack with the relief ``validate``'s twin has,
+:func:`~lidar_mitsuba.studies.realism_inputs.product_surface`) through
 the detector's dead time (or, with ``signal_shots=0``, the lidar equation alone), the
-strong:weak ratios of each beam pair, the spread and tails of ATL03's surface photons, the
+strong:weak ratios of each beam pair, the spread and tails of ATL03's surface photons (with
+issue 41's verdict on them, :mod:`~lidar_mitsuba.studies.realism_shape`), the
 saturation fractions, and a verdict with its reason. Cloudy segments are predicted with the
 cloud the file's own flags imply (:func:`~lidar_mitsuba.studies.realism_inputs.implied_cloud`:
 its apparent reflectance's optical depth, ATL09's ``msw_flag``'s height) or the one given.
