@@ -88,7 +88,8 @@ def report_md(doc: dict) -> str:
              "bracket); **cloud missing** (all cloudy, no reflectance and no cloud given); "
              "**surface missing**, **not simulated**, **not measured**.", "",
              "## Files", ""]
-    lines += [f"- {f['missing']} (release {f['release'] or '?'})" for f in doc["files"]]
+    lines += [f"- {f['missing']}" + (f" (release {f['release']})" if f['release'] else "")
+              for f in doc["files"]]
     lines += ["", "## Beams", "",
               "| file | beam | sun [deg] | clear | background clear / cloudy [kHz] | "
               "predicted [kHz] (dark, sun, air, leak) | with the cloud [kHz] (cloud) | ratio | "
