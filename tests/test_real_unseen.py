@@ -144,3 +144,31 @@ def test_a_signal_not_measured_is_said_not_shown_as_a_dash():
         "background x0.97, signal not measured (the file gives no signal rate here)")
     assert realism.ratio_words(None, None, None, 0.0).endswith("signal not compared "
                                                                "(measured 0)")
+
+
+def test_a_rewritten_sc_orient_does_not_swap_the_beams(tmp_path):
+    """ICESat2VegR's earlier clip: ``sc_orient`` 1.0 (a float) where the groups'
+    ``atlas_beam_type`` (one-element object arrays) make gt1l strong: the twin lays its
+    beams out and picks ``--beams weak`` by the beam types, and the line says so."""
+    import h5py
+    from lidar_mitsuba import twin
+    p = _atl08(tmp_path / "ATL08_clip.h5")
+    with h5py.File(p, "a") as f:
+        f["orbit_info/sc_orient"] = np.array([1.0])
+        for name, kind in (("gt1l", "strong"), ("gt1r", "weak")):
+            f[name].attrs["atlas_beam_type"] = np.array([kind], dtype=h5py.string_dtype())
+    g = twin.read(p)
+    assert g.sc_orient == 0 and [b.name for b in g.select_beams("weak")] == ["gt1r"]
+    assert "sc_orient (1 contradicts atlas_beam_type: 0 taken)" in g.missing_line()
+
+
+def test_a_clips_empty_beam_groups_are_not_paired(tmp_path):
+    """ICESat2VegR's clips keep all six beam groups, five of them empty (attributes only):
+    the forest twin and the ATL08 comparison pass them by instead of a KeyError."""
+    import h5py
+    from lidar_mitsuba.studies import atl08_real, forest_twin
+    for name in ("ATL03_clip.h5", "ATL08_clip.h5"):
+        with h5py.File(tmp_path / name, "w") as f:
+            f.create_group("gt1l").attrs["atlas_beam_type"] = "strong"
+    assert forest_twin.twins([tmp_path], progress=None) == []
+    assert atl08_real.run([tmp_path], None, progress=None) == []

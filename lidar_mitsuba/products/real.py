@@ -260,10 +260,12 @@ def read_product(path, *, beams: str = "all") -> RealFile:
     except (KeyError, ValueError) as e:
         raise ParameterError("like", f"{path}: not an ICESat-2 product we can read "
                              f"({str(e).splitlines()[0]})") from None
+    from .real_strength import infer, orientation
     if any(b.strength is None for b in out):
-        from .real_strength import infer
         orient = infer(out, path)
         out = [b for b in out if _wanted(b.name, b.strength, beams)]
+    orient, contradiction = orientation(out, orient)
+    missing += [contradiction] if contradiction else []
     if not out:
         raise ParameterError("like", f"{path}: no beam group (gt1l-gt3r) with two "
                              f"{PRODUCT_GROUPS[product]} segments"

@@ -63,3 +63,20 @@ def missing_words(beams: list) -> str | None:
         return None
     return (f"atlas_beam_type on {', '.join(names)} (strength from the pairs' signal rates, "
             f"strong >= {PAIR_RATIO_MIN:g}x weak)")
+
+
+def orientation(beams: list, orient: int | None) -> tuple[int | None, str | None]:
+    """``(orientation, note)``: the one the beams' ``atlas_beam_type`` implies (a strong left
+    beam: 0, backward; a strong right one: 1, forward), trusted over ``sc_orient`` (a clip
+    tool can rewrite it; a twin lays its beams out and picks ``--beams strong`` by it), with a
+    note for the file's line where they disagree; ``(orient, None)`` where no beam type
+    says one orientation."""
+    implied = {0 if b.name.endswith("l") == (b.strength == "strong") else 1
+               for b in beams if b.strength_from == "atlas_beam_type"}
+    if len(implied) != 1:
+        return orient, None
+    o = implied.pop()
+    if orient is None or o == orient:
+        return o, None
+    return o, (f"a true orbit_info/sc_orient ({orient} contradicts atlas_beam_type: "
+               f"{o} taken)")
