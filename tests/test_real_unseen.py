@@ -140,6 +140,11 @@ def test_atl06_over_ocean_or_land_is_not_read_as_cloudy_snow(tmp_path, flag, dem
 
 
 def test_a_signal_not_measured_is_said_not_shown_as_a_dash():
+    """A row's reason says why a ratio is missing; a file without ``solar_elevation`` shows
+    the model's sun in the matrix, marked."""
+    from lidar_mitsuba.studies.realism_report import _sun
+    assert _sun({"solar_elevation_deg": None}, {"solar_elevation_deg": -41.8}) == "-41.8 (model)"
+    assert _sun({"solar_elevation_deg": 12.0}, {"solar_elevation_deg": 11.9}) == "12.0"
     assert realism.ratio_words(0.97, 4.3e6, None, None) == (
         "background x0.97, signal not measured (the file gives no signal rate here)")
     assert realism.ratio_words(None, None, None, 0.0).endswith("signal not compared "
