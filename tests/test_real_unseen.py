@@ -65,6 +65,7 @@ def test_strength_from_the_pairs_when_the_file_says_nothing(tmp_path):
     assert [(b.name, b.strength, b.spot, b.strength_from) for b in rf.beams] == [
         ("gt1l", "strong", 1, "signal rates"), ("gt1r", "weak", 2, "signal rates")]
     assert rf.sc_orient == 0 and "pairs' signal rates" in rf.missing_line()
+    assert "a background rate (ATL08 has none)" in rf.missing_line()
     assert [b.name for b in real.read_product(tmp_path / "ATL08_a.h5", beams="weak").beams] \
         == ["gt1r"]
     swapped = real.read_product(_atl08(tmp_path / "ATL08_b.h5", rates=(1.0, 4.0)))
@@ -137,6 +138,8 @@ def test_atl06_over_ocean_or_land_is_not_read_as_cloudy_snow(tmp_path, flag, dem
     assert b.surface == surface
     assert b.clear.all() == (surface != "land ice")
     assert (b.reflectance is None) == (surface != "land ice")
+    # a subset that dropped fit_statistics (Snowblower's ATL06 v001): the line names it
+    assert "a signal rate (no fit_statistics/n_fit_photons, n_seg_pulses)" in rf.missing_line()
 
 
 def test_a_signal_not_measured_is_said_not_shown_as_a_dash():

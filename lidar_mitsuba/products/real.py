@@ -283,6 +283,17 @@ def _wanted(name: str, strength: str, beams: str) -> bool:
     return beams in ("all", strength) or name in beams.split(",")
 
 
+RATE_DATASETS = {("ATL03", "background_hz"): "no bckgrd_atlas/bckgrd_rate",
+                 ("ATL06", "background_hz"): "no geophysical/bckgrd",
+                 ("ATL07", "background_hz"): "no stats/backgr_r_200",
+                 ("ATL08", "background_hz"): "ATL08 has none",
+                 ("ATL03", "signal_per_shot"): "no photons with their ids",
+                 ("ATL06", "signal_per_shot"): "no fit_statistics/n_fit_photons, n_seg_pulses",
+                 ("ATL07", "signal_per_shot"): "no stats/photon_rate",
+                 ("ATL08", "signal_per_shot"): "no terrain/photon_rate_te"}
+"""What a product's rates are read from, for a file's line where it lacks them."""
+
+
 def _missing(beams: list[RealBeam], product: str) -> list[str]:
     """Names of what every beam lacks, with what stands in for it."""
     out = []
@@ -298,6 +309,7 @@ def _missing(beams: list[RealBeam], product: str) -> list[str]:
         if all(getattr(b, attr) is None for b in beams):
             why = {b.notes.get(f"{attr}_missing".replace("_per_shot", "")) for b in beams}
             why.discard(None)
+            why = why or {RATE_DATASETS.get((product, attr))} - {None}
             out.append(words + (f" ({'; '.join(sorted(why))})" if why else ""))
     if all(not np.isfinite(b.surface_h_m).any() for b in beams):
         out.append("surface heights")
