@@ -177,7 +177,19 @@ def product_of(f, path: pathlib.Path) -> str:
     m = re.search(r"ATL0[3678]", path.name.upper())
     if m:
         return m.group(0)
-    raise ParameterError("like", f"{path}: not an ICESat-2 ATL03, ATL06, ATL07 or ATL08 file")
+    named = text(f.attrs.get("short_name", "")) or next(iter(re.findall(r"ATL\d\d",
+                                                                      path.name.upper())), "")
+    if named:
+        raise ParameterError("like", f"{path}: {named} is not read (only ATL03, ATL06, ATL07 "
+                             "and ATL08)")
+    raise ParameterError("like", f"{path}: not an ICESat-2 ATL03, ATL06, ATL07 or ATL08 file "
+                         f"(it holds {_holds(f)})")
+
+
+def _holds(f) -> str:
+    """The first few top-level names of an HDF5 file, for a one-line message."""
+    keys = list(f.keys())
+    return (", ".join(keys[:6]) + (", ..." if len(keys) > 6 else "")) if keys else "nothing"
 
 
 def release_of(f, path: pathlib.Path) -> str | None:
@@ -192,9 +204,10 @@ def release_of(f, path: pathlib.Path) -> str | None:
     return m.group(1) if m else None
 
 
-def _strength(f, name: str, orient: int | None) -> tuple[int, str, str]:
+def _strength(f, name: str, orient: int | None) -> tuple[int, str | None, str]:
     """``(spot, strength, from)``: the group's ``atlas_beam_type`` and ``atlas_spot_number``
-    where given, else the layout of ``sc_orient``."""
+    where given, else the layout of ``sc_orient``; ``(spot or 0, None, "unknown")`` where
+    neither says (:mod:`~lidar_mitsuba.products.real_strength` reads the pairs then)."""
     from ..geotrack import beam_layout
     attrs = f[name].attrs
     layout = {b.name: b for b in beam_layout(orient if orient in (0, 1) else 0)}
@@ -207,9 +220,8 @@ def _strength(f, name: str, orient: int | None) -> tuple[int, str, str]:
     if "atlas_beam_type" in attrs and text(attrs["atlas_beam_type"]).lower() in ("strong",
                                                                                  "weak"):
         return spot, text(attrs["atlas_beam_type"]).lower(), "atlas_beam_type"
-    if orient is None:
-        raise ParameterError("like", f"{name}: neither atlas_beam_type nor sc_orient says "
-                             "whether it is strong or weak")
+    if orient is None:                            # the pairs' signal rates tell, if any
+        return (spot if "atlas_spot_number" in attrs else 0), None, "unknown"
     return spot, layout[name].strength, "sc_orient"
 
 
@@ -232,13 +244,14 @@ def read_product(path, *, beams: str = "all") -> RealFile:
                 if f"{name}/{PRODUCT_GROUPS[product]}" not in f:
                     continue
                 spot, strength, source = _strength(f, name, orient)
-                if beams not in ("all", strength) and name not in beams.split(","):
+                if strength is not None and not _wanted(name, strength, beams):
                     continue
                 b = READERS[product](f[name], name=name, spot=spot, strength=strength,
                                      strength_from=source)
                 if b is not None and b.n_segments >= 2:
                     out.append(b)
             release = release_of(f, path)
+            holds = _holds(f)
     except OSError as e:
         raise ParameterError("like", f"{path}: not an HDF5 file we can read "
                              f"({str(e).splitlines()[0]})") from None
@@ -247,14 +260,38 @@ def read_product(path, *, beams: str = "all") -> RealFile:
     except (KeyError, ValueError) as e:
         raise ParameterError("like", f"{path}: not an ICESat-2 product we can read "
                              f"({str(e).splitlines()[0]})") from None
+    from .real_strength import infer, orientation
+    if any(b.strength is None for b in out):
+        orient = infer(out, path)
+        out = [b for b in out if _wanted(b.name, b.strength, beams)]
+    orient, contradiction = orientation(out, orient)
+    missing += [contradiction] if contradiction else []
     if not out:
-        raise ParameterError("like", f"{path}: no beam with {PRODUCT_GROUPS[product]}"
-                             + ("" if beams == "all" else f" among {beams!r}"))
+        raise ParameterError("like", f"{path}: no beam group (gt1l-gt3r) with two "
+                             f"{PRODUCT_GROUPS[product]} segments"
+                             + (f" (it holds {holds})" if beams == "all"
+                                else f" among {beams!r}"))
     missing += _missing(out, product)
     if release is None:
         missing.append("release (ancillary_data/release)")
     return RealFile(path=path, product=product, release=release, sc_orient=orient,
                     beams=out, missing=missing)
+
+
+def _wanted(name: str, strength: str, beams: str) -> bool:
+    """Whether a beam is among ``beams`` (``all``, ``strong``, ``weak`` or names)."""
+    return beams in ("all", strength) or name in beams.split(",")
+
+
+RATE_DATASETS = {("ATL03", "background_hz"): "no bckgrd_atlas/bckgrd_rate",
+                 ("ATL06", "background_hz"): "no geophysical/bckgrd",
+                 ("ATL07", "background_hz"): "no stats/backgr_r_200",
+                 ("ATL08", "background_hz"): "ATL08 has none",
+                 ("ATL03", "signal_per_shot"): "no photons with their ids",
+                 ("ATL06", "signal_per_shot"): "no fit_statistics/n_fit_photons, n_seg_pulses",
+                 ("ATL07", "signal_per_shot"): "no stats/photon_rate",
+                 ("ATL08", "signal_per_shot"): "no terrain/photon_rate_te"}
+"""What a product's rates are read from, for a file's line where it lacks them."""
 
 
 def _missing(beams: list[RealBeam], product: str) -> list[str]:
@@ -270,13 +307,18 @@ def _missing(beams: list[RealBeam], product: str) -> list[str]:
               ("full_sat_fract", "saturation fractions"))
     for attr, words in checks:
         if all(getattr(b, attr) is None for b in beams):
-            out.append(words)
+            why = {b.notes.get(f"{attr}_missing".replace("_per_shot", "")) for b in beams}
+            why.discard(None)
+            why = why or {RATE_DATASETS.get((product, attr))} - {None}
+            out.append(words + (f" ({'; '.join(sorted(why))})" if why else ""))
     if all(not np.isfinite(b.surface_h_m).any() for b in beams):
         out.append("surface heights")
-    bad = [b.name for b in beams if b.strength_from != "atlas_beam_type"]
+    bad = [b.name for b in beams if b.strength_from == "sc_orient"]
     if bad:
         out.append(f"atlas_beam_type on {', '.join(bad)} (strength from sc_orient)")
-    return out
+    from .real_strength import missing_words
+    inferred = missing_words(beams)
+    return out + ([inferred] if inferred else [])
 
 
 def _atl03(g, **beam) -> RealBeam | None:
@@ -298,6 +340,8 @@ def _atl03(g, **beam) -> RealBeam | None:
                  near_sat_fract=_num(geo, "near_sat_fract"),
                  notes={"background": "bckgrd_atlas/bckgrd_rate (50-shot rows nearest each "
                         "segment)", "signal": "signal_conf_ph >= 3 photons per pulse"})
+    if sig is None and "heights/signal_conf_ph" in g:
+        b.notes["signal_missing"] = "no photon of signal_conf_ph >= 3"
     e = _num(geo, "tx_pulse_energy")
     if e is not None and np.isfinite(e).any():
         b.pulse_energy_uj = e * 1e6
@@ -323,8 +367,10 @@ def _atl03(g, **beam) -> RealBeam | None:
 
 def segment_photons(g, geo) -> tuple[np.ndarray, np.ndarray | None]:
     """Each ATL03 segment's median height of its photons of the file's highest confidence
-    (4; 3 or 2 in a file that has none higher) [m] (NaN when none) and its signal photons (``signal_conf_ph >= 3``) per pulse (NaN for segments of
-    fewer than 10 pulses; None without photon ids)."""
+    (4; 3 or 2 in a file that has none higher) [m] (NaN when none) and its signal photons
+    (``signal_conf_ph >= 3``) per pulse (NaN for segments of fewer than 10 pulses; None
+    without photon ids or without a photon of confidence 3 or more in the beam: a rate of 0
+    would read a subset's missing confidences as no signal)."""
     if "segment_ph_cnt" not in geo or "ph_index_beg" not in geo or "heights/h_ph" not in g:
         return np.full(geo["delta_time"].shape[0], np.nan), None     # photons dropped
     cnt = geo["segment_ph_cnt"][()].astype(np.int64)
@@ -334,7 +380,8 @@ def segment_photons(g, geo) -> tuple[np.ndarray, np.ndarray | None]:
     conf = g["heights/signal_conf_ph"][()].max(axis=1) if "heights/signal_conf_ph" in g \
         else np.full(h.size, 4)
     top = max(int(conf.max()) if conf.size else 4, 2)
-    has_ids = "heights/pce_mframe_cnt" in g and "heights/ph_id_pulse" in g
+    has_ids = ("heights/pce_mframe_cnt" in g and "heights/ph_id_pulse" in g
+               and top >= 3)                      # none of medium confidence: no signal read
     pulse = (g["heights/pce_mframe_cnt"][()].astype(np.int64) * 200
              + g["heights/ph_id_pulse"][()].astype(np.int64)) if has_ids else None
     rate = np.full(cnt.size, np.nan)
@@ -387,7 +434,9 @@ def _atl06(g, **beam) -> RealBeam | None:
         q = _num(s, "atl06_quality_summary")
         if q is not None:
             sig = np.where(q == 0, sig, np.nan)
-    r_eff = _num(gp, "r_eff")
+    from .real_surface import dem_surface
+    surface = dem_surface(s)
+    r_eff = _num(gp, "r_eff") if surface == "land ice" else None     # held against snow's
     clear = _flag_clear(None if r_eff is None
                         else r_eff >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE,
                         _num(gp, "cloud_flg_asr"), _num(gp, "cloud_flg_atm"))
@@ -397,11 +446,13 @@ def _atl06(g, **beam) -> RealBeam | None:
                     solar_azimuth_deg=_num(gp, "solar_azimuth"), background_hz=bg,
                     signal_per_shot=sig, clear=clear, reflectance=r_eff,
                     layer_class=_num(gp, "msw_flag"), layer_count=_num(gp, "cloud_flg_atm"),
-                    surface="land ice",
+                    surface=surface,
                     notes={"background": "geophysical/bckgrd",
                            "signal": "(n_fit_photons - background in the window) / "
                            "n_seg_pulses, quality 0",
-                           "clear": "r_eff >= 0.45, cloud_flg_asr <= 2, cloud_flg_atm == 0"})
+                           "clear": ("r_eff >= 0.45, " if r_eff is not None else "")
+                           + "cloud_flg_asr <= 2, cloud_flg_atm == 0"})
+
 
 
 def _atl07(g, **beam) -> RealBeam | None:
@@ -478,7 +529,7 @@ READ_DATASETS = {
         "delta_time", "latitude", "longitude", "h_li", "atl06_quality_summary",
         "geophysical/bckgrd", "geophysical/r_eff", "geophysical/cloud_flg_asr",
         "geophysical/cloud_flg_atm", "geophysical/msw_flag", "geophysical/solar_elevation",
-        "geophysical/solar_azimuth",
+        "geophysical/solar_azimuth", "dem/dem_flag", "dem/dem_h", "dem/geoid_h",
         "fit_statistics/n_fit_photons", "fit_statistics/n_seg_pulses",
         "fit_statistics/w_surface_window_final")),
     "ATL07": tuple("sea_ice_segments/" + k for k in (

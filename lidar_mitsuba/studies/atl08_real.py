@@ -137,7 +137,8 @@ def run(paths, out_dir, *, progress=print) -> list[dict]:
     results = []
     for a03, a08 in pairs(paths):
         with h5py.File(a08) as f8, h5py.File(a03) as f3:
-            beams = [b for b in f8 if b.startswith("gt") and b in f3]
+            beams = [b for b in f8 if b.startswith("gt") and f"{b}/heights/h_ph" in f3
+                     and f"{b}/signal_photons" in f8]               # a clip's empty beams
         for beam in beams:
             progress(f"ATL08 classifier on {pathlib.Path(a03).name} {beam} against NASA's ATL08")
             r = compare(a03, a08, beam)

@@ -406,7 +406,8 @@ def twins(paths, *, shots: int | None = None, seed: int = 1, progress=print) -> 
     out = []
     for a03, a08 in pairs(paths):
         with h5py.File(a08) as f8, h5py.File(a03) as f3:
-            beams = [b for b in f8 if b.startswith("gt") and b in f3
+            beams = [b for b in f8 if b.startswith("gt") and f"{b}/heights/h_ph" in f3
+                     and f"{b}/land_segments/canopy/h_canopy" in f8     # a clip's empty beams
                      and (f8[f"{b}/land_segments/canopy/h_canopy"][()] < F4_FILL).any()]
         for beam in beams:
             if progress is not None:

@@ -45,7 +45,7 @@ from .realism_inputs import (BLOWING_SNOW_TOP_M, LAYER_BASE_M, LAYER_THICKNESS_M
                              PRODUCT_SURFACES, cloud_alternatives,
                              equation_outside_fraction, ice_sheet_snow,
                              implied_cloud, layer_heights_m, pair_clouds, pair_flags,
-                             product_surface, sea_ice_snow,
+                             product_surface, ratio_words, read_files, sea_ice_snow,
                              snow_delay, sunlit_albedo)
 from .realism_curve import background_curve  # noqa: E402  (the figure's curves)
 from .realism_shape import (SEGMENT_M, TAIL_M, TAIL_WINDOW_M,  # noqa: E402,F401
@@ -452,7 +452,7 @@ def verdict(row: dict) -> tuple[str, str]:
                   f"{p['deck_cover']:.2f}), shaded")
     if bad:
         return "disagrees", ", ".join(bad) + cloud
-    return "agrees", (f"background x{_fmt(bg)}, signal x{_fmt(sig)}" + cloud)
+    return "agrees", ratio_words(bg, m["background_clear_hz"], sig, m["signal_clear"]) + cloud
 
 
 def _fmt(v) -> str:
@@ -496,17 +496,15 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
     ``signal_shots > 0`` each ATL03 + ATL08 forest pair's rows are judged against its forest
     twin (:mod:`~lidar_mitsuba.studies.realism_forest`), whose docs the result keeps under
     ``forest_twin`` (:func:`~lidar_mitsuba.studies.forest_twin.write` writes them)."""
-    from .. import twin
-    from ..products.real import read_product
     from . import realism_forest
     t0 = time.perf_counter()
     rows, files = [], []
-    paths = real_files(paths)
+    read = read_files(real_files(paths), twins=signal_shots > 0)   # a bad file stops it here
+    paths = [rf.path for rf, _ in read]
     forest_docs, forest, paired = _forest_twins(paths, signal_shots=signal_shots, seed=seed,
                                                 progress=progress)
-    for k, path in enumerate(paths):
-        rf = read_product(path)
-        tg = twin.read(path) if signal_shots > 0 else None
+    for k, (rf, tg) in enumerate(read):
+        path = rf.path
         files.append({"file": path.name, "product": rf.product, "release": rf.release,
                       "missing": rf.missing_line()})
         implied = pair_clouds(rf.beams) if cloud is None else {}

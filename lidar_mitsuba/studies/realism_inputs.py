@@ -302,3 +302,32 @@ def _median(a) -> float | None:
     a = np.asarray(a, np.float64)
     a = a[np.isfinite(a)]
     return float(np.median(a)) if a.size else None
+
+
+def read_files(paths, *, twins: bool) -> list[tuple]:
+    """``[(RealFile, TwinGranule or None), ...]``: every file read before any run
+    (:func:`~lidar_mitsuba.products.real.read_product`; with ``twins`` its shots,
+    :func:`~lidar_mitsuba.twin.read`). A file that cannot be used stops it in one line naming
+    the file: ``ParameterError`` (``real``)."""
+    from .. import twin
+    from ..constants import ParameterError
+    from ..products.real import read_product
+    out = []
+    for path in paths:
+        try:
+            out.append((read_product(path), twin.read(path) if twins else None))
+        except ParameterError as e:
+            raise ParameterError("real", e.message) from None
+    return out
+
+
+def ratio_words(bg: float | None, bg_measured, sig: float | None, sig_measured) -> str:
+    """A row's reason for its background and signal ratios (predicted / measured), each
+    saying why it is not compared where it is not: the file gives no rate, or a rate of 0."""
+    def words(name: str, ratio, measured) -> str:
+        if ratio is not None:
+            return f"{name} x{ratio:.2f}"
+        if measured is None:
+            return f"{name} not measured (the file gives no {name} rate here)"
+        return f"{name} not compared (measured {measured:.3g})"
+    return words("background", bg, bg_measured) + ", " + words("signal", sig, sig_measured)

@@ -66,6 +66,14 @@ def _f(v, spec=".2f") -> str:
     return "-" if v is None else format(v, spec)
 
 
+def _sun(m: dict, p: dict) -> str:
+    """The file's solar elevation [deg], or where it has none the model's (geometric, from
+    the file's time and place), marked so."""
+    if m["solar_elevation_deg"] is not None or p.get("solar_elevation_deg") is None:
+        return _f(m["solar_elevation_deg"], ".1f")
+    return f"{p['solar_elevation_deg']:.1f} (model)"
+
+
 def report_md(doc: dict) -> str:
     """``realism.md``: the files and what each lacks, the matrix, the pairs' strong:weak
     ratios, ATL03's shape and saturation."""
@@ -88,7 +96,8 @@ def report_md(doc: dict) -> str:
              "bracket); **cloud missing** (all cloudy, no reflectance and no cloud given); "
              "**surface missing**, **not simulated**, **not measured**.", "",
              "## Files", ""]
-    lines += [f"- {f['missing']} (release {f['release'] or '?'})" for f in doc["files"]]
+    lines += [f"- {f['missing']}" + (f" (release {f['release']})" if f['release'] else "")
+              for f in doc["files"]]
     lines += ["", "## Beams", "",
               "| file | beam | sun [deg] | clear | background clear / cloudy [kHz] | "
               "predicted [kHz] (dark, sun, air, leak) | with the cloud [kHz] (cloud) | ratio | "
@@ -106,7 +115,7 @@ def report_md(doc: dict) -> str:
         ratio = r["background_ratio"] if r["background_ratio"] is not None else \
             r.get("background_cloudy_ratio")
         lines.append(
-            f"| {r['file']} | {r['beam']} ({r['strength']}) | {_f(m['solar_elevation_deg'], '.1f')} "
+            f"| {r['file']} | {r['beam']} ({r['strength']}) | {_sun(m, p)} "
             f"| {m['clear_fraction']:.2f}{'' if m['cloud_flags'] else ' (no flag)'} | "
             f"{_k(m['background_clear_hz'])} / {_k(m['background_cloudy_hz'])} | "
             f"{_k(p['background_hz'])} ({parts}) | {cloudy} | {_f(ratio)} | "

@@ -1,0 +1,182 @@
+"""Real files the realism matrix had not met (issue 41's hold-out): what public subsets and
+old releases hold, each made small in the test as the fetched file had it. A file that
+cannot be used stops ``validate --real`` in one line naming the option and the file (exit
+2, nothing written); one that lacks a dataset is read with what stands in, said in the
+file's line. Pure h5py; no rendering."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lidar_mitsuba.cli import main
+from lidar_mitsuba.constants import ParameterError
+from lidar_mitsuba.products import real
+from lidar_mitsuba.studies import realism
+
+
+def _atl08(path, *, rates=(4.0, 1.0), n: int = 12):
+    """An ATL08 subset as a test suite keeps it: ``gtxx/land_segments`` only, no group
+    attributes, no ``orbit_info`` (nsidc-icesat2gis tests/data/test_atl08.h5)."""
+    import h5py
+    with h5py.File(path, "w") as f:
+        for name, rate in zip(("gt1l", "gt1r"), rates):
+            s = f.create_group(f"{name}/land_segments")
+            s["delta_time"] = 1.0e8 + np.arange(n) * 100.0 / 7000.0
+            s["latitude"] = (45.0 + np.arange(n) * 100.0 / 111_000.0).astype(np.float32)
+            s["longitude"] = np.full(n, -110.0, np.float32)
+            s["terrain/h_te_best_fit"] = np.full(n, 1500.0, np.float32)
+            s["terrain/photon_rate_te"] = np.full(n, rate, np.float32)
+            s["canopy/photon_rate_can"] = np.full(n, 3.4028235e38, np.float32)   # fill
+    return path
+
+
+def test_a_file_it_cannot_use_stops_the_run_in_one_line(tmp_path, capsys):
+    """ATL24 (harmony-trajectory-subsetter's variable subset) and an ATL03 cut to
+    ``ph_index_beg``: exit 2, one line naming --real, the file and why; nothing written,
+    even beside a good file."""
+    import h5py
+    bad = tmp_path / "variable_subset_ATL24_data.h5"
+    with h5py.File(bad, "w") as f:
+        f["gt1l/sensor_depth_exceeded"] = np.zeros(4, np.uint8)
+    cut = tmp_path / "ATL03_index.h5"
+    with h5py.File(cut, "w") as f:
+        f["ph_index_beg"] = np.arange(4)
+    good = _atl08(tmp_path / "ATL08_ok.h5")
+    out = tmp_path / "out"
+    assert main(["validate", "--real", str(good), str(bad), "--signal-shots", "0",
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--real" in err and bad.name in err
+    assert "ATL24 is not read" in err and "--like" not in err
+    assert not out.exists() or not any(out.iterdir())
+    with pytest.raises(ParameterError, match=r"ATL03_index.h5: no beam group .* \(it holds "
+                       r"ph_index_beg\)") as e:
+        realism.read_files([good, cut], twins=False)
+    assert e.value.name == "real"
+    with pytest.raises(ParameterError) as e:
+        real.read_product(bad)
+    assert e.value.name == "like"                  # the twin's own option, under simulate
+
+
+def test_strength_from_the_pairs_when_the_file_says_nothing(tmp_path):
+    """No atlas_beam_type, no sc_orient: the pair's 4:1 signal makes gt1l strong (spot 1,
+    backward), said in the file's line; rates that do not tell stop it in one line."""
+    rf = real.read_product(_atl08(tmp_path / "ATL08_a.h5"))
+    assert [(b.name, b.strength, b.spot, b.strength_from) for b in rf.beams] == [
+        ("gt1l", "strong", 1, "signal rates"), ("gt1r", "weak", 2, "signal rates")]
+    assert rf.sc_orient == 0 and "pairs' signal rates" in rf.missing_line()
+    assert "a background rate (ATL08 has none)" in rf.missing_line()
+    assert [b.name for b in real.read_product(tmp_path / "ATL08_a.h5", beams="weak").beams] \
+        == ["gt1r"]
+    swapped = real.read_product(_atl08(tmp_path / "ATL08_b.h5", rates=(1.0, 4.0)))
+    assert [b.strength for b in swapped.beams] == ["weak", "strong"] and swapped.sc_orient == 1
+    with pytest.raises(ParameterError, match=r"ATL08_c.h5: neither .* \(left / right: 1.20\)"):
+        real.read_product(_atl08(tmp_path / "ATL08_c.h5", rates=(1.2, 1.0)))
+
+
+def test_an_atl03_clip_without_confident_photons_measures_no_signal(tmp_path):
+    """An ATL03 clip whose photons are all of confidence <= 2 (ICESat2VegR's earlier
+    atl03_clip.h5): its signal is not read as 0 per shot but as missing, and said."""
+    import h5py
+    path = tmp_path / "atl03_clip.h5"
+    n_seg, per = 4, 30
+    with h5py.File(path, "w") as f:
+        g = f.create_group("gt1r")
+        g.attrs["atlas_beam_type"] = "weak"
+        geo = g.create_group("geolocation")
+        geo["delta_time"] = 1.0e8 + np.arange(n_seg) * 20.0 / 7000.0
+        geo["reference_photon_lat"] = 59.0 + np.arange(n_seg) * 20.0 / 111_000.0
+        geo["reference_photon_lon"] = np.full(n_seg, -103.0)
+        geo["segment_ph_cnt"] = np.full(n_seg, per, np.int32)
+        geo["ph_index_beg"] = 1 + np.arange(n_seg) * per
+        m = n_seg * per
+        g["heights/h_ph"] = np.full(m, 300.0, np.float32)
+        conf = np.zeros((m, 5), np.int8)
+        conf[::3, 0] = 2
+        g["heights/signal_conf_ph"] = conf
+        g["heights/pce_mframe_cnt"] = (np.arange(m) // 120).astype(np.uint32)
+        g["heights/ph_id_pulse"] = (np.arange(m) % 120 // 4 + 1).astype(np.uint8)
+    rf = real.read_product(path)
+    assert rf.beams[0].signal_per_shot is None
+    assert np.isfinite(rf.beams[0].surface_h_m).all()     # heights from confidence 2
+    assert "a signal rate (no photon of signal_conf_ph >= 3)" in rf.missing_line()
+
+
+def _atl06_dem(path, *, flag: int, dem_h: float):
+    """An ATL06 of release 209 over the open Pacific (the 2018 hackweek tutorial's file):
+    dem_flag 2 (``gmted``) with the DEM at the geoid, r_eff 0.02, the cloud flags clear."""
+    import h5py
+    n = 8
+    with h5py.File(path, "w") as f:
+        for name in ("gt1l", "gt1r"):
+            g = f.create_group(name)
+            g.attrs["atlas_beam_type"] = "strong" if name == "gt1l" else "weak"
+            s = g.create_group("land_ice_segments")
+            s["delta_time"] = 2.4e7 + np.arange(n) * 20.0 / 7000.0
+            s["latitude"] = -24.0 + np.arange(n) * 20.0 / 111_000.0
+            s["longitude"] = np.full(n, -124.5)
+            s["h_li"] = np.full(n, -9.0, np.float32)
+            s["geophysical/r_eff"] = np.full(n, 0.02, np.float32)
+            s["geophysical/cloud_flg_asr"] = np.zeros(n, np.int8)
+            s["geophysical/cloud_flg_atm"] = np.zeros(n, np.int8)
+            d = s.create_dataset("dem/dem_flag", data=np.full(n, flag, np.int8))
+            d.attrs["flag_meanings"] = np.bytes_(b"none gimp gmted mss antarctic")
+            d.attrs["flag_values"] = np.arange(5, dtype=np.int8)
+            s["dem/dem_h"] = np.full(n, dem_h, np.float32)
+            s["dem/geoid_h"] = np.full(n, -9.7, np.float32)
+    return path
+
+
+@pytest.mark.parametrize("flag, dem_h, surface", [(2, -9.8, "ocean"), (2, 250.0, "land"),
+                                                  (3, -9.8, "ocean"), (1, 1200.0, "land ice")])
+def test_atl06_over_ocean_or_land_is_not_read_as_cloudy_snow(tmp_path, flag, dem_h, surface):
+    """The surface from dem_flag's own meanings: off an ice sheet r_eff is not held against
+    snow's 0.9 (which would call every segment cloudy, tau ~2), the cloud flags decide."""
+    rf = real.read_product(_atl06_dem(tmp_path / f"ATL06_x_209_01_{flag}.h5", flag=flag,
+                                      dem_h=dem_h))
+    b = rf.beams[0]
+    assert b.surface == surface
+    assert b.clear.all() == (surface != "land ice")
+    assert (b.reflectance is None) == (surface != "land ice")
+    # a subset that dropped fit_statistics (Snowblower's ATL06 v001): the line names it
+    assert "a signal rate (no fit_statistics/n_fit_photons, n_seg_pulses)" in rf.missing_line()
+
+
+def test_a_signal_not_measured_is_said_not_shown_as_a_dash():
+    """A row's reason says why a ratio is missing; a file without ``solar_elevation`` shows
+    the model's sun in the matrix, marked."""
+    from lidar_mitsuba.studies.realism_report import _sun
+    assert _sun({"solar_elevation_deg": None}, {"solar_elevation_deg": -41.8}) == "-41.8 (model)"
+    assert _sun({"solar_elevation_deg": 12.0}, {"solar_elevation_deg": 11.9}) == "12.0"
+    assert realism.ratio_words(0.97, 4.3e6, None, None) == (
+        "background x0.97, signal not measured (the file gives no signal rate here)")
+    assert realism.ratio_words(None, None, None, 0.0).endswith("signal not compared "
+                                                               "(measured 0)")
+
+
+def test_a_rewritten_sc_orient_does_not_swap_the_beams(tmp_path):
+    """ICESat2VegR's earlier clip: ``sc_orient`` 1.0 (a float) where the groups'
+    ``atlas_beam_type`` (one-element object arrays) make gt1l strong: the twin lays its
+    beams out and picks ``--beams weak`` by the beam types, and the line says so."""
+    import h5py
+    from lidar_mitsuba import twin
+    p = _atl08(tmp_path / "ATL08_clip.h5")
+    with h5py.File(p, "a") as f:
+        f["orbit_info/sc_orient"] = np.array([1.0])
+        for name, kind in (("gt1l", "strong"), ("gt1r", "weak")):
+            f[name].attrs["atlas_beam_type"] = np.array([kind], dtype=h5py.string_dtype())
+    g = twin.read(p)
+    assert g.sc_orient == 0 and [b.name for b in g.select_beams("weak")] == ["gt1r"]
+    assert "sc_orient (1 contradicts atlas_beam_type: 0 taken)" in g.missing_line()
+
+
+def test_a_clips_empty_beam_groups_are_not_paired(tmp_path):
+    """ICESat2VegR's clips keep all six beam groups, five of them empty (attributes only):
+    the forest twin and the ATL08 comparison pass them by instead of a KeyError."""
+    import h5py
+    from lidar_mitsuba.studies import atl08_real, forest_twin
+    for name in ("ATL03_clip.h5", "ATL08_clip.h5"):
+        with h5py.File(tmp_path / name, "w") as f:
+            f.create_group("gt1l").attrs["atlas_beam_type"] = "strong"
+    assert forest_twin.twins([tmp_path], progress=None) == []
+    assert atl08_real.run([tmp_path], None, progress=None) == []
