@@ -56,6 +56,21 @@ def test_a_file_it_cannot_use_stops_the_run_in_one_line(tmp_path, capsys):
     with pytest.raises(ParameterError) as e:
         real.read_product(bad)
     assert e.value.name == "like"                  # the twin's own option, under simulate
+    # the same files found in a folder the user named: the two it cannot use are passed
+    # by, each with its reason in the report's Files; a folder of nothing usable stops it
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    for p in (good, bad, cut):
+        p.rename(folder / p.name)
+    assert main(["validate", "--real", str(folder), "--signal-shots", "0",
+                 "--out", str(out)]) == 0
+    md = (out / "realism.md").read_text()
+    assert f"{bad.name}: passed by (" in md and "ATL24 is not read" in md
+    assert f"{cut.name}: passed by (" in md and "ATL08_ok.h5 (ATL08)" in md
+    (folder / good.name).unlink()
+    with pytest.raises(ParameterError, match="no usable file: .*ATL24 is not read"):
+        realism.read_files(realism.real_files([folder]), twins=False,
+                           skippable=realism.real_files([folder]))
 
 
 def test_strength_from_the_pairs_when_the_file_says_nothing(tmp_path):

@@ -52,15 +52,20 @@ from .realism_shape import (SEGMENT_M, TAIL_M, TAIL_WINDOW_M,  # noqa: E402,F401
                             atl03_shape as _atl03_shape, segment_residuals_m, shape_stats,
                             shape_verdict)
 
-def real_files(paths=None) -> list[pathlib.Path]:
+def real_files(paths=None, *, found=None) -> list[pathlib.Path]:
     """The ``.h5`` files among ``paths`` (files or folders; folders give their ``*.h5``,
-    sorted); ``None`` or empty: the package's shipped real files."""
+    sorted); ``None`` or empty: the package's shipped real files. ``found``: a list that
+    receives the files found in folders (not named themselves: :func:`run` passes by those it
+    cannot read)."""
     if not paths:
         paths = [PACKAGE_DATA]
     out = []
     for p in map(pathlib.Path, paths):
         if p.is_dir():
-            out += sorted(p.glob("*.h5"))
+            inside = sorted(p.glob("*.h5"))
+            out += inside
+            if found is not None:
+                found += inside
         elif p.is_file():
             out.append(p)
         else:
@@ -499,7 +504,9 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
     from . import realism_forest
     t0 = time.perf_counter()
     rows, files = [], []
-    read = read_files(real_files(paths), twins=signal_shots > 0)   # a bad file stops it here
+    found: list = []                      # a named file that cannot be used stops it here;
+    read, skipped = read_files(real_files(paths, found=found), twins=signal_shots > 0,
+                               skippable=found)   # one found in a folder is passed by
     paths = [rf.path for rf, _ in read]
     forest_docs, forest, paired = _forest_twins(paths, signal_shots=signal_shots, seed=seed,
                                                 progress=progress)
@@ -538,6 +545,8 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
             rows.append(row)
             if progress is not None:
                 progress(format_row(row))
+    files += [{"file": p.name, "product": None, "release": None,
+               "missing": f"{p.name}: passed by ({why})"} for p, why in skipped]
     doc = {"signal_shots": int(signal_shots), "files": files, "rows": rows,
            "cloud": None if cloud is None else dataclasses.asdict(cloud),
            "pairs": pair_ratios(rows), "seconds": time.perf_counter() - t0,

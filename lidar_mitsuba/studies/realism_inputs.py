@@ -7,6 +7,8 @@ ATL09's ``msw_flag``). Inputs read or chosen before any comparison; nothing here
 """
 from __future__ import annotations
 
+import pathlib
+
 import numpy as np
 
 def sea_ice_snow():
@@ -304,21 +306,29 @@ def _median(a) -> float | None:
     return float(np.median(a)) if a.size else None
 
 
-def read_files(paths, *, twins: bool) -> list[tuple]:
-    """``[(RealFile, TwinGranule or None), ...]``: every file read before any run
-    (:func:`~lidar_mitsuba.products.real.read_product`; with ``twins`` its shots,
-    :func:`~lidar_mitsuba.twin.read`). A file that cannot be used stops it in one line naming
-    the file: ``ParameterError`` (``real``)."""
+def read_files(paths, *, twins: bool, skippable=()) -> tuple[list[tuple], list[tuple]]:
+    """``([(RealFile, TwinGranule or None), ...], [(path, why), ...])``: every file read before
+    any run (:func:`~lidar_mitsuba.products.real.read_product`; with ``twins`` its shots,
+    :func:`~lidar_mitsuba.twin.read`), and the files passed by. A file that cannot be used
+    stops it in one line naming the file (``ParameterError``, ``real``), unless it is among
+    ``skippable`` (found in a folder the user named, not named itself: an ATL10 or a cut
+    beside the files it can read), which is passed by with its reason; when every file is
+    passed by, that stops it too."""
     from .. import twin
     from ..constants import ParameterError
     from ..products.real import read_product
-    out = []
+    out, skipped = [], []
+    skippable = {pathlib.Path(p) for p in skippable}
     for path in paths:
         try:
             out.append((read_product(path), twin.read(path) if twins else None))
         except ParameterError as e:
-            raise ParameterError("real", e.message) from None
-    return out
+            if pathlib.Path(path) not in skippable:
+                raise ParameterError("real", e.message) from None
+            skipped.append((pathlib.Path(path), e.message))
+    if not out:
+        raise ParameterError("real", "no usable file: " + "; ".join(why for _, why in skipped))
+    return out, skipped
 
 
 def ratio_words(bg: float | None, bg_measured, sig: float | None, sig_measured) -> str:
