@@ -40,19 +40,6 @@ SLOW_FILES = {"test_bench.py": 144, "test_snow_kernel.py": 112, "test_docs.py": 
 #: the controller's compiling processes (:func:`pytest_configure`), awaited once
 _COMPILING: list = []
 
-#: the detector's kernel for a per-shot background (ATLAS runs: the sun per shot), whose rates
-#: reach it as a read-only array, another numba signature than precompile's constant
-#: background: compiled in the second process, after its stages (~15 s of CPU, 2-core VM),
-#: while the first compiles the detector's others, instead of by the first worker to run
-#: ATLAS (each worker its own copy when both get there before either has saved it)
-_PER_SHOT_BACKGROUND = (
-    "import numpy as np; from lidar_mitsuba.detector import pmt; "
-    "from lidar_mitsuba.detector.records import Returns; "
-    "from lidar_mitsuba.instrument import Instrument; "
-    "pmt.detect(Returns.at_times(np.full(256, 3.3e6), paths_per_shot=64), "
-    "Instrument(background_mhz=1.0), np.random.default_rng(0), "
-    "gate_center_ns=np.full(4, 3.3e6), background_mhz=np.full(4, 1.0))")
-
 
 def pytest_configure(config):
     """The whole suite on xdist workers (the README's command): the numba kernels are compiled
@@ -76,8 +63,6 @@ def pytest_configure(config):
         steps.append("p._detector()")
     rest = [f"p._{stage}()" for stage in pc.KERNELS
             if stage != "detector" and not pc.is_cached(stage)]
-    if not pc.is_cached("detector"):
-        rest.append(_PER_SHOT_BACKGROUND)
     if rest:
         steps.append("; ".join(rest))
     _COMPILING.extend(subprocess.Popen([sys.executable, "-c",
