@@ -18,25 +18,23 @@ def pytest_xdist_auto_num_workers(config):
     return max(1, min(4, len(os.sched_getaffinity(0))))
 
 
-#: The test files that take longest (seconds on one of two workers: the per-file sums of the
-#: README's test command on a fresh clone, session 22: cold numba and Dr.Jit caches, as CI
-#: runs it, the machine shared (the run had 1.3 of its 2 cores), so the seconds are ~1.5x a
-#: quiet machine's; only their order counts), started first: with ``--dist loadfile`` a file
-#: stays on one worker, and xdist's default order (files with the most tests first) left the
-#: heaviest, with few tests, to the end of the run, where one worker finished them alone.
-#: Longest first (the LPT rule) ends the workers within about the last file's time of each
-#: other (that run: 734 and 736 s). A file not listed runs after these, in collection order;
-#: a new slow file belongs here. Session 23 cut test_bench.py and test_notebooks.py (bench
-#: --smoke, notebook 02 reading the bench's snow study back): their seconds here are session
-#: 22's times their paired CPU ratios (new / old, -n 0, the same loaded 2-core VM: 90/107 and
-#: 50/72), not a new fresh-clone run.
-SLOW_FILES = {"test_bench.py": 175, "test_snow_kernel.py": 141, "test_docs.py": 106,
-              "test_twin.py": 106, "test_campaign.py": 103, "test_reproduce.py": 96,
-              "test_notebooks.py": 72, "test_snow.py": 57, "test_import_boundaries.py": 44,
-              "test_granule.py": 36, "test_cli.py": 32, "test_atl03_fields.py": 26,
-              "test_peer_media.py": 25, "test_cloud.py": 23, "test_fpb_matrix.py": 22,
-              "test_brdf_variants.py": 21, "test_forest_twin.py": 21,
-              "test_detector_pinned.py": 21}
+#: The test files that take longest (seconds on one of two workers: the per-file sums of
+#: setup, call and teardown in a whole-suite run, ``pytest -v --durations=0``, session 26:
+#: cold numba cache as on a fresh clone, the 2-core VM shared at a load of ~3; only their
+#: order counts), started first: with ``--dist loadfile`` a file stays on one worker, and
+#: xdist's default order (files with the most tests first) left the heaviest, with few tests,
+#: to the end of the run, where one worker finished them alone. Longest first (the LPT rule)
+#: ends the workers within about the last file's time of each other (that run: 469 and 468 s
+#: of tests). A file not listed runs after these, in collection order; a new slow file
+#: belongs here.
+SLOW_FILES = {"test_bench.py": 144, "test_snow_kernel.py": 112, "test_docs.py": 93,
+              "test_notebooks.py": 70, "test_reproduce.py": 52, "test_campaign.py": 49,
+              "test_twin.py": 43, "test_snow.py": 36, "test_import_boundaries.py": 27,
+              "test_granule.py": 22, "test_peer_media.py": 22, "test_atl03_fields.py": 19,
+              "test_fpb_matrix.py": 19, "test_sweep.py": 18, "test_detector_pinned.py": 16,
+              "test_peer.py": 16, "test_cli.py": 14, "test_cloud.py": 12,
+              "test_brdf_variants.py": 12, "test_realism.py": 11, "test_plan.py": 11,
+              "test_forest_twin.py": 10}
 
 
 #: the controller's compiling processes (:func:`pytest_configure`), awaited once

@@ -720,7 +720,11 @@ def test_density_and_roughness_are_resolved_per_beam_and_section(spec_path, monk
     levels, one per beam and section) and a roughness raster stepping along the track: each
     beam's section is planned with its own snow density and roughness (a plan per section,
     seen by a spy on the planner), one kernel table per (grain, density) pair is built, and
-    the segment table's density_kg_m3 and roughness_relief_m are each segment's own."""
+    the segment table's density_kg_m3 and roughness_relief_m are each segment's own.
+
+    The run uses the kernel with tables of 1024 walk photons a node (the fewest a node takes:
+    this test checks which table and plan each section gets, not a table's precision), four
+    tables in ~8 CPU-s, where walking the 150 um snow of 800 shots took ~35 CPU-s."""
     first = campaign.expand(spec_path)[0]
     d = spec_path.parent
     dens = _step_raster(d / "density_steps.tif", d / "dem.tif", first, [[200, 300], [400, 500]])
@@ -740,8 +744,8 @@ def test_density_and_roughness_are_resolved_per_beam_and_section(spec_path, monk
     assert task.density_sections == {"gt1l": [200.0, 300.0], "gt1r": [400.0, 500.0]}
     assert task.roughness_sections == {"gt1l": [0.0, 2.0], "gt1r": [0.0, 2.0]}
     assert task.grain_sections is None and task.grain_um == 150.0
-    # one kernel table per (grain, density) pair (the parent's; counted, not built: the run
-    # below walks the snow, as four tables would take a minute)
+    # one kernel table per (grain, density) pair (the parent's; counted here, then built by
+    # the run below, at 1024 walk photons a node)
     built = []
     from lidar_mitsuba.ground.snow import kernel
     with monkeypatch.context() as m:
@@ -749,9 +753,12 @@ def test_density_and_roughness_are_resolved_per_beam_and_section(spec_path, monk
             (snow.grain_radius_um, snow.density_kg_m3)))
         assert campaign.build_kernels([task], campaign.load_spec(spec)) == 4
     assert built == [(150.0, 200.0), (150.0, 300.0), (150.0, 400.0), (150.0, 500.0)]
-    spec.write_text(spec.read_text().replace("[snow]\n", '[snow]\nmodel = "walk"\n'))
-    (walked,) = campaign.expand(spec)
+    walk_spec = d / "steps_walk.toml"          # the walk's sections are the kernel's
+    walk_spec.write_text(spec.read_text().replace("[snow]\n", '[snow]\nmodel = "walk"\n'))
+    (walked,) = campaign.expand(walk_spec)
     assert walked.density_sections == task.density_sections
+    monkeypatch.setattr(kernel, "PHOTONS", 1024)
+    monkeypatch.setenv("LIDAR_MITSUBA_KERNEL_PHOTONS", "1024")
     from lidar_mitsuba import planning
     planned, real_plan = [], planning.plan
 
@@ -763,6 +770,10 @@ def test_density_and_roughness_are_resolved_per_beam_and_section(spec_path, monk
     monkeypatch.setattr(planning, "plan", spy)
     res = campaign.run(spec, out=tmp_path / "out", workers=0, plot=False)
     assert res.failed == 0
+    from lidar_mitsuba_plugins import kernel_table      # one table per (grain, density) pair
+    small = [t for t in (d / "kernels").rglob("*.npz")   # (the module's others: 2^13 a node)
+             if kernel_table.load(t)["photons"].max() == 1024]
+    assert len(small) == 4, small
     f = task.section_bounds[1][0]
     assert sorted(planned) == [("gt1l", 0, 200.0, 0.0), ("gt1l", f, 300.0, 2.0),
                                ("gt1r", 0, 400.0, 0.0), ("gt1r", f, 500.0, 2.0)]

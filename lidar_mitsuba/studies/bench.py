@@ -394,7 +394,8 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False, smoke: bool = False,
 
     ``smoke`` (the tests' size; implies ``quick``): the quick run with its costliest parts
     cut where no row, chart or field depends on them: the detector's cases on 5000 shots
-    once, the integrator's traces once, 500 shots end to end, each accuracy setting once and
+    once, the integrator's traces once, 500 shots end to end, the stability sweeps on fewer
+    shots (:func:`.breaking_points.run_all`), each accuracy setting once and
     a smaller reference (the water and fog settings once too: :func:`.media_accuracy.run`),
     two seeds for the simplifications, one for the peer comparison (:func:`.peer.run`), fewer
     shots in the snow walk and snow kernel tables of 2^12 walk photons a node
@@ -422,7 +423,7 @@ def run(*, out_dir: str | os.PathLike, quick: bool = False, smoke: bool = False,
     doc.update(quick=quick, smoke=smoke, machine=platform.platform(), drjit=dr.__version__,
                mitsuba=mi.__version__)
     if not throughput_only:
-        doc["stability"] = breaking_points.run_all(quick=quick)
+        doc["stability"] = breaking_points.run_all(quick=quick, smoke=smoke)
         doc["accuracy_vs_time"] = accuracy.run(quick=quick, smoke=smoke)
         doc["simplifications"] = accuracy.simplifications(quick=quick, smoke=smoke)
         doc["peer"] = peer.run(quick=quick, smoke=smoke)

@@ -18,6 +18,16 @@ from ..ground.surface import SurfaceSpec
 from ..trace.lazy import mi
 
 
+#: the shots of each simulated sweep's runs in a smoke run (quick: 100 to 300): ~70 m of
+#: track, enough photons for a finite bias and spread in every row that has a result (the
+#: sweeps' CPU, 9 s at the quick sizes on the 2-core VM, was a tenth of a smoke bench)
+SMOKE_SHOTS = 100
+#: the paths of the one-lane row of :func:`sweep_lanes` in a smoke run (else 2000): 200
+#: launches of one lane each, still the per-launch overhead's rate (quick: 2.3 CPU-s, the
+#: sweep's whole cost)
+SMOKE_LANE_PATHS = 200
+
+
 def _row(value, res=None, *, t0: float, **extra) -> dict:
     row = {"value": value, "seconds": time.perf_counter() - t0, **extra}
     if res is not None:
@@ -37,11 +47,11 @@ def _guard(value, fn) -> dict:
         return {"value": value, "seconds": time.perf_counter() - t0, "status": f"refused: {e}"}
 
 
-def sweep_slope(*, quick: bool) -> list[dict]:
+def sweep_slope(*, quick: bool, smoke: bool = False) -> list[dict]:
     """Planes up to 89 deg, ideal detector, strong beam. Closed form of the spread:
     sqrt((c sigma_t / 2)^2 + (sigma_fp tan theta)^2), valid while that spread fits the range
     gate (30 m): steeper, the gate truncates the return and the stats describe the gate."""
-    shots = 300 if quick else 3000
+    shots = SMOKE_SHOTS if smoke else 300 if quick else 3000
     inst = Instrument(beam="strong", ideal_detector=True)
     rows = []
     for deg in (0, 10, 30, 45, 60, 75, 80, 85, 89):
@@ -60,11 +70,11 @@ def sweep_slope(*, quick: bool) -> list[dict]:
     return rows
 
 
-def sweep_ward_alpha(*, quick: bool) -> list[dict]:
+def sweep_ward_alpha(*, quick: bool, smoke: bool = False) -> list[dict]:
     """Ward lobes down to near-mirrors on a flat plate: the return weight at nadir is
     pi (rho_d/pi + rho_s/(4 pi alpha^2)) / 0.9 (exact); 16 channels saturate once the
     photons per shot far exceed 16."""
-    shots = 100 if quick else 500
+    shots = SMOKE_SHOTS if smoke else 100 if quick else 500
     rows = []
     for alpha in (0.3, 0.1, 0.03, 0.01, 0.003, 0.001):
         def run(t0, alpha=alpha):
@@ -80,10 +90,10 @@ def sweep_ward_alpha(*, quick: bool) -> list[dict]:
     return rows
 
 
-def sweep_signal(*, quick: bool) -> list[dict]:
+def sweep_signal(*, quick: bool, smoke: bool = False) -> list[dict]:
     """Signal from 1 to 1000 photons per shot on a flat Lambertian-like plate, 16 channels,
     3 ns dead time: the first-photon bias grows as channels saturate."""
-    shots = 200 if quick else 2000
+    shots = SMOKE_SHOTS if smoke else 200 if quick else 2000
     rows = []
     for sig in (1, 3, 10, 30, 100, 300, 1000):
         def run(t0, sig=sig):
@@ -95,9 +105,9 @@ def sweep_signal(*, quick: bool) -> list[dict]:
     return rows
 
 
-def sweep_dead_time(*, quick: bool) -> list[dict]:
+def sweep_dead_time(*, quick: bool, smoke: bool = False) -> list[dict]:
     """Dead time 0-20 ns, strong beam, flat plate: 0 is the ideal detector (unbiased)."""
-    shots = 300 if quick else 5000
+    shots = SMOKE_SHOTS if smoke else 300 if quick else 5000
     rows = []
     for dt in (0.0, 1.0, 3.0, 6.0, 10.0, 20.0):
         rows.append(_guard(dt, lambda t0, dt=dt: _row(dt, simulate(
@@ -106,9 +116,9 @@ def sweep_dead_time(*, quick: bool) -> list[dict]:
     return rows
 
 
-def sweep_p(*, quick: bool) -> list[dict]:
+def sweep_p(*, quick: bool, smoke: bool = False) -> list[dict]:
     """Fractal exponent from 0.5 (rough, white-ish) to 4 (very smooth), 10 m relief."""
-    shots = 300 if quick else 1000
+    shots = SMOKE_SHOTS if smoke else 300 if quick else 1000
     rows = []
     for p in (0.5, 1.0, 1.5, 2.0, 3.0, 4.0):
         rows.append(_guard(p, lambda t0, p=p: _row(p, simulate(
@@ -119,12 +129,12 @@ def sweep_p(*, quick: bool) -> list[dict]:
     return rows
 
 
-def sweep_grid(*, quick: bool) -> list[dict]:
+def sweep_grid(*, quick: bool, smoke: bool = False) -> list[dict]:
     """Mesh spacing 0.25-16 m against the 10 m footprint (sigma 2.5 m): ONE 512 m terrain made
     at 0.25 m and decimated, so only the resolution changes. The error columns are against the
     finest mesh; spacing coarser than ~sigma/2 no longer resolves what the footprint sees."""
     from ..ground.terrain import Heightfield, fractal
-    shots = 300 if quick else 2000
+    shots = SMOKE_SHOTS if smoke else 300 if quick else 2000
     fine = fractal(p=1.8, size_m=512.0, grid_m=0.25, relief_m=10.0, seed=0)
     rows = []
     for k in (1, 2, 4, 8, 16, 32, 64):
@@ -142,7 +152,7 @@ def sweep_grid(*, quick: bool) -> list[dict]:
     return rows
 
 
-def sweep_altitude(*, quick: bool) -> list[dict]:
+def sweep_altitude(*, quick: bool, smoke: bool = False) -> list[dict]:
     """Path-length precision from 1 km to 1000 km: zero pulse width over a plate at z = 1.234 m
     with the 2.5 m footprint; c t / 2 against the float64 distance from the spacecraft to each
     hit point. The row gives the worst error [m]."""
@@ -168,7 +178,7 @@ def sweep_altitude(*, quick: bool) -> list[dict]:
     return rows
 
 
-def sweep_lanes(*, quick: bool) -> list[dict]:
+def sweep_lanes(*, quick: bool, smoke: bool = False) -> list[dict]:
     """Photons per Dr.Jit launch from 1 to 10^8 (10^6 in quick mode): paths/s of the
     integrator on a plate; tiny launches are dominated by per-launch overhead."""
     scene = mi.load_dict({"type": "scene", "plate": {
@@ -176,7 +186,7 @@ def sweep_lanes(*, quick: bool) -> list[dict]:
         "bsdf": {"type": "diffuse", "reflectance": 0.9}}})
     rows = []
     for lanes in (1, 100, 10 ** 4, 10 ** 6) + (() if quick else (10 ** 8,)):
-        total = max(lanes, 2000)
+        total = SMOKE_LANE_PATHS if smoke and lanes == 1 else max(lanes, 2000)
         integ = mi.load_dict({"type": "pathlength", "max_lanes": lanes})
         n_shots = total // 1 if lanes == 1 else max(1, total // 100)
         k = 1 if lanes == 1 else 100
@@ -197,9 +207,13 @@ SWEEPS = {
 }
 
 
-def run_all(*, quick: bool) -> dict[str, list[dict]]:
-    """Every sweep; a dict of name -> rows."""
-    return {name: fn(quick=quick) for name, fn in SWEEPS.items()}
+def run_all(*, quick: bool, smoke: bool = False) -> dict[str, list[dict]]:
+    """Every sweep; a dict of name -> rows. ``smoke`` (the tests' size, ``bench --smoke``;
+    implies ``quick``): every sweep's values and rows, each simulated sweep on
+    :data:`SMOKE_SHOTS` shots and the one-lane launches on :data:`SMOKE_LANE_PATHS` paths
+    (its numbers only show that the sweeps run; the refusals by design are the same)."""
+    quick = quick or smoke
+    return {name: fn(quick=quick, smoke=smoke) for name, fn in SWEEPS.items()}
 
 
 def chart(results: dict[str, list[dict]], path):
