@@ -176,8 +176,9 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
     if gate_center_ns is not None:
         gate_start = np.asarray(gate_center_ns, np.float64) - instrument.range_gate_ns / 2.0
         gate_ns = instrument.range_gate_ns
-        noise_rate = np.ascontiguousarray(np.broadcast_to(np.asarray(noise_rate, np.float64),
-                                                          (n_shots,)))
+        # a writable copy always: a per-shot rate given as it is would reach the kernel as
+        # a read-only view (broadcast_to's), a numba signature of its own to compile
+        noise_rate = np.array(np.broadcast_to(np.asarray(noise_rate, np.float64), (n_shots,)))
     else:
         gate_start, gate_ns, noise_rate = np.zeros(n_shots), np.inf, np.zeros(n_shots)
     # narrow types: less memory to touch (the stage is memory-bound)
