@@ -30,7 +30,8 @@ def test_shots_without_noise_are_the_general_paths_events():
     for paralyzable in (False, True):
         for channels in (16, 4):
             args = lambda rate: (start, t, anode, index, gate, 200.0,  # noqa: E731
-                                 np.full(n_shots, rate), 16, channels, 3.0, paralyzable, 5)
+                                 np.full(n_shots, rate), 16, channels, 3.0, paralyzable, 5,
+                                 1)                # spare given, as pmt.detect gives it
             fast, general = deadtime.detect_shots(*args(0.0)), deadtime.detect_shots(*args(1e-300))
             assert fast[0].size > 0.5 * t.size
             for a, b in zip(fast, general):

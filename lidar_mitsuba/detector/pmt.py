@@ -187,7 +187,8 @@ def detect(returns: Returns, instrument: Instrument, rng: np.random.Generator, *
         sig_start, sig_time, anode.astype(np.int16),
         idx.astype(index_type), _nan_to_inf(gate_start), float(gate_ns), noise_rate,
         instrument.anodes, instrument.channels, float(instrument.effective_dead_time_ns),
-        instrument.paralyzable, int(rng.integers(0, 2 ** 62)))
+        instrument.paralyzable, int(rng.integers(0, 2 ** 62)), 1)   # spare given: the
+    # signature set-up compiles and tests share (an omitted default is a type of its own)
     if response.afterpulse_probability > 0:
         shot, time_ns, anode, index = _with_afterpulses(
             shot, time_ns, anode, index, instrument=instrument, response=response, rng=rng,
