@@ -133,3 +133,24 @@ def test_nasa_ground_puts_its_ground_photons_at_the_ground():
         n_te = f["gt1r/land_segments/terrain/n_te_photons"][()].sum()
     # NASA's ground photons are within the +-1 m layer (their count over the span's shots)
     assert layers["ground"] * r["shots"] > 0.9 * n_te
+
+
+def test_the_clips_background_is_its_own_rows_not_its_granules(tmp_path):
+    """A clip keeps its granule's whole ``bckgrd_atlas`` table (the two ICESat2VegR clips of
+    one granule both hold its 102 093 rows): the background rate is the median over the rows
+    at the clip's geolocation segments (the row at or after each, as the realism matrix reads
+    it), not over the granule's; without segments, at its photons."""
+    import h5py
+    from lidar_mitsuba.studies import forest_twin as ft
+    path = tmp_path / "ATL03_clip.h5"
+    rows_t = np.arange(1000) * 0.005                      # the granule's rows, 5 s
+    rate = np.where((rows_t > 2.0) & (rows_t < 2.1), 4.0e6, 1.0e6)
+    with h5py.File(path, "w") as f:
+        f["gt1r/bckgrd_atlas/delta_time"] = rows_t
+        f["gt1r/bckgrd_atlas/bckgrd_rate"] = rate.astype(np.float32)
+        f["gt1r/heights/delta_time"] = np.linspace(2.01, 2.09, 50)
+    assert ft.background_hz(path, "gt1r") == pytest.approx(4.0e6)
+    assert float(np.median(rate)) == pytest.approx(1.0e6)          # the granule's median
+    with h5py.File(path, "a") as f:                      # segments outside the bright rows
+        f["gt1r/geolocation/delta_time"] = np.linspace(3.0, 3.5, 20)
+    assert ft.background_hz(path, "gt1r") == pytest.approx(1.0e6)

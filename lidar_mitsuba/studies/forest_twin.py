@@ -237,11 +237,22 @@ def nasa_counts(atl08_path, beam: str, shots_per_m: float) -> dict:
 
 
 def background_hz(atl03_path, beam: str) -> float:
-    """The median of an ATL03 beam's ``bckgrd_atlas/bckgrd_rate`` [Hz] (the twin's file
-    holds the model's rate there)."""
+    """The median ``bckgrd_atlas/bckgrd_rate`` [Hz] of an ATL03 beam's clip, as the realism
+    matrix reads it (:mod:`lidar_mitsuba.products.real`: the 50-shot row at or after each
+    geolocation segment's time, the photons' times where a file has no segments): a clip keeps
+    its granule's whole background table (the Medicine Bow and Saskatchewan clips of one
+    granule both hold its 102 093 rows), whose median is not the clip's. The twin's file
+    holds the model's rate there."""
     import h5py
     with h5py.File(atl03_path) as f:
-        return float(np.median(f[f"{beam}/bckgrd_atlas/bckgrd_rate"][()]))
+        g = f[beam]
+        rate = g["bckgrd_atlas/bckgrd_rate"][()].astype(np.float64)
+        rows_t = g["bckgrd_atlas/delta_time"][()]
+        t = (g["geolocation/delta_time"][()] if "geolocation/delta_time" in g
+             else g["heights/delta_time"][()])
+    if t.size == 0:
+        return float(np.median(rate))
+    return float(np.median(rate[np.clip(np.searchsorted(rows_t, t), 0, rows_t.size - 1)]))
 
 
 def simulate_twin(atl03_path=ATL03, atl08_path=ATL08, beam: str = "gt1r", *,
@@ -330,8 +341,8 @@ def compare(atl03_path=ATL03, atl08_path=ATL08, beam: str = "gt1r", *,
     row("canopy photons per shot (our ATL08 on both)", real_ours["canopy_per_shot"],
         twin_ours["canopy_per_shot"], "same classifier")
     row("background rate [MHz]", bg["real"] / 1e6, bg["twin"] / 1e6,
-        "bckgrd_atlas/bckgrd_rate median (the twin's: the model's, the sun over the "
-        "forest floor's albedo); agrees within the realism matrix's 0.5-2",
+        "bckgrd_atlas/bckgrd_rate median over the clip's rows (the twin's: the model's, the "
+        "sun over the forest floor's albedo); agrees within the realism matrix's 0.5-2",
         agrees=BACKGROUND_AGREES)
     row("canopy height h_canopy [m] (our ATL08 on both)", real_ours["h_canopy_m"],
         twin_ours["h_canopy_m"], "NASA's h_canopy median is an input: "
