@@ -597,6 +597,17 @@ def test_the_forest_pairs_rows_are_judged_against_its_twin(monkeypatch, tmp_path
     leak = [d["ATL08"]["predicted"]["background_terms_hz"]["leak"] for d in (by, again)]
     assert leak[0] > 0 and leak[1] == pytest.approx(2 * leak[0], rel=1e-9)
     assert again["ATL08"]["predicted"]["signal_per_shot"] == pytest.approx(0.2)
+    # the background over the twin's floor, whatever the product's surface: a snow floor
+    # (a clip whose ATL08 says snow) lights the row's background with snow's albedo
+    assert by["ATL03"]["predicted"]["sunlit_albedo"] == pytest.approx(0.10)     # litter
+    snowy = _forest_doc(a03, a08)
+    snowy["floor"] = "snow"
+    monkeypatch.setattr(forest_twin, "twins", lambda paths, **kw: [snowy])
+    lit = {r["product"]: r for r in realism.run([a03, a08], None, signal_shots=1)["rows"]}
+    from lidar_mitsuba.vegetation.optics import snow_optics
+    assert lit["ATL03"]["predicted"]["sunlit_albedo"] == pytest.approx(snow_optics().albedo)
+    assert (lit["ATL03"]["predicted"]["background_terms_hz"]["solar"]
+            > 5 * by["ATL03"]["predicted"]["background_terms_hz"]["solar"])
     lone = realism.run([shutil.copy(a08, tmp_path)], None, signal_shots=0)["rows"][0]
     assert lone["verdict"] == "surface missing" and "pair" in lone["reason"]
 

@@ -309,7 +309,8 @@ def predicted(rb, twin_granule, *, signal_shots: int, seed: int, cloud=None,
         from ..twin import model_sun
         sun[ok], az[ok] = model_sun(rb.lat_deg[ok], rb.lon_deg[ok], t[ok])
     out["solar_elevation_deg"] = _median(sun)              # geometric (the file's: refracted)
-    out["sunlit_albedo"] = albedo = sunlit_albedo(rb, surface)
+    out["sunlit_albedo"] = albedo = (sunlit_albedo(rb, surface) if forest is None
+                                     else forest["floor_albedo"])     # the twin's floor
     kw = dict(delta_time_s=t[ok], z_m=np.full(ok.sum(), z), albedo=albedo,
               solar_elevation_deg=sun[ok], solar_azimuth_deg=np.nan_to_num(az[ok]), band=band,
               outside_fraction=f_out)

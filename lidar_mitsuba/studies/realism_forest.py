@@ -18,7 +18,8 @@ real file and on the twin:
   against our ATL08 classifier on the twin's ATL03.
 
 The background stays the matrix's (:func:`~lidar_mitsuba.night.background_terms`, the same
-model the twin writes into its ATL03) with the twin's signal for the leak term. The twin is
+model the twin writes into its ATL03) over the twin's floor (:func:`floor_albedo`), with the
+twin's signal for the leak term. The twin is
 clear sky: it is compared over all the clip's segments, whatever the product's cloud flags say.
 """
 from __future__ import annotations
@@ -67,7 +68,15 @@ def prediction(doc: dict, product: str) -> dict:
             "signal_per_shot": float(twin),
             "signal_truth": float(doc["twin_truth"]["signal_per_shot"]),
             "signal_from": "the forest twin: " + SIGNAL_WHAT.get(product, SIGNAL_WHAT["ATL03"]),
-            "forest_shots": int(doc["shots"])}
+            "forest_shots": int(doc["shots"]), "floor_albedo": floor_albedo(doc)}
+
+
+def floor_albedo(doc: dict) -> float:
+    """The twin's forest floor's albedo (its optics' ``R + T``), the sunlit albedo the
+    row's background takes: the same surface as its signal, whatever the product's own
+    flags would give (a clip's ``surf_type`` can flag land ice over a boreal forest)."""
+    from ..vegetation.optics import optics
+    return float(optics(doc.get("floor", "litter")).albedo)
 
 
 def verdict(row: dict) -> tuple[str, str]:
