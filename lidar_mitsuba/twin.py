@@ -195,15 +195,12 @@ def sea_ice_surface(*, lat_deg: float, size_m: float | None = None):
     Fram Strait roughness with ridge sails; ``SurfaceSpec(kind="sea_ice")`` on a ``size_m``
     tile, the default 1024 m without), or ``None`` (flat snow) for other sea ice, with the
     reason either way. Chosen by the ice's age and region, nothing from the file's photons."""
-    from .ground import sea_ice_surface as sis
-    from .ground.surface import SurfaceSpec
-    preset, why = sis.site_preset(lat_deg=float(lat_deg))
+    from .ground.sea_ice_surface import site_preset
+    from .ground.surface import sea_ice_spec
+    preset, why = site_preset(lat_deg=float(lat_deg))
     if preset is None:
         return None, why
-    p = sis.PRESETS[preset]
-    return SurfaceSpec(kind="sea_ice", surface_rms_m=p["rms_m"],
-                       surface_corr_m=p["corr_length_m"], surface_ridges=p["ridges"],
-                       **({} if size_m is None else {"size_m": float(size_m)})), why
+    return sea_ice_spec(preset, **({} if size_m is None else {"size_m": float(size_m)})), why
 
 
 def read(path: str | os.PathLike, *, beams: str = "all", prf_hz: float = 10e3) -> TwinGranule:

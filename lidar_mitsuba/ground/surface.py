@@ -476,6 +476,17 @@ class SurfaceSpec:
         return out
 
 
+def sea_ice_spec(preset: str, *, ridges: str | None = None, **fields) -> SurfaceSpec:
+    """``SurfaceSpec(kind="sea_ice")`` of a published roughness preset
+    (:data:`~lidar_mitsuba.ground.sea_ice_surface.PRESETS`: its rms height, correlation length
+    and ridge sails; ``ridges`` overrides the preset's); ``fields``: the spec's others
+    (``terrain_seed``, ``size_m``)."""
+    p = sea_ice_surface.PRESETS[preset]
+    return SurfaceSpec(kind="sea_ice", surface_rms_m=p["rms_m"],
+                       surface_corr_m=p["corr_length_m"],
+                       surface_ridges=p["ridges"] if ridges is None else ridges, **fields)
+
+
 def resolve(surface) -> tuple[Surface, dict | None, dict]:
     """``(surface, default bsdf, config)`` for what a user passed as a surface: a
     :class:`SurfaceSpec`, a :class:`Surface`, a :class:`~lidar_mitsuba.ground.terrain.Heightfield`

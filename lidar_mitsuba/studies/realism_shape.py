@@ -7,6 +7,8 @@ Pure numpy (h5py for the real file).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 SPREAD_AGREES = 0.30
@@ -16,6 +18,9 @@ TAIL_FACTOR = 2.0
 TAIL_M = 0.20
 """ATL03 tails: the fraction of surface photons farther than this below / above their
 segment's median [m]."""
+
+FAR_CUT_M = 0.3
+"""Residuals above +this [m] are the far upper tail (ridge sails' photons; session 22)."""
 
 TAIL_WINDOW_M = 1.0
 """The predicted tails count the simulated surface photons within this distance [m] of their
@@ -37,20 +42,34 @@ def atl03_shape(path, beam: str) -> dict:
     return shape_stats(res)
 
 
+def tails(residuals_m, *, cut_m: float = TAIL_M, far_cut_m: float = FAR_CUT_M) -> dict:
+    """Fractions of ``residuals_m`` below ``-cut_m`` and above ``+cut_m`` (strictly), and
+    above ``+far_cut_m`` (``above_far``), with their binomial standard errors
+    ``sqrt(f (1 - f) / n)``; ``n`` the residuals counted (the sea-ice ladder's,
+    :mod:`~lidar_mitsuba.studies.sea_ice`, and ``validate``'s too)."""
+    r = np.asarray(residuals_m, np.float64).ravel()
+    n = int(r.size)
+    out = {"n": n, "cut_m": float(cut_m), "far_cut_m": float(far_cut_m)}
+    for side, k in (("below", int(np.sum(r < -cut_m))), ("above", int(np.sum(r > cut_m))),
+                    ("above_far", int(np.sum(r > far_cut_m)))):
+        f = k / n if n else float("nan")
+        out[side] = f
+        out[f"{side}_count"] = k
+        out[f"{side}_se"] = math.sqrt(f * (1.0 - f) / n) if n else float("nan")
+    return out
+
+
 def shape_stats(residuals_m) -> dict:
     """Robust sd (1.4826 MAD) of height residuals [m], their tails below / above ``TAIL_M``
-    (strictly beyond) and the tails' binomial standard errors ``sqrt(f (1 - f) / n)`` over
-    the ``n`` residuals (as :func:`~lidar_mitsuba.studies.sea_ice.tails` counts them)."""
+    and the tails' binomial standard errors (:func:`tails`)."""
     res = np.asarray(residuals_m, np.float64)
     if res.size < 10:
         return {}
-    n = res.size
+    t = tails(res)
     out = {"spread_robust_m": float(1.4826 * np.median(np.abs(res - np.median(res)))),
-           "shape_photons": int(n)}
-    for side, f in (("below", float(np.mean(res < -TAIL_M))),
-                    ("above", float(np.mean(res > TAIL_M)))):
-        out[f"tail_{side}"] = f
-        out[f"tail_{side}_se"] = float(np.sqrt(f * (1.0 - f) / n))
+           "shape_photons": int(res.size)}
+    for side in ("below", "above"):
+        out[f"tail_{side}"], out[f"tail_{side}_se"] = t[side], t[f"{side}_se"]
     return out
 
 

@@ -37,13 +37,10 @@ import numpy as np
 
 from .. import granule, twin
 from ..ground import sea_ice_surface, snow, terrain
-from ..ground.surface import SurfaceSpec
+from ..ground.surface import SurfaceSpec, sea_ice_spec
 from ..products.atl03.rates import atl03_rates
 
-CUT_M = 0.2
-"""Residuals beyond +-this [m] are the tails (the issue's 20 cm)."""
-FAR_CUT_M = 0.3
-"""Residuals above +this [m] are the far upper tail (ridge sails' photons; session 22)."""
+from .realism_shape import FAR_CUT_M, TAIL_M as CUT_M, tails  # noqa: E402,F401 (one home)
 
 #: The floe model's choices and where they come from. Each is a *choice* among published
 #: values, made before the runs and never adjusted to the real tails. Where we quote from
@@ -97,22 +94,6 @@ FLOE = {
 
 
 # ------------------------------------------------------------------------------ counting
-def tails(residuals_m, *, cut_m: float = CUT_M, far_cut_m: float = FAR_CUT_M) -> dict:
-    """Fractions of ``residuals_m`` below ``-cut_m`` and above ``+cut_m`` (strictly), and
-    above ``+far_cut_m`` (``above_far``), with their binomial standard errors
-    ``sqrt(f (1 - f) / n)``; ``n`` the residuals counted."""
-    r = np.asarray(residuals_m, np.float64).ravel()
-    n = int(r.size)
-    out = {"n": n, "cut_m": float(cut_m), "far_cut_m": float(far_cut_m)}
-    for side, k in (("below", int(np.sum(r < -cut_m))), ("above", int(np.sum(r > cut_m))),
-                    ("above_far", int(np.sum(r > far_cut_m)))):
-        f = k / n if n else float("nan")
-        out[side] = f
-        out[f"{side}_count"] = k
-        out[f"{side}_se"] = math.sqrt(f * (1.0 - f) / n) if n else float("nan")
-    return out
-
-
 # ------------------------------------------------------------------------------ the ladder
 def _fractal(rms_m: float, terrain_seed: int) -> SurfaceSpec:
     """The floe's fractal tile with the published rms (the relief that gives it, for this
@@ -141,10 +122,7 @@ def rough_sea_ice(preset: str, terrain_seed: int, *, ridges: str | None = None) 
     (:data:`~lidar_mitsuba.ground.sea_ice_surface.PRESETS`: rms height, correlation length and
     ridge sails from airborne laser surveys; ``ridges`` overrides the preset's), the
     ``--surface sea_ice`` tile (1024 m, 1 m grid)."""
-    p = sea_ice_surface.PRESETS[preset]
-    return SurfaceSpec(kind="sea_ice", surface_rms_m=p["rms_m"],
-                       surface_corr_m=p["corr_length_m"], terrain_seed=int(terrain_seed),
-                       surface_ridges=p["ridges"] if ridges is None else ridges)
+    return sea_ice_spec(preset, ridges=ridges, terrain_seed=int(terrain_seed))
 
 
 def _rms(preset: str) -> float:
