@@ -195,3 +195,28 @@ def test_a_clips_empty_beam_groups_are_not_paired(tmp_path):
             f.create_group("gt1l").attrs["atlas_beam_type"] = "strong"
     assert forest_twin.twins([tmp_path], progress=None) == []
     assert atl08_real.run([tmp_path], None, progress=None) == []
+
+
+def test_a_restructured_file_says_what_its_beam_groups_hold(tmp_path):
+    """Snowblower's ``..._reduced.h5`` keeps the six beam groups but flattens them
+    (``gt1l/h_li``, ``gt1l/lat``) and its ``test_granule.h5`` keeps only
+    ``gt1l/land_ice_segments/dem/dem_h``: the line names what the beam group holds, not
+    the beam groups themselves."""
+    import h5py
+    flat = tmp_path / "processed_ATL06_20181015021234_02510110_001_01_reduced.h5"
+    with h5py.File(flat, "w") as f:
+        for name in ("gt1l", "gt1r"):
+            f[f"{name}/h_li"] = np.zeros(4, np.float32)
+            f[f"{name}/lat"] = np.zeros(4)
+    with pytest.raises(ParameterError, match=r"_reduced.h5: no beam group .* \(gt1l holds "
+                       r"h_li, lat; no land_ice_segments\)$"):
+        real.read_product(flat)
+    dem = tmp_path / "test_granule.h5"
+    with h5py.File(dem, "w") as f:
+        f.attrs["short_name"] = np.bytes_(b"ATL06")
+        f.create_group("gt1r")                                    # an empty group: not named
+        f["gt3l/land_ice_segments/dem/dem_h"] = np.zeros(4, np.float32)
+    with pytest.raises(ParameterError, match=r"\(gt3l/land_ice_segments holds dem; no "
+                       r"delta_time\)$"):
+        real.read_product(dem)
+

@@ -192,6 +192,24 @@ def _holds(f) -> str:
     return (", ".join(keys[:6]) + (", ..." if len(keys) > 6 else "")) if keys else "nothing"
 
 
+def _beam_holds(f, group: str) -> str:
+    """What a file without a usable beam holds, for a one-line message: its first beam
+    group's names where it has beam groups (``gt1l holds h_li, lat, ...; no
+    land_ice_segments``: a restructured file keeps the groups' names, not their layout),
+    else its top-level names (``it holds ph_index_beg``)."""
+    import h5py
+    names = [n for n in BEAM_NAMES if n in f and isinstance(f[n], h5py.Group)]
+    if not names:
+        return f"it holds {_holds(f)}"
+    name = next((n for n in names if len(f[n])), names[0])     # an empty group last
+    g = f[name]
+    if group not in g or not isinstance(g[group], h5py.Group):
+        return f"{name} holds {_holds(g)}; no {group}"
+    if "delta_time" not in g[group]:
+        return f"{name}/{group} holds {_holds(g[group])}; no delta_time"
+    return f"{name}/{group} holds {g[group]['delta_time'].shape[0]} segment(s)"
+
+
 def release_of(f, path: pathlib.Path) -> str | None:
     """The release (``006``): ``ancillary_data/release`` or ``version``, else the file name's
     ``_RRR_VV.h5`` tail; None when neither says."""
@@ -251,7 +269,7 @@ def read_product(path, *, beams: str = "all") -> RealFile:
                 if b is not None and b.n_segments >= 2:
                     out.append(b)
             release = release_of(f, path)
-            holds = _holds(f)
+            holds = _beam_holds(f, PRODUCT_GROUPS[product])
     except OSError as e:
         raise ParameterError("like", f"{path}: not an HDF5 file we can read "
                              f"({str(e).splitlines()[0]})") from None
@@ -269,7 +287,7 @@ def read_product(path, *, beams: str = "all") -> RealFile:
     if not out:
         raise ParameterError("like", f"{path}: no beam group (gt1l-gt3r) with two "
                              f"{PRODUCT_GROUPS[product]} segments"
-                             + (f" (it holds {holds})" if beams == "all"
+                             + (f" ({holds})" if beams == "all"
                                 else f" among {beams!r}"))
     missing += _missing(out, product)
     if release is None:
