@@ -220,3 +220,17 @@ def test_a_restructured_file_says_what_its_beam_groups_hold(tmp_path):
                        r"delta_time\)$"):
         real.read_product(dem)
 
+
+def test_a_beam_judged_on_its_cloudy_segments_says_so_in_its_line():
+    """A beam with no clear segment (Snowblower's ATL06 03200112, r_eff 0.1-0.3 on five
+    beams) is judged on its cloudy background with the cloud: the run's line shows those,
+    not a dash beside the clear sky's prediction under the verdict."""
+    row = {"file": "ATL06_x.h5", "beam": "gt1l", "strength": "weak", "verdict": "agrees",
+           "measured": {"background_clear_hz": None, "background_cloudy_hz": 4.86e6,
+                        "signal_clear": None, "signal_cloudy": None},
+           "predicted": {"background_hz": 3.33e6, "background_cloudy_hz": 2.99e6,
+                         "signal_per_shot": 3.09, "signal_cloudy": 0.065}}
+    line = realism.format_row(row)
+    assert "bg cloudy 4860.0/2990.0 kHz" in line and "sig -/3.09" in line
+    row["measured"].update(background_clear_hz=4.79e6)
+    assert "bg 4790.0/3330.0 kHz" in realism.format_row(row)

@@ -586,7 +586,13 @@ def format_row(r: dict) -> str:
 
     def s(v):
         return "-" if v is None else f"{v:.2f}"
+    # a beam with no clear segment is judged on its cloudy ones, with the cloud: say those
+    # (not the clear sky's prediction beside a dash, under a verdict it did not give)
+    bg, bg_p, bg_w = m["background_clear_hz"], p["background_hz"], "bg"
+    if bg is None and m.get("background_cloudy_hz") is not None:
+        bg, bg_p, bg_w = m["background_cloudy_hz"], p.get("background_cloudy_hz"), "bg cloudy"
+    sig, sig_p, sig_w = m.get("signal_forest", m["signal_clear"]), p["signal_per_shot"], "sig"
+    if sig is None and m.get("signal_cloudy") is not None:
+        sig, sig_p, sig_w = m["signal_cloudy"], p.get("signal_cloudy"), "sig cloudy"
     return (f"{r['file'][:34]:<34} {r['beam']} {r['strength']:<6} "
-            f"bg {k(m['background_clear_hz'])}/{k(p['background_hz'])} kHz "
-            f"sig {s(m.get('signal_forest', m['signal_clear']))}/{s(p['signal_per_shot'])}  "
-            f"{r['verdict']}")
+            f"{bg_w} {k(bg)}/{k(bg_p)} kHz {sig_w} {s(sig)}/{s(sig_p)}  {r['verdict']}")
