@@ -234,3 +234,37 @@ def test_a_beam_judged_on_its_cloudy_segments_says_so_in_its_line():
     assert "bg cloudy 4860.0/2990.0 kHz" in line and "sig -/3.09" in line
     row["measured"].update(background_clear_hz=4.79e6)
     assert "bg 4790.0/3330.0 kHz" in realism.format_row(row)
+
+
+def test_a_stand_in_for_a_dropped_dataset_is_said(tmp_path):
+    """Snowblower's jeffdata ATL06 v001 subsets keep no ``dem`` group: the surface is taken
+    as land ice (r_eff held against snow's), said; Floes-are-Swell's ATL07 v001 subsets
+    keep ``height_segment_height`` without ``geophysical/height_segment_mss``: heights above
+    the mean sea surface stand in for ellipsoidal ones, said. A file that has them says
+    neither."""
+    import h5py
+    p = _atl06_dem(tmp_path / "ATL06_x_001_01.h5", flag=4, dem_h=1200.0)
+    assert "dem/dem_flag" not in real.read_product(p).missing_line()
+    with h5py.File(p, "a") as f:
+        for name in ("gt1l", "gt1r"):
+            del f[f"{name}/land_ice_segments/dem"]
+    rf = real.read_product(p)
+    assert rf.beams[0].surface == "land ice"
+    assert "dem/dem_flag (the surface taken as land ice" in rf.missing_line()
+    q = tmp_path / "processed_ATL07-01_20181201123226_09760101_001_01.h5"
+    with h5py.File(q, "w") as f:
+        for name, kind in (("gt1l", "weak"), ("gt1r", "strong")):
+            f.create_group(name).attrs["atlas_beam_type"] = np.bytes_(kind.encode())
+            s = f.create_group(f"{name}/sea_ice_segments")
+            s["delta_time"] = 2.9e7 + np.arange(6) * 0.01
+            s["latitude"] = np.full(6, 75.0)
+            s["longitude"] = np.full(6, -150.0)
+            s["heights/height_segment_height"] = np.full(6, 0.3, np.float32)
+    line = real.read_product(q).missing_line()
+    assert "geophysical/height_segment_mss (heights above the mean sea surface" in line
+    with h5py.File(q, "a") as f:
+        for name in ("gt1l", "gt1r"):
+            f[f"{name}/sea_ice_segments/geophysical/height_segment_mss"] = np.full(6, 2.0)
+    rf = real.read_product(q)
+    assert "height_segment_mss" not in rf.missing_line()
+    assert np.allclose(rf.beams[0].surface_h_m, 2.3)

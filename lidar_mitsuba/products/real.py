@@ -331,6 +331,8 @@ def _missing(beams: list[RealBeam], product: str) -> list[str]:
             out.append(words + (f" ({'; '.join(sorted(why))})" if why else ""))
     if all(not np.isfinite(b.surface_h_m).any() for b in beams):
         out.append("surface heights")
+    out += [w for w in beams[0].notes.get("stand_ins", ())          # what every beam lacks
+            if all(w in b.notes.get("stand_ins", ()) for b in beams)]
     bad = [b.name for b in beams if b.strength_from == "sc_orient"]
     if bad:
         out.append(f"atlas_beam_type on {', '.join(bad)} (strength from sc_orient)")
@@ -454,6 +456,9 @@ def _atl06(g, **beam) -> RealBeam | None:
             sig = np.where(q == 0, sig, np.nan)
     from .real_surface import dem_surface
     surface = dem_surface(s)
+    stand_ins = [] if "dem/dem_flag" in s else [
+        "dem/dem_flag (the surface taken as land ice, where ATL06 is made; r_eff held "
+        "against snow's)"]
     r_eff = _num(gp, "r_eff") if surface == "land ice" else None     # held against snow's
     clear = _flag_clear(None if r_eff is None
                         else r_eff >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE,
@@ -469,7 +474,8 @@ def _atl06(g, **beam) -> RealBeam | None:
                            "signal": "(n_fit_photons - background in the window) / "
                            "n_seg_pulses, quality 0",
                            "clear": ("r_eff >= 0.45, " if r_eff is not None else "")
-                           + "cloud_flg_asr <= 2, cloud_flg_atm == 0"})
+                           + "cloud_flg_asr <= 2, cloud_flg_atm == 0",
+                           **({"stand_ins": stand_ins} if stand_ins else {})})
 
 
 
@@ -488,6 +494,10 @@ def _atl07(g, **beam) -> RealBeam | None:
     st = s["stats"] if "stats" in s else {}
     h = _num(hts, "height_segment_height")
     mss = _num(gp, "height_segment_mss")
+    stand_ins = []
+    if h is not None and mss is None:                  # heights above the mean sea surface
+        stand_ins.append("geophysical/height_segment_mss (heights above the mean sea "
+                         "surface taken as above the ellipsoid)")
     h = h + mss if h is not None and mss is not None else h
     if h is None:
         h = np.full(t.size, np.nan)
@@ -512,7 +522,8 @@ def _atl07(g, **beam) -> RealBeam | None:
                     ice_fraction=None if conc is None else conc / 100.0, surface="sea ice",
                     notes={"background": "stats/backgr_r_200 (ATL03's 50-shot rate)",
                            "signal": "stats/photon_rate on snow-covered ice (type 1)",
-                           "clear": "asr_25 >= 0.45, cloud_flag_asr <= 2, cloud_flag_atm == 0"})
+                           "clear": "asr_25 >= 0.45, cloud_flag_asr <= 2, cloud_flag_atm == 0",
+                           **({"stand_ins": stand_ins} if stand_ins else {})})
 
 
 def _atl08(g, **beam) -> RealBeam | None:
