@@ -5,6 +5,8 @@ cannot be used stops ``validate --real`` in one line naming the option and the f
 file's line. Pure h5py; no rendering."""
 from __future__ import annotations
 
+import pathlib
+
 import numpy as np
 import pytest
 
@@ -268,3 +270,22 @@ def test_a_stand_in_for_a_dropped_dataset_is_said(tmp_path):
     rf = real.read_product(q)
     assert "height_segment_mss" not in rf.missing_line()
     assert np.allclose(rf.beams[0].surface_h_m, 2.3)
+
+
+def test_an_atl03_atl08_pair_is_found_by_its_names_as_tools_write_them(tmp_path):
+    """ICESat2VegR's clips are ``atl03_clip.h5`` and ``atl08_clip.h5``; the NSIDC
+    subsetter writes ``processed_ATL03_...`` and ``processed_ATL08_...`` (icesat2R's
+    vignette pair); a granule's ATL03 and ATL08 may differ in revision. Each is one pair
+    (the forest twin judges their rows; before, only names starting ``ATL08`` paired, and
+    the clip's ATL03 was judged over ice-sheet snow by its surf_type, 'agrees' x0.97)."""
+    from lidar_mitsuba.studies.atl08_real import pairs
+    names = ["atl03_clip.h5", "atl08_clip.h5",
+             "processed_ATL03_20200821122613_08730802_004_01.h5",
+             "processed_ATL08_20200821122613_08730802_004_01.h5",
+             "ATL03_20220401221822_01501506_006_02.h5", "ATL08_20220401221822_01501506_006_01.h5",
+             "ATL08_20190101000000_00010101_006_01.h5"]                    # no ATL03 beside it
+    for n in names:
+        (tmp_path / n).write_bytes(b"")
+    got = {(pathlib.Path(a).name, pathlib.Path(b).name) for a, b in pairs([tmp_path])}
+    assert got == {(names[0], names[1]), (names[2], names[3]), (names[4], names[5])}
+    assert pairs([tmp_path / names[3]]) == [(str(tmp_path / names[2]), str(tmp_path / names[3]))]

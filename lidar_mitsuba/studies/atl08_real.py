@@ -113,17 +113,31 @@ if __name__ == "__main__":
 
 def pairs(paths) -> list[tuple[str, str]]:
     """``(ATL03, ATL08)`` file pairs among ``paths`` (files, or folders: their ``*.h5``):
-    an ATL08 file and the ATL03 file of the same name with ``ATL03`` for ``ATL08``."""
+    an ATL08 file and the ATL03 file beside it of the same name with ``ATL03`` for
+    ``ATL08`` wherever it stands and in any case (NASA's ``ATL08_...``, the NSIDC
+    subsetter's ``processed_ATL08_...``, a clip's ``atl08_clip.h5``), else the one ATL03
+    file beside it of the same granule (``YYYYMMDDhhmmss_ttttccss``: the release or
+    revision may differ)."""
     import pathlib
+    import re
     files = []
     for p in map(pathlib.Path, paths or []):
         files += sorted(p.glob("*.h5")) if p.is_dir() else [p]
     out = []
     for f in files:
-        if f.name.startswith("ATL08"):
-            twin = f.with_name("ATL03" + f.name[5:])
-            if twin.exists():
-                out.append((str(twin), str(f)))
+        low = f.name.lower()
+        if "atl08" not in low:
+            continue
+        beside = [g for g in sorted(f.parent.glob("*")) if g.is_file() and g != f]
+        want = low.replace("atl08", "atl03", 1)
+        twin = next((g for g in beside if g.name.lower() == want), None)
+        granule = re.search(r"\d{14}_\d{8}", f.name)
+        if twin is None and granule:
+            same = [g for g in beside if "atl03" in g.name.lower()
+                    and granule.group(0) in g.name and g.suffix.lower() == f.suffix.lower()]
+            twin = same[0] if len(same) == 1 else None
+        if twin is not None:
+            out.append((str(twin), str(f)))
     return out
 
 
