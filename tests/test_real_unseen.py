@@ -289,3 +289,21 @@ def test_an_atl03_atl08_pair_is_found_by_its_names_as_tools_write_them(tmp_path)
     got = {(pathlib.Path(a).name, pathlib.Path(b).name) for a, b in pairs([tmp_path])}
     assert got == {(names[0], names[1]), (names[2], names[3]), (names[4], names[5])}
     assert pairs([tmp_path / names[3]]) == [(str(tmp_path / names[2]), str(tmp_path / names[3]))]
+
+
+def test_a_folder_gives_its_netcdf4_named_icesat2_files_too(tmp_path):
+    """The NSIDC subsetter's reformatting writes ``processed_ATL03_..._005_01.nc`` and
+    ``processed_ATL10-01_..._006_01.nc`` (NetCDF-4: HDF5 files): found in a folder they are
+    read (or passed by and listed) as ``.h5`` files are, not left out unsaid; other files
+    are not taken."""
+    nc = _atl08(tmp_path / "processed_ATL08_20200821122613_08730802_004_01.nc")
+    (tmp_path / "notes.txt").write_text("not a product")
+    assert realism.real_files([tmp_path]) == [nc]
+    out = tmp_path / "out"
+    assert main(["validate", "--real", str(tmp_path), "--signal-shots", "0",
+                 "--out", str(out)]) == 0
+    assert f"{nc.name} (ATL08)" in (out / "realism.md").read_text()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(ParameterError, match=r"no HDF5 file \(.h5, .hdf5, .he5, .nc, .nc4\)"):
+        realism.real_files([empty])

@@ -112,7 +112,7 @@ if __name__ == "__main__":
 
 
 def pairs(paths) -> list[tuple[str, str]]:
-    """``(ATL03, ATL08)`` file pairs among ``paths`` (files, or folders: their ``*.h5``):
+    """``(ATL03, ATL08)`` file pairs among ``paths`` (files, or folders: their HDF5 files):
     an ATL08 file and the ATL03 file beside it of the same name with ``ATL03`` for
     ``ATL08`` wherever it stands and in any case (NASA's ``ATL08_...``, the NSIDC
     subsetter's ``processed_ATL08_...``, a clip's ``atl08_clip.h5``), else the one ATL03
@@ -120,9 +120,10 @@ def pairs(paths) -> list[tuple[str, str]]:
     revision may differ)."""
     import pathlib
     import re
+    from .realism import hdf5_files
     files = []
     for p in map(pathlib.Path, paths or []):
-        files += sorted(p.glob("*.h5")) if p.is_dir() else [p]
+        files += hdf5_files(p) if p.is_dir() else [p]
     out = []
     for f in files:
         low = f.name.lower()

@@ -52,17 +52,29 @@ from .realism_shape import (SEGMENT_M, TAIL_M, TAIL_WINDOW_M,  # noqa: E402,F401
                             atl03_shape as _atl03_shape, segment_residuals_m, shape_stats,
                             shape_verdict)
 
+HDF5_SUFFIXES = (".h5", ".hdf5", ".he5", ".nc", ".nc4")
+"""The names a folder's HDF5 files go by (any case): NASA's ``.h5``, and the NetCDF-4 (an
+HDF5 file) that the NSIDC subsetter's reformatting writes (``processed_ATL03_..._01.nc``,
+``processed_ATL10-01_..._01.nc``) or OPeNDAP serves (``.nc4``)."""
+
+
+def hdf5_files(folder) -> list[pathlib.Path]:
+    """The files of ``folder`` named as HDF5 files (:data:`HDF5_SUFFIXES`), sorted."""
+    return sorted(p for p in pathlib.Path(folder).iterdir()
+                  if p.suffix.lower() in HDF5_SUFFIXES and p.is_file())
+
+
 def real_files(paths=None, *, found=None) -> list[pathlib.Path]:
-    """The ``.h5`` files among ``paths`` (files or folders; folders give their ``*.h5``,
-    sorted); ``None`` or empty: the package's shipped real files. ``found``: a list that
-    receives the files found in folders (not named themselves: :func:`run` passes by those it
-    cannot read)."""
+    """The HDF5 files among ``paths`` (files or folders; folders give their files named as
+    HDF5 files, :func:`hdf5_files`); ``None`` or empty: the package's shipped real files.
+    ``found``: a list that receives the files found in folders (not named themselves:
+    :func:`run` passes by those it cannot read)."""
     if not paths:
         paths = [PACKAGE_DATA]
     out = []
     for p in map(pathlib.Path, paths):
         if p.is_dir():
-            inside = sorted(p.glob("*.h5"))
+            inside = hdf5_files(p)
             out += inside
             if found is not None:
                 found += inside
@@ -71,7 +83,8 @@ def real_files(paths=None, *, found=None) -> list[pathlib.Path]:
         else:
             raise ParameterError("real", f"{p}: no such file or folder")
     if not out:
-        raise ParameterError("real", f"no .h5 file in {', '.join(map(str, paths))}")
+        raise ParameterError("real", f"no HDF5 file ({', '.join(HDF5_SUFFIXES)}) in "
+                             f"{', '.join(map(str, paths))}")
     return out
 
 
