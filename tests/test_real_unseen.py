@@ -307,3 +307,23 @@ def test_a_folder_gives_its_netcdf4_named_icesat2_files_too(tmp_path):
     empty.mkdir()
     with pytest.raises(ParameterError, match=r"no HDF5 file \(.h5, .hdf5, .he5, .nc, .nc4\)"):
         realism.real_files([empty])
+
+
+def test_two_subsets_of_one_granule_are_told_apart(tmp_path):
+    """Snowblower keeps two subsets of ATL06 04950110 under one name, in Outputs/... and
+    jeffdata/: run together, their rows and strong:weak pairs carried one name (the second
+    file's pairs replaced the first's, 3 of 6 shown); now each is named by as much of its
+    path as tells them apart, and a file named twice (itself and in its folder) is read
+    once."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    fa = _atl08(a / "ATL08_x.h5")
+    _atl08(b / "ATL08_x.h5", rates=(8.0, 2.0))
+    assert realism.real_files([a, fa]) == [fa]
+    doc = realism.run([a, b], signal_shots=0)
+    assert {f["file"] for f in doc["files"]} == {"a/ATL08_x.h5", "b/ATL08_x.h5"}
+    assert [q["file"] for q in doc["pairs"]] == ["a/ATL08_x.h5", "b/ATL08_x.h5"]
+    assert doc["files"][0]["missing"].startswith("a/ATL08_x.h5 (ATL08) lacks: ")
+    assert realism.labels([a / "x.h5", tmp_path / "c.h5"]) == {a / "x.h5": "x.h5",
+                                                                tmp_path / "c.h5": "c.h5"}

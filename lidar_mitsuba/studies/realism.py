@@ -82,6 +82,8 @@ def real_files(paths=None, *, found=None) -> list[pathlib.Path]:
             out.append(p)
         else:
             raise ParameterError("real", f"{p}: no such file or folder")
+    seen: set = set()                     # a file named twice (itself and in its folder): once
+    out = [p for p in out if not (p.resolve() in seen or seen.add(p.resolve()))]
     if not out:
         raise ParameterError("real", f"no HDF5 file ({', '.join(HDF5_SUFFIXES)}) in "
                              f"{', '.join(map(str, paths))}")
@@ -503,6 +505,24 @@ def pair_ratios(rows: list[dict]) -> list[dict]:
     return out
 
 
+def labels(paths) -> dict:
+    """Each file's name in the matrix: its name, or where two files of ``paths`` share it
+    (subsets of one granule in two folders: ``a/processed_ATL06_X.h5``, ``b/...``) as much
+    of its path as tells them apart."""
+    paths = [pathlib.Path(p) for p in paths]
+    depth = dict.fromkeys(paths, 1)
+    while True:
+        lab = {p: "/".join(p.parts[-depth[p]:]) for p in paths}
+        count: dict = {}
+        for v in lab.values():
+            count[v] = count.get(v, 0) + 1
+        clash = [p for p in paths if count[lab[p]] > 1 and depth[p] < len(p.parts)]
+        if not clash:
+            return lab
+        for p in clash:
+            depth[p] += 1
+
+
 # ------------------------------------------------------------------------------ the run
 def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
         progress=None, cloud=None) -> dict:
@@ -524,10 +544,11 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
     paths = [rf.path for rf, _ in read]
     forest_docs, forest, paired = _forest_twins(paths, signal_shots=signal_shots, seed=seed,
                                                 progress=progress)
+    label = labels(paths + [p for p, _ in skipped])
     for k, (rf, tg) in enumerate(read):
         path = rf.path
-        files.append({"file": path.name, "product": rf.product, "release": rf.release,
-                      "missing": rf.missing_line()})
+        files.append({"file": label[path], "product": rf.product, "release": rf.release,
+                      "missing": label[path] + rf.missing_line()[len(path.name):]})
         implied = pair_clouds(rf.beams) if cloud is None else {}
         flags = pair_flags(rf.beams) if cloud is None else {}
         for rb in rf.beams:
@@ -538,7 +559,7 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
             fp = None if fdoc is None else realism_forest.prediction(fdoc, rf.product)
             alts = [] if cloud is not None else cloud_alternatives(
                 rb, sky, product=rf.product, band_top_m=band_top_m(rb), flags=flags[rb.name])
-            row = {"file": path.name, "product": rf.product, "beam": rb.name,
+            row = {"file": label[path], "product": rf.product, "beam": rb.name,
                    "strength": rb.strength, "measured": measured(rf, rb),
                    "cloud": None if sky is None else {
                        **sky.to_dict(), "from": "given" if cloud is not None else
@@ -559,8 +580,8 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
             rows.append(row)
             if progress is not None:
                 progress(format_row(row))
-    files += [{"file": p.name, "product": None, "release": None,
-               "missing": f"{p.name}: passed by ({why})"} for p, why in skipped]
+    files += [{"file": label[p], "product": None, "release": None,
+               "missing": f"{label[p]}: passed by ({why})"} for p, why in skipped]
     doc = {"signal_shots": int(signal_shots), "files": files, "rows": rows,
            "cloud": None if cloud is None else dataclasses.asdict(cloud),
            "pairs": pair_ratios(rows), "seconds": time.perf_counter() - t0,
