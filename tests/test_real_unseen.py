@@ -327,3 +327,70 @@ def test_two_subsets_of_one_granule_are_told_apart(tmp_path):
     assert doc["files"][0]["missing"].startswith("a/ATL08_x.h5 (ATL08) lacks: ")
     assert realism.labels([a / "x.h5", tmp_path / "c.h5"]) == {a / "x.h5": "x.h5",
                                                                 tmp_path / "c.h5": "c.h5"}
+
+
+def _atl03(path, *, n_seg: int = 6, per: int = 30, drop=(), cut_photons: int = 0,
+           bg_rows: int = 3):
+    """A small ATL03 beam as NASA writes it (one weak beam, photons of confidence 4 and 0,
+    a background table), less the datasets ``drop`` names, its photons cut short by
+    ``cut_photons`` (a subset that cut ``heights`` and not ``geolocation``)."""
+    import h5py
+    m = n_seg * per
+    with h5py.File(path, "w") as f:
+        g = f.create_group("gt1l")
+        g.attrs["atlas_beam_type"] = "weak"
+        d = {"geolocation/delta_time": 1.0e8 + np.arange(n_seg) * 20.0 / 7000.0,
+             "geolocation/reference_photon_lat": 70.0 + np.arange(n_seg) * 20.0 / 111_000.0,
+             "geolocation/reference_photon_lon": np.full(n_seg, -50.0),
+             "geolocation/segment_ph_cnt": np.full(n_seg, per, np.int32),
+             "geolocation/ph_index_beg": 1 + np.arange(n_seg) * per,
+             "heights/h_ph": np.where(np.arange(m) % 3, 100.0, 700.0)[:m - cut_photons],
+             "heights/lat_ph": np.repeat(70.0 + np.arange(n_seg) * 20.0 / 111_000.0, per),
+             "heights/lon_ph": np.full(m, -50.0),
+             "heights/pce_mframe_cnt": (np.arange(m) // 200).astype(np.uint32),
+             "heights/ph_id_pulse": (np.arange(m) % 200 // 2 + 1).astype(np.uint8),
+             "bckgrd_atlas/delta_time": 1.0e8 + np.arange(bg_rows) * 0.005,
+             "bckgrd_atlas/bckgrd_rate": np.full(bg_rows, 2.0e5, np.float32)}
+        conf = np.zeros((m, 5), np.int8)
+        conf[np.arange(m) % 3 > 0, 0] = 4                       # one photon in 3: background
+        d["heights/signal_conf_ph"] = conf
+        for k, v in d.items():
+            if k not in drop:
+                g[k] = v
+    return path
+
+
+def test_an_atl03_subset_reads_what_its_photons_can_say(tmp_path):
+    """Variable and spatial subsets of ATL03 as the tools leave them: without
+    ``signal_conf_ph`` every photon would count as signal (the background with it: 1.5x
+    here, x100 in daylight), so no signal rate is read, said; photons cut short of their
+    index stopped the run with an IndexError, now no photon is read, said; an empty
+    ``bckgrd_atlas`` (a clip shorter than one 50-shot row) was an IndexError, now no
+    background, said; without ``reference_photon_lat``/``_lon`` (a subset of the photons'
+    own places) a TypeError in the twin, now each segment's first photon's place; with no
+    place at all, one line."""
+    whole = real.read_product(_atl03(tmp_path / "ATL03_a.h5")).beams[0]
+    assert np.nanmedian(whole.signal_per_shot) == pytest.approx(4 / 3)  # 20 of 30, 15 pulses
+    rf = real.read_product(_atl03(tmp_path / "ATL03_b.h5", drop=["heights/signal_conf_ph"]))
+    assert rf.beams[0].signal_per_shot is None
+    assert "a signal rate (no heights/signal_conf_ph)" in rf.missing_line()
+    rf = real.read_product(_atl03(tmp_path / "ATL03_c.h5", cut_photons=50))
+    assert rf.beams[0].signal_per_shot is None and not np.isfinite(rf.beams[0].surface_h_m).any()
+    assert "heights/h_ph (130 photons) does not fit geolocation/ph_index_beg" in rf.missing_line()
+    rf = real.read_product(_atl03(tmp_path / "ATL03_d.h5", bg_rows=0))
+    assert rf.beams[0].background_hz is None
+    assert "a background rate (bckgrd_atlas holds 0 rows)" in rf.missing_line()
+    rf = real.read_product(_atl03(tmp_path / "ATL03_e.h5", drop=[
+        "geolocation/reference_photon_lat", "geolocation/reference_photon_lon"]))
+    assert np.allclose(rf.beams[0].lat_deg, whole.lat_deg)
+    assert "each segment's first photon's lat_ph, lon_ph" in rf.missing_line()
+    nowhere = _atl03(tmp_path / "ATL03_f.h5", drop=[
+        "geolocation/reference_photon_lat", "geolocation/reference_photon_lon",
+        "heights/lat_ph", "heights/lon_ph"])
+    with pytest.raises(ParameterError, match=r"\(gt1l/geolocation gives no latitude and "
+                       r"longitude on two segments\)$"):
+        real.read_product(nowhere)
+    out = tmp_path / "out"
+    for p in tmp_path.glob("ATL03_[a-e].h5"):           # none stops the matrix
+        assert main(["validate", "--real", str(p), "--signal-shots", "0", "--out",
+                     str(out)]) == 0

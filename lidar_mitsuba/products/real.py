@@ -257,7 +257,7 @@ def read_product(path, *, beams: str = "all") -> RealFile:
             product = product_of(f, path)
             orient = sc_orient(f)
             missing = [] if orient is not None else ["orbit_info/sc_orient"]
-            out = []
+            out, unplaced = [], []
             for name in BEAM_NAMES:
                 if f"{name}/{PRODUCT_GROUPS[product]}" not in f:
                     continue
@@ -267,9 +267,14 @@ def read_product(path, *, beams: str = "all") -> RealFile:
                 b = READERS[product](f[name], name=name, spot=spot, strength=strength,
                                      strength_from=source)
                 if b is not None and b.n_segments >= 2:
-                    out.append(b)
+                    if _placed(b) >= 2:
+                        out.append(b)
+                    else:
+                        unplaced.append(name)
             release = release_of(f, path)
-            holds = _beam_holds(f, PRODUCT_GROUPS[product])
+            holds = (f"{unplaced[0]}/{PRODUCT_GROUPS[product]} gives no latitude and "
+                     "longitude on two segments" if unplaced
+                     else _beam_holds(f, PRODUCT_GROUPS[product]))
     except OSError as e:
         raise ParameterError("like", f"{path}: not an HDF5 file we can read "
                              f"({str(e).splitlines()[0]})") from None
@@ -294,6 +299,14 @@ def read_product(path, *, beams: str = "all") -> RealFile:
         missing.append("release (ancillary_data/release)")
     return RealFile(path=path, product=product, release=release, sc_orient=orient,
                     beams=out, missing=missing)
+
+
+def _placed(b: RealBeam) -> int:
+    """How many of a beam's segments have a time and a place."""
+    if b.lat_deg is None or b.lon_deg is None:
+        return 0
+    return int(np.count_nonzero(np.isfinite(b.delta_time_s) & np.isfinite(b.lat_deg)
+                                & np.isfinite(b.lon_deg)))
 
 
 def _wanted(name: str, strength: str, beams: str) -> bool:
@@ -349,19 +362,26 @@ def _atl03(g, **beam) -> RealBeam | None:
     t = _num(geo, "delta_time")
     if t is None or t.size < 2:
         return None
-    h, sig = segment_photons(g, geo)
+    h, sig, sig_why = segment_photons(g, geo)
     bg = g["bckgrd_atlas"] if "bckgrd_atlas" in g else None
-    b = RealBeam(**beam, delta_time_s=t, lat_deg=_num(geo, "reference_photon_lat"),
-                 lon_deg=_num(geo, "reference_photon_lon"), surface_h_m=h,
+    lat, lon = _num(geo, "reference_photon_lat"), _num(geo, "reference_photon_lon")
+    stand_ins = []
+    if (lat is None or lon is None) and np.isfinite(h).any():      # a subset of the photons'
+        lat, lon = (_first_photon(g, geo, k) for k in ("lat_ph", "lon_ph"))      # places
+        if lat is not None and lon is not None:
+            stand_ins.append("geolocation/reference_photon_lat, _lon (each segment's first "
+                             "photon's lat_ph, lon_ph)")
+    b = RealBeam(**beam, delta_time_s=t, lat_deg=lat, lon_deg=lon, surface_h_m=h,
                  altitude_m=_num(geo, "altitude_sc"),
                  solar_elevation_deg=_num(geo, "solar_elevation"),
                  solar_azimuth_deg=_num(geo, "solar_azimuth"), signal_per_shot=sig,
                  full_sat_fract=_num(geo, "full_sat_fract"),
                  near_sat_fract=_num(geo, "near_sat_fract"),
                  notes={"background": "bckgrd_atlas/bckgrd_rate (50-shot rows nearest each "
-                        "segment)", "signal": "signal_conf_ph >= 3 photons per pulse"})
-    if sig is None and "heights/signal_conf_ph" in g:
-        b.notes["signal_missing"] = "no photon of signal_conf_ph >= 3"
+                        "segment)", "signal": "signal_conf_ph >= 3 photons per pulse",
+                        **({"stand_ins": stand_ins} if stand_ins else {})})
+    if sig is None and sig_why is not None:
+        b.notes["signal_missing"] = sig_why
     e = _num(geo, "tx_pulse_energy")
     if e is not None and np.isfinite(e).any():
         b.pulse_energy_uj = e * 1e6
@@ -370,13 +390,18 @@ def _atl03(g, **beam) -> RealBeam | None:
         if st.ndim == 2 and st.shape[1] == len(SURF_TYPES):
             present = (st > 0).sum(axis=0) >= 0.5 * st.shape[0]
             b.surface = next((SURF_TYPES[i] for i in SURF_PRIORITY if present[i]), "unknown")
-    if bg is not None and "delta_time" in bg and "bckgrd_rate" in bg:
-        tb = _num(bg, "delta_time")
+    tb, rate = (_num(bg, "delta_time"), _num(bg, "bckgrd_rate")) if bg is not None \
+        else (None, None)
+    if tb is not None and rate is not None and (tb.size == 0 or rate.shape != tb.shape):
+        b.notes["background_hz_missing"] = (f"bckgrd_atlas holds {tb.size} rows" if tb.size == 0
+                                            else "bckgrd_atlas/bckgrd_rate does not fit its "
+                                            "delta_time")
+    elif tb is not None and rate is not None:
         k = np.clip(np.searchsorted(tb, t), 0, tb.size - 1)
-        b.background_hz = _num(bg, "bckgrd_rate")[k]
+        b.background_hz = rate[k]
         height, reduced = _num(bg, "bckgrd_int_height"), _num(bg, "bckgrd_int_height_reduced")
         top = _num(bg, "bckgrd_hist_top")
-        if height is not None and reduced is not None and top is not None:
+        if all(a is not None and a.shape == tb.shape for a in (height, reduced, top)):
             b.band_height_m = reduced[k]
             b.signal_span_m = np.maximum(height[k] - reduced[k], 0.0)
             if np.isfinite(h).any():
@@ -385,23 +410,41 @@ def _atl03(g, **beam) -> RealBeam | None:
     return b
 
 
-def segment_photons(g, geo) -> tuple[np.ndarray, np.ndarray | None]:
+def segment_photons(g, geo) -> tuple[np.ndarray, np.ndarray | None, str | None]:
     """Each ATL03 segment's median height of its photons of the file's highest confidence
-    (4; 3 or 2 in a file that has none higher) [m] (NaN when none) and its signal photons
+    (4; 3 or 2 in a file that has none higher) [m] (NaN when none), its signal photons
     (``signal_conf_ph >= 3``) per pulse (NaN for segments of fewer than 10 pulses; None
-    without photon ids or without a photon of confidence 3 or more in the beam: a rate of 0
-    would read a subset's missing confidences as no signal)."""
+    without photon ids, without the confidences, or without a photon of confidence 3 or more
+    in the beam: a rate of 0 would read a subset's missing confidences as no signal, and
+    every photon taken as signal would count the background) and why the rate is None (or
+    None). Photons that do not fit their index (a subset that cut ``heights`` and not
+    ``geolocation``, or one ``heights`` dataset and not the others) are not read."""
+    n_seg = geo["delta_time"].shape[0]
     if "segment_ph_cnt" not in geo or "ph_index_beg" not in geo or "heights/h_ph" not in g:
-        return np.full(geo["delta_time"].shape[0], np.nan), None     # photons dropped
-    cnt = geo["segment_ph_cnt"][()].astype(np.int64)
-    beg = geo["ph_index_beg"][()].astype(np.int64) - 1
+        return np.full(n_seg, np.nan), None, None                    # photons dropped
+    cnt = geo["segment_ph_cnt"][()].astype(np.int64).ravel()
+    beg = geo["ph_index_beg"][()].astype(np.int64).ravel() - 1
     h_out = np.full(cnt.size, np.nan)
-    h = g["heights/h_ph"][()]
-    conf = g["heights/signal_conf_ph"][()].max(axis=1) if "heights/signal_conf_ph" in g \
-        else np.full(h.size, 4)
+    h = g["heights/h_ph"][()].ravel()
+    per_photon = [k for k in ("heights/signal_conf_ph", "heights/pce_mframe_cnt",
+                              "heights/ph_id_pulse") if k in g]
+    used = (cnt > 0) & (beg >= 0)
+    if (cnt.size != n_seg or beg.size != n_seg
+            or any(g[k].shape[0] != h.size for k in per_photon)
+            or (used.any() and int((beg + cnt)[used].max()) > h.size)):
+        return np.full(n_seg, np.nan), None, (
+            f"heights/h_ph ({h.size} photons) does not fit geolocation/ph_index_beg, "
+            "segment_ph_cnt" + (f" or {', '.join(k.split('/')[1] for k in per_photon)}"
+                                if per_photon else ""))
+    if "heights/signal_conf_ph" in g:
+        c = g["heights/signal_conf_ph"][()]
+        conf = c.max(axis=1) if c.ndim == 2 else c
+        why = None
+    else:                                  # every photon a segment's height; none a signal
+        conf, why = np.full(h.size, 4), "no heights/signal_conf_ph"
     top = max(int(conf.max()) if conf.size else 4, 2)
     has_ids = ("heights/pce_mframe_cnt" in g and "heights/ph_id_pulse" in g
-               and top >= 3)                      # none of medium confidence: no signal read
+               and top >= 3 and why is None)  # none of medium confidence: no signal read
     pulse = (g["heights/pce_mframe_cnt"][()].astype(np.int64) * 200
              + g["heights/ph_id_pulse"][()].astype(np.int64)) if has_ids else None
     rate = np.full(cnt.size, np.nan)
@@ -417,7 +460,25 @@ def segment_photons(g, geo) -> tuple[np.ndarray, np.ndarray | None]:
             shots = int(p.max() - p.min() + 1)
             if shots >= 10:
                 rate[k] = np.count_nonzero(cs >= 3) / shots
-    return h_out, (rate if pulse is not None else None)
+    if pulse is None and why is None and "heights/signal_conf_ph" in g and top < 3:
+        why = "no photon of signal_conf_ph >= 3"
+    return h_out, (rate if pulse is not None else None), why
+
+
+def _first_photon(g, geo, key: str) -> np.ndarray | None:
+    """``heights/<key>`` at each ATL03 segment's first photon (NaN where it has none), or
+    None where the photons or their index are not there or do not fit."""
+    if f"heights/{key}" not in g or "ph_index_beg" not in geo or "segment_ph_cnt" not in geo:
+        return None
+    a = _num(g["heights"], key).ravel()
+    beg = geo["ph_index_beg"][()].astype(np.int64).ravel() - 1
+    cnt = geo["segment_ph_cnt"][()].astype(np.int64).ravel()
+    ok = (beg >= 0) & (cnt > 0) & (beg < a.size)
+    if beg.size != geo["delta_time"].shape[0] or not ok.any():
+        return None
+    out = np.full(beg.size, np.nan)
+    out[ok] = a[beg[ok]]
+    return out
 
 
 def _flag_clear(asr_ok, flag_asr, flag_atm) -> np.ndarray | None:

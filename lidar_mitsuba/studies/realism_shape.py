@@ -36,8 +36,8 @@ def atl03_shape(path, beam: str) -> dict:
     from ..products.atl03.rates import atl03_rates
     try:
         r = atl03_rates(path, beam)
-    except KeyError:
-        return {}
+    except (KeyError, IndexError, ValueError):    # photons dropped, or not fitting their
+        return {}                                 # index (the file's line says which)
     res = np.asarray(r["residuals_m"])
     return shape_stats(res)
 
