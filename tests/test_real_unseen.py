@@ -247,6 +247,11 @@ def test_a_stand_in_for_a_dropped_dataset_is_said(tmp_path):
     import h5py
     p = _atl06_dem(tmp_path / "ATL06_x_001_01.h5", flag=4, dem_h=1200.0)
     assert "dem/dem_flag" not in real.read_product(p).missing_line()
+    with h5py.File(p, "a") as f:                  # a conversion that kept no attributes
+        for name in ("gt1l", "gt1r"):
+            del f[f"{name}/land_ice_segments/dem/dem_flag"].attrs["flag_meanings"]
+    assert "dem/dem_flag's flag_meanings (the surface taken as land ice" in \
+        real.read_product(p).missing_line()
     with h5py.File(p, "a") as f:
         for name in ("gt1l", "gt1r"):
             del f[f"{name}/land_ice_segments/dem"]

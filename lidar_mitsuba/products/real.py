@@ -515,11 +515,11 @@ def _atl06(g, **beam) -> RealBeam | None:
         q = _num(s, "atl06_quality_summary")
         if q is not None:
             sig = np.where(q == 0, sig, np.nan)
-    from .real_surface import dem_surface
+    from .real_surface import dem_said, dem_surface
     surface = dem_surface(s)
-    stand_ins = [] if "dem/dem_flag" in s else [
-        "dem/dem_flag (the surface taken as land ice, where ATL06 is made; r_eff held "
-        "against snow's)"]
+    stand_ins = [] if dem_said(s) else [
+        ("dem/dem_flag" if "dem/dem_flag" not in s else "dem/dem_flag's flag_meanings")
+        + " (the surface taken as land ice, where ATL06 is made; r_eff held against snow's)"]
     r_eff = _num(gp, "r_eff") if surface == "land ice" else None     # held against snow's
     clear = _flag_clear(None if r_eff is None
                         else r_eff >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE,

@@ -42,3 +42,15 @@ def dem_surface(s) -> str:
         if dh.size and np.median(np.abs(dh)) < SEA_LEVEL_M:
             return "ocean"
     return surface
+
+
+def dem_said(s) -> bool:
+    """Whether an ATL06 beam's ``land_ice_segments`` says its DEM: ``dem/dem_flag`` with its
+    own ``flag_meanings`` (a subset can drop the group, a conversion the attributes; then
+    :func:`dem_surface` takes land ice)."""
+    if "dem" not in s or "dem_flag" not in s["dem"]:
+        return False
+    d = s["dem"]["dem_flag"]
+    meanings = text(d.attrs.get("flag_meanings", "")).split()
+    values = np.asarray(d.attrs.get("flag_values", np.arange(len(meanings)))).ravel()
+    return bool(meanings) and len(meanings) == values.size
