@@ -399,3 +399,31 @@ def test_an_atl03_subset_reads_what_its_photons_can_say(tmp_path):
     for p in tmp_path.glob("ATL03_[a-e].h5"):           # none stops the matrix
         assert main(["validate", "--real", str(p), "--signal-shots", "0", "--out",
                      str(out)]) == 0
+
+
+def test_a_segment_product_without_its_heights_reads_the_rest(tmp_path):
+    """An ATL06 variable subset without ``h_li`` stopped the matrix with a TypeError (its
+    heights None where ATL07's and ATL08's stand as NaN), now 'surface heights' is said; an
+    ATL07 without ``heights/height_segment_type`` reads ``photon_rate`` on every segment
+    (leads too: Baffin's low-sun gt1r 2.58 photons a shot against 2.10 on snow-covered
+    ice), said."""
+    import h5py
+    p = _atl06_dem(tmp_path / "ATL06_x_005_01.h5", flag=4, dem_h=1200.0)
+    with h5py.File(p, "a") as f:
+        for name in ("gt1l", "gt1r"):
+            del f[f"{name}/land_ice_segments/h_li"]
+            f[f"{name}/land_ice_segments/geophysical/bckgrd"] = np.full(8, 1.0e5, np.float32)
+    assert "surface heights" in real.read_product(p).missing_line()
+    assert main(["validate", "--real", str(p), "--signal-shots", "0",
+                 "--out", str(tmp_path / "out")]) == 0
+    q = tmp_path / "ATL07-01_x_003_02.h5"
+    with h5py.File(q, "w") as f:
+        for name, kind in (("gt1l", "strong"), ("gt1r", "weak")):
+            f.create_group(name).attrs["atlas_beam_type"] = kind
+            s = f.create_group(f"{name}/sea_ice_segments")
+            s["delta_time"] = 3.5e7 + np.arange(6) * 0.01
+            s["latitude"] = np.full(6, 69.4)
+            s["longitude"] = np.full(6, -60.0)
+            s["stats/photon_rate"] = np.full(6, 8.0 if kind == "strong" else 2.0, np.float32)
+    assert "heights/height_segment_type (the signal's photon_rate on every segment" in \
+        real.read_product(q).missing_line()

@@ -524,8 +524,10 @@ def _atl06(g, **beam) -> RealBeam | None:
     clear = _flag_clear(None if r_eff is None
                         else r_eff >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE,
                         _num(gp, "cloud_flg_asr"), _num(gp, "cloud_flg_atm"))
+    h = _num(s, "h_li")
     return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),
-                    lon_deg=_num(s, "longitude"), surface_h_m=_num(s, "h_li"),
+                    lon_deg=_num(s, "longitude"),
+                    surface_h_m=h if h is not None else np.full(t.size, np.nan),
                     solar_elevation_deg=_num(gp, "solar_elevation"),
                     solar_azimuth_deg=_num(gp, "solar_azimuth"), background_hz=bg,
                     signal_per_shot=sig, clear=clear, reflectance=r_eff,
@@ -566,6 +568,9 @@ def _atl07(g, **beam) -> RealBeam | None:
     kind = _num(hts, "height_segment_type")
     if rate is not None and kind is not None:
         rate = np.where(kind == 1, rate, np.nan)
+    elif rate is not None:                             # leads and cloud-covered ones too
+        stand_ins.append("heights/height_segment_type (the signal's photon_rate on every "
+                         "segment, not snow-covered ice's alone)")
     asr = _num(st, "asr_25")
     clear = _flag_clear(None if asr is None
                         else asr >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE,
