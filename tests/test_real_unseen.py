@@ -427,3 +427,26 @@ def test_a_segment_product_without_its_heights_reads_the_rest(tmp_path):
             s["stats/photon_rate"] = np.full(6, 8.0 if kind == "strong" else 2.0, np.float32)
     assert "heights/height_segment_type (the signal's photon_rate on every segment" in \
         real.read_product(q).missing_line()
+
+
+def test_an_atl06_signal_with_its_window_background_left_in_says_so(tmp_path):
+    """An ATL06 subset with ``fit_statistics`` but without ``geophysical/bckgrd`` (or the
+    window ``w_surface_window_final``) reads its signal with the window's background left
+    in (by day ~0.06-0.6 photons a pulse), said; with both, nothing said."""
+    import h5py
+    p = _atl06_dem(tmp_path / "ATL06_x_005_01.h5", flag=4, dem_h=1200.0)
+    with h5py.File(p, "a") as f:
+        for name in ("gt1l", "gt1r"):
+            s = f[f"{name}/land_ice_segments"]
+            s["fit_statistics/n_fit_photons"] = np.full(8, 200, np.int32)
+            s["fit_statistics/n_seg_pulses"] = np.full(8, 57.0, np.float32)
+            s["fit_statistics/w_surface_window_final"] = np.full(8, 30.0, np.float32)
+    line = real.read_product(p).missing_line()
+    assert "geophysical/bckgrd (the fitted photons' background not taken off" in line
+    with h5py.File(p, "a") as f:
+        for name in ("gt1l", "gt1r"):
+            f[f"{name}/land_ice_segments/geophysical/bckgrd"] = np.full(8, 3.0e6, np.float32)
+    rf = real.read_product(p)
+    assert "not taken off" not in rf.missing_line()
+    assert rf.beams[0].signal_per_shot[0] == pytest.approx(200 / 57 - 3.0e6 * 60 / 2.998e8,
+                                                           rel=1e-3)

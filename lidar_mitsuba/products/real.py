@@ -506,10 +506,15 @@ def _atl06(g, **beam) -> RealBeam | None:
     bg = _num(gp, "bckgrd")
     n_fit, n_pulses, w = (_num(fs, k) for k in ("n_fit_photons", "n_seg_pulses",
                                                 "w_surface_window_final"))
-    sig = None
+    sig, stand_ins = None, []
     if n_fit is not None and n_pulses is not None:
         noise = (bg * w * 2.0 / (C_M_PER_NS * 1e9) * n_pulses
                  if bg is not None and w is not None else 0.0)
+        if bg is None or w is None:                    # the window's noise left in
+            gone = ("geophysical/bckgrd" if bg is None
+                    else "fit_statistics/w_surface_window_final")
+            stand_ins.append(f"{gone} (the fitted photons' background not taken off the "
+                             "signal)")
         sig = np.where(n_pulses > 0, (n_fit - noise) / np.where(n_pulses > 0, n_pulses, 1),
                        np.nan)
         q = _num(s, "atl06_quality_summary")
@@ -517,7 +522,7 @@ def _atl06(g, **beam) -> RealBeam | None:
             sig = np.where(q == 0, sig, np.nan)
     from .real_surface import dem_said, dem_surface
     surface = dem_surface(s)
-    stand_ins = [] if dem_said(s) else [
+    stand_ins += [] if dem_said(s) else [
         ("dem/dem_flag" if "dem/dem_flag" not in s else "dem/dem_flag's flag_meanings")
         + " (the surface taken as land ice, where ATL06 is made; r_eff held against snow's)"]
     r_eff = _num(gp, "r_eff") if surface == "land ice" else None     # held against snow's
