@@ -450,3 +450,20 @@ def test_an_atl06_signal_with_its_window_background_left_in_says_so(tmp_path):
     assert "not taken off" not in rf.missing_line()
     assert rf.beams[0].signal_per_shot[0] == pytest.approx(200 / 57 - 3.0e6 * 60 / 2.998e8,
                                                            rel=1e-3)
+
+
+def test_a_file_of_flattened_group_names_says_so_in_its_line(tmp_path):
+    """OPeNDAP's CF option and netCDF conversions flatten the beam groups into dataset
+    names (``gt1l_land_ice_segments_h_li``; NSIDC's OPeNDAP ATL13 requests name
+    ``/gt3r_segment_...``): the line says so, not only what the file holds, and names the
+    product from the flattened names where the file's name does not."""
+    import h5py
+    p = tmp_path / "granule_subset.nc4"
+    with h5py.File(p, "w") as f:
+        f["gt1l_land_ice_segments_h_li"] = np.zeros(4, np.float32)
+        f["gt1l_land_ice_segments_delta_time"] = np.zeros(4)
+        f["orbit_info_sc_orient"] = np.zeros(1, np.int8)
+    with pytest.raises(ParameterError, match=r"granule_subset.nc4: no beam group .* "
+                       r"land_ice_segments segments \(its groups are flattened into names "
+                       r"\(gt1l_land_ice_segments_delta_time, ...: an OPeNDAP"):
+        real.read_product(p)

@@ -166,14 +166,19 @@ def sc_orient(f) -> int | None:
 
 def product_of(f, path: pathlib.Path) -> str:
     """The product: from the beam groups' contents (a subset keeps those), else the name."""
+    import h5py
     for name in BEAM_NAMES:
-        if name not in f:
+        if name not in f or not isinstance(f[name], h5py.Group):
             continue
         if "heights" in f[name] or f"{name}/geolocation/reference_photon_lat" in f:
             return "ATL03"
         for product, group in PRODUCT_GROUPS.items():
             if product != "ATL03" and group in f[name]:
                 return product
+    flat = _flattened(f)
+    for product, group in PRODUCT_GROUPS.items():
+        if flat and any(k[5:].startswith(group) for k in f.keys()):
+            return product                   # read_product says why it cannot read them
     m = re.search(r"ATL0[3678]", path.name.upper())
     if m:
         return m.group(0)
@@ -184,6 +189,16 @@ def product_of(f, path: pathlib.Path) -> str:
                              "and ATL08)")
     raise ParameterError("like", f"{path}: not an ICESat-2 ATL03, ATL06, ATL07 or ATL08 file "
                          f"(it holds {_holds(f)})")
+
+
+def _flattened(f) -> str | None:
+    """The words for a file whose beam groups were flattened into dataset names
+    (``gt1l_land_ice_segments_h_li``: OPeNDAP's CF option, a netCDF conversion), or None."""
+    flat = sorted(k for k in f.keys() if re.match(r"gt[123][lr]_", k))
+    if not flat:
+        return None
+    return (f"its groups are flattened into names ({flat[0]}, ...: an OPeNDAP or netCDF "
+            "conversion); only the groups NASA writes (gt1l/land_ice_segments/h_li) are read")
 
 
 def _holds(f) -> str:
@@ -200,7 +215,7 @@ def _beam_holds(f, group: str) -> str:
     import h5py
     names = [n for n in BEAM_NAMES if n in f and isinstance(f[n], h5py.Group)]
     if not names:
-        return f"it holds {_holds(f)}"
+        return _flattened(f) or f"it holds {_holds(f)}"
     name = next((n for n in names if len(f[n])), names[0])     # an empty group last
     g = f[name]
     if group not in g or not isinstance(g[group], h5py.Group):
