@@ -467,3 +467,25 @@ def test_a_file_of_flattened_group_names_says_so_in_its_line(tmp_path):
                        r"land_ice_segments segments \(its groups are flattened into names "
                        r"\(gt1l_land_ice_segments_delta_time, ...: an OPeNDAP"):
         real.read_product(p)
+
+
+def test_an_integer_flag_at_its_fill_value_is_missing_not_cloudy(tmp_path):
+    """ICESat-2's int8 datasets fill with 127 (ATL07's ``bsnow_con`` on 287 of 882 Baffin
+    segments): a cloud flag at its ``_FillValue`` (no ATL09 there) was read as 127, 'cloudy'
+    (127 > 2) and 127 layers; now it is missing and does not vote."""
+    import h5py
+    from lidar_mitsuba.studies.realism_inputs import layer_count
+    p = _atl06_dem(tmp_path / "ATL06_x_209_01.h5", flag=2, dem_h=250.0)     # land: flags only
+    with h5py.File(p, "a") as f:
+        for name in ("gt1l", "gt1r"):
+            gp = f[f"{name}/land_ice_segments/geophysical"]
+            for key, v in (("cloud_flg_asr", 1), ("cloud_flg_atm", 0)):
+                del gp[key]
+                a = np.full(8, v, np.int8)
+                a[:3] = 127
+                a[6:] = 4 if key == "cloud_flg_asr" else 2       # two cloudy segments
+                gp.create_dataset(key, data=a, fillvalue=127)
+                gp[key].attrs["_FillValue"] = np.int8(127)
+    b = real.read_product(p).beams[0]
+    assert b.clear.tolist() == [True] * 6 + [False] * 2
+    assert np.isnan(b.layer_count[:3]).all() and layer_count(b) == 2

@@ -138,13 +138,17 @@ def text(value) -> str:
 
 
 def _num(g, key: str) -> np.ndarray | None:
-    """Dataset ``key`` of group ``g`` as float64 with fill values (> 1e30, int32 max) NaN;
+    """Dataset ``key`` of group ``g`` as float64 with fill values (> 1e30, int32 max, an
+    integer dataset's own ``_FillValue``: ATL07's int8 ``bsnow_con`` fills with 127) NaN;
     None when absent."""
     if key not in g:
         return None
     a = np.asarray(g[key][()])
     if a.dtype.kind in "iu":
         bad = a >= np.iinfo(np.int32).max if a.dtype.itemsize >= 4 else np.zeros(a.shape, bool)
+        fill = getattr(g[key], "attrs", {}).get("_FillValue")
+        if fill is not None and np.asarray(fill).size == 1:
+            bad |= a == np.asarray(fill).ravel()[0]
         a = a.astype(np.float64)
         a[bad] = np.nan
         return a
@@ -498,10 +502,12 @@ def _first_photon(g, geo, key: str) -> np.ndarray | None:
 
 def _flag_clear(asr_ok, flag_asr, flag_atm) -> np.ndarray | None:
     """Clear where every flag given says so: ASR-based flag <= 2 (clear, any confidence),
-    no layer found by the atmospheric profile, apparent reflectance high enough."""
+    no layer found by the atmospheric profile, apparent reflectance high enough. A flag at
+    its fill value (NaN) does not say cloudy: it does not vote."""
     parts = [p for p in (asr_ok,
-                         None if flag_asr is None else flag_asr <= 2,
-                         None if flag_atm is None else flag_atm == 0) if p is not None]
+                         None if flag_asr is None else (flag_asr <= 2) | np.isnan(flag_asr),
+                         None if flag_atm is None else (flag_atm == 0) | np.isnan(flag_atm))
+             if p is not None]
     if not parts:
         return None
     return np.logical_and.reduce(parts)
