@@ -308,6 +308,7 @@ def test_a_folder_gives_its_netcdf4_named_icesat2_files_too(tmp_path):
     assert main(["validate", "--real", str(tmp_path), "--signal-shots", "0",
                  "--out", str(out)]) == 0
     assert f"{nc.name} (ATL08)" in (out / "realism.md").read_text()
+    assert real.read_product(nc).release == "004"           # from the name, as for .h5
     empty = tmp_path / "empty"
     empty.mkdir()
     with pytest.raises(ParameterError, match=r"no HDF5 file \(.h5, .hdf5, .he5, .nc, .nc4\)"):
