@@ -490,3 +490,19 @@ def test_an_integer_flag_at_its_fill_value_is_missing_not_cloudy(tmp_path):
     b = real.read_product(p).beams[0]
     assert b.clear.tolist() == [True] * 6 + [False] * 2
     assert np.isnan(b.layer_count[:3]).all() and layer_count(b) == 2
+
+
+def test_an_atl08_without_its_canopy_rate_says_its_signal_is_the_terrains(tmp_path):
+    """An ATL08 subset that kept ``terrain`` and dropped ``canopy`` (nsidc-icesat2gis's
+    earlier test_atl08.h5 kept canopy heights only; a variable subset can do the reverse)
+    reads its signal from the terrain's photons alone, said: a forest's canopy photons
+    would be missing from it silently."""
+    import h5py
+    p = _atl08(tmp_path / "ATL08_x.h5")
+    assert "photon_rate_can" not in real.read_product(p).missing_line()
+    with h5py.File(p, "a") as f:
+        for name in ("gt1l", "gt1r"):
+            del f[f"{name}/land_segments/canopy"]
+    assert "canopy/photon_rate_can (the signal the terrain's photons alone)" in \
+        real.read_product(p).missing_line()
+

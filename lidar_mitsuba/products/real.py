@@ -631,6 +631,8 @@ def _atl08(g, **beam) -> RealBeam | None:
     can = s["canopy"] if "canopy" in s else {}
     te, cn = _num(ter, "photon_rate_te"), _num(can, "photon_rate_can")
     sig = None if te is None else te + (np.nan_to_num(cn) if cn is not None else 0.0)
+    stand_ins = ["canopy/photon_rate_can (the signal the terrain's photons alone)"] \
+        if te is not None and cn is None else []
     h = _num(ter, "h_te_best_fit")
     return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),
                     lon_deg=_num(s, "longitude"),
@@ -639,7 +641,8 @@ def _atl08(g, **beam) -> RealBeam | None:
                     solar_azimuth_deg=_num(s, "solar_azimuth"), signal_per_shot=sig,
                     clear=_flag_clear(None, None, _num(s, "cloud_flag_atm")), surface="land",
                     notes={"signal": "photon_rate_te + photon_rate_can",
-                           "clear": "cloud_flag_atm == 0"})
+                           "clear": "cloud_flag_atm == 0",
+                           **({"stand_ins": stand_ins} if stand_ins else {})})
 
 
 READERS = {"ATL03": _atl03, "ATL06": _atl06, "ATL07": _atl07, "ATL08": _atl08}
