@@ -506,3 +506,25 @@ def test_an_atl08_without_its_canopy_rate_says_its_signal_is_the_terrains(tmp_pa
     assert "canopy/photon_rate_can (the signal the terrain's photons alone)" in \
         real.read_product(p).missing_line()
 
+
+
+def test_two_clip_pairs_of_one_name_each_get_their_own_forest_twin(tmp_path, monkeypatch):
+    """ICESat2VegR's Saskatchewan and Wyoming clips are both ``atl03_clip.h5`` +
+    ``atl08_clip.h5`` (two versions of the package): run from two folders, both pairs' rows
+    took the last twin (the forest rows were keyed by file name: Saskatchewan judged against
+    Wyoming's 6.0 m stand, 1158 shots); now each pair's rows take their own."""
+    from lidar_mitsuba.studies import forest_twin
+    folders = [tmp_path / "sk", tmp_path / "wy"]
+    for d in folders:
+        d.mkdir()
+        for n in ("atl03_clip.h5", "atl08_clip.h5"):
+            (d / n).write_bytes(b"")
+    monkeypatch.setattr(forest_twin, "twins", lambda paths, **kw: [
+        {"beam": "gt1r", "site": pathlib.Path(paths[0]).parent.name}])
+    docs, by_row, paired = realism._forest_twins(folders, signal_shots=1, seed=0,
+                                                 progress=None)
+    assert [d["site"] for d in docs] == ["sk", "wy"]
+    for d in folders:
+        for n in ("atl03_clip.h5", "atl08_clip.h5"):
+            assert by_row[(str((d / n).resolve()), "gt1r")]["site"] == d.name
+            assert str((d / n).resolve()) in paired

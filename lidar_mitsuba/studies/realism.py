@@ -555,7 +555,7 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
             if tg is not None and rb.name not in {b.beam.name for b in tg.beams}:
                 continue                          # no two segments in a row: no shots
             sky = cloud if cloud is not None else implied[rb.name]
-            fdoc = forest.get((path.name, rb.name))
+            fdoc = forest.get((_whole(path), rb.name))
             fp = None if fdoc is None else realism_forest.prediction(fdoc, rf.product)
             alts = [] if cloud is not None else cloud_alternatives(
                 rb, sky, product=rf.product, band_top_m=band_top_m(rb), flags=flags[rb.name])
@@ -571,7 +571,7 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
                 row["measured"]["signal_forest"] = fp["signal_measured"]
             elif row["predicted"]["surface_missing"]:
                 row["predicted"]["missing"] = realism_forest.missing(
-                    signal_shots=signal_shots, paired=path.name in paired)
+                    signal_shots=signal_shots, paired=_whole(path) in paired)
             row["verdict"], row["reason"] = verdict(row)
             shape = (None if row["predicted"]["surface_missing"] else
                      shape_verdict(row["measured"], row["predicted"]))
@@ -600,15 +600,27 @@ def _forest_twins(paths, *, signal_shots: int, seed: int, progress):
     """``(docs, by_row, paired)``: the forest twins of the ATL03 + ATL08 forest pairs among
     ``paths`` (:func:`~lidar_mitsuba.studies.forest_twin.twins`, every shot of the clip, seed
     ``seed + 1``; none with ``signal_shots`` 0), the docs by the matrix rows they judge
-    (:func:`~lidar_mitsuba.studies.realism_forest.by_row`), and the names of the files in a
-    pair."""
-    from . import forest_twin, realism_forest
+    (``(file, beam)``, the file by its whole path: two clips of one name in two folders are
+    two pairs), and the files in a pair (their whole paths)."""
+    from . import forest_twin
     from .atl08_real import pairs
-    paired = {pathlib.Path(f).name for pair in pairs(paths) for f in pair}
-    if signal_shots <= 0 or not paired:
+    found = pairs(paths)
+    paired = {_whole(f) for pair in found for f in pair}
+    if signal_shots <= 0 or not found:
         return [], {}, paired
-    docs = forest_twin.twins(paths, seed=seed + 1, progress=progress)
-    return docs, realism_forest.by_row(docs), paired
+    docs, by_row = [], {}
+    for a03, a08 in found:
+        twins = forest_twin.twins([a08], seed=seed + 1, progress=progress)
+        docs += twins
+        for d in twins:
+            for f in (a03, a08):
+                by_row[(_whole(f), d["beam"])] = d
+    return docs, by_row, paired
+
+
+def _whole(path) -> str:
+    """A file's whole path, as the forest rows are keyed."""
+    return str(pathlib.Path(path).resolve())
 
 
 def format_row(r: dict) -> str:
