@@ -107,6 +107,10 @@ class RealBeam:
     surface: str = "unknown"
     notes: dict = field(default_factory=dict)
 
+    def __post_init__(self):
+        if self.surface_h_m is None:         # (a subset that dropped the heights: NaN, and
+            self.surface_h_m = np.full(np.shape(self.delta_time_s), np.nan)  # said so)
+
     @property
     def n_segments(self) -> int:
         return int(self.delta_time_s.size)
@@ -138,18 +142,22 @@ def text(value) -> str:
 
 
 def _num(g, key: str) -> np.ndarray | None:
-    """Dataset ``key`` of group ``g`` as float64 with fill values (> 1e30, int32 max) NaN;
-    None when absent."""
+    """Dataset ``key`` of group ``g`` as float64 with fill values NaN (its ``_FillValue``;
+    beyond 1e30 or at int32's maximum where it has none); None when absent."""
     if key not in g:
         return None
     a = np.asarray(g[key][()])
+    fill = getattr(g[key], "attrs", {}).get("_FillValue")
+    fill = None if fill is None or np.size(fill) != 1 else np.asarray(fill).ravel()[0]
+    own = (a == fill) if (fill is not None and fill != 0 and a.dtype.kind in "iuf") else False
+    # (a fill of 0 would take every zero: ICESat-2's are their types' extremes)
     if a.dtype.kind in "iu":
         bad = a >= np.iinfo(np.int32).max if a.dtype.itemsize >= 4 else np.zeros(a.shape, bool)
         a = a.astype(np.float64)
-        a[bad] = np.nan
+        a[bad | own] = np.nan
         return a
     a = a.astype(np.float64)
-    a[np.abs(a) > 1e30] = np.nan
+    a[(np.abs(a) > 1e30) | own] = np.nan
     return a
 
 
@@ -179,6 +187,8 @@ def product_of(f, path: pathlib.Path) -> str:
         return m.group(0)
     named = text(f.attrs.get("short_name", "")) or next(iter(re.findall(r"ATL\d\d",
                                                                       path.name.upper())), "")
+    if named in PRODUCT_GROUPS:        # (one of ours whose segment groups a subset dropped)
+        return named
     if named:
         raise ParameterError("like", f"{path}: {named} is not read (only ATL03, ATL06, ATL07 "
                              "and ATL08)")
@@ -239,7 +249,7 @@ def read_product(path, *, beams: str = "all") -> RealFile:
             product = product_of(f, path)
             orient = sc_orient(f)
             missing = [] if orient is not None else ["orbit_info/sc_orient"]
-            out = []
+            out, unplaced = [], []
             for name in BEAM_NAMES:
                 if f"{name}/{PRODUCT_GROUPS[product]}" not in f:
                     continue
@@ -249,7 +259,11 @@ def read_product(path, *, beams: str = "all") -> RealFile:
                 b = READERS[product](f[name], name=name, spot=spot, strength=strength,
                                      strength_from=source)
                 if b is not None and b.n_segments >= 2:
-                    out.append(b)
+                    why = _unplaced(b, product)
+                    if why:             # (a beam with no time or place cannot be twinned)
+                        unplaced.append((name, why))
+                    else:
+                        out.append(b)
             release = release_of(f, path)
             holds = _holds(f)
     except OSError as e:
@@ -269,13 +283,43 @@ def read_product(path, *, beams: str = "all") -> RealFile:
     if not out:
         raise ParameterError("like", f"{path}: no beam group (gt1l-gt3r) with two "
                              f"{PRODUCT_GROUPS[product]} segments"
-                             + (f" (it holds {holds})" if beams == "all"
+                             + (f" with a time and place ({_reasons(unplaced)})" if unplaced
+                                else f" (it holds {holds})" if beams == "all"
                                 else f" among {beams!r}"))
     missing += _missing(out, product)
     if release is None:
         missing.append("release (ancillary_data/release)")
     return RealFile(path=path, product=product, release=release, sc_orient=orient,
                     beams=out, missing=missing)
+
+
+PLACE_DATASETS = {"ATL03": ("geolocation/delta_time", "geolocation/reference_photon_lat",
+                              "geolocation/reference_photon_lon")}
+"""Where a product gives each segment's time and place (the others: their segment group's
+``delta_time``, ``latitude``, ``longitude``)."""
+
+
+def _reasons(named: list[tuple[str, str]]) -> str:
+    """``[(beam, why), ...]`` as one phrase: beams that share a reason named together."""
+    by: dict[str, list[str]] = {}
+    for name, why in named:
+        by.setdefault(why, []).append(name)
+    return "; ".join(f"{', '.join(names)}: {why}" for why, names in by.items())
+
+
+def _unplaced(b: RealBeam, product: str) -> str | None:
+    """Why a beam's segments cannot be placed (no or fewer than two segments with a finite
+    time, latitude and longitude: a subset that dropped them, or fill values), else None."""
+    names = PLACE_DATASETS.get(product, tuple(f"{PRODUCT_GROUPS[product]}/{k}" for k in
+                                              ("delta_time", "latitude", "longitude")))
+    arrays = (b.delta_time_s, b.lat_deg, b.lon_deg)
+    absent = [n for n, a in zip(names, arrays) if a is None]
+    if absent:
+        return f"no {', '.join(absent)}"
+    ok = np.isfinite(b.delta_time_s) & np.isfinite(b.lat_deg) & np.isfinite(b.lon_deg)
+    if int(ok.sum()) < 2:
+        return f"fewer than two segments with a finite {', '.join(names)}"
+    return None
 
 
 def _wanted(name: str, strength: str, beams: str) -> bool:
@@ -313,6 +357,8 @@ def _missing(beams: list[RealBeam], product: str) -> list[str]:
             out.append(words + (f" ({'; '.join(sorted(why))})" if why else ""))
     if all(not np.isfinite(b.surface_h_m).any() for b in beams):
         out.append("surface heights")
+    if product == "ATL03" and all(b.surface == "unknown" for b in beams):
+        out.append("surf_type (the surface: a flat plate of albedo 0.1)")
     bad = [b.name for b in beams if b.strength_from == "sc_orient"]
     if bad:
         out.append(f"atlas_beam_type on {', '.join(bad)} (strength from sc_orient)")
@@ -340,7 +386,12 @@ def _atl03(g, **beam) -> RealBeam | None:
                  near_sat_fract=_num(geo, "near_sat_fract"),
                  notes={"background": "bckgrd_atlas/bckgrd_rate (50-shot rows nearest each "
                         "segment)", "signal": "signal_conf_ph >= 3 photons per pulse"})
-    if sig is None and "heights/signal_conf_ph" in g:
+    if sig is None and "heights/h_ph" in g and not np.isfinite(h).any():
+        b.notes["signal_missing"] = "no segment's photons (ph_index_beg or h_ph hold fill)"
+    elif (sig is None and "heights/pce_mframe_cnt" in g and "heights/ph_id_pulse" in g
+            and photon_pulses(g) is None):
+        b.notes["signal_missing"] = "pce_mframe_cnt, ph_id_pulse hold fill"
+    elif sig is None and "heights/signal_conf_ph" in g:
         b.notes["signal_missing"] = "no photon of signal_conf_ph >= 3"
     e = _num(geo, "tx_pulse_energy")
     if e is not None and np.isfinite(e).any():
@@ -348,11 +399,16 @@ def _atl03(g, **beam) -> RealBeam | None:
     if "surf_type" in geo:
         st = np.asarray(geo["surf_type"][()])
         if st.ndim == 2 and st.shape[1] == len(SURF_TYPES):
-            present = (st > 0).sum(axis=0) >= 0.5 * st.shape[0]
+            present = (st == 1).sum(axis=0) >= 0.5 * st.shape[0]    # (fill is not 1)
             b.surface = next((SURF_TYPES[i] for i in SURF_PRIORITY if present[i]), "unknown")
+    rows = None
     if bg is not None and "delta_time" in bg and "bckgrd_rate" in bg:
-        tb = _num(bg, "delta_time")
-        k = np.clip(np.searchsorted(tb, t), 0, tb.size - 1)
+        rows = np.flatnonzero(np.isfinite(_num(bg, "delta_time")))    # (rows with a time)
+        if not rows.size:
+            b.notes["background_hz_missing"] = "bckgrd_atlas/delta_time holds fill"
+    if rows is not None and rows.size:
+        tb = _num(bg, "delta_time")[rows]
+        k = rows[np.clip(np.searchsorted(tb, t), 0, tb.size - 1)]
         b.background_hz = _num(bg, "bckgrd_rate")[k]
         height, reduced = _num(bg, "bckgrd_int_height"), _num(bg, "bckgrd_int_height_reduced")
         top = _num(bg, "bckgrd_hist_top")
@@ -376,20 +432,23 @@ def segment_photons(g, geo) -> tuple[np.ndarray, np.ndarray | None]:
     cnt = geo["segment_ph_cnt"][()].astype(np.int64)
     beg = geo["ph_index_beg"][()].astype(np.int64) - 1
     h_out = np.full(cnt.size, np.nan)
-    h = g["heights/h_ph"][()]
+    n_ph = g["heights/h_ph"].shape[0]
+    if not np.any((cnt > 0) & (beg >= 0) & (beg <= n_ph - cnt)):
+        return h_out, None                       # (every segment's photon index is fill)
+    h = _num(g, "heights/h_ph")                   # (fill values NaN)
     conf = g["heights/signal_conf_ph"][()].max(axis=1) if "heights/signal_conf_ph" in g \
         else np.full(h.size, 4)
     top = max(int(conf.max()) if conf.size else 4, 2)
     has_ids = ("heights/pce_mframe_cnt" in g and "heights/ph_id_pulse" in g
                and top >= 3)                      # none of medium confidence: no signal read
-    pulse = (g["heights/pce_mframe_cnt"][()].astype(np.int64) * 200
-             + g["heights/ph_id_pulse"][()].astype(np.int64)) if has_ids else None
+    pulse = photon_pulses(g) if has_ids else None     # (None where the ids are fill)
     rate = np.full(cnt.size, np.nan)
     for k, (b, c) in enumerate(zip(beg, cnt)):
-        if c <= 0 or b < 0:
+        if c <= 0 or b < 0 or b > h.size - c:      # (no photons, or an index that is fill)
             continue
         cs = conf[b:b + c]
         s = h[b:b + c][cs >= top]
+        s = s[np.isfinite(s)]
         if s.size:
             h_out[k] = np.median(s)
         if pulse is not None:
@@ -400,12 +459,32 @@ def segment_photons(g, geo) -> tuple[np.ndarray, np.ndarray | None]:
     return h_out, (rate if pulse is not None else None)
 
 
-def _flag_clear(asr_ok, flag_asr, flag_atm) -> np.ndarray | None:
-    """Clear where every flag given says so: ASR-based flag <= 2 (clear, any confidence),
-    no layer found by the atmospheric profile, apparent reflectance high enough."""
-    parts = [p for p in (asr_ok,
-                         None if flag_asr is None else flag_asr <= 2,
-                         None if flag_atm is None else flag_atm == 0) if p is not None]
+def photon_pulses(g) -> np.ndarray | None:
+    """Each ATL03 photon's pulse number ``pce_mframe_cnt * 200 + ph_id_pulse`` (int64), or
+    None where any id is not a pulse's (fill, or ``ph_id_pulse`` outside 1-200): a pulse
+    count read from them would be wrong."""
+    frame, pid = _num(g, "heights/pce_mframe_cnt"), _num(g, "heights/ph_id_pulse")
+    if frame is None or pid is None or not (np.isfinite(frame).all() and np.isfinite(pid).all()
+                                           and np.all((pid >= 1) & (pid <= 200))):
+        return None
+    return frame.astype(np.int64) * 200 + pid.astype(np.int64)
+
+
+def _flag_clear(reflectance, flag_asr, flag_atm) -> np.ndarray | None:
+    """Clear where every flag given says so: apparent reflectance high enough
+    (``reflectance`` >= :data:`CLEAR_TWO_WAY_TRANSMISSION` x :data:`SNOW_REFLECTANCE`; a
+    segment without one, no fit, counts as cloudy), ASR-based flag <= 2 (clear, any
+    confidence), no layer found by the atmospheric profile (a flag that is fill on a segment
+    says nothing there). A dataset that is fill everywhere counts as absent; None when none
+    is left."""
+    parts = []
+    for a, ok, fill_says_nothing in (
+            (reflectance, lambda v: v >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE, False),
+            (flag_asr, lambda v: v <= 2, True), (flag_atm, lambda v: v == 0, True)):
+        if a is None or not np.isfinite(a).any():
+            continue
+        with np.errstate(invalid="ignore"):
+            parts.append(np.where(np.isfinite(a), ok(a), fill_says_nothing))
     if not parts:
         return None
     return np.logical_and.reduce(parts)
@@ -437,9 +516,9 @@ def _atl06(g, **beam) -> RealBeam | None:
     from .real_surface import dem_surface
     surface = dem_surface(s)
     r_eff = _num(gp, "r_eff") if surface == "land ice" else None     # held against snow's
-    clear = _flag_clear(None if r_eff is None
-                        else r_eff >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE,
-                        _num(gp, "cloud_flg_asr"), _num(gp, "cloud_flg_atm"))
+    if r_eff is not None and not np.isfinite(r_eff).any():
+        r_eff = None                        # (fill everywhere: as absent)
+    clear = _flag_clear(r_eff, _num(gp, "cloud_flg_asr"), _num(gp, "cloud_flg_atm"))
     return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),
                     lon_deg=_num(s, "longitude"), surface_h_m=_num(s, "h_li"),
                     solar_elevation_deg=_num(gp, "solar_elevation"),
@@ -478,9 +557,9 @@ def _atl07(g, **beam) -> RealBeam | None:
     if rate is not None and kind is not None:
         rate = np.where(kind == 1, rate, np.nan)
     asr = _num(st, "asr_25")
-    clear = _flag_clear(None if asr is None
-                        else asr >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE,
-                        _num(st, "cloud_flag_asr"), _num(st, "cloud_flag_atm"))
+    if asr is not None and not np.isfinite(asr).any():
+        asr = None                          # (fill everywhere: as absent)
+    clear = _flag_clear(asr, _num(st, "cloud_flag_asr"), _num(st, "cloud_flag_atm"))
     band = _num(st, "background_int_height")
     conc = _num(st, "ice_conc")
     return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),
