@@ -393,8 +393,9 @@ def test_an_atl03_subset_reads_what_its_photons_can_say(tmp_path):
     nowhere = _atl03(tmp_path / "ATL03_f.h5", drop=[
         "geolocation/reference_photon_lat", "geolocation/reference_photon_lon",
         "heights/lat_ph", "heights/lon_ph"])
-    with pytest.raises(ParameterError, match=r"\(gt1l/geolocation gives no latitude and "
-                       r"longitude on two segments\)$"):
+    with pytest.raises(ParameterError, match=r"with a time and place \(gt1l: no geolocation/"
+                       r"reference_photon_lat \(or heights/lat_ph\), geolocation/"
+                       r"reference_photon_lon \(or heights/lon_ph\)\)$"):
         real.read_product(nowhere)
     out = tmp_path / "out"
     for p in tmp_path.glob("ATL03_[a-e].h5"):           # none stops the matrix

@@ -107,6 +107,10 @@ class RealBeam:
     surface: str = "unknown"
     notes: dict = field(default_factory=dict)
 
+    def __post_init__(self):
+        if self.surface_h_m is None:         # (a subset that dropped the heights: NaN, and
+            self.surface_h_m = np.full(np.shape(self.delta_time_s), np.nan)  # said so)
+
     @property
     def n_segments(self) -> int:
         return int(self.delta_time_s.size)
@@ -138,22 +142,26 @@ def text(value) -> str:
 
 
 def _num(g, key: str) -> np.ndarray | None:
-    """Dataset ``key`` of group ``g`` as float64 with fill values (> 1e30, int32 max, an
-    integer dataset's own ``_FillValue``: ATL07's int8 ``bsnow_con`` fills with 127) NaN;
-    None when absent."""
+    """Dataset ``key`` of group ``g`` as float64 with fill values NaN (its ``_FillValue``:
+    ATL07's int8 ``bsnow_con`` fills with 127; beyond 1e30 or at int32's maximum where it
+    has none); None when absent."""
     if key not in g:
         return None
     a = np.asarray(g[key][()])
+    fill = getattr(g[key], "attrs", {}).get("_FillValue")
+    fill = None if fill is None or np.size(fill) != 1 else np.asarray(fill).ravel()[0]
+    own = (a == fill) if (fill is not None and fill != 0 and a.dtype.kind in "iuf") else False
+    # (a fill of 0 would take every zero: ICESat-2's are their types' extremes)
     if a.dtype.kind in "iu":
         bad = a >= np.iinfo(np.int32).max if a.dtype.itemsize >= 4 else np.zeros(a.shape, bool)
         fill = getattr(g[key], "attrs", {}).get("_FillValue")
         if fill is not None and np.asarray(fill).size == 1:
             bad |= a == np.asarray(fill).ravel()[0]
         a = a.astype(np.float64)
-        a[bad] = np.nan
+        a[bad | own] = np.nan
         return a
     a = a.astype(np.float64)
-    a[np.abs(a) > 1e30] = np.nan
+    a[(np.abs(a) > 1e30) | own] = np.nan
     return a
 
 
@@ -188,6 +196,8 @@ def product_of(f, path: pathlib.Path) -> str:
         return m.group(0)
     named = text(f.attrs.get("short_name", "")) or next(iter(re.findall(r"ATL\d\d",
                                                                       path.name.upper())), "")
+    if named in PRODUCT_GROUPS:        # (one of ours whose segment groups a subset dropped)
+        return named
     if named:
         raise ParameterError("like", f"{path}: {named} is not read (only ATL03, ATL06, ATL07 "
                              "and ATL08)")
@@ -287,14 +297,13 @@ def read_product(path, *, beams: str = "all") -> RealFile:
                 b = READERS[product](f[name], name=name, spot=spot, strength=strength,
                                      strength_from=source)
                 if b is not None and b.n_segments >= 2:
-                    if _placed(b) >= 2:
-                        out.append(b)
+                    why = _unplaced(b, product)
+                    if why:             # (a beam with no time or place cannot be twinned)
+                        unplaced.append((name, why))
                     else:
-                        unplaced.append(name)
+                        out.append(b)
             release = release_of(f, path)
-            holds = (f"{unplaced[0]}/{PRODUCT_GROUPS[product]} gives no latitude and "
-                     "longitude on two segments" if unplaced
-                     else _beam_holds(f, PRODUCT_GROUPS[product]))
+            holds = _beam_holds(f, PRODUCT_GROUPS[product])
     except OSError as e:
         raise ParameterError("like", f"{path}: not an HDF5 file we can read "
                              f"({str(e).splitlines()[0]})") from None
@@ -312,7 +321,8 @@ def read_product(path, *, beams: str = "all") -> RealFile:
     if not out:
         raise ParameterError("like", f"{path}: no beam group (gt1l-gt3r) with two "
                              f"{PRODUCT_GROUPS[product]} segments"
-                             + (f" ({holds})" if beams == "all"
+                             + (f" with a time and place ({_reasons(unplaced)})" if unplaced
+                                else f" ({holds})" if beams == "all"
                                 else f" among {beams!r}"))
     missing += _missing(out, product)
     if release is None:
@@ -321,12 +331,34 @@ def read_product(path, *, beams: str = "all") -> RealFile:
                     beams=out, missing=missing)
 
 
-def _placed(b: RealBeam) -> int:
-    """How many of a beam's segments have a time and a place."""
-    if b.lat_deg is None or b.lon_deg is None:
-        return 0
-    return int(np.count_nonzero(np.isfinite(b.delta_time_s) & np.isfinite(b.lat_deg)
-                                & np.isfinite(b.lon_deg)))
+PLACE_DATASETS = {"ATL03": ("geolocation/delta_time",
+                             "geolocation/reference_photon_lat (or heights/lat_ph)",
+                             "geolocation/reference_photon_lon (or heights/lon_ph)")}
+"""Where a product gives each segment's time and place (the others: their segment group's
+``delta_time``, ``latitude``, ``longitude``)."""
+
+
+def _reasons(named: list[tuple[str, str]]) -> str:
+    """``[(beam, why), ...]`` as one phrase: beams that share a reason named together."""
+    by: dict[str, list[str]] = {}
+    for name, why in named:
+        by.setdefault(why, []).append(name)
+    return "; ".join(f"{', '.join(names)}: {why}" for why, names in by.items())
+
+
+def _unplaced(b: RealBeam, product: str) -> str | None:
+    """Why a beam's segments cannot be placed (no or fewer than two segments with a finite
+    time, latitude and longitude: a subset that dropped them, or fill values), else None."""
+    names = PLACE_DATASETS.get(product, tuple(f"{PRODUCT_GROUPS[product]}/{k}" for k in
+                                              ("delta_time", "latitude", "longitude")))
+    arrays = (b.delta_time_s, b.lat_deg, b.lon_deg)
+    absent = [n for n, a in zip(names, arrays) if a is None]
+    if absent:
+        return f"no {', '.join(absent)}"
+    ok = np.isfinite(b.delta_time_s) & np.isfinite(b.lat_deg) & np.isfinite(b.lon_deg)
+    if int(ok.sum()) < 2:
+        return f"fewer than two segments with a finite {', '.join(names)}"
+    return None
 
 
 def _wanted(name: str, strength: str, beams: str) -> bool:
@@ -366,6 +398,8 @@ def _missing(beams: list[RealBeam], product: str) -> list[str]:
         out.append("surface heights")
     out += [w for w in beams[0].notes.get("stand_ins", ())          # what every beam lacks
             if all(w in b.notes.get("stand_ins", ()) for b in beams)]
+    if product == "ATL03" and all(b.surface == "unknown" for b in beams):
+        out.append("surf_type (the surface: a flat plate of albedo 0.1)")
     bad = [b.name for b in beams if b.strength_from == "sc_orient"]
     if bad:
         out.append(f"atlas_beam_type on {', '.join(bad)} (strength from sc_orient)")
@@ -402,13 +436,18 @@ def _atl03(g, **beam) -> RealBeam | None:
                         **({"stand_ins": stand_ins} if stand_ins else {})})
     if sig is None and sig_why is not None:
         b.notes["signal_missing"] = sig_why
+    elif sig is None and "heights/h_ph" in g and not np.isfinite(h).any():
+        b.notes["signal_missing"] = "no segment's photons (ph_index_beg or h_ph hold fill)"
+    elif (sig is None and "heights/pce_mframe_cnt" in g and "heights/ph_id_pulse" in g
+            and photon_pulses(g) is None):
+        b.notes["signal_missing"] = "pce_mframe_cnt, ph_id_pulse hold fill"
     e = _num(geo, "tx_pulse_energy")
     if e is not None and np.isfinite(e).any():
         b.pulse_energy_uj = e * 1e6
     if "surf_type" in geo:
         st = np.asarray(geo["surf_type"][()])
         if st.ndim == 2 and st.shape[1] == len(SURF_TYPES):
-            present = (st > 0).sum(axis=0) >= 0.5 * st.shape[0]
+            present = (st == 1).sum(axis=0) >= 0.5 * st.shape[0]    # (fill is not 1)
             b.surface = next((SURF_TYPES[i] for i in SURF_PRIORITY if present[i]), "unknown")
     tb, rate = (_num(bg, "delta_time"), _num(bg, "bckgrd_rate")) if bg is not None \
         else (None, None)
@@ -416,8 +455,11 @@ def _atl03(g, **beam) -> RealBeam | None:
         b.notes["background_hz_missing"] = (f"bckgrd_atlas holds {tb.size} rows" if tb.size == 0
                                             else "bckgrd_atlas/bckgrd_rate does not fit its "
                                             "delta_time")
+    elif tb is not None and rate is not None and not np.isfinite(tb).any():
+        b.notes["background_hz_missing"] = "bckgrd_atlas/delta_time holds fill"
     elif tb is not None and rate is not None:
-        k = np.clip(np.searchsorted(tb, t), 0, tb.size - 1)
+        rows = np.flatnonzero(np.isfinite(tb))              # (rows with a time)
+        k = rows[np.clip(np.searchsorted(tb[rows], t), 0, rows.size - 1)]
         b.background_hz = rate[k]
         height, reduced = _num(bg, "bckgrd_int_height"), _num(bg, "bckgrd_int_height_reduced")
         top = _num(bg, "bckgrd_hist_top")
@@ -445,13 +487,15 @@ def segment_photons(g, geo) -> tuple[np.ndarray, np.ndarray | None, str | None]:
     cnt = geo["segment_ph_cnt"][()].astype(np.int64).ravel()
     beg = geo["ph_index_beg"][()].astype(np.int64).ravel() - 1
     h_out = np.full(cnt.size, np.nan)
-    h = g["heights/h_ph"][()].ravel()
+    h = _num(g, "heights/h_ph").ravel()         # (fill values NaN)
     per_photon = [k for k in ("heights/signal_conf_ph", "heights/pce_mframe_cnt",
                               "heights/ph_id_pulse") if k in g]
     used = (cnt > 0) & (beg >= 0)
+    if cnt.size == n_seg and beg.size == n_seg and not used.any():
+        return h_out, None, "no segment's photons (geolocation/ph_index_beg, segment_ph_cnt)"
     if (cnt.size != n_seg or beg.size != n_seg
             or any(g[k].shape[0] != h.size for k in per_photon)
-            or (used.any() and int((beg + cnt)[used].max()) > h.size)):
+            or np.any(beg[used] > h.size - cnt[used])):  # (an index at fill, too)
         return np.full(n_seg, np.nan), None, (
             f"heights/h_ph ({h.size} photons) does not fit geolocation/ph_index_beg, "
             "segment_ph_cnt" + (f" or {', '.join(k.split('/')[1] for k in per_photon)}"
@@ -465,14 +509,14 @@ def segment_photons(g, geo) -> tuple[np.ndarray, np.ndarray | None, str | None]:
     top = max(int(conf.max()) if conf.size else 4, 2)
     has_ids = ("heights/pce_mframe_cnt" in g and "heights/ph_id_pulse" in g
                and top >= 3 and why is None)  # none of medium confidence: no signal read
-    pulse = (g["heights/pce_mframe_cnt"][()].astype(np.int64) * 200
-             + g["heights/ph_id_pulse"][()].astype(np.int64)) if has_ids else None
+    pulse = photon_pulses(g) if has_ids else None     # (None where the ids are fill)
     rate = np.full(cnt.size, np.nan)
     for k, (b, c) in enumerate(zip(beg, cnt)):
-        if c <= 0 or b < 0:
+        if c <= 0 or b < 0 or b > h.size - c:      # (no photons, or an index that is fill)
             continue
         cs = conf[b:b + c]
         s = h[b:b + c][cs >= top]
+        s = s[np.isfinite(s)]
         if s.size:
             h_out[k] = np.median(s)
         if pulse is not None:
@@ -501,14 +545,32 @@ def _first_photon(g, geo, key: str) -> np.ndarray | None:
     return out
 
 
-def _flag_clear(asr_ok, flag_asr, flag_atm) -> np.ndarray | None:
-    """Clear where every flag given says so: ASR-based flag <= 2 (clear, any confidence),
-    no layer found by the atmospheric profile, apparent reflectance high enough. A flag at
-    its fill value (NaN) does not say cloudy: it does not vote."""
-    parts = [p for p in (asr_ok,
-                         None if flag_asr is None else (flag_asr <= 2) | np.isnan(flag_asr),
-                         None if flag_atm is None else (flag_atm == 0) | np.isnan(flag_atm))
-             if p is not None]
+def photon_pulses(g) -> np.ndarray | None:
+    """Each ATL03 photon's pulse number ``pce_mframe_cnt * 200 + ph_id_pulse`` (int64), or
+    None where any id is not a pulse's (fill, or ``ph_id_pulse`` outside 1-200): a pulse
+    count read from them would be wrong."""
+    frame, pid = _num(g, "heights/pce_mframe_cnt"), _num(g, "heights/ph_id_pulse")
+    if frame is None or pid is None or not (np.isfinite(frame).all() and np.isfinite(pid).all()
+                                           and np.all((pid >= 1) & (pid <= 200))):
+        return None
+    return frame.astype(np.int64) * 200 + pid.astype(np.int64)
+
+
+def _flag_clear(reflectance, flag_asr, flag_atm) -> np.ndarray | None:
+    """Clear where every flag given says so: apparent reflectance high enough
+    (``reflectance`` >= :data:`CLEAR_TWO_WAY_TRANSMISSION` x :data:`SNOW_REFLECTANCE`; a
+    segment without one, no fit, counts as cloudy), ASR-based flag <= 2 (clear, any
+    confidence), no layer found by the atmospheric profile (a flag that is fill on a segment
+    says nothing there). A dataset that is fill everywhere counts as absent; None when none
+    is left."""
+    parts = []
+    for a, ok, fill_says_nothing in (
+            (reflectance, lambda v: v >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE, False),
+            (flag_asr, lambda v: v <= 2, True), (flag_atm, lambda v: v == 0, True)):
+        if a is None or not np.isfinite(a).any():
+            continue
+        with np.errstate(invalid="ignore"):
+            parts.append(np.where(np.isfinite(a), ok(a), fill_says_nothing))
     if not parts:
         return None
     return np.logical_and.reduce(parts)
@@ -548,9 +610,9 @@ def _atl06(g, **beam) -> RealBeam | None:
         ("dem/dem_flag" if "dem/dem_flag" not in s else "dem/dem_flag's flag_meanings")
         + " (the surface taken as land ice, where ATL06 is made; r_eff held against snow's)"]
     r_eff = _num(gp, "r_eff") if surface == "land ice" else None     # held against snow's
-    clear = _flag_clear(None if r_eff is None
-                        else r_eff >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE,
-                        _num(gp, "cloud_flg_asr"), _num(gp, "cloud_flg_atm"))
+    if r_eff is not None and not np.isfinite(r_eff).any():
+        r_eff = None                        # (fill everywhere: as absent)
+    clear = _flag_clear(r_eff, _num(gp, "cloud_flg_asr"), _num(gp, "cloud_flg_atm"))
     h = _num(s, "h_li")
     return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),
                     lon_deg=_num(s, "longitude"),
@@ -599,9 +661,9 @@ def _atl07(g, **beam) -> RealBeam | None:
         stand_ins.append("heights/height_segment_type (the signal's photon_rate on every "
                          "segment, not snow-covered ice's alone)")
     asr = _num(st, "asr_25")
-    clear = _flag_clear(None if asr is None
-                        else asr >= CLEAR_TWO_WAY_TRANSMISSION * SNOW_REFLECTANCE,
-                        _num(st, "cloud_flag_asr"), _num(st, "cloud_flag_atm"))
+    if asr is not None and not np.isfinite(asr).any():
+        asr = None                          # (fill everywhere: as absent)
+    clear = _flag_clear(asr, _num(st, "cloud_flag_asr"), _num(st, "cloud_flag_atm"))
     band = _num(st, "background_int_height")
     conc = _num(st, "ice_conc")
     return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),

@@ -389,6 +389,7 @@ def _alternative_rates(out: dict, alternatives: list, inst, photons, *, band, kw
                                     signal_cloud=a["signal_cloud"])
             bg = terms["total"]
         rows.append({**{key: a[key] for key in ("dataset", "from", "circular", "above_band")},
+                     "height_unknown": bool(a.get("height_unknown", False)),
                      **a["cloud"].to_dict(), "signal": sig, "background_hz": bg,
                      "signal_optical_depth": a["signal_cloud"].optical_depth})
     return rows
@@ -569,6 +570,10 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
                                           alternatives=alts)}
             if fp is not None:
                 row["measured"]["signal_forest"] = fp["signal_measured"]
+            elif row["predicted"]["surface_missing"] and rb.surface == "unknown":
+                row["predicted"]["missing"] = ("surface missing", (
+                    "the file does not say its surface (no surf_type, or fill): a flat plate "
+                    "of albedo 0.1 stands in; beam, energy and sky as given"))
             elif row["predicted"]["surface_missing"]:
                 row["predicted"]["missing"] = realism_forest.missing(
                     signal_shots=signal_shots, paired=_whole(path) in paired)

@@ -77,6 +77,9 @@ def cloudy_verdict(row: dict) -> tuple[str, str]:
         j = judge([a[ak] for a in alts], m[mk], agrees)
         if j is not None:
             judged[name] = j
+    if not judged:           # (no background rate, and the signal not compared or absent)
+        return "not measured", given + ": nothing to compare (the file gives no background " \
+            "rate here" + ("" if head["circular"] else ", nor a signal rate") + ")"
     failing = {k: j for k, j in judged.items() if not j["agrees"]}
     if not failing:
         return "agrees", given + ": " + ", ".join(f"{k} x{j['ratio']:.2f}"
@@ -95,6 +98,8 @@ def _given(bg, sig) -> tuple[str, str]:
            if v is not None and not lo <= v <= hi]
     if bad:
         return "disagrees", f"{given}: " + ", ".join(bad)
+    if bg is None and sig is None:
+        return "not measured", f"{given}: the file gives neither a background nor a signal rate"
     return "agrees", f"{given}: background x{_fmt(bg)}, signal x{_fmt(sig)}"
 
 
@@ -126,7 +131,11 @@ def _uncertain(row: dict, alts: list, judged: dict) -> str:
     if len(taus) == 1:
         why = "the cloud's " + said[0]
     above = [a for a in alts if a["above_band"]]
-    if above:
+    if above and above[0].get("height_unknown"):
+        why += (f"; the file places no layer (no msw_flag on these segments): the cloud taken "
+                f"at {head['base_m']:g}-{head['top_m']:g} m, inside the band, and above it "
+                f"from {above[0]['base_m']:g} m")
+    elif above:
         layers = {"ATL06": "cloud_flg_atm", "ATL07": "cloud_flag_atm"}.get(row["product"],
                                                                            "the layer flag")
         why += (f"; ATL09 found several layers ({layers}) where msw_flag places only the "

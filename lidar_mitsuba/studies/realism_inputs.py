@@ -245,11 +245,25 @@ def cloud_alternatives(rb, cloud, *, product: str, band_top_m: float,
         out.append({"dataset": name, "from": where, "circular": circular, "above_band": False,
                     "cloud": own, "signal_cloud": _on_signal_segments(rb, own, other)})
     n = layer_count(rb if flags is None else flags)
-    if n is not None and n >= 2 and cloud.base_m < band_top_m:
-        out += [{**a, "above_band": True, "cloud": dataclasses.replace(
-            a["cloud"], base_m=band_top_m, top_m=band_top_m + LAYER_THICKNESS_M)}
-            for a in list(out)]
+    unknown = height_unknown(rb if flags is None else flags)
+    if (unknown or (n is not None and n >= 2)) and cloud.base_m < band_top_m:
+        out += [{**a, "above_band": True, "height_unknown": unknown,
+                 "cloud": dataclasses.replace(a["cloud"], base_m=band_top_m,
+                                              top_m=band_top_m + LAYER_THICKNESS_M)}
+                for a in list(out)]
     return out
+
+
+def height_unknown(rb) -> bool:
+    """Whether the file places no layer over the beam's cloudy segments (no ``msw_flag``, or
+    none of 1-5 there: a subset that dropped it, or fill): the implied cloud then takes
+    :func:`layer_heights_m`'s default, inside the band, and :func:`cloud_alternatives` runs
+    it above the band too."""
+    k = getattr(rb, "layer_class", None)
+    if k is None or rb.clear is None:
+        return k is None
+    k = np.asarray(k, np.float64)[~np.asarray(rb.clear, bool)]
+    return not np.any(np.isfinite(k) & (k >= 1) & (k <= 5))
 
 
 def signal_segments(rb) -> np.ndarray | None:
