@@ -110,6 +110,17 @@ class RealBeam:
     def __post_init__(self):
         if self.surface_h_m is None:         # (a subset that dropped the heights: NaN, and
             self.surface_h_m = np.full(np.shape(self.delta_time_s), np.nan)  # said so)
+        self.drop_fill()
+
+    def drop_fill(self) -> None:
+        """Take a series that holds fill on every segment as absent (:data:`OPTIONAL_SERIES`),
+        with a note for the file's line."""
+        for name in OPTIONAL_SERIES:
+            a = getattr(self, name)
+            if a is not None and not np.isfinite(np.asarray(a, np.float64)).any():
+                setattr(self, name, None)
+                self.notes.setdefault(f"{name}_missing".replace("_per_shot", ""),
+                                      "fill everywhere")
 
     @property
     def n_segments(self) -> int:
@@ -297,6 +308,7 @@ def read_product(path, *, beams: str = "all") -> RealFile:
                 b = READERS[product](f[name], name=name, spot=spot, strength=strength,
                                      strength_from=source)
                 if b is not None and b.n_segments >= 2:
+                    b.drop_fill()           # (series the reader set after the beam was made)
                     why = _unplaced(b, product)
                     if why:             # (a beam with no time or place cannot be twinned)
                         unplaced.append((name, why))
@@ -359,6 +371,15 @@ def _unplaced(b: RealBeam, product: str) -> str | None:
     if int(ok.sum()) < 2:
         return f"fewer than two segments with a finite {', '.join(names)}"
     return None
+
+
+OPTIONAL_SERIES = ("altitude_m", "solar_elevation_deg", "solar_azimuth_deg", "pulse_energy_uj",
+                   "background_hz", "signal_per_shot", "reflectance", "reflectance_photons",
+                   "layer_class", "layer_count", "ice_fraction", "band_height_m",
+                   "band_top_above_surface_m", "signal_span_m", "full_sat_fract",
+                   "near_sat_fract")
+""":class:`RealBeam`'s per-segment series that may be absent: one that holds fill (NaN) on
+every segment is taken as absent (its stand-in used, said in the file's line)."""
 
 
 def _wanted(name: str, strength: str, beams: str) -> bool:
