@@ -215,8 +215,10 @@ def _cmd_bench(a) -> int:
 def _cmd_make_dem(a) -> int:
     out = out_path(a.out, (".tif", ".tiff"))
     from ..ground.dem import synthetic_ice_sheet
-    if not (abs(a.lat) < 85 and -180 <= a.lon <= 360):
-        raise UsageError("--lat" if abs(a.lat) >= 85 else "--lon", "out of range")
+    if not abs(a.lat) < 85:                     # (NaN fails it too)
+        raise UsageError("--lat", f"must be within 85 degrees of the equator (got {a.lat:g})")
+    if not -180 <= a.lon <= 360:
+        raise UsageError("--lon", f"must be in [-180, 360] (got {a.lon:g})")
     for flag, v, lo, hi in (("--width-m", a.width_m, 200, 2e6), ("--length-m", a.length_m, 200, 2e6),
                             ("--posting-m", a.posting_m, 0.5, 1000)):
         if not lo <= v <= hi:

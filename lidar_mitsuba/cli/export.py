@@ -56,12 +56,12 @@ def cmd_atl08(a) -> int:
     import h5py
     from ..products import atl08, las
     out = out_path(a.out, (".h5",))
+    plot = out_path(a.plot, (".png",), "--plot") if a.plot else None   # (before any output)
     beams = _beams(a.beams) or read_input(a.file, lambda p: las._beams_in(h5py.File(p, "r")))
     made = [read_input(a.file, lambda p, b=b: atl08.from_atl03(p, b)) for b in beams]
     atl08.write(made, out)
     print(f"wrote {out} ({', '.join(f'{m.beam}: {len(m)} segments' for m in made)})")
-    if a.plot:
-        plot = out_path(a.plot, (".png",), "--plot")
+    if plot is not None:
         _plot_classes(a.file, made, plot)
         print(f"wrote {plot}")
     return 0
