@@ -24,7 +24,6 @@ clear sky: it is compared over all the clip's segments, whatever the product's c
 """
 from __future__ import annotations
 
-import pathlib
 
 from .realism import BACKGROUND_AGREES, SIGNAL_AGREES
 
@@ -35,16 +34,6 @@ SIGNAL_WHAT = {
              "ATL08 of the clip, ours of the twin)",
 }
 """What each forest row's signal is (module docstring)."""
-
-
-def by_row(docs: list[dict]) -> dict[tuple[str, str], dict]:
-    """The forest twins' ``docs`` (:func:`~lidar_mitsuba.studies.forest_twin.twins`) by the
-    matrix rows they judge: ``(file name, beam)`` for the pair's ATL03 and its ATL08."""
-    out = {}
-    for d in docs:
-        for name in (d["atl03"], d["atl08"]):
-            out[(pathlib.Path(name).name, d["beam"])] = d
-    return out
 
 
 def surface_name(doc: dict) -> str:
