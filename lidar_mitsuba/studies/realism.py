@@ -30,11 +30,8 @@ import time
 
 import numpy as np
 
-from ..constants import ALTITUDE_M, REFERENCE_ALBEDO, ParameterError
+from ..constants import ALTITUDE_M, REFERENCE_ALBEDO
 from . import json_safe
-
-PACKAGE_DATA = pathlib.Path(__file__).resolve().parents[1] / "data"
-"""The real files the package ships (``validate --real`` with no file)."""
 
 BACKGROUND_AGREES = (0.5, 2.0)
 """Predicted / measured background within this range agrees (issue 41's criterion)."""
@@ -48,47 +45,11 @@ from .realism_inputs import (BLOWING_SNOW_TOP_M, LAYER_BASE_M, LAYER_THICKNESS_M
                              product_surface, ratio_words, read_files, sea_ice_snow,
                              snow_delay, sunlit_albedo)
 from .realism_curve import background_curve  # noqa: E402  (the figure's curves)
+from .realism_files import (HDF5_SUFFIXES, PACKAGE_DATA, _forest_twins,  # noqa: E402,F401
+                            _whole, hdf5_files, labels, real_files)
 from .realism_shape import (SEGMENT_M, TAIL_M, TAIL_WINDOW_M,  # noqa: E402,F401
                             atl03_shape as _atl03_shape, segment_residuals_m, shape_stats,
                             shape_verdict)
-
-HDF5_SUFFIXES = (".h5", ".hdf5", ".he5", ".nc", ".nc4")
-"""The names a folder's HDF5 files go by (any case): NASA's ``.h5``, and the NetCDF-4 (an
-HDF5 file) that the NSIDC subsetter's reformatting writes (``processed_ATL03_..._01.nc``,
-``processed_ATL10-01_..._01.nc``) or OPeNDAP serves (``.nc4``)."""
-
-
-def hdf5_files(folder) -> list[pathlib.Path]:
-    """The files of ``folder`` named as HDF5 files (:data:`HDF5_SUFFIXES`), sorted."""
-    return sorted(p for p in pathlib.Path(folder).iterdir()
-                  if p.suffix.lower() in HDF5_SUFFIXES and p.is_file())
-
-
-def real_files(paths=None, *, found=None) -> list[pathlib.Path]:
-    """The HDF5 files among ``paths`` (files or folders; folders give their files named as
-    HDF5 files, :func:`hdf5_files`); ``None`` or empty: the package's shipped real files.
-    ``found``: a list that receives the files found in folders (not named themselves:
-    :func:`run` passes by those it cannot read)."""
-    if not paths:
-        paths = [PACKAGE_DATA]
-    out = []
-    for p in map(pathlib.Path, paths):
-        if p.is_dir():
-            inside = hdf5_files(p)
-            out += inside
-            if found is not None:
-                found += inside
-        elif p.is_file():
-            out.append(p)
-        else:
-            raise ParameterError("real", f"{p}: no such file or folder")
-    seen: set = set()                     # a file named twice (itself and in its folder): once
-    out = [p for p in out if not (p.resolve() in seen or seen.add(p.resolve()))]
-    if not out:
-        raise ParameterError("real", f"no HDF5 file ({', '.join(HDF5_SUFFIXES)}) in "
-                             f"{', '.join(map(str, paths))}")
-    return out
-
 
 # ------------------------------------------------------------------------------ measured
 def _median(a, mask=None) -> float | None:
@@ -506,24 +467,6 @@ def pair_ratios(rows: list[dict]) -> list[dict]:
     return out
 
 
-def labels(paths) -> dict:
-    """Each file's name in the matrix: its name, or where two files of ``paths`` share it
-    (subsets of one granule in two folders: ``a/processed_ATL06_X.h5``, ``b/...``) as much
-    of its path as tells them apart."""
-    paths = [pathlib.Path(p) for p in paths]
-    depth = dict.fromkeys(paths, 1)
-    while True:
-        lab = {p: "/".join(p.parts[-depth[p]:]) for p in paths}
-        count: dict = {}
-        for v in lab.values():
-            count[v] = count.get(v, 0) + 1
-        clash = [p for p in paths if count[lab[p]] > 1 and depth[p] < len(p.parts)]
-        if not clash:
-            return lab
-        for p in clash:
-            depth[p] += 1
-
-
 # ------------------------------------------------------------------------------ the run
 def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
         progress=None, cloud=None) -> dict:
@@ -599,33 +542,6 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
         (out / "realism.json").write_text(json.dumps(json_safe(doc), indent=1))
         (out / "realism.md").write_text(realism_report.report_md(doc))
     return doc
-
-
-def _forest_twins(paths, *, signal_shots: int, seed: int, progress):
-    """``(docs, by_row, paired)``: the forest twins of the ATL03 + ATL08 forest pairs among
-    ``paths`` (:func:`~lidar_mitsuba.studies.forest_twin.twins`, every shot of the clip, seed
-    ``seed + 1``; none with ``signal_shots`` 0), the docs by the matrix rows they judge
-    (``(file, beam)``, the file by its whole path: two clips of one name in two folders are
-    two pairs), and the files in a pair (their whole paths)."""
-    from . import forest_twin
-    from .atl08_real import pairs
-    found = pairs(paths)
-    paired = {_whole(f) for pair in found for f in pair}
-    if signal_shots <= 0 or not found:
-        return [], {}, paired
-    docs, by_row = [], {}
-    for a03, a08 in found:
-        twins = forest_twin.twins([a08], seed=seed + 1, progress=progress)
-        docs += twins
-        for d in twins:
-            for f in (a03, a08):
-                by_row[(_whole(f), d["beam"])] = d
-    return docs, by_row, paired
-
-
-def _whole(path) -> str:
-    """A file's whole path, as the forest rows are keyed."""
-    return str(pathlib.Path(path).resolve())
 
 
 def format_row(r: dict) -> str:
