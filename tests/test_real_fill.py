@@ -134,3 +134,19 @@ def test_a_cloud_without_its_height_is_run_inside_and_above_the_band(tmp_path, c
         alts = r["predicted"]["cloud_alternatives"]
         assert any(a["above_band"] and a["height_unknown"] for a in alts)
         assert r["verdict"] == "cloud uncertain" and "no msw_flag" in r["reason"]
+
+
+def test_bad_values_name_their_own_option_and_leave_nothing(tmp_path, capsys):
+    """Found by a fuzz of every option with -1, nan, abc, 1e30, 0: ``make-dem --lat nan``
+    named --lon; ``simulate --slope-azimuth-deg nan`` named --azimuth-deg (the plane's own
+    field); ``atl08 --plot NAME`` with a bad name wrote the ATL08 file and then stopped."""
+    cases = [(["make-dem", "--out", str(tmp_path / "d.tif"), "--lat", "nan"], "--lat", "d.tif"),
+             (["simulate", "--surface", "flat", "--shots", "10", "--out", str(tmp_path / "s.h5"),
+               "--slope-azimuth-deg", "nan"], "--slope-azimuth-deg", "s.h5"),
+             (["atl08", str(ATL03), "--out", str(tmp_path / "a.h5"), "--plot", "pic"],
+              "--plot", "a.h5")]
+    for args, option, made in cases:
+        assert main(args) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and f"error: {option}:" in err, err
+        assert not (tmp_path / made).exists()

@@ -417,6 +417,8 @@ class SurfaceSpec:
 
     def __post_init__(self):
         check("surface", self.kind, self.kind in SURFACES, f"must be one of {', '.join(SURFACES)}")
+        check("slope_azimuth_deg", self.slope_azimuth_deg,
+              math.isfinite(self.slope_azimuth_deg), "must be finite")
         check("slope_deg", self.slope_deg,
               math.isfinite(self.slope_deg) and 0 <= self.slope_deg < 90, "must be in [0, 90)")
         if self.kind != "slope" and self.slope_deg != 0:
