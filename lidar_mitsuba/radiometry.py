@@ -61,9 +61,11 @@ C_M_PER_S = C_M_PER_NS * 1e9
 SOLAR_IRRADIANCE_532_W_M2_NM = 1.892
 """Top-of-atmosphere solar spectral irradiance near 532 nm at 1 au [W m^-2 nm^-1]: the
 ASTM G173-03 extraterrestrial spectrum (SMARTS 2.9.2; Gueymard 2004's composite) averaged
-over 530-534 nm (1.958 at 532 nm on its 1 nm grid). ESTIMATE for a 30 pm filter: solar
-absorption lines finer than the 1 nm grid can move the irradiance inside so narrow a band by
-tens of per cent."""
+over 530-534 nm (1.958 at 532 nm on its 1 nm grid). For a 30 pm filter, checked against the
+SAO2010 spectrum (Chance & Kurucz 2010, 0.04 nm resolution; its 530-534 nm mean 1.912): a
+30 pm band anywhere in 532.0-532.4 nm (the laser's 532.27 nm in air or in vacuum) holds
+0.94-1.06 of that mean (``tests/test_radiometry.py``): the solar lines there move it by a few
+per cent. ESTIMATE to that extent (the flown filter's shape is not published)."""
 P0_HPA = 1013.25
 """Sea-level pressure of the standard atmosphere [hPa]."""
 DEFAULT_ALBEDO = 0.9

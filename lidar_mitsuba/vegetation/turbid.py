@@ -253,7 +253,9 @@ def table_file(table: dict) -> pathlib.Path:
         h.update(np.asarray(checked[k]).tobytes() if isinstance(checked[k], np.ndarray)
                  else repr(checked[k]).encode())
     folder = pathlib.Path(os.environ.get("LIDAR_MITSUBA_CACHE")
-                          or pathlib.Path(tempfile.gettempdir()) / "lidar_mitsuba")
+                          or pathlib.Path(tempfile.gettempdir()) / "lidar_mitsuba-cache")
+    # (not "lidar_mitsuba": a folder of the package's name in the temporary directory
+    # shadows the package for `python -m lidar_mitsuba.cli` run from there)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"canopy_{h.hexdigest()[:20]}.npz"
     if not path.exists():
