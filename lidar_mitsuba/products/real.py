@@ -165,9 +165,6 @@ def _num(g, key: str) -> np.ndarray | None:
     # (a fill of 0 would take every zero: ICESat-2's are their types' extremes)
     if a.dtype.kind in "iu":
         bad = a >= np.iinfo(np.int32).max if a.dtype.itemsize >= 4 else np.zeros(a.shape, bool)
-        fill = getattr(g[key], "attrs", {}).get("_FillValue")
-        if fill is not None and np.asarray(fill).size == 1:
-            bad |= a == np.asarray(fill).ravel()[0]
         a = a.astype(np.float64)
         a[bad | own] = np.nan
         return a
