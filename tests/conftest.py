@@ -30,8 +30,8 @@ def pytest_xdist_auto_num_workers(config):
 SLOW_FILES = {"test_bench.py": 144, "test_snow_kernel.py": 112, "test_docs.py": 93,
               "test_notebooks.py": 70, "test_reproduce.py": 52, "test_campaign.py": 49,
               "test_twin.py": 43, "test_snow.py": 36, "test_import_boundaries.py": 27,
-              "test_granule.py": 22, "test_peer_media.py": 22, "test_atl03_fields.py": 19,
-              "test_fpb_matrix.py": 19, "test_sweep.py": 18, "test_detector_pinned.py": 16,
+              "test_real_fill.py": 25, "test_granule.py": 22, "test_peer_media.py": 22,
+              "test_atl03_fields.py": 19, "test_fpb_matrix.py": 19, "test_sweep.py": 18, "test_detector_pinned.py": 16,
               "test_peer.py": 16, "test_cli.py": 14, "test_cloud.py": 12,
               "test_brdf_variants.py": 12, "test_realism.py": 11, "test_plan.py": 11,
               "test_forest_twin.py": 10}
