@@ -115,7 +115,7 @@ def segment_photons(g, geo) -> tuple[np.ndarray, np.ndarray | None, str | None]:
     pulse = photon_pulses(g) if has_ids else None     # (None where the ids are fill)
     rate = np.full(cnt.size, np.nan)
     for k, (b, c) in enumerate(zip(beg, cnt)):
-        if c <= 0 or b < 0 or b > h.size - c:      # (no photons, or an index that is fill)
+        if c <= 0 or b < 0:                        # (no photons)
             continue
         cs = conf[b:b + c]
         s = h[b:b + c][cs >= top]
@@ -179,6 +179,12 @@ def _flag_clear(reflectance, flag_asr, flag_atm) -> np.ndarray | None:
     return np.logical_and.reduce(parts)
 
 
+def _sub(s, name: str):
+    """Group ``name`` of segment group ``s``, or an empty mapping where a subset dropped it
+    (its datasets then read as absent: :func:`~lidar_mitsuba.products.real._num`)."""
+    return s[name] if name in s else {}
+
+
 def _atl06(g, **beam) -> RealBeam | None:
     """An ATL06 beam: 40 m land-ice segments every 20 m. Signal per shot: the fitted
     photons less the background expected in the final window, per pulse,
@@ -188,8 +194,8 @@ def _atl06(g, **beam) -> RealBeam | None:
     t = _num(s, "delta_time")
     if t is None:
         return None
-    gp = s["geophysical"] if "geophysical" in s else {}
-    fs = s["fit_statistics"] if "fit_statistics" in s else {}
+    gp = _sub(s, "geophysical")
+    fs = _sub(s, "fit_statistics")
     bg = _num(gp, "bckgrd")
     n_fit, n_pulses, w = (_num(fs, k) for k in ("n_fit_photons", "n_seg_pulses",
                                                 "w_surface_window_final"))
@@ -219,7 +225,7 @@ def _atl06(g, **beam) -> RealBeam | None:
     h = _num(s, "h_li")
     return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),
                     lon_deg=_num(s, "longitude"),
-                    surface_h_m=h if h is not None else np.full(t.size, np.nan),
+                    surface_h_m=h,
                     solar_elevation_deg=_num(gp, "solar_elevation"),
                     solar_azimuth_deg=_num(gp, "solar_azimuth"), background_hz=bg,
                     signal_per_shot=sig, clear=clear, reflectance=r_eff,
@@ -243,10 +249,10 @@ def _atl07(g, **beam) -> RealBeam | None:
     t = _num(s, "delta_time")
     if t is None:
         return None
-    geo = s["geolocation"] if "geolocation" in s else {}
-    hts = s["heights"] if "heights" in s else {}
-    gp = s["geophysical"] if "geophysical" in s else {}
-    st = s["stats"] if "stats" in s else {}
+    geo = _sub(s, "geolocation")
+    hts = _sub(s, "heights")
+    gp = _sub(s, "geophysical")
+    st = _sub(s, "stats")
     h = _num(hts, "height_segment_height")
     mss = _num(gp, "height_segment_mss")
     stand_ins = []
@@ -254,8 +260,6 @@ def _atl07(g, **beam) -> RealBeam | None:
         stand_ins.append("geophysical/height_segment_mss (heights above the mean sea "
                          "surface taken as above the ellipsoid)")
     h = h + mss if h is not None and mss is not None else h
-    if h is None:
-        h = np.full(t.size, np.nan)
     rate = _num(st, "photon_rate")
     kind = _num(hts, "height_segment_type")
     if rate is not None and kind is not None:
@@ -292,8 +296,8 @@ def _atl08(g, **beam) -> RealBeam | None:
     t = _num(s, "delta_time")
     if t is None:
         return None
-    ter = s["terrain"] if "terrain" in s else {}
-    can = s["canopy"] if "canopy" in s else {}
+    ter = _sub(s, "terrain")
+    can = _sub(s, "canopy")
     te, cn = _num(ter, "photon_rate_te"), _num(can, "photon_rate_can")
     sig = None if te is None else te + (np.nan_to_num(cn) if cn is not None else 0.0)
     stand_ins = ["canopy/photon_rate_can (the signal the terrain's photons alone)"] \
@@ -301,7 +305,7 @@ def _atl08(g, **beam) -> RealBeam | None:
     h = _num(ter, "h_te_best_fit")
     return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),
                     lon_deg=_num(s, "longitude"),
-                    surface_h_m=h if h is not None else np.full(t.size, np.nan),
+                    surface_h_m=h,
                     solar_elevation_deg=_num(s, "solar_elevation"),
                     solar_azimuth_deg=_num(s, "solar_azimuth"), signal_per_shot=sig,
                     clear=_flag_clear(None, None, _num(s, "cloud_flag_atm")), surface="land",
