@@ -467,7 +467,8 @@ def _place_on_earth(run: _Run, site: Site) -> None:
         t1 = time.perf_counter()
         run.radiometry = radiometry.run_radiometry(
             run.instrument, run.geolocation, run.gate_z_m + site.height_m, scene=run.scene,
-            x_m=run.x_local_m, y_m=run.y_local_m, snow=run.material.snow)
+            x_m=run.x_local_m, y_m=run.y_local_m, snow=run.material.snow,
+            albedo=getattr(run.surface, "sunlit_albedo", None))
         if run.cloud is not None:     # the sun under the cloud (atmosphere.cloud_layer)
             from .atmosphere.cloud_layer import clouded_radiometry
             run.radiometry = clouded_radiometry(

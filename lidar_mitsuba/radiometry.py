@@ -396,16 +396,19 @@ def shot_radiometry(instrument, *, delta_time_s, z_m, albedo: float, solar_eleva
 
 
 def run_radiometry(instrument, geoloc, z_m: np.ndarray, *, scene,
-                     x_m, y_m, snow) -> ShotRadiometry:
+                     x_m, y_m, snow, albedo: float | None = None) -> ShotRadiometry:
     """Each shot's signal scale and background (:func:`shot_radiometry`) for a run of
     ``instrument`` (an :class:`~lidar_mitsuba.instrument.Instrument`) at ``geoloc`` (a
     :class:`~lidar_mitsuba.geotrack.Geolocation`): the sun where and when the shot is, the surface's albedo for sunlight from its own BSDF (a snow
-    volume: diffusion theory's albedo), the air above the surface height ``z_m``."""
+    volume: diffusion theory's albedo; ``albedo``: the surface's own, where it gives one,
+    e.g. a forest over snow), the air above the surface height ``z_m``."""
     if geoloc.solar_elevation_deg is not None:            # a real granule's own
         elev, azim = geoloc.solar_elevation_deg, geoloc.solar_azimuth_deg
     else:
         elev, azim = solar_angles(geoloc.lat_deg, geoloc.lon_deg, geoloc.delta_time_s)
-    if snow is not None:
+    if albedo is not None:
+        albedo = float(albedo)
+    elif snow is not None:
         albedo = float(snow.diffusion().total_reflectance())
     else:
         from .trace import scene as scn

@@ -154,3 +154,109 @@ def test_the_clips_background_is_its_own_rows_not_its_granules(tmp_path):
     with h5py.File(path, "a") as f:                      # segments outside the bright rows
         f["gt1r/geolocation/delta_time"] = np.linspace(3.0, 3.5, 20)
     assert ft.background_hz(path, "gt1r") == pytest.approx(1.0e6)
+
+
+def test_snow_cover_classes_take_the_published_snow_albedos():
+    """Moody et al. 2007's snow-covered albedos (0.47 um, its abstract) by class, the two
+    land-cover code lists ATL08 carries (Copernicus from release 005: 111/121 evergreen needle
+    leaf, 115/125 mixed, 40 cropland, 60 bare, 70 snow and ice; IGBP before: 1, 5, 12, 16, 15)
+    and the stand-ins said as ESTIMATE; water and unknown classes have none."""
+    from lidar_mitsuba.vegetation import snow_cover as sc
+    for codes, albedo in (((111, 121, 1), 0.36), ((115, 125, 5), 0.39), ((40, 12, 14), 0.76),
+                          ((60, 16), 0.87), ((70, 15), 0.95)):
+        for c in codes:
+            a, _, source = sc.snow_covered_albedo(c)
+            assert a == albedo and "ESTIMATE" not in source, c
+    for c, stand in ((20, 0.39), (114, 0.39), (8, 0.39), (30, 0.76), (90, 0.76), (13, 0.76)):
+        a, _, source = sc.snow_covered_albedo(c)
+        assert a == stand and "ESTIMATE" in source and "standing in" in source, c
+    for c in (0, 17, 80, 200, 999, -1):
+        assert sc.snow_covered_albedo(c) is None, c
+    # forests under snow stay far below snow's own albedo: the crowns shade it
+    assert max(sc.SNOW_COVERED_ALBEDO[k] for k in ("evergreen needleleaf forest",
+                                                  "mixed forest")) < 0.5
+
+
+def test_snow_on_the_ground_is_the_flags_fraction_and_the_snowy_classes_mean():
+    """segment_snowcover 2 (snow) and 3 (ice) count as snow, 0 and 1 not; fill (127) and
+    other values are not flags; the albedo is the mean over the snowy segments whose class
+    has one (a lake's segment has none); without landcover, a fraction and no albedo."""
+    from lidar_mitsuba.vegetation.snow_cover import snow_on_ground
+    snow = np.array([2, 2, 3, 1, 127, 0], np.int8)
+    land = np.array([111, 40, 80, 111, 111, 111], np.int16)
+    s = snow_on_ground(snow, land)
+    assert s["snow_fraction"] == pytest.approx(3 / 5)
+    assert s["albedo"] == pytest.approx((0.36 + 0.76) / 2)         # the lake (80): none
+    assert len(s["sources"]) == 2
+    assert snow_on_ground(snow, None) == {"snow_fraction": pytest.approx(0.6), "albedo": None,
+                                          "sources": []}
+    assert snow_on_ground(np.full(4, 127, np.int8), land[:4])["snow_fraction"] is None
+
+
+def test_the_twins_floor_is_the_clips_own_snow_flag(tmp_path):
+    """The twin's floor follows the clip's ATL08 ``segment_snowcover`` (not fitted): snow on
+    more than half of the flagged segments gives a snow floor and the sunlit albedo of the
+    class under snow, which the forest's solar background takes (the floor's own ~0.9 would
+    count the snow unshaded); snow-free, or no flag, a litter floor with its own albedo."""
+    import h5py
+    from lidar_mitsuba.studies import forest_twin as ft
+    from lidar_mitsuba.studies.realism_forest import floor_albedo
+    path = tmp_path / "atl08_clip.h5"
+    n = 6
+    lat = np.linspace(59.0, 59.01, n)
+    with h5py.File(path, "w") as f:
+        ls = f.create_group("gt1r/land_segments")
+        ls["canopy/h_canopy"] = np.full(n, 8.0, np.float32)
+        ls["canopy/segment_cover"] = np.full(n, 60, np.int16)
+        ls["dem_h"] = np.linspace(500.0, 501.0, n).astype(np.float32)
+        ls["latitude"], ls["longitude"] = lat, np.full(n, -105.0)
+        ls["segment_landcover"] = np.full(n, 111, np.int16)
+        ls["segment_snowcover"] = np.array([2, 2, 2, 2, 1, 127], np.int8)
+        f["gt1r"].attrs["atlas_beam_type"] = b"weak"
+    i = ft.site_inputs(path, "gt1r")
+    assert i["snow"]["snow_fraction"] == pytest.approx(0.8)
+    floor, sunlit, why = ft.floor_of(i)
+    assert (floor, sunlit) == ("snow", 0.36) and "Moody" in why
+    forest = ft.twin_forest(i, tile_m=64.0)
+    assert forest.sunlit_albedo == 0.36 and forest.floor.albedo > 0.8      # snow's optics
+    assert floor_albedo({"floor": "snow", "sunlit_albedo": sunlit}) == 0.36
+    with h5py.File(path, "a") as f:
+        f["gt1r/land_segments/segment_snowcover"][...] = np.array([1, 1, 1, 2, 2, 0], np.int8)
+    i = ft.site_inputs(path, "gt1r")
+    assert ft.floor_of(i)[:2] == ("litter", None)
+    forest = ft.twin_forest(i, tile_m=64.0)
+    assert forest.sunlit_albedo is None and "litter" in forest.floor.name
+    assert floor_albedo({"floor": "litter", "sunlit_albedo": None}) == forest.floor.albedo
+    with h5py.File(path, "a") as f:
+        del f["gt1r/land_segments/segment_snowcover"]
+    assert "no segment_snowcover" in ft.floor_of(ft.site_inputs(path, "gt1r"))[2]
+
+
+def test_a_forests_sunlit_albedo_is_the_solar_backgrounds():
+    """A forest that gives its sunlit albedo has the solar background of a Lambertian plate of
+    that albedo (radiometry.run_radiometry takes it instead of probing the scene's floor)."""
+    from types import SimpleNamespace
+    from lidar_mitsuba.constants import ParameterError
+    from lidar_mitsuba.instrument import Instrument
+    from lidar_mitsuba import radiometry
+    from lidar_mitsuba.vegetation.forest import forest
+    from lidar_mitsuba.ground.surface import Plane
+    with pytest.raises(ParameterError, match="sunlit_albedo"):
+        forest(ground=Plane(size_m=32.0), height_m=5.0, cover=0.5, lai=2.0, seed=1,
+               sunlit_albedo=1.5)
+    f = forest(ground=Plane(size_m=32.0), height_m=5.0, cover=0.5, lai=2.0, seed=1,
+               sunlit_albedo=0.36)
+    assert f.config()["sunlit_albedo"] == 0.36
+    assert "sunlit_albedo" not in forest(ground=Plane(size_m=32.0), height_m=5.0, cover=0.5,
+                                         lai=2.0, seed=1).config()
+    inst = Instrument.atlas("weak")
+    n = 4
+    geo = SimpleNamespace(solar_elevation_deg=np.full(n, 30.0), solar_azimuth_deg=np.zeros(n),
+                          delta_time_s=np.zeros(n))
+    got = radiometry.run_radiometry(inst, geo, np.zeros(n), scene=None, x_m=np.zeros(n),
+                                    y_m=np.zeros(n), snow=None, albedo=0.36)
+    want = radiometry.shot_radiometry(inst, delta_time_s=geo.delta_time_s, z_m=np.zeros(n),
+                                      albedo=0.36, solar_elevation_deg=geo.solar_elevation_deg,
+                                      solar_azimuth_deg=geo.solar_azimuth_deg)
+    assert got.albedo == 0.36 and np.array_equal(got.background_mhz, want.background_mhz)
+    assert got.solar_mhz[0] > 0.1                       # a sunlit forest: ~MHz

@@ -103,6 +103,7 @@ def site_inputs(atl08_path=ATL08, beam: str = "gt1r") -> dict:
         dem = ls["dem_h"][()].astype(float)
         lat, lon = ls["latitude"][()], ls["longitude"][()]
         land = ls["segment_landcover"][()]
+        snow = ls["segment_snowcover"][()] if "segment_snowcover" in ls else None
         strength = f[beam].attrs.get("atlas_beam_type", [b"?"])
         orient = int(f["orbit_info/sc_orient"][0]) if "orbit_info/sc_orient" in f else None
     strength = np.atleast_1d(strength)[0]
@@ -113,25 +114,56 @@ def site_inputs(atl08_path=ATL08, beam: str = "gt1r") -> dict:
     ok_d = np.abs(dem) < 1e4
     slope = float(np.polyfit(along[ok_d], dem[ok_d], 1)[0]) if ok_d.sum() >= 2 else 0.0
     az = Geod(ellps="WGS84").inv(lon[0], lat[0], lon[-1], lat[-1])[0]
+    from ..vegetation.snow_cover import snow_on_ground
+    snow = (snow_on_ground(snow, land) if snow is not None
+            else {"snow_fraction": None, "albedo": None, "sources": []})
     return {"h_canopy_m": float(np.median(h[ok_h])), "cover": float(np.median(cover[ok_c])) / 100,
             "landcover": sorted({int(v) for v in land}), "slope": slope,
             "track_azimuth_deg": float(az), "strength": strength, "sc_orient": orient,
-            "segments": int(h.size)}
+            "segments": int(h.size), "snow": snow}
+
+
+def floor_of(inputs: dict) -> tuple[str, float | None, str]:
+    """``(floor, sunlit_albedo, why)``: the twin's forest floor from the clip's own snow flag
+    (ATL08's ``segment_snowcover``, :mod:`~lidar_mitsuba.vegetation.snow_cover`): snow where
+    more than half of the beam's flagged segments say snow or ice, with the sunlit albedo of
+    its land-cover class under snow (Moody et al. 2007: the snow between and under the
+    crowns, which the floor's own albedo would count as unshaded); litter otherwise, whose
+    albedo the sun takes as it is (``None``: the floor's own)."""
+    snow = inputs.get("snow") or {}
+    frac = snow.get("snow_fraction")
+    if frac is None:
+        return "litter", None, "litter floor (the clip gives no segment_snowcover)"
+    if frac > 0.5 and snow.get("albedo") is not None:
+        return ("snow", float(snow["albedo"]),
+                f"snow floor (segment_snowcover: snow or ice on {100 * frac:.0f} % of the "
+                f"segments); sunlit albedo {snow['albedo']:.2f} ("
+                + "; ".join(snow["sources"]) + ")")
+    if frac > 0.5:
+        return "litter", None, (f"litter floor: segment_snowcover says snow on "
+                                f"{100 * frac:.0f} % of the segments, but their land cover "
+                                "has no snow-covered albedo (water or unknown)")
+    return "litter", None, (f"litter floor (segment_snowcover: snow-free on "
+                            f"{100 * (1 - frac):.0f} % of the segments)")
 
 
 def twin_forest(inputs: dict, *, tile_m: float = 256.0, seed: int = 1,
-                representation: str = "gap", floor: str = "litter"):
+                representation: str = "gap", floor: str = "auto"):
     """The twin's :class:`~lidar_mitsuba.vegetation.forest.ForestSurface`: the conifer
     preset's stand of the clip's height and cover (module docstring) over a plane of the
     DEM's along-track slope, a ``tile_m`` periodic tile (the track folds into it: 256 m
     gives footprints 20 m apart across the tile at each wrap of this track). ``floor``: the
-    forest floor's optics (:func:`~lidar_mitsuba.vegetation.optics.optics`: ``litter``, the
-    prediction; ``snow`` only as a what-if, the product saying snow-free)."""
+    forest floor's optics (:func:`~lidar_mitsuba.vegetation.optics.optics`: ``litter`` or
+    ``snow``), ``auto`` the clip's own (:func:`floor_of`: snow where its ``segment_snowcover``
+    says so, with the sunlit albedo of its land cover under snow)."""
     from ..ground.surface import Plane
     from ..vegetation.forest import forest
     from ..vegetation.optics import optics
     from ..vegetation.stand import PRESETS
     cv = PRESETS["conifer"].height_cv
+    sunlit = None
+    if floor == "auto":
+        floor, sunlit, _ = floor_of(inputs)
     slope = inputs["slope"]
     # Plane azimuth: from +x (east) counter-clockwise; the track heads track_azimuth_deg
     # clockwise from north; the ground rises along it when slope > 0
@@ -141,7 +173,7 @@ def twin_forest(inputs: dict, *, tile_m: float = 256.0, seed: int = 1,
     return forest(species="conifer", ground=ground, representation=representation,
                   height_m=inputs["h_canopy_m"] / (1 + Z_98 * cv),
                   cover=min(inputs["cover"], 0.99), lai=SITE_LAI, seed=seed,
-                  floor=optics(floor))
+                  floor=optics(floor), sunlit_albedo=sunlit)
 
 
 # ------------------------------------------------------------------------------ measuring
@@ -257,7 +289,7 @@ def background_hz(atl03_path, beam: str) -> float:
 
 def simulate_twin(atl03_path=ATL03, atl08_path=ATL08, beam: str = "gt1r", *,
                   shots: int | None = None, seed: int = 1, out_path=None,
-                  representation: str = "gap", floor: str = "litter") -> dict:
+                  representation: str = "gap", floor: str = "auto") -> dict:
     """The twin (module docstring): the clip's shots over :func:`twin_forest` of
     :func:`site_inputs`, written as ATL03 to ``out_path`` (default a temporary file),
     our ATL08 of it. Returns ``{"inputs", "forest", "atl03", "result", "atl08"}``."""
@@ -304,10 +336,11 @@ def _verdict(r: float | None, agrees=AGREES) -> str:
 
 def compare(atl03_path=ATL03, atl08_path=ATL08, beam: str = "gt1r", *,
             shots: int | None = None, seed: int = 1, out_path=None,
-            floor: str = "litter") -> dict:
+            floor: str = "auto") -> dict:
     """The twin against the real clip (module docstring): rows of ``quantity``, ``real``,
     ``twin``, ``ratio``, ``verdict``, the inputs and the measurements behind them
-    (``floor``: :func:`twin_forest`'s)."""
+    (``floor``: :func:`twin_forest`'s; the doc's ``floor``, ``sunlit_albedo`` and
+    ``floor_why`` say what it was and why)."""
     from ..products import atl08
     from ..products.atl08 import read_atl03_beam
     tw = simulate_twin(atl03_path, atl08_path, beam, shots=shots, seed=seed,
@@ -353,7 +386,7 @@ def compare(atl03_path=ATL03, atl08_path=ATL08, beam: str = "gt1r", *,
             real_ours["height_per_shot"][k], twin_ours["height_per_shot"][k],
             f"NASA's ph_h on real: {nasa['height_per_shot'][k]:.3f}")
     return {"atl03": pathlib.Path(atl03_path).name, "atl08": pathlib.Path(atl08_path).name,
-            "beam": beam, "inputs": tw["inputs"], "floor": floor, "stand": {
+            "beam": beam, "inputs": tw["inputs"], **_floor_doc(tw, floor), "stand": {
                 "trees": tw["forest"].stand.n_trees, "lai": tw["forest"].stand.lai(),
                 "cover": tw["forest"].stand.canopy_cover(),
                 "mean_height_m": float(tw["forest"].stand.height_m.mean()),
@@ -380,6 +413,17 @@ def _like_with_like(atl03_path, atl08_path, beam: str, res, twin_rate_hz: float)
             "real_shots": real["shots"], "real_mapped": real["mapped"]}
 
 
+def _floor_doc(tw: dict, floor: str) -> dict:
+    """The floor a twin was given: ``floor``, ``sunlit_albedo`` (``None``: the floor's own)
+    and ``floor_why`` (:func:`floor_of` for ``auto``; a floor asked for, as asked)."""
+    f = tw["forest"]
+    if floor == "auto":
+        name, sunlit, why = floor_of(tw["inputs"])
+        return {"floor": name, "sunlit_albedo": sunlit, "floor_why": why}
+    return {"floor": floor, "sunlit_albedo": f.sunlit_albedo,
+            "floor_why": f"{floor} floor (asked for)"}
+
+
 def _f(v, spec=".3g") -> str:
     return "-" if v is None else format(v, spec)
 
@@ -392,7 +436,7 @@ def report_md(doc: dict) -> str:
              f"(median), cover {100 * i['cover']:.0f} % (segment_cover), landcover "
              f"{i['landcover']}, DEM slope {i['slope']:+.3f} along track; beam "
              f"{i['strength']} (sc_orient {i['sc_orient']}), {doc['pulse_energy_uj']:.1f} uJ; "
-             f"forest floor: {doc.get('floor', 'litter')}. "
+             f"forest floor: {doc.get('floor_why', doc.get('floor', 'litter'))}. "
              f"Stand: {s['trees']} conifers, mean height {s['mean_height_m']:.2f} m, LAI "
              f"{s['lai']:.2f}, cover {100 * s['cover']:.0f} %, representation "
              f"`{s['representation']}`; {doc['shots']} shots.", "",

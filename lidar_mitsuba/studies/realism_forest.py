@@ -41,7 +41,12 @@ def surface_name(doc: dict) -> str:
     s = doc["stand"]
     return (f"forest twin ({s['trees']} conifers, mean height {s['mean_height_m']:.1f} m, "
             f"cover {100 * s['cover']:.0f} %, LAI {s['lai']:.1f}, `{s['representation']}`, "
-            f"{doc.get('floor', 'litter')} floor, {doc['shots']} shots)")
+            f"{doc.get('floor', 'litter')} floor{_sunlit(doc)}, {doc['shots']} shots)")
+
+
+def _sunlit(doc: dict) -> str:
+    a = doc.get("sunlit_albedo")
+    return "" if a is None else f" (sunlit albedo {a:.2f}: its land cover under snow)"
 
 
 def prediction(doc: dict, product: str) -> dict:
@@ -61,9 +66,13 @@ def prediction(doc: dict, product: str) -> dict:
 
 
 def floor_albedo(doc: dict) -> float:
-    """The twin's forest floor's albedo (its optics' ``R + T``), the sunlit albedo the
-    row's background takes: the same surface as its signal, whatever the product's own
-    flags would give (a clip's ``surf_type`` can flag land ice over a boreal forest)."""
+    """The sunlit albedo the row's background takes: the twin's own, the same surface as its
+    signal, whatever the product's own flags would give (a clip's ``surf_type`` can flag land
+    ice over a boreal forest): over snow its land cover's under snow
+    (:func:`~lidar_mitsuba.studies.forest_twin.floor_of`), else its floor's optics' ``R +
+    T``."""
+    if doc.get("sunlit_albedo") is not None:
+        return float(doc["sunlit_albedo"])
     from ..vegetation.optics import optics
     return float(optics(doc.get("floor", "litter")).albedo)
 

@@ -82,6 +82,10 @@ class ForestSurface(Surface):
         floor: the ground's optics (the default BSDF of the ground mesh: litter); a ``bsdf``
             given to ``simulate`` replaces it.
         classes: prototype trees of the explicit representation (height classes).
+        sunlit_albedo: the albedo the solar background takes for the forest (``None``: the
+            scene's own, the first surface a vertical ray meets: the floor's in the ``gap``
+            and ``turbid`` representations). Give it where the floor is much brighter than
+            the crowns that shade it, e.g. snow (:mod:`~.snow_cover`).
     """
     ground: Surface
     stand: Stand
@@ -90,6 +94,7 @@ class ForestSurface(Surface):
     bark: Optics = OPTICS["bark"]
     floor: Optics = OPTICS["litter"]
     classes: int = 8
+    sunlit_albedo: float | None = None
     _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     takes_bsdf = True
@@ -103,6 +108,10 @@ class ForestSurface(Surface):
         check("representation", self.representation,
               self.representation in REPRESENTATIONS,
               f"must be one of {', '.join(REPRESENTATIONS)}")
+        a = self.sunlit_albedo
+        check("sunlit_albedo", a, a is None or (isinstance(a, (int, float))
+                                                  and math.isfinite(a) and 0 <= a <= 1),
+              "must be in [0, 1] or None")
         if self.leaf is None:
             object.__setattr__(self, "leaf", OPTICS["needle" if self.stand.species == "conifer"
                                                      else "leaf"])
@@ -250,7 +259,9 @@ class ForestSurface(Surface):
                 "optics_532nm": {name: {"R": o.reflectance, "T": o.transmittance,
                                         "source": o.source}
                                  for name, o in (("leaf", self.leaf), ("bark", self.bark),
-                                                 ("floor", self.floor))}}
+                                                 ("floor", self.floor))},
+                **({} if self.sunlit_albedo is None
+                   else {"sunlit_albedo": self.sunlit_albedo})}
 
     def notes(self, *, instrument, max_depth, crop, triangles) -> list[str]:
         s = self.stand
@@ -345,7 +356,8 @@ class _ForestTiles(ChunkTiles):
 
 def forest(*, species: str = "conifer", ground: Surface | None = None,
            representation: str = "explicit", leaf: Optics | None = None,
-           floor: Optics | None = None, classes: int = 8, **stand_kwargs) -> ForestSurface:
+           floor: Optics | None = None, classes: int = 8, sunlit_albedo: float | None = None,
+           **stand_kwargs) -> ForestSurface:
     """A forest over ``ground`` in one call: :func:`~.stand.stand` (``species`` and every
     other keyword: height_m, cover or stems_per_ha, lai, leaf_angle, clumping, crown_ratio,
     crown_radius_m, crown_shape, leaf_width_m, bounds_m, seed) over the ground's tile, as a
@@ -365,7 +377,7 @@ def forest(*, species: str = "conifer", ground: Surface | None = None,
     s = make_stand(species=species, surface=ground, **stand_kwargs)
     kw = {} if floor is None else {"floor": floor}
     return ForestSurface(ground=ground, stand=s, representation=representation, leaf=leaf,
-                         classes=classes, **kw)
+                         classes=classes, sunlit_albedo=sunlit_albedo, **kw)
 
 
 def forest_from_spec(spec: str, *, ground: Surface | None = None) -> ForestSurface:
