@@ -260,3 +260,24 @@ def test_a_forests_sunlit_albedo_is_the_solar_backgrounds():
                                       solar_azimuth_deg=geo.solar_azimuth_deg)
     assert got.albedo == 0.36 and np.array_equal(got.background_mhz, want.background_mhz)
     assert got.solar_mhz[0] > 0.1                       # a sunlit forest: ~MHz
+
+
+def test_the_cli_forest_takes_a_snow_floor_and_the_suns_albedo_of_a_snowy_forest():
+    """``--forest ...,floor=snow``: the snow's optics on the floor, and for the sun a
+    snow-covered forest's published albedo (0.36 evergreen needleleaf for conifers, 0.39
+    mixed otherwise) unless ``sunlit_albedo`` is given; a bad floor or albedo names
+    ``--forest`` (the CLI's option), a litter floor keeps its own albedo for the sun."""
+    from lidar_mitsuba.constants import ParameterError
+    from lidar_mitsuba.vegetation.forest import forest_from_spec
+    base = "height=8,cover=0.5,lai=2,size=64"
+    f = forest_from_spec(f"conifer:{base},floor=snow")
+    assert f.floor.albedo > 0.9 and f.sunlit_albedo == 0.36
+    assert forest_from_spec(f"broadleaf:{base},floor=snow").sunlit_albedo == 0.39
+    assert forest_from_spec(f"conifer:{base},floor=snow,sunlit_albedo=0.5").sunlit_albedo == 0.5
+    f = forest_from_spec(f"conifer:{base}")
+    assert f.sunlit_albedo is None and "litter" in f.floor.name
+    for bad, word in (("floor=ice", "floor"), ("sunlit_albedo=2", "sunlit_albedo"),
+                      ("sunlit_albedo=x", "sunlit_albedo")):
+        with pytest.raises(ParameterError, match=word) as e:
+            forest_from_spec(f"conifer:{base},{bad}")
+        assert e.value.name == "forest"

@@ -47,8 +47,10 @@ def _add_scene_options(s) -> None:
                      "square, 2048 by default), its leaves explicit, e.g. "
                      "conifer:height=18,cover=0.6,lai=4; keys: height, cover or stems (per "
                      "ha), lai, leaf_angle, clumping, crown_ratio, crown_radius, crown_shape, "
-                     "leaf_width, size, seed, representation (explicit, turbid, gap) "
-                     "(docs/guide/forests.md)")
+                     "leaf_width, size, seed, representation (explicit, turbid, gap), "
+                     "floor (litter, soil, snow), sunlit_albedo (the sun's albedo of the "
+                     "forest; with floor=snow by default a snow-covered forest's, Moody et "
+                     "al. 2007) (docs/guide/forests.md)")
     g = s.add_argument_group("built-in surface (--surface; slope if --slope-deg is given)")
     surface_opts = opts.add_options(g, SurfaceSpec, metavars={"kind": None})
     s.set_defaults(_surface_opts=surface_opts)

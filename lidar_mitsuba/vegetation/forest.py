@@ -278,6 +278,10 @@ class ForestSurface(Surface):
         out.append(f"optics at 532 nm: {self.leaf.name} R {self.leaf.reflectance:g} "
                    f"T {self.leaf.transmittance:g}, bark {self.bark.reflectance:g}, floor "
                    f"{self.floor.reflectance:g}")
+        if self.sunlit_albedo is not None:
+            out.append(f"the sun sees the forest with albedo {self.sunlit_albedo:g} (given: "
+                       f"the crowns shade the floor; its own albedo is "
+                       f"{self.floor.albedo:.3g})")
         return out + self.ground.notes(instrument=instrument, max_depth=max_depth, crop=crop,
                                        triangles=triangles)
 
@@ -380,21 +384,35 @@ def forest(*, species: str = "conifer", ground: Surface | None = None,
                          classes=classes, sunlit_albedo=sunlit_albedo, **kw)
 
 
+def default_sunlit_albedo(species: str) -> float:
+    """The albedo the sun sees of a forest over snow when none is given: Moody et al. 2007's
+    snow-covered evergreen needleleaf forest (0.36) for ``conifer``, its mixed forest (0.39)
+    for other species (:mod:`~.snow_cover`)."""
+    from .snow_cover import SNOW_COVERED_ALBEDO
+    return SNOW_COVERED_ALBEDO["evergreen needleleaf forest" if species == "conifer"
+                               else "mixed forest"]
+
+
 def forest_from_spec(spec: str, *, ground: Surface | None = None) -> ForestSurface:
     """The CLI's ``--forest SPECIES[:key=value,...]``, e.g. ``conifer:height=18,cover=0.6,
     lai=4``: keys ``height`` (m), ``cover``, ``stems`` (per ha), ``lai``, ``leaf_angle``,
     ``clumping``, ``crown_ratio``, ``crown_radius`` (m), ``crown_shape``, ``leaf_width`` (m),
     ``size`` (the side of the flat ground when ``ground`` is None, m, default 1024; over a
     DEM the side of the periodic stand, a square at the DEM's centre, default
-    :data:`~.stand.DEM_STAND_M`), ``seed``, ``representation``. Errors are
+    :data:`~.stand.DEM_STAND_M`), ``seed``, ``representation``, ``floor`` (the floor's
+    optics: ``litter``, ``soil`` or ``snow``, :func:`~.optics.optics`) and ``sunlit_albedo``
+    (the albedo the sun sees of the forest: :attr:`ForestSurface.sunlit_albedo`; with a snow
+    floor and none given, the published albedo of a snow-covered evergreen needleleaf forest
+    for conifers and of a mixed forest otherwise, :func:`default_sunlit_albedo`). Errors are
     ``ParameterError("forest", ...)``."""
     species, _, rest = spec.partition(":")
     names = {"height": "height_m", "cover": "cover", "stems": "stems_per_ha", "lai": "lai",
              "leaf_angle": "leaf_angle", "clumping": "clumping", "crown_ratio": "crown_ratio",
              "crown_radius": "crown_radius_m", "crown_shape": "crown_shape",
              "leaf_width": "leaf_width_m", "seed": "seed", "size": "size",
-             "representation": "representation"}
-    text = {"leaf_angle", "crown_shape", "representation"}
+             "representation": "representation", "floor": "floor",
+             "sunlit_albedo": "sunlit_albedo"}
+    text = {"leaf_angle", "crown_shape", "representation", "floor"}
     kw: dict = {}
     for item in filter(None, rest.split(",")):
         key, eq, value = item.partition("=")
@@ -411,6 +429,14 @@ def forest_from_spec(spec: str, *, ground: Surface | None = None) -> ForestSurfa
             raise ParameterError("forest", f"{key}={value!r} is not a number") from None
         kw[names[key]] = int(number) if key == "seed" and number == int(number) else number
     size = kw.pop("size", None)
+    if "floor" in kw:
+        from .optics import optics
+        try:
+            kw["floor"] = optics(kw["floor"])
+        except ParameterError as e:
+            raise ParameterError("forest", f"floor: {e.message}") from None
+        if kw["floor"].name.startswith("snow") and "sunlit_albedo" not in kw:
+            kw["sunlit_albedo"] = default_sunlit_albedo(species.strip())
     over_dem = ground is not None and hasattr(ground, "dem")
     if size is not None and ground is not None and not over_dem:
         raise ParameterError("forest", "size only applies without --surface (the ground's "
