@@ -15,6 +15,10 @@ again from what is known of the site, without fitting the photons.
   forest) says the stand is a conifer one;
 * the terrain slope: ATL08's ``dem_h`` (the reference DEM under each segment) fitted against
   the along-track distance: the along-track slope of the DEM, the ground a plane with it;
+* the floor: ATL08's ``segment_snowcover`` (NOAA's IMS): snow where it says snow or ice on
+  more than half the segments, the sun then seeing the forest with its land cover's
+  published albedo under snow (:func:`floor_of`, :mod:`~lidar_mitsuba.vegetation.snow_cover`);
+  litter otherwise;
 * the sun, the spacecraft range, the beam (weak: the file's ``atlas_beam_type``;
   ``sc_orient`` 0, backward, makes the left beams strong) and its energy (the file's
   ``tx_pulse_energy``): the twin's (:mod:`lidar_mitsuba.twin`), as the realism matrix uses.
