@@ -149,8 +149,8 @@ def _atl06_dem(path, *, flag: int, dem_h: float):
 def test_atl06_over_ocean_or_land_is_not_read_as_cloudy_snow(tmp_path, flag, dem_h, surface):
     """The surface from dem_flag's own meanings: off an ice sheet r_eff is not held against
     snow's 0.9 (which would call every segment cloudy, tau ~2), the cloud flags decide."""
-    rf = real.read_product(_atl06_dem(tmp_path / f"ATL06_x_209_01_{flag}.h5", flag=flag,
-                                      dem_h=dem_h))
+    rf = real.read_product(_atl06_dem(tmp_path / f"ATL06_x_006_01_{flag}.h5", flag=flag,
+                                      dem_h=dem_h))      # (209's all-0 flags: unseen3)
     b = rf.beams[0]
     assert b.surface == surface
     assert b.clear.all() == (surface != "land ice")
@@ -311,7 +311,8 @@ def test_a_folder_gives_its_netcdf4_named_icesat2_files_too(tmp_path):
     assert real.read_product(nc).release == "004"           # from the name, as for .h5
     empty = tmp_path / "empty"
     empty.mkdir()
-    with pytest.raises(ParameterError, match=r"no HDF5 file \(.h5, .hdf5, .he5, .nc, .nc4\)"):
+    with pytest.raises(ParameterError,
+                       match=r"no HDF5 file \(.h5, .hdf5, .he5, .hdf, .nc, .nc4\)"):
         realism.real_files([empty])
 
 

@@ -4,6 +4,9 @@ its segments (what each product measured, where and when, and what stands in for
 subset dropped, in the beam's notes). Pure (h5py, numpy)."""
 from __future__ import annotations
 
+import pathlib
+import re
+
 import numpy as np
 
 from ..constants import C_M_PER_NS
@@ -179,6 +182,26 @@ def _flag_clear(reflectance, flag_asr, flag_atm) -> np.ndarray | None:
     return np.logical_and.reduce(parts)
 
 
+UNFILLED_FLAG_RELEASES = re.compile(r"^(0*1|2\d\d)$")
+"""ATL06 releases whose ``cloud_flg_asr`` and ``cloud_flg_atm`` were not filled from ATL09:
+001 and the pre-releases (209): 0 on every segment in every such file seen (sessions 26-28:
+Snowblower's, glaciersat2's, WaterNoice's, the 209 Pacific), where the same granule's
+release 003 (``ATL06_20181014001049_02350102``) flags cloud on every segment."""
+
+
+def _unfilled_flags(g, asr, atm) -> bool:
+    """Whether an ATL06 beam's two cloud flags are 0 on every segment of a file of a release
+    (:data:`UNFILLED_FLAG_RELEASES`) that did not fill them: then they say nothing."""
+    from .real import release_of
+    if asr is None or atm is None:
+        return False
+    vals = np.concatenate([asr[np.isfinite(asr)], atm[np.isfinite(atm)]])
+    if not vals.size or np.any(vals != 0):
+        return False
+    release = release_of(g.file, pathlib.Path(g.file.filename))
+    return bool(release and UNFILLED_FLAG_RELEASES.match(release.strip()))
+
+
 def _sub(s, name: str):
     """Group ``name`` of segment group ``s``, or an empty mapping where a subset dropped it
     (its datasets then read as absent: :func:`~lidar_mitsuba.products.real._num`)."""
@@ -221,7 +244,11 @@ def _atl06(g, **beam) -> RealBeam | None:
     r_eff = _num(gp, "r_eff") if surface == "land ice" else None     # held against snow's
     if r_eff is not None and not np.isfinite(r_eff).any():
         r_eff = None                        # (fill everywhere: as absent)
-    clear = _flag_clear(r_eff, _num(gp, "cloud_flg_asr"), _num(gp, "cloud_flg_atm"))
+    asr, atm = _num(gp, "cloud_flg_asr"), _num(gp, "cloud_flg_atm")
+    unfilled = r_eff is None and _unfilled_flags(g, asr, atm)   # (the flags alone decide)
+    if unfilled:
+        asr = atm = None
+    clear = _flag_clear(r_eff, asr, atm)
     h = _num(s, "h_li")
     return RealBeam(**beam, delta_time_s=t, lat_deg=_num(s, "latitude"),
                     lon_deg=_num(s, "longitude"),
@@ -229,13 +256,16 @@ def _atl06(g, **beam) -> RealBeam | None:
                     solar_elevation_deg=_num(gp, "solar_elevation"),
                     solar_azimuth_deg=_num(gp, "solar_azimuth"), background_hz=bg,
                     signal_per_shot=sig, clear=clear, reflectance=r_eff,
-                    layer_class=_num(gp, "msw_flag"), layer_count=_num(gp, "cloud_flg_atm"),
+                    layer_class=_num(gp, "msw_flag"), layer_count=atm,
                     surface=surface,
                     notes={"background": "geophysical/bckgrd",
                            "signal": "(n_fit_photons - background in the window) / "
                            "n_seg_pulses, quality 0",
                            "clear": ("r_eff >= 0.45, " if r_eff is not None else "")
                            + "cloud_flg_asr <= 2, cloud_flg_atm == 0",
+                           **({"clear_missing": "cloud_flg_asr, cloud_flg_atm are 0 on every "
+                               "segment, as release 001 and the pre-releases leave them: not "
+                               "filled from ATL09"} if unfilled else {}),
                            **({"stand_ins": stand_ins} if stand_ins else {})})
 
 

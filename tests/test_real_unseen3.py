@@ -1,0 +1,66 @@
+"""The third hold-out round (session 28): public files the realism matrix had not met
+(glaciersat2's ATL06 v001 over the Juneau Icefield, the same granule's v003 from
+crossovers, xtrak's, GrIMP's v006, other tools' outputs), each reading bug made small.
+Pure h5py; no rendering."""
+from __future__ import annotations
+
+import numpy as np
+
+from lidar_mitsuba.products import real
+
+
+def _atl06(path, *, release: str | None, dem: int = 2, asr=0, atm=0, n: int = 8):
+    """An ATL06 beam pair as glaciersat2's NSIDC subsets of release 001 keep it: both cloud
+    flags 0 on every segment (``ATL06_20181014001049_02350102_001_01``, where the granule's
+    release 003 has ``cloud_flg_asr`` 5 on every segment), ``dem_flag`` 2 (``gmted``: land,
+    the Juneau Icefield) or 4 (``antarctic``: land ice), r_eff 0.08."""
+    import h5py
+    with h5py.File(path, "w") as f:
+        if release is not None:
+            f["ancillary_data/release"] = np.bytes_(release.encode())
+        for name in ("gt1l", "gt1r"):
+            g = f.create_group(name)
+            g.attrs["atlas_beam_type"] = "weak" if name == "gt1l" else "strong"
+            s = g.create_group("land_ice_segments")
+            s["delta_time"] = 2.4e7 + np.arange(n) * 20.0 / 7000.0
+            s["latitude"] = 58.5 + np.arange(n) * 20.0 / 111_000.0
+            s["longitude"] = np.full(n, -134.2)
+            s["h_li"] = np.full(n, 1400.0, np.float32)
+            s["geophysical/bckgrd"] = np.full(n, 1.7e6, np.float32)
+            s["geophysical/r_eff"] = np.full(n, 0.08, np.float32)
+            s["geophysical/cloud_flg_asr"] = np.full(n, asr, np.int8)
+            s["geophysical/cloud_flg_atm"] = np.full(n, atm, np.int8)
+            d = s.create_dataset("dem/dem_flag", data=np.full(n, dem, np.int8))
+            d.attrs["flag_meanings"] = np.bytes_(b"none gimp gmted mss antarctic")
+            d.attrs["flag_values"] = np.arange(5, dtype=np.int8)
+            s["dem/dem_h"] = np.full(n, 1400.0, np.float32)
+            s["dem/geoid_h"] = np.full(n, 5.0, np.float32)
+    return path
+
+
+def test_release_001_cloud_flags_left_at_0_are_not_read_as_clear(tmp_path):
+    """Release 001 (and the pre-release 209) left cloud_flg_asr and cloud_flg_atm at 0 on
+    every segment: off an ice sheet, where the flags alone decide, they called every
+    segment of a cloudy pass clear (Juneau, r_eff 0.08 on a glacier; release 003 of the same
+    granule: cloudy everywhere). Now they are not filled: no cloud flag, said in the line."""
+    rf = real.read_product(_atl06(tmp_path / "ATL06_20181014001049_02350102_001_01.h5",
+                                  release="001"))
+    b = rf.beams[0]
+    assert b.surface == "land" and b.clear is None and b.layer_count is None
+    line = rf.missing_line()
+    assert "cloud flags (all segments taken as clear)" in line
+    assert "0 on every segment, as release 001 and the pre-releases leave them" in line
+    pre = real.read_product(_atl06(tmp_path / "ATL06_20181013235645_02340114_209_01.h5",
+                                   release=None))             # (the release from the name)
+    assert pre.release == "209" and pre.beams[0].clear is None
+    # a later release's zeros are the flags' word: clear; a 001 flag that moves is read
+    later = real.read_product(_atl06(tmp_path / "ATL06_x_006_01.h5", release="006"))
+    assert later.beams[0].clear.all() and "release 001" not in later.missing_line()
+    moved = real.read_product(_atl06(tmp_path / "ATL06_y_001_01.h5", release="001", atm=1))
+    assert not moved.beams[0].clear.any()
+    # on an ice sheet r_eff decides with the flags (the seven files' polar-night v001):
+    # nothing changes there, nothing is said
+    ice = real.read_product(_atl06(tmp_path / "ATL06_z_001_01.h5", release="001", dem=4))
+    assert ice.beams[0].surface == "land ice" and not ice.beams[0].clear.any()
+    assert ice.beams[0].layer_count is not None and "release 001" not in ice.missing_line()
+
