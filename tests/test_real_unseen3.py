@@ -5,8 +5,11 @@ Pure h5py; no rendering."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
+from lidar_mitsuba.cli import main
 from lidar_mitsuba.products import real
+from lidar_mitsuba.studies import realism
 
 
 def _atl06(path, *, release: str | None, dem: int = 2, asr=0, atm=0, n: int = 8):
@@ -64,3 +67,28 @@ def test_release_001_cloud_flags_left_at_0_are_not_read_as_clear(tmp_path):
     assert ice.beams[0].surface == "land ice" and not ice.beams[0].clear.any()
     assert ice.beams[0].layer_count is not None and "release 001" not in ice.missing_line()
 
+
+def test_a_folder_gives_its_hdf_named_files_too(tmp_path, capsys):
+    """ICESat-2_SVDA names its ATL03 cuts ``ATL03_Ground_..._gt1l.hdf``: a folder of them was
+    'no HDF5 file' though each can be named; now ``.hdf`` is found, and one that is not HDF5
+    (an HDF4 file of that name) is passed by with its reason."""
+    import h5py
+    good = _atl06(tmp_path / "ATL06_20181128031527_09240105_006_01_gt1l.hdf", release=None,
+                  dem=4)
+    (tmp_path / "MOD35_L2.A2023001.hdf").write_bytes(b"\x0e\x03\x13\x01" + b"\0" * 64)
+    found = realism.real_files([tmp_path])
+    assert [p.name for p in found] == ["ATL06_20181128031527_09240105_006_01_gt1l.hdf",
+                                       "MOD35_L2.A2023001.hdf"]
+    assert real.read_product(good).release == "006"            # from the name, as for .h5
+    out = tmp_path / "out"
+    assert main(["validate", "--real", str(tmp_path), "--signal-shots", "0",
+                 "--out", str(out)]) == 0
+    md = (out / "realism.md").read_text()
+    assert f"{good.name} (ATL06)" in md
+    assert "MOD35_L2.A2023001.hdf: passed by (" in md and "not an HDF5 file" in md
+    with h5py.File(good, "a") as f:                             # (a flattened table only)
+        del f["gt1l"], f["gt1r"]
+        f["Ground_20200320133708_gt1l/block0_values"] = np.zeros((4, 3))
+    with pytest.raises(Exception, match="it holds Ground_20200320133708_gt1l"):
+        realism.read_files(realism.real_files([tmp_path]), twins=False,
+                           skippable=realism.real_files([tmp_path]))

@@ -255,7 +255,7 @@ def release_of(f, path: pathlib.Path) -> str | None:
             v = text(np.asarray(f[key][()])).strip()
             if v:
                 return v
-    m = re.search(r"_(\d{3})_\d{2}(?:_[^.]*)?\.(?:h5|hdf5|he5|nc|nc4)$", path.name,
+    m = re.search(r"_(\d{3})_\d{2}(?:_[^.]*)?\.(?:h5|hdf5|he5|hdf|nc|nc4)$", path.name,
                   re.IGNORECASE)
     return m.group(1) if m else None
 
