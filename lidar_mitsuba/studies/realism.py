@@ -468,6 +468,14 @@ def pair_ratios(rows: list[dict]) -> list[dict]:
 
 
 # ------------------------------------------------------------------------------ the run
+def file_seed(path) -> int:
+    """A file's own offset to the run's seed, from its name alone (CRC-32, below 10^6): a
+    file's simulated rows are the same whichever folder holds it and whatever other files
+    the run reads (the offset was its place in the run's list before)."""
+    import zlib
+    return zlib.crc32(pathlib.Path(path).name.encode()) % 1_000_000
+
+
 def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
         progress=None, cloud=None) -> dict:
     """The realism matrix over ``paths`` (files or folders; default the package's real
@@ -489,7 +497,7 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
     forest_docs, forest, paired = _forest_twins(paths, signal_shots=signal_shots, seed=seed,
                                                 progress=progress)
     label = labels(paths + [p for p, _ in skipped])
-    for k, (rf, tg) in enumerate(read):
+    for rf, tg in read:
         path = rf.path
         files.append({"file": label[path], "product": rf.product, "release": rf.release,
                       "missing": label[path] + rf.missing_line()[len(path.name):]})
@@ -509,7 +517,7 @@ def run(paths=None, out_dir=None, *, signal_shots: int = 200, seed: int = 0,
                        **sky.to_dict(), "from": "given" if cloud is not None else
                        "the file's reflectance"},
                    "predicted": predicted(rb, tg, signal_shots=signal_shots,
-                                          seed=seed + 7 * k, cloud=sky, forest=fp,
+                                          seed=seed + file_seed(path), cloud=sky, forest=fp,
                                           alternatives=alts)}
             if fp is not None:
                 row["measured"]["signal_forest"] = fp["signal_measured"]
