@@ -227,9 +227,16 @@ def test_the_twins_floor_is_the_clips_own_snow_flag(tmp_path):
     forest = ft.twin_forest(i, tile_m=64.0)
     assert forest.sunlit_albedo is None and "litter" in forest.floor.name
     assert floor_albedo({"floor": "litter", "sunlit_albedo": None}) == forest.floor.albedo
+    with h5py.File(path, "a") as f:       # snow, but no land cover: the twin's conifers'
+        f["gt1r/land_segments/segment_snowcover"][...] = 2
+        del f["gt1r/land_segments/segment_landcover"]
+    i = ft.site_inputs(path, "gt1r")
+    assert i["landcover"] == [] and ft.floor_of(i)[:2] == ("snow", 0.36)
+    assert "no segment_landcover" in ft.floor_of(i)[2]
     with h5py.File(path, "a") as f:
-        del f["gt1r/land_segments/segment_snowcover"]
-    assert "no segment_snowcover" in ft.floor_of(ft.site_inputs(path, "gt1r"))[2]
+        del f["gt1r/land_segments/segment_snowcover"], f["gt1r/land_segments/dem_h"]
+    i = ft.site_inputs(path, "gt1r")
+    assert "no segment_snowcover" in ft.floor_of(i)[2] and i["slope"] == 0.0
 
 
 def test_a_forests_sunlit_albedo_is_the_solar_backgrounds():

@@ -67,7 +67,7 @@ def _confusion(ours, d, sid, indx, flag, t_real) -> dict:
     inside = (pos < d["seg_id"].size) & (d["seg_id"][np.minimum(pos, d["seg_id"].size - 1)]
                                          == sid)
     ph = d["beg0"][pos[inside]] + indx[inside] - 1
-    good = (ph >= 0) & (ph < n)
+    good = (ph >= 0) & (ph < n) & (flag[inside] >= 0) & (flag[inside] <= 3)   # (not fill)
     ph = ph[good]
     matched = np.abs(d["delta_time_s"][ph] - t_real[inside][good]) < 1e-6
     nasa[ph[matched]] = flag[inside][good][matched]
@@ -142,6 +142,15 @@ def pairs(paths) -> list[tuple[str, str]]:
     return out
 
 
+NEEDS = ("land_segments/segment_id_beg", "land_segments/terrain/h_te_best_fit",
+         "land_segments/canopy/h_canopy", "land_segments/terrain/n_te_photons",
+         "land_segments/canopy/n_ca_photons", "land_segments/canopy/n_toc_photons",
+         "signal_photons/ph_segment_id", "signal_photons/classed_pc_indx",
+         "signal_photons/classed_pc_flag", "signal_photons/delta_time")
+"""What :func:`compare` reads of an ATL08 beam: a beam lacking any (a subset dropped it) is
+passed by, said in one line."""
+
+
 def run(paths, out_dir, *, progress=print) -> list[dict]:
     """:func:`compare` on every ATL03/ATL08 pair among ``paths`` (:func:`pairs`), every beam
     both have; writes ``atl08_real.md`` and ``atl08_real.json`` to ``out_dir`` when there is
@@ -154,8 +163,16 @@ def run(paths, out_dir, *, progress=print) -> list[dict]:
         with h5py.File(a08) as f8, h5py.File(a03) as f3:
             beams = [b for b in f8 if b.startswith("gt") and f"{b}/heights/h_ph" in f3
                      and f"{b}/signal_photons" in f8]               # a clip's empty beams
+            lacks = {b: [n for n in NEEDS if f"{b}/{n}" not in f8] for b in beams}
         for beam in beams:
-            progress(f"ATL08 classifier on {pathlib.Path(a03).name} {beam} against NASA's ATL08")
+            if lacks[beam]:
+                if progress is not None:
+                    progress(f"ATL08 classifier on {pathlib.Path(a03).name} {beam}: passed "
+                             f"by, its ATL08 lacks {', '.join(lacks[beam])}")
+                continue
+            if progress is not None:
+                progress(f"ATL08 classifier on {pathlib.Path(a03).name} {beam} against "
+                         "NASA's ATL08")
             r = compare(a03, a08, beam)
             r.update({"atl03": pathlib.Path(a03).name, "atl08": pathlib.Path(a08).name,
                       "beam": beam})

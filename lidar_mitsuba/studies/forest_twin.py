@@ -104,9 +104,9 @@ def site_inputs(atl08_path=ATL08, beam: str = "gt1r") -> dict:
         ls = f[f"{beam}/land_segments"]
         h = ls["canopy/h_canopy"][()].astype(float)
         cover = ls["canopy/segment_cover"][()].astype(float)
-        dem = ls["dem_h"][()].astype(float)
+        dem = ls["dem_h"][()].astype(float) if "dem_h" in ls else np.full(h.shape, np.nan)
         lat, lon = ls["latitude"][()], ls["longitude"][()]
-        land = ls["segment_landcover"][()]
+        land = ls["segment_landcover"][()] if "segment_landcover" in ls else None
         snow = ls["segment_snowcover"][()] if "segment_snowcover" in ls else None
         strength = f[beam].attrs.get("atlas_beam_type", [b"?"])
         orient = int(f["orbit_info/sc_orient"][0]) if "orbit_info/sc_orient" in f else None
@@ -122,9 +122,10 @@ def site_inputs(atl08_path=ATL08, beam: str = "gt1r") -> dict:
     snow = (snow_on_ground(snow, land) if snow is not None
             else {"snow_fraction": None, "albedo": None, "sources": []})
     return {"h_canopy_m": float(np.median(h[ok_h])), "cover": float(np.median(cover[ok_c])) / 100,
-            "landcover": sorted({int(v) for v in land}), "slope": slope,
+            "landcover": [] if land is None else sorted({int(v) for v in land}), "slope": slope,
             "track_azimuth_deg": float(az), "strength": strength, "sc_orient": orient,
-            "segments": int(h.size), "snow": snow}
+            "segments": int(h.size), "snow": snow,
+            "slope_from": "dem_h" if ok_d.sum() >= 2 else "none: no dem_h on two segments, flat"}
 
 
 def floor_of(inputs: dict) -> tuple[str, float | None, str]:
@@ -143,10 +144,13 @@ def floor_of(inputs: dict) -> tuple[str, float | None, str]:
                 f"snow floor (segment_snowcover: snow or ice on {100 * frac:.0f} % of the "
                 f"segments); sunlit albedo {snow['albedo']:.2f} ("
                 + "; ".join(snow["sources"]) + ")")
-    if frac > 0.5:
-        return "litter", None, (f"litter floor: segment_snowcover says snow on "
-                                f"{100 * frac:.0f} % of the segments, but their land cover "
-                                "has no snow-covered albedo (water or unknown)")
+    if frac > 0.5:                 # no class with a figure: the twin's own conifer stand's
+        from ..vegetation.forest import default_sunlit_albedo
+        a = default_sunlit_albedo("conifer")
+        return ("snow", a, f"snow floor (segment_snowcover: snow or ice on {100 * frac:.0f} % "
+                f"of the segments); sunlit albedo {a:.2f} (Moody et al. 2007: evergreen "
+                "needleleaf forest, the twin's conifer stand: the snowy segments' land cover "
+                "gives no figure of its own, or the clip has no segment_landcover)")
     return "litter", None, (f"litter floor (segment_snowcover: snow-free on "
                             f"{100 * (1 - frac):.0f} % of the segments)")
 
@@ -228,14 +232,18 @@ def nasa_ground_dh(atl03_path, atl08_path, beam: str) -> dict:
     from ..constants import C_M_PER_NS
     from ..products.atl08 import read_atl03_beam
     d = read_atl03_beam(atl03_path, beam)
+    names = ("ph_segment_id", "classed_pc_indx", "delta_time", "ph_h")
     with h5py.File(atl08_path) as f:
-        sp = f[f"{beam}/signal_photons"]
-        sid, indx, t8, ph_h = (sp[k][()] for k in ("ph_segment_id", "classed_pc_indx",
-                                                   "delta_time", "ph_h"))
+        sp = f.get(f"{beam}/signal_photons")
+        if sp is None or any(k not in sp for k in names):
+            return None                    # (a subset dropped them: nothing to join)
+        sid, indx, t8, ph_h = (sp[k][()] for k in names)
     pos = np.minimum(np.searchsorted(d["seg_id"], sid), d["seg_id"].size - 1)
     ph = d["beg0"][pos] + indx.astype(np.int64) - 1
     ok = (d["seg_id"][pos] == sid) & (ph >= 0) & (ph < d["h_m"].size) & (ph_h < F4_FILL)
     ok[ok] &= np.abs(d["delta_time_s"][ph[ok]] - t8[ok]) < 1e-6
+    if ok.sum() < 2:
+        return None                        # (no photon of NASA's matched: no ground)
     gx, gz = d["x_m"][ph[ok]], d["h_m"][ph[ok]] - ph_h[ok].astype(float)
     order = np.argsort(gx)
     gx, gz = gx[order], gz[order]
@@ -257,19 +265,29 @@ def nasa_counts(atl08_path, beam: str, shots_per_m: float) -> dict:
     """NASA's ATL08 of the clip, the same quantities as :func:`atl08_counts` (heights above
     the ground: its ``signal_photons/ph_h`` of the classed photons)."""
     import h5py
+
+    def get(g, name):              # (a subset may drop any of them: None, said as not measured)
+        return None if g is None or name not in g else g[name][()].astype(float)
     with h5py.File(atl08_path) as f:
-        ls, sp = f[f"{beam}/land_segments"], f[f"{beam}/signal_photons"]
-        n_te = ls["terrain/n_te_photons"][()].astype(float)
-        n_ca = ls["canopy/n_ca_photons"][()].astype(float) + ls["canopy/n_toc_photons"][()]
-        h_can = ls["canopy/h_canopy"][()]
-        flag, ph_h = sp["classed_pc_flag"][()], sp["ph_h"][()].astype(float)
+        ls, sp = f[f"{beam}/land_segments"], f.get(f"{beam}/signal_photons")
+        n_te = get(ls, "terrain/n_te_photons")
+        n_ca, n_toc = get(ls, "canopy/n_ca_photons"), get(ls, "canopy/n_toc_photons")
+        h_can = get(ls, "canopy/h_canopy")
+        flag, ph_h = get(sp, "classed_pc_flag"), get(sp, "ph_h")
     shots = 100.0 * shots_per_m
-    rel = ph_h[(flag > 0) & (ph_h < F4_FILL)]
-    hist = np.histogram(rel, bins=HEIGHT_BINS_M)[0] / (shots * n_te.size)
-    return {"ground_per_shot": float(np.median(n_te / shots)),
-            "canopy_per_shot": float(np.median(n_ca / shots)),
-            "height_per_shot": hist.tolist(), "h_canopy_m": _median_valid(h_can),
-            "segments": int(n_te.size)}
+
+    def per_shot(n):
+        n = None if n is None else n[(n >= 0) & (n < 1e7)]       # (fill: not a count)
+        return float(np.median(n / shots)) if n is not None and n.size else None
+    segments = None if n_te is None else int(n_te.size)
+    hist = None
+    if flag is not None and ph_h is not None and flag.size == ph_h.size and segments:
+        rel = ph_h[(flag >= 1) & (flag <= 3) & (ph_h < F4_FILL)]     # (a fill flag: none)
+        hist = (np.histogram(rel, bins=HEIGHT_BINS_M)[0] / (shots * segments)).tolist()
+    return {"ground_per_shot": per_shot(n_te),
+            "canopy_per_shot": None if n_ca is None or n_toc is None else per_shot(n_ca + n_toc),
+            "height_per_shot": hist, "h_canopy_m": None if h_can is None else _median_valid(h_can),
+            "segments": segments}
 
 
 def background_hz(atl03_path, beam: str) -> float:
@@ -388,7 +406,8 @@ def compare(atl03_path=ATL03, atl08_path=ATL08, beam: str = "gt1r", *,
         lo, hi = HEIGHT_BINS_M[k], HEIGHT_BINS_M[k + 1]
         row(f"photons per shot {lo:g} to {hi:g} m above the ground (our ATL08 on both)",
             real_ours["height_per_shot"][k], twin_ours["height_per_shot"][k],
-            f"NASA's ph_h on real: {nasa['height_per_shot'][k]:.3f}")
+            "NASA's ph_h on real: " + ("-" if nasa["height_per_shot"] is None
+                                       else f"{nasa['height_per_shot'][k]:.3f}"))
     return {"atl03": pathlib.Path(atl03_path).name, "atl08": pathlib.Path(atl08_path).name,
             "beam": beam, "inputs": tw["inputs"], **_floor_doc(tw, floor), "stand": {
                 "trees": tw["forest"].stand.n_trees, "lai": tw["forest"].stand.lai(),
@@ -409,8 +428,13 @@ def _like_with_like(atl03_path, atl08_path, beam: str, res, twin_rate_hz: float)
     real = nasa_ground_dh(atl03_path, atl08_path, beam)
     n = max(res.n_shots, 1)
     sig = res.detections.is_signal
-    return {"real": layer_signal(real["dh_m"], shots=real["shots"],
-                                 background_per_m_shot=real["background_per_m_shot"]),
+    if real is None:                       # no NASA ground to stand the real photons on
+        real = {"shots": None, "mapped": 0}
+        layers = {name: None for name, _, _ in LAYERS_M}
+    else:
+        layers = layer_signal(real["dh_m"], shots=real["shots"],
+                              background_per_m_shot=real["background_per_m_shot"])
+    return {"real": layers,
             "twin": layer_signal(res.dh_m, shots=n, background_per_m_shot=twin_rate_hz * 2.0
                                  / (C_M_PER_NS * 1e9)),
             "twin_truth": layer_signal(res.dh_m[sig], shots=n, background_per_m_shot=0.0),
@@ -438,7 +462,8 @@ def report_md(doc: dict) -> str:
     lines = [f"## The forest twin: {doc['atl03']} {doc['beam']}", "",
              f"Inputs from the clip's ATL08 (not fitted): h_canopy {i['h_canopy_m']:.2f} m "
              f"(median), cover {100 * i['cover']:.0f} % (segment_cover), landcover "
-             f"{i['landcover']}, DEM slope {i['slope']:+.3f} along track; beam "
+             f"{i['landcover']}, DEM slope {i['slope']:+.3f} along track "
+             f"({i.get('slope_from', 'dem_h')}); beam "
              f"{i['strength']} (sc_orient {i['sc_orient']}), {doc['pulse_energy_uj']:.1f} uJ; "
              f"forest floor: {doc.get('floor_why', doc.get('floor', 'litter'))}. "
              f"Stand: {s['trees']} conifers, mean height {s['mean_height_m']:.2f} m, LAI "
@@ -466,12 +491,31 @@ def twins(paths, *, shots: int | None = None, seed: int = 1, progress=print) -> 
     for a03, a08 in pairs(paths):
         with h5py.File(a08) as f8, h5py.File(a03) as f3:
             beams = [b for b in f8 if b.startswith("gt") and f"{b}/heights/h_ph" in f3
-                     and f"{b}/land_segments/canopy/h_canopy" in f8     # a clip's empty beams
-                     and (f8[f"{b}/land_segments/canopy/h_canopy"][()] < F4_FILL).any()]
+                     and f"{b}/land_segments/canopy/h_canopy" in f8]    # a clip's empty beams
+            lacks = {b: _stand_lacks(f8[f"{b}/land_segments"]) for b in beams}
         for beam in beams:
+            if lacks[beam]:
+                if progress is not None and lacks[beam] != ["a canopy height"]:
+                    progress(f"forest twin of {pathlib.Path(a03).name} {beam}: none, its "
+                             f"ATL08 gives no {', '.join(lacks[beam])}")
+                continue
             if progress is not None:
                 progress(f"forest twin of {pathlib.Path(a03).name} {beam}")
             out.append(compare(a03, a08, beam, shots=shots, seed=seed))
+    return out
+
+
+def _stand_lacks(ls) -> list[str]:
+    """What a beam's ``land_segments`` lacks of the stand's inputs (:func:`site_inputs`):
+    a canopy height and a cover on some segment (not fill), and the segments' places."""
+    out = []
+    for name, what, ok in (("canopy/h_canopy", "a canopy height", lambda v: v < F4_FILL),
+                           ("canopy/segment_cover", "canopy cover (segment_cover)",
+                            lambda v: (v >= 0) & (v <= 100)),
+                           ("latitude", "latitude", lambda v: np.abs(v) <= 90),
+                           ("longitude", "longitude", lambda v: np.abs(v) <= 360)):
+        if name not in ls or not np.any(ok(ls[name][()].astype(float))):
+            out.append(what)
     return out
 
 

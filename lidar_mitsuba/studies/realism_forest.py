@@ -53,12 +53,15 @@ def prediction(doc: dict, product: str) -> dict:
     """The forest row's surface, its signal measured and predicted (module docstring), the
     twin's true signal photons per shot (for the leak term) and what the signal is."""
     if product == "ATL08":
-        real = doc["nasa"]["ground_per_shot"] + doc["nasa"]["canopy_per_shot"]
+        parts = (doc["nasa"]["ground_per_shot"], doc["nasa"]["canopy_per_shot"])
+        real = None if None in parts else sum(parts)   # (a subset dropped a count)
         twin = doc["ours_twin"]["ground_per_shot"] + doc["ours_twin"]["canopy_per_shot"]
     else:
-        real = sum(doc["like_with_like"]["real"].values())
+        parts = list(doc["like_with_like"]["real"].values())
+        real = None if None in parts else sum(parts)   # (no NASA ground to stand them on)
         twin = sum(doc["like_with_like"]["twin"].values())
-    return {"surface": surface_name(doc), "signal_measured": float(real),
+    return {"surface": surface_name(doc),
+            "signal_measured": None if real is None else float(real),
             "signal_per_shot": float(twin),
             "signal_truth": float(doc["twin_truth"]["signal_per_shot"]),
             "signal_from": "the forest twin: " + SIGNAL_WHAT.get(product, SIGNAL_WHAT["ATL03"]),
@@ -95,6 +98,9 @@ def verdict(row: dict) -> tuple[str, str]:
         return "not measured", "neither the twin's signal nor a background rate to compare"
     if bad:
         return "disagrees", ", ".join(bad) + f" (signal: {what}){cloud}"
+    if sig is None:                         # (the file lacks what its signal is counted from)
+        return "agrees", (f"background x{_fmt(bg)}; signal not measured: the clip's ATL08 "
+                          f"lacks what it is counted from (signal: {what}){cloud}")
     return "agrees", (f"background x{_fmt(bg)}, signal x{_fmt(sig)} (signal: {what}){cloud}")
 
 
