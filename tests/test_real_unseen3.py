@@ -106,6 +106,8 @@ FOREST_PAIR = ("ATL03_gt1r_20220401_forest_wyoming.h5", "ATL08_gt1r_20220401_for
     ("signal_photons/ph_h", "delete", "ATL03 signal not measured"),
     ("signal_photons/classed_pc_flag", "fill", "agrees|disagrees"),
     ("land_segments/segment_id_beg", "delete", "agrees|disagrees"),
+    ("ATL03 geolocation/ph_index_beg", "delete", "surface missing"),
+    ("ATL03 bckgrd_atlas/delta_time", "delete", "agrees|disagrees"),
 ])
 def test_a_forest_pairs_atl08_missing_a_dataset_or_at_fill(tmp_path, name, mode, expect):
     """Every dataset of the forest pair's ATL08 deleted, then set to its fill, one at a time
@@ -122,7 +124,9 @@ def test_a_forest_pairs_atl08_missing_a_dataset_or_at_fill(tmp_path, name, mode,
         pytest.skip("the real forest pair is not here (../shared/real)")
     for f in FOREST_PAIR:
         shutil.copy(src / f, tmp_path / f)
-    with h5py.File(tmp_path / FOREST_PAIR[1], "a") as f:
+    target = FOREST_PAIR[0] if name.startswith("ATL03 ") else FOREST_PAIR[1]
+    name = name.removeprefix("ATL03 ")
+    with h5py.File(tmp_path / target, "a") as f:
         key = f"gt1r/{name}"
         if mode == "delete":
             del f[key]
@@ -135,7 +139,8 @@ def test_a_forest_pairs_atl08_missing_a_dataset_or_at_fill(tmp_path, name, mode,
     rows = {r["product"]: r for r in doc["rows"]}
     if expect == "surface missing":
         assert {r["verdict"] for r in rows.values()} == {"surface missing"}
-        assert any("segment_cover" in line for line in lines)
+        assert any(name.split("/")[-1] in line and ("forest twin" in line or "passed by" in line)
+                   for line in lines)
     elif expect == "ATL08 not measured":
         r = rows["ATL08"]
         assert r["measured"]["signal_forest"] is None and r["verdict"] == "not measured"
@@ -144,5 +149,25 @@ def test_a_forest_pairs_atl08_missing_a_dataset_or_at_fill(tmp_path, name, mode,
         assert r["measured"]["signal_forest"] is None and "signal not measured" in r["reason"]
     else:
         assert {r["verdict"] for r in rows.values()} <= {"agrees", "disagrees"}
-    if mode == "delete" and name in atl08_real.NEEDS:      # what the comparison reads
-        assert any("passed by" in line and name in line for line in lines)
+    if mode == "delete" and (name in atl08_real.NEEDS or target == FOREST_PAIR[0]
+                             and name.startswith(("heights", "geolocation"))):
+        assert any("passed by" in line and name in line for line in lines)   # (what it reads)
+
+
+def test_our_atl08_of_an_atl03_lacking_its_segments_is_a_one_line_error(tmp_path, capsys):
+    """``lidar-mitsuba atl08`` of an ATL03 beam a subset stripped of what ATL08 reads (its 20 m
+    segments' photon index) stops in one line naming the datasets, exit 2, no output."""
+    import shutil
+    import h5py
+    src = pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "real"
+    if not (src / FOREST_PAIR[0]).exists():
+        pytest.skip("the real forest pair is not here (../shared/real)")
+    a03 = tmp_path / FOREST_PAIR[0]
+    shutil.copy(src / FOREST_PAIR[0], a03)
+    with h5py.File(a03, "a") as f:
+        del f["gt1r/geolocation/ph_index_beg"]
+    out = tmp_path / "ATL08.h5"
+    rc = main(["atl08", str(a03), "--beams", "gt1r", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "ph_index_beg" in err[0]
+    assert "Traceback" not in err[0] and not out.exists()

@@ -158,17 +158,19 @@ def run(paths, out_dir, *, progress=print) -> list[dict]:
     import json
     import pathlib
     import h5py
+    from ..products.atl08 import atl03_lacks
     results = []
     for a03, a08 in pairs(paths):
         with h5py.File(a08) as f8, h5py.File(a03) as f3:
             beams = [b for b in f8 if b.startswith("gt") and f"{b}/heights/h_ph" in f3
                      and f"{b}/signal_photons" in f8]               # a clip's empty beams
-            lacks = {b: [n for n in NEEDS if f"{b}/{n}" not in f8] for b in beams}
+            lacks = {b: [n for n in NEEDS if f"{b}/{n}" not in f8]
+                     + [f"ATL03 {n}" for n in atl03_lacks(f3[b])] for b in beams}
         for beam in beams:
             if lacks[beam]:
                 if progress is not None:
                     progress(f"ATL08 classifier on {pathlib.Path(a03).name} {beam}: passed "
-                             f"by, its ATL08 lacks {', '.join(lacks[beam])}")
+                             f"by, the pair lacks {', '.join(lacks[beam])}")
                 continue
             if progress is not None:
                 progress(f"ATL08 classifier on {pathlib.Path(a03).name} {beam} against "

@@ -290,23 +290,28 @@ def nasa_counts(atl08_path, beam: str, shots_per_m: float) -> dict:
             "segments": segments}
 
 
-def background_hz(atl03_path, beam: str) -> float:
+def background_hz(atl03_path, beam: str) -> float | None:
     """The median ``bckgrd_atlas/bckgrd_rate`` [Hz] of an ATL03 beam's clip, as the realism
     matrix reads it (:mod:`lidar_mitsuba.products.real`: the 50-shot row at or after each
     geolocation segment's time, the photons' times where a file has no segments): a clip keeps
     its granule's whole background table (the Medicine Bow and Saskatchewan clips of one
     granule both hold its 102 093 rows), whose median is not the clip's. The twin's file
-    holds the model's rate there."""
+    holds the model's rate there. ``None`` where a subset dropped the rates or their times,
+    or they are fill."""
     import h5py
     with h5py.File(atl03_path) as f:
         g = f[beam]
+        if "bckgrd_atlas/bckgrd_rate" not in g or "bckgrd_atlas/delta_time" not in g:
+            return None
         rate = g["bckgrd_atlas/bckgrd_rate"][()].astype(np.float64)
         rows_t = g["bckgrd_atlas/delta_time"][()]
         t = (g["geolocation/delta_time"][()] if "geolocation/delta_time" in g
-             else g["heights/delta_time"][()])
-    if t.size == 0:
-        return float(np.median(rate))
-    return float(np.median(rate[np.clip(np.searchsorted(rows_t, t), 0, rows_t.size - 1)]))
+             else g["heights/delta_time"][()] if "heights/delta_time" in g else np.zeros(0))
+    rate = np.where((rate >= 0) & (rate < 1e12), rate, np.nan)       # (fill: no rate)
+    if t.size and rows_t.size == rate.size and rows_t.size:
+        rate = rate[np.clip(np.searchsorted(rows_t, t), 0, rows_t.size - 1)]
+    rate = rate[np.isfinite(rate)]
+    return float(np.median(rate)) if rate.size else None
 
 
 def simulate_twin(atl03_path=ATL03, atl08_path=ATL08, beam: str = "gt1r", *,
@@ -395,7 +400,8 @@ def compare(atl03_path=ATL03, atl08_path=ATL08, beam: str = "gt1r", *,
         "(n_ca + n_toc) / shots, background photons in the canopy included")
     row("canopy photons per shot (our ATL08 on both)", real_ours["canopy_per_shot"],
         twin_ours["canopy_per_shot"], "same classifier")
-    row("background rate [MHz]", bg["real"] / 1e6, bg["twin"] / 1e6,
+    row("background rate [MHz]", None if bg["real"] is None else bg["real"] / 1e6,
+        None if bg["twin"] is None else bg["twin"] / 1e6,
         "bckgrd_atlas/bckgrd_rate median over the clip's rows (the twin's: the model's, the "
         "sun over the forest floor's albedo); agrees within the realism matrix's 0.5-2",
         agrees=BACKGROUND_AGREES)
@@ -492,17 +498,26 @@ def twins(paths, *, shots: int | None = None, seed: int = 1, progress=print) -> 
         with h5py.File(a08) as f8, h5py.File(a03) as f3:
             beams = [b for b in f8 if b.startswith("gt") and f"{b}/heights/h_ph" in f3
                      and f"{b}/land_segments/canopy/h_canopy" in f8]    # a clip's empty beams
-            lacks = {b: _stand_lacks(f8[f"{b}/land_segments"]) for b in beams}
+            lacks = {b: _stand_lacks(f8[f"{b}/land_segments"])
+                     + [f"ATL03 {n}" for n in _twin_atl03_lacks(f3[b])] for b in beams}
         for beam in beams:
             if lacks[beam]:
                 if progress is not None and lacks[beam] != ["a canopy height"]:
-                    progress(f"forest twin of {pathlib.Path(a03).name} {beam}: none, its "
-                             f"ATL08 gives no {', '.join(lacks[beam])}")
+                    progress(f"forest twin of {pathlib.Path(a03).name} {beam}: none, the "
+                             f"pair gives no {', '.join(lacks[beam])}")
                 continue
             if progress is not None:
                 progress(f"forest twin of {pathlib.Path(a03).name} {beam}")
             out.append(compare(a03, a08, beam, shots=shots, seed=seed))
     return out
+
+
+def _twin_atl03_lacks(g) -> list[str]:
+    """What a beam's ATL03 lacks of what the twin reads of it: its photons and segments
+    (:func:`~lidar_mitsuba.products.atl08.read_atl03_beam`; its background rate may be
+    missing: :func:`background_hz`)."""
+    from ..products.atl08 import atl03_lacks
+    return atl03_lacks(g)
 
 
 def _stand_lacks(ls) -> list[str]:

@@ -66,6 +66,20 @@ def _index_base(beg: np.ndarray, cnt: np.ndarray, n: int) -> int:
     return int(beg[nz[-1]] + cnt[nz[-1]] - n)
 
 
+ATL03_NEEDS = ("heights/h_ph", "heights/delta_time", "heights/dist_ph_along",
+               "geolocation/segment_ph_cnt", "geolocation/ph_index_beg",
+               "geolocation/segment_id", "geolocation/segment_dist_x",
+               "geolocation/reference_photon_lat", "geolocation/reference_photon_lon",
+               "geolocation/delta_time")
+"""What :func:`read_atl03_beam` reads of an ATL03 beam (the photons and their 20 m segments)."""
+
+
+def atl03_lacks(group) -> list[str]:
+    """The datasets of :data:`ATL03_NEEDS` an ATL03 beam group (h5py) lacks (a subset dropped
+    them)."""
+    return [n for n in ATL03_NEEDS if n not in group]
+
+
 def read_atl03_beam(path: str | os.PathLike, beam: str) -> dict:
     """The photons and 20 m segments of one ATL03 beam (ours or NASA's): per photon ``x_m``
     (along track: ``segment_dist_x + dist_ph_along``), ``h_m``, ``delta_time_s``,
@@ -80,6 +94,10 @@ def read_atl03_beam(path: str | os.PathLike, beam: str) -> dict:
         if beam not in f or "heights" not in f[beam]:
             raise ParameterError("beam", f"{path}: no ATL03 beam {beam!r}")
         g = f[beam]
+        lacks = atl03_lacks(g)
+        if lacks:
+            raise ParameterError("beam", f"{path}: ATL03 beam {beam} lacks "
+                                 f"{', '.join(lacks)} (a subset dropped them)")
         hts, geo = g["heights"], g["geolocation"]
         h = hts["h_ph"][()].astype(np.float64)
         cnt = geo["segment_ph_cnt"][()].astype(np.int64)
@@ -102,7 +120,8 @@ def read_atl03_beam(path: str | os.PathLike, beam: str) -> dict:
             hts["dist_ph_along"][()].astype(np.float64)
         out["indx"] = np.where(ok, np.arange(h.size) - beg0[np.maximum(seg, 0)] + 1, 0)
         out["bckgrd_hz"] = None
-        if "bckgrd_atlas" in g and "bckgrd_rate" in g["bckgrd_atlas"]:
+        if ("bckgrd_atlas" in g and "bckgrd_rate" in g["bckgrd_atlas"]
+                and "delta_time" in g["bckgrd_atlas"]):
             b = g["bckgrd_atlas"]
             out["bckgrd_hz"] = np.interp(out["delta_time_s"], b["delta_time"][()],
                                          b["bckgrd_rate"][()])
