@@ -159,6 +159,7 @@ def run(paths, out_dir, *, progress=print) -> list[dict]:
     import pathlib
     import h5py
     from ..products.atl08 import atl03_lacks
+    from .forest_twin import UNREADABLE
     results = []
     for a03, a08 in pairs(paths):
         with h5py.File(a08) as f8, h5py.File(a03) as f3:
@@ -175,7 +176,13 @@ def run(paths, out_dir, *, progress=print) -> list[dict]:
             if progress is not None:
                 progress(f"ATL08 classifier on {pathlib.Path(a03).name} {beam} against "
                          "NASA's ATL08")
-            r = compare(a03, a08, beam)
+            try:
+                r = compare(a03, a08, beam)
+            except UNREADABLE as e:      # fill where a time, place or index should be
+                if progress is not None:
+                    progress(f"ATL08 classifier on {pathlib.Path(a03).name} {beam}: passed "
+                             f"by, the pair cannot be read ({type(e).__name__}: {e})")
+                continue
             r.update({"atl03": pathlib.Path(a03).name, "atl08": pathlib.Path(a08).name,
                       "beam": beam})
             results.append(r)

@@ -508,8 +508,20 @@ def twins(paths, *, shots: int | None = None, seed: int = 1, progress=print) -> 
                 continue
             if progress is not None:
                 progress(f"forest twin of {pathlib.Path(a03).name} {beam}")
-            out.append(compare(a03, a08, beam, shots=shots, seed=seed))
+            try:
+                out.append(compare(a03, a08, beam, shots=shots, seed=seed))
+            except UNREADABLE as e:      # fill where a time, place or index should be
+                if progress is not None:
+                    progress(f"forest twin of {pathlib.Path(a03).name} {beam}: none, the "
+                             f"pair cannot be read ({type(e).__name__}: {e})")
     return out
+
+
+UNREADABLE = (ValueError, OverflowError, IndexError)
+"""What fill values where a time, a place or an index should be raise in the twin's and the
+comparison's arithmetic (a ParameterError, naming what is wrong, is a ValueError): a beam
+that raises one is passed by, said, as one lacking what they read (session 28's fuzz: a
+``ph_index_beg`` or ``segment_dist_x`` at fill)."""
 
 
 def _twin_atl03_lacks(g) -> list[str]:
