@@ -247,6 +247,18 @@ def _beam_holds(f, group: str) -> str:
     return f"{name}/{group} holds {g[group]['delta_time'].shape[0]} segment(s)"
 
 
+HDF5_SUFFIXES = (".h5", ".hdf5", ".he5", ".hdf", ".nc", ".nc4")
+"""The names a folder's HDF5 files go by (any case): NASA's ``.h5``, ``.hdf`` as some tools
+name their ATL03 cuts (``ATL03_Ground_..._gt1l.hdf``; an HDF4 file of that name is passed by
+as not HDF5), and the NetCDF-4 (an HDF5 file) that the NSIDC subsetter's reformatting writes
+(``processed_ATL03_..._01.nc``, ``processed_ATL10-01_..._01.nc``) or OPeNDAP serves
+(``.nc4``); :func:`release_of` reads the release from names of these."""
+
+_RELEASE_IN_NAME = re.compile(r"_(\d{3})_\d{2}(?:_[^.]*)?\.(?:"
+                              + "|".join(x.lstrip(".") for x in HDF5_SUFFIXES) + ")$",
+                              re.IGNORECASE)
+
+
 def release_of(f, path: pathlib.Path) -> str | None:
     """The release (``006``): ``ancillary_data/release`` or ``version``, else the file name's
     ``_RRR_VV.h5`` tail; None when neither says."""
@@ -255,8 +267,7 @@ def release_of(f, path: pathlib.Path) -> str | None:
             v = text(np.asarray(f[key][()])).strip()
             if v:
                 return v
-    m = re.search(r"_(\d{3})_\d{2}(?:_[^.]*)?\.(?:h5|hdf5|he5|hdf|nc|nc4)$", path.name,
-                  re.IGNORECASE)
+    m = _RELEASE_IN_NAME.search(path.name)
     return m.group(1) if m else None
 
 

@@ -265,15 +265,13 @@ def nasa_counts(atl08_path, beam: str, shots_per_m: float) -> dict:
     """NASA's ATL08 of the clip, the same quantities as :func:`atl08_counts` (heights above
     the ground: its ``signal_photons/ph_h`` of the classed photons)."""
     import h5py
-
-    def get(g, name):              # (a subset may drop any of them: None, said as not measured)
-        return None if g is None or name not in g else g[name][()].astype(float)
+    from ..products.real import _num      # (None where a subset dropped it: not measured)
     with h5py.File(atl08_path) as f:
-        ls, sp = f[f"{beam}/land_segments"], f.get(f"{beam}/signal_photons")
-        n_te = get(ls, "terrain/n_te_photons")
-        n_ca, n_toc = get(ls, "canopy/n_ca_photons"), get(ls, "canopy/n_toc_photons")
-        h_can = get(ls, "canopy/h_canopy")
-        flag, ph_h = get(sp, "classed_pc_flag"), get(sp, "ph_h")
+        ls, sp = f[f"{beam}/land_segments"], f.get(f"{beam}/signal_photons") or {}
+        n_te = _num(ls, "terrain/n_te_photons")
+        n_ca, n_toc = _num(ls, "canopy/n_ca_photons"), _num(ls, "canopy/n_toc_photons")
+        h_can = _num(ls, "canopy/h_canopy")
+        flag, ph_h = _num(sp, "classed_pc_flag"), _num(sp, "ph_h")
     shots = 100.0 * shots_per_m
 
     def per_shot(n):
@@ -492,14 +490,16 @@ def twins(paths, *, shots: int | None = None, seed: int = 1, progress=print) -> 
     (a canopy height on some segment), each beam both files have (the realism matrix's
     forest rows take theirs from these: :mod:`~lidar_mitsuba.studies.realism_forest`)."""
     import h5py
+    from ..products.atl08 import atl03_lacks
     from .atl08_real import pairs
     out = []
     for a03, a08 in pairs(paths):
         with h5py.File(a08) as f8, h5py.File(a03) as f3:
             beams = [b for b in f8 if b.startswith("gt") and f"{b}/heights/h_ph" in f3
                      and f"{b}/land_segments/canopy/h_canopy" in f8]    # a clip's empty beams
-            lacks = {b: _stand_lacks(f8[f"{b}/land_segments"])
-                     + [f"ATL03 {n}" for n in _twin_atl03_lacks(f3[b])] for b in beams}
+            lacks = {b: _stand_lacks(f8[f"{b}/land_segments"])   # (the ATL03's background
+                     + [f"ATL03 {n}" for n in atl03_lacks(f3[b])]  # may be missing)
+                     for b in beams}
         for beam in beams:
             if lacks[beam]:
                 if progress is not None and lacks[beam] != ["a canopy height"]:
@@ -522,14 +522,6 @@ UNREADABLE = (ValueError, OverflowError, IndexError)
 comparison's arithmetic (a ParameterError, naming what is wrong, is a ValueError): a beam
 that raises one is passed by, said, as one lacking what they read (session 28's fuzz: a
 ``ph_index_beg`` or ``segment_dist_x`` at fill)."""
-
-
-def _twin_atl03_lacks(g) -> list[str]:
-    """What a beam's ATL03 lacks of what the twin reads of it: its photons and segments
-    (:func:`~lidar_mitsuba.products.atl08.read_atl03_beam`; its background rate may be
-    missing: :func:`background_hz`)."""
-    from ..products.atl08 import atl03_lacks
-    return atl03_lacks(g)
 
 
 def _stand_lacks(ls) -> list[str]:

@@ -6,17 +6,10 @@ from __future__ import annotations
 import pathlib
 
 from ..constants import ParameterError
+from ..products.real import HDF5_SUFFIXES
 
 PACKAGE_DATA = pathlib.Path(__file__).resolve().parents[1] / "data"
 """The real files the package ships (``validate --real`` with no file)."""
-
-
-HDF5_SUFFIXES = (".h5", ".hdf5", ".he5", ".hdf", ".nc", ".nc4")
-"""The names a folder's HDF5 files go by (any case): NASA's ``.h5``, ``.hdf`` as some tools
-name their ATL03 cuts (``ATL03_Ground_..._gt1l.hdf``; an HDF4 file of that name is passed by
-as not HDF5), and the NetCDF-4 (an HDF5 file) that the NSIDC subsetter's reformatting writes
-(``processed_ATL03_..._01.nc``, ``processed_ATL10-01_..._01.nc``) or OPeNDAP serves
-(``.nc4``)."""
 
 
 def hdf5_files(folder) -> list[pathlib.Path]:
