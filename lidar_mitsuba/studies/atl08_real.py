@@ -17,6 +17,11 @@ REAL_DIR = "/work/shared/real/"
 ATL03 = REAL_DIR + "ATL03_gt1r_20220401_forest_wyoming.h5"
 ATL08 = REAL_DIR + "ATL08_gt1r_20220401_forest_wyoming.h5"
 F4_FILL = np.finfo(np.float32).max
+LAND = ("segment_id_beg", "terrain/h_te_best_fit", "canopy/h_canopy", "terrain/n_te_photons",
+        "canopy/n_ca_photons", "canopy/n_toc_photons")
+"""What :func:`compare` reads of an ATL08 beam's ``land_segments``."""
+PHOTONS = ("ph_segment_id", "classed_pc_indx", "classed_pc_flag", "delta_time")
+"""... and of its ``signal_photons`` (in this order)."""
 
 
 def compare(atl03_path: str = ATL03, atl08_path: str = ATL08, beam: str = "gt1r", *,
@@ -31,11 +36,8 @@ def compare(atl03_path: str = ATL03, atl08_path: str = ATL08, beam: str = "gt1r"
     d = atl08.read_atl03_beam(atl03_path, beam)
     with h5py.File(atl08_path) as f:
         ls, sp = f[f"{beam}/land_segments"], f[f"{beam}/signal_photons"]
-        real = {k: ls[k][()] for k in ("segment_id_beg", "terrain/h_te_best_fit",
-                                       "canopy/h_canopy", "terrain/n_te_photons",
-                                       "canopy/n_ca_photons", "canopy/n_toc_photons")}
-        sid, indx = sp["ph_segment_id"][()], sp["classed_pc_indx"][()]
-        flag, t_real = sp["classed_pc_flag"][()], sp["delta_time"][()]
+        real = {k: ls[k][()] for k in LAND}
+        sid, indx, flag, t_real = (sp[k][()] for k in PHOTONS)
     seg = ours.segments
     ids = seg["land_segments/segment_id_beg"]
     j = np.searchsorted(real["segment_id_beg"], ids)
@@ -142,11 +144,8 @@ def pairs(paths) -> list[tuple[str, str]]:
     return out
 
 
-NEEDS = ("land_segments/segment_id_beg", "land_segments/terrain/h_te_best_fit",
-         "land_segments/canopy/h_canopy", "land_segments/terrain/n_te_photons",
-         "land_segments/canopy/n_ca_photons", "land_segments/canopy/n_toc_photons",
-         "signal_photons/ph_segment_id", "signal_photons/classed_pc_indx",
-         "signal_photons/classed_pc_flag", "signal_photons/delta_time")
+NEEDS = (tuple(f"land_segments/{k}" for k in LAND)
+         + tuple(f"signal_photons/{k}" for k in PHOTONS))
 """What :func:`compare` reads of an ATL08 beam: a beam lacking any (a subset dropped it) is
 passed by, said in one line."""
 
