@@ -22,7 +22,8 @@ import numpy as np
 from . import __version__
 from .products import atl06, cloud_flags, h5template, h5write as h5chunks
 from .products.atl03 import _ds, atomic_h5file
-from .products.atl03.beam import beam_attrs, write_beam as _beam_atl03  # noqa: F401
+from .products.atl03.beam import (beam_attrs, noise_rate_hz,
+                                   write_beam as _beam_atl03)  # noqa: F401
 from .products.atl03.file import (ancillary as _ancillary, header as _atl03_header,
                                   orbit_info as _orbit_info, utc as _utc)
 from .products.metadata import extend_extent as _extend_extent, write_metadata as _metadata
@@ -66,7 +67,7 @@ _ATL06_NAMES = {
     "fpb_corr_sigma_m": ("bias_correction", "fpb_mean_corr_sigma", np.float32),
     "fpb_med_corr_m": ("bias_correction", "fpb_med_corr", np.float32),
     "fpb_n_corr": ("bias_correction", "fpb_n_corr", np.float32),
-    "bckgrd": ("geophysical", "bckgrd", np.float32),
+    "bckgrd": ("fit_statistics", "bckgrd_fit", np.float32),
     "x_atc": ("ground_track", "x_atc", np.float64),
     "h_ref_m": ("dem", "h_ref_m", np.float32),
 }
@@ -87,7 +88,7 @@ def write_atl06(granule: Granule, path: str | os.PathLike, **options) -> pathlib
             table = atl06.segments_from_result(r.result, **options)
             _beam_atl06(f, r.beam, granule.sc_orient, table, along_m=r.result.along_track_m,
                         lat_deg=r.lat_deg, lon_deg=r.lon_deg, delta_time_s=r.delta_time_s,
-                        sky=cloud_flags.sky_of(r.result))
+                        rate_hz=noise_rate_hz(r.result), sky=cloud_flags.sky_of(r.result))
     return path
 
 
@@ -110,11 +111,21 @@ def _atl06_header(f, granule, instruments, t_first, t_last, *, path, atl03_path=
 
 
 def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_deg,
-                delta_time_s, sky: dict | None = None):
-    """Append ``table``'s segments to the beam's ``land_ice_segments``; positions and times
-    are those of the shot nearest each segment centre among ``along_m`` [m] (with their
-    ``lat_deg``, ``lon_deg``, ``delta_time_s``); ``sky``: the run's
-    :func:`~lidar_mitsuba.products.cloud_flags.sky_of`, for ``geophysical``'s cloud flags."""
+                delta_time_s, rate_hz, sky: dict | None = None):
+    """Append ``table``'s segments to the beam's ``land_ice_segments``; positions, times and
+    the background rate are those of the shot nearest each segment centre among ``along_m``
+    [m] (with their ``lat_deg``, ``lon_deg``, ``delta_time_s``, ``rate_hz``: the modelled
+    noise rate [Hz], :func:`~lidar_mitsuba.products.atl03.beam.noise_rate_hz`); ``sky``: the
+    run's :func:`~lidar_mitsuba.products.cloud_flags.sky_of`, for ``geophysical``'s cloud
+    flags.
+
+    ``geophysical/bckgrd`` is NASA's: "Background count rate, derived from the ATL03
+    50-shot-average, interpolated to the segment center" [hz], here the rate our ATL03's
+    ``bckgrd_rate`` rows average, at the segment centre's shot. Our fit's own estimate
+    (``SegmentTable.bckgrd``, from the photons outside its window, dead-time corrected: what
+    its first-photon-bias correction subtracts) is ``fit_statistics/bckgrd_fit`` [hz]; until
+    session 29 it was written as ``geophysical/bckgrd`` in MHz, which read as a million
+    times too small to any reader of NASA's units."""
     if beam.name not in f:                                # (the first section's)
         h5chunks.set_attrs(f.create_group(beam.name), beam_attrs(beam, sc_orient))
     i = np.clip(np.searchsorted(along_m, table.x_atc), 0, max(along_m.size - 1, 0))
@@ -129,9 +140,17 @@ def _beam_atl06(f, beam: Beam, sc_orient: int, table, *, along_m, lat_deg, lon_d
         ("sigma_geo_h", np.zeros(n, np.float32), "meters",
          "height error from geolocation (none in a simulation)")]
     columns = [c + ({}, None) for c in columns]
+    f4_fill = {"_FillValue": np.finfo(np.float32).max}
+    columns.append(("geophysical/bckgrd", np.asarray(rate_hz, np.float32)[i], "hz",
+                    "Background count rate, derived from the ATL03 50-shot-average, "
+                    "interpolated to the segment center: the modelled rate of noise events the "
+                    "detector records (ATL03's bckgrd_rate) at the segment centre's shot",
+                    f4_fill, None))
     for ours, (sub, name, dtype) in _ATL06_NAMES.items():
         units, desc = atl06.FIELDS[ours]
         v = np.asarray(getattr(table, ours))
+        if ours == "bckgrd":                      # our fit's estimate, in NASA's unit
+            units, desc, v = "hz", desc + " (our fit's estimate, not in NASA's ATL06)", v * 1e6
         attrs = {}
         if np.issubdtype(dtype, np.floating):
             v = np.where(np.isfinite(v), v, np.finfo(dtype).max)   # ATL06's fill value
@@ -167,9 +186,9 @@ class _Fits:
         """Write the finished fits (``wait``: all of them) to the ATL06 file."""
         while self.jobs and (wait or self.jobs[0][1].done()):
             beam, job, sky = self.jobs.pop(0)
-            table, along, lat, lon, t = job.result()
+            table, along, lat, lon, t, rate = job.result()
             _beam_atl06(self.f6, beam, self.sc_orient, table, along_m=along, lat_deg=lat,
-                        lon_deg=lon, delta_time_s=t, sky=sky)
+                        lon_deg=lon, delta_time_s=t, rate_hz=rate, sky=sky)
 
     def __enter__(self):
         return self
@@ -184,7 +203,7 @@ class _SegmentStream:
     its photons; segments are on the whole track's grid (centres 20, 40, ... m from the
     first shot) and every one is fitted once, when its whole span has been simulated."""
 
-    SHOT_KEYS = ("along", "zref", "lat", "lon", "time")
+    SHOT_KEYS = ("along", "zref", "lat", "lon", "time", "rate")
     PHOTON_KEYS = ("shot", "h", "channel")
 
     def __init__(self, options: dict):
@@ -193,11 +212,12 @@ class _SegmentStream:
         self.tail = None
 
     def fit(self, run: BeamRun, *, last: bool):
-        """The segments completed by this section: ``(table, along, lat, lon, time)``."""
+        """The segments completed by this section: ``(table, along, lat, lon, time, rate)``
+        (``rate``: each shot's modelled noise rate [Hz], :func:`noise_rate_hz`)."""
         res = run.result
         det = res.detections
         shots = {"along": res.along_track_m, "zref": res.z_ref_m, "lat": run.lat_deg,
-                 "lon": run.lon_deg, "time": run.delta_time_s}
+                 "lon": run.lon_deg, "time": run.delta_time_s, "rate": noise_rate_hz(res)}
         ph = {"shot": det.shot.astype(np.int64), "h": res.h_m, "channel": det.channel}
         if self.tail is not None:
             n_tail = self.tail[0]["along"].size
@@ -226,4 +246,4 @@ class _SegmentStream:
         p0 = int(np.searchsorted(ph["shot"], s0))
         self.tail = ({k: v[s0:].copy() for k, v in shots.items()},
                      {k: (v[p0:] - s0 if k == "shot" else v[p0:]).copy() for k, v in ph.items()})
-        return table, along, shots["lat"], shots["lon"], shots["time"]
+        return table, along, shots["lat"], shots["lon"], shots["time"], shots["rate"]

@@ -173,6 +173,30 @@ def _num(g, key: str) -> np.ndarray | None:
     return a
 
 
+#: a background rate's ``units`` attribute (lower case, spaces removed) -> its factor to Hz:
+#: NASA writes ``hz`` (ATL06) and ``counts / second`` (ATL03); a tool, or our ATL06 before
+#: session 29 (``MHz``), may write another
+RATE_UNITS_TO_HZ = {"mhz": 1e6, "khz": 1e3, "hz": 1.0, "counts/second": 1.0, "1/s": 1.0,
+                    "counts/s": 1.0, "s-1": 1.0, "1/second": 1.0}
+
+
+def _rate_hz(g, key: str) -> np.ndarray | None:
+    """Rate dataset ``key`` of group ``g`` [Hz] (:func:`_num`), scaled by its ``units``
+    attribute where that names MHz or kHz (:data:`RATE_UNITS_TO_HZ`; no or an unknown unit:
+    Hz, NASA's)."""
+    a = _num(g, key)
+    if a is None:
+        return None
+    u = g[key].attrs.get("units")
+    if isinstance(u, np.ndarray) and u.size:
+        u = u.ravel()[0]
+    if isinstance(u, (bytes, np.bytes_)):
+        u = u.decode("ascii", "replace")
+    factor = RATE_UNITS_TO_HZ.get(str(u).lower().replace(" ", ""), 1.0) if u is not None \
+        else 1.0
+    return a * factor if factor != 1.0 else a
+
+
 def sc_orient(f) -> int | None:
     """0 backward, 1 forward: ``orbit_info/sc_orient`` or a beam's ``sc_orientation``;
     None when neither is there."""

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..constants import C_M_PER_NS
 from .real import (CLEAR_TWO_WAY_TRANSMISSION, SNOW_REFLECTANCE, SURF_PRIORITY, SURF_TYPES,
-                   RealBeam, _num)
+                   RealBeam, _num, _rate_hz)
 
 
 def _atl03(g, **beam) -> RealBeam | None:
@@ -55,7 +55,7 @@ def _atl03(g, **beam) -> RealBeam | None:
         if st.ndim == 2 and st.shape[1] == len(SURF_TYPES):
             present = (st == 1).sum(axis=0) >= 0.5 * st.shape[0]    # (fill is not 1)
             b.surface = next((SURF_TYPES[i] for i in SURF_PRIORITY if present[i]), "unknown")
-    tb, rate = (_num(bg, "delta_time"), _num(bg, "bckgrd_rate")) if bg is not None \
+    tb, rate = (_num(bg, "delta_time"), _rate_hz(bg, "bckgrd_rate")) if bg is not None \
         else (None, None)
     if tb is not None and rate is not None and (tb.size == 0 or rate.shape != tb.shape):
         b.notes["background_hz_missing"] = (f"bckgrd_atlas holds {tb.size} rows" if tb.size == 0
@@ -219,7 +219,7 @@ def _atl06(g, **beam) -> RealBeam | None:
         return None
     gp = _sub(s, "geophysical")
     fs = _sub(s, "fit_statistics")
-    bg = _num(gp, "bckgrd")
+    bg = _rate_hz(gp, "bckgrd")
     n_fit, n_pulses, w = (_num(fs, k) for k in ("n_fit_photons", "n_seg_pulses",
                                                 "w_surface_window_final"))
     sig, stand_ins = None, []
@@ -307,7 +307,7 @@ def _atl07(g, **beam) -> RealBeam | None:
                     lon_deg=_num(s, "longitude"), surface_h_m=h,
                     solar_elevation_deg=_num(geo, "solar_elevation"),
                     solar_azimuth_deg=_num(geo, "solar_azimuth"),
-                    background_hz=_num(st, "backgr_r_200"), signal_per_shot=rate, clear=clear,
+                    background_hz=_rate_hz(st, "backgr_r_200"), signal_per_shot=rate, clear=clear,
                     reflectance=asr, reflectance_photons=_num(hts, "height_segment_asr_calc"),
                     layer_class=_num(st, "msw_flag"), layer_count=_num(st, "cloud_flag_atm"),
                     band_height_m=band,

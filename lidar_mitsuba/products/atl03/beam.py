@@ -294,6 +294,18 @@ def _signal_find(s: _Section) -> dict:
 _ROW_SUMS = ("counts", "signal", "rate_sum", "shots")
 
 
+def noise_rate_hz(res, instrument=None) -> np.ndarray:
+    """(n_shots,) the modelled rate of noise events the detector records at each shot of a
+    run's result [Hz]: background reaching the detector x fill factor x PDE + every
+    channel's dark counts (:func:`~lidar_mitsuba.detector.pmt.noise_rate_per_ns`). What
+    ``bckgrd_atlas/bckgrd_rate`` averages over a row's 50 shots, and what our ATL06's
+    ``geophysical/bckgrd`` takes at a segment's centre, as NASA's ATL06 takes ATL03's rate
+    (``instrument``: the run's, by default ``res.instrument``)."""
+    bg = None if res.radiometry is None else res.radiometry.background_mhz
+    inst = res.instrument if instrument is None else instrument
+    return np.broadcast_to(pmt.noise_rate_per_ns(inst, bg) * 1e9, (res.n_shots,))
+
+
 def _bckgrd_rows(s: _Section) -> dict:
     """The run's 50-shot rows (of the whole track's grid): sums over the run's shots in each,
     and what the row's first shot gives it (when that shot is in this run).
@@ -310,8 +322,7 @@ def _bckgrd_rows(s: _Section) -> dict:
     row = (g0 + np.arange(n)) // BCKGRD_SHOTS
     lr = row - row[0]
     n_rows = int(lr[-1]) + 1
-    bg = None if res.radiometry is None else res.radiometry.background_mhz
-    rate = np.broadcast_to(pmt.noise_rate_per_ns(inst, bg) * 1e9, (n,))
+    rate = noise_rate_hz(res, inst)
     # the rows' high-confidence photons and their extremes, by night's one rule (photons in
     # shot order: ascending rows)
     at = lr[s.shot]
