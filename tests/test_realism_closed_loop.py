@@ -18,7 +18,9 @@ must agree, and closely:
 Until session 29 our ATL06 wrote its background in MHz where NASA's is in Hz: the matrix read
 the twin's 2 MHz as 2 Hz and every row disagreed (fails on that code). Our ATL03's
 ``bckgrd_rate`` is the modelled rate over the 30 m range gate, not ATL03's estimate over its
-5 km band (``products/atl03/fields.py``), so only its signal is held here. By night the loop
+5 km band (``products/atl03/fields.py``): the reader now tells the two apart and compares
+only its signal (it predicted twice the twin's rate on a strong beam by day, and 246 times
+it by night, taking the 30 m gate for ATL03's band). By night the loop
 does not close (docs/guide/atlas.md, "The matrix closed on itself": our rate lacks the laser
 photons ATL03's finder leaves over its band), so the twin is of the day file.
 """
@@ -78,11 +80,33 @@ def test_validate_agrees_with_a_twin_of_a_real_file(twin_rows):
     for r in atl06:
         assert r["verdict"] == "agrees", r["reason"]
         assert r["background_ratio"] == pytest.approx(1.0, abs=0.05)
+    for r in atl03:      # our ATL03's rate is not ATL03's estimate: not held against it
+        assert r["verdict"] == "agrees", r["reason"]
+        assert r["measured"]["background_clear_hz"] is None
+        assert "background not measured" in r["reason"]
+    assert any("is not ATL03's estimate from its rows' counts" in f["missing"]
+               for f in doc["files"] if f["product"] == "ATL03")
     for r in atl06 + atl03:
         s = r["measured"]["signal_clear"]
         shots_twin = r["measured"]["segments"] * 20 / 0.7     # a shot every 0.7 m, 20 m apart
         se = math.sqrt(1 / (s * shots_twin) + 1 / (s * r["predicted"]["shots"]))
         assert r["signal_ratio"] == pytest.approx(1.0, abs=4 * se), (r["beam"], se)
+
+
+def test_nasas_atl03_rows_are_their_own_estimate_and_ours_are_not(twin_rows):
+    """``bckgrd_rate`` of NASA's ATL03 is ``bckgrd_counts_reduced`` over 50 shots' reduced
+    band (to float32's rounding); of ours, the modelled rate inside the range gate: the reader
+    tells them apart (:func:`~lidar_mitsuba.products.real_readers._atl03s_estimate`), and
+    reads a background from NASA's rows only."""
+    from lidar_mitsuba.products import real_readers
+    a3 = twin_rows[0]
+    for path, nasa in ((PACKAGE_DATA / "ATL03_gt1l_20181014.h5", True), (a3, False)):
+        with h5py.File(path) as f:
+            rows = f["gt1l/bckgrd_atlas"]
+            assert real_readers._atl03s_estimate(rows, real._rate_hz(rows, "bckgrd_rate")) \
+                is nasa
+        b = real.read_product(path).beams[0]
+        assert (b.background_hz is not None) is nasa
 
 
 def test_a_rate_in_mhz_or_khz_is_read_in_hz(tmp_path):

@@ -63,6 +63,11 @@ def _atl03(g, **beam) -> RealBeam | None:
                                             "delta_time")
     elif tb is not None and rate is not None and not np.isfinite(tb).any():
         b.notes["background_hz_missing"] = "bckgrd_atlas/delta_time holds fill"
+    elif tb is not None and rate is not None and not _atl03s_estimate(bg, rate):
+        b.notes["background_hz_missing"] = (
+            "bckgrd_atlas/bckgrd_rate is not ATL03's estimate from its rows' counts "
+            "(bckgrd_counts_reduced over bckgrd_int_height_reduced and 50 shots: a "
+            "simulation's modelled rate, as ours)")
     elif tb is not None and rate is not None:
         rows = np.flatnonzero(np.isfinite(tb))              # (rows with a time)
         k = rows[np.clip(np.searchsorted(tb[rows], t), 0, rows.size - 1)]
@@ -76,6 +81,26 @@ def _atl03(g, **beam) -> RealBeam | None:
                 b.band_top_above_surface_m = top[k] - np.where(np.isfinite(h), h,
                                                                np.nanmedian(h))
     return b
+
+
+def _atl03s_estimate(bg, rate: np.ndarray) -> bool:
+    """Whether an ATL03 beam's ``bckgrd_rate`` rows are ATL03's estimate from their own counts,
+    ``bckgrd_counts_reduced / (50 * 2 * bckgrd_int_height_reduced / c)``
+    (docs/physics/night-floor.md, eq. bckgrd-rate): NASA's rows hold it to float32's rounding
+    (``tests/test_realism.py``), the rows our ATL03 writes do not (their rate is the modelled
+    rate inside the range gate, their counts the gate's: ``products/atl03/fields.py``), and
+    the realism matrix predicts ATL03's estimate (the laser photons its finder leaves over a
+    band of kilometres), not a modelled rate. Rows that cannot be checked (no counts or band,
+    or fill) are taken as NASA's; the check is the median relative difference over the rows
+    with counts, above 1e-3."""
+    counts, reduced = _num(bg, "bckgrd_counts_reduced"), _num(bg, "bckgrd_int_height_reduced")
+    if counts is None or reduced is None or not (counts.shape == reduced.shape == rate.shape):
+        return True
+    with np.errstate(divide="ignore", invalid="ignore"):
+        est = counts / (50.0 * 2.0 * reduced / (C_M_PER_NS * 1e9))
+        rel = np.abs(rate / est - 1.0)
+    ok = np.isfinite(rel) & (counts > 0)
+    return not ok.any() or float(np.median(rel[ok])) <= 1e-3
 
 
 def segment_photons(g, geo) -> tuple[np.ndarray, np.ndarray | None, str | None]:
