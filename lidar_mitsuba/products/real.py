@@ -226,8 +226,9 @@ def product_of(f, path: pathlib.Path) -> str:
     m = re.search(r"ATL0[3678]", path.name.upper())
     if m:
         return m.group(0)
-    named = text(f.attrs.get("short_name", "")) or next(iter(re.findall(r"ATL\d\d",
+    named = text(f.attrs.get("short_name", "")) or next(iter(re.findall(r"ATL\d\d(?!\d)",
                                                                       path.name.upper())), "")
+    # (two digits and no third: "atl012.nc", a user's name for an ATL12, is not an ATL01)
     if named in PRODUCT_GROUPS:        # (one of ours whose segment groups a subset dropped)
         return named
     if named:
@@ -285,14 +286,20 @@ _RELEASE_IN_NAME = re.compile(r"_(\d{3})_\d{2}(?:_[^.]*)?\.(?:"
 
 def release_of(f, path: pathlib.Path) -> str | None:
     """The release (``006``): ``ancillary_data/release`` or ``version``, else the file name's
-    ``_RRR_VV.h5`` tail; None when neither says."""
+    ``_RRR_VV.h5`` tail, else the ``VersionID`` of ``METADATA/DatasetIdentification`` (a
+    trajectory subsetter keeps ``METADATA`` and the beam, drops ``ancillary_data`` and
+    renames the file: ``ATL03_gt1l.h5``); None when none says."""
     for key in ("ancillary_data/release", "ancillary_data/version"):
         if key in f:
             v = text(np.asarray(f[key][()])).strip()
             if v:
                 return v
     m = _RELEASE_IN_NAME.search(path.name)
-    return m.group(1) if m else None
+    if m:
+        return m.group(1)
+    ident = f.get("METADATA/DatasetIdentification")
+    v = text(ident.attrs.get("VersionID", "")).strip() if ident is not None else ""
+    return v or None
 
 
 def _strength(f, name: str, orient: int | None) -> tuple[int, str | None, str]:
@@ -371,7 +378,7 @@ def read_product(path, *, beams: str = "all") -> RealFile:
                                 else f" among {beams!r}"))
     missing += _missing(out, product)
     if release is None:
-        missing.append("release (ancillary_data/release)")
+        missing.append("release (ancillary_data/release, METADATA's VersionID)")
     return RealFile(path=path, product=product, release=release, sc_orient=orient,
                     beams=out, missing=missing)
 
