@@ -68,3 +68,28 @@ def test_a_name_with_three_digits_after_atl_is_not_atl0x(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "--real" in err[0] and "atl012.nc" in err[0]
     assert "ATL01" not in err[0] and "(it holds delta_time, h, lat, lon, seg_dist" in err[0]
+
+
+@pytest.mark.parametrize("value", [np.zeros(0, np.int8), np.array([2], np.int8),
+                                   np.array([127], np.int8)])
+def test_an_empty_transition_or_fill_sc_orient_gives_no_layout(tmp_path, value):
+    """``orbit_info/sc_orient`` as a subset can leave it: empty (its ``sc_orient_time`` rows
+    cut), 2 (the yaw flip's transition) or its fill 127. Empty raised an IndexError (a
+    traceback); 2 and 127 were taken as backward, the strengths said to come "from
+    sc_orient". Now none gives a layout: without ``atlas_beam_type`` the pairs' signal rates
+    decide, said in the line."""
+    import h5py
+    path = _atl06_cut(tmp_path / "ATL06_20181027014737_04340110_001_01.h5", version="001")
+    with h5py.File(path, "a") as f:
+        f["orbit_info/sc_orient"] = value
+        for name in ("gt1l", "gt1r"):
+            del f[name].attrs["atlas_beam_type"]
+            s = f[name]["land_ice_segments"]
+            s["fit_statistics/n_fit_photons"] = np.full(8, 150 if name == "gt1r" else 40,
+                                                        np.int32)
+            s["fit_statistics/w_surface_window_final"] = np.full(8, 3.0, np.float32)
+            s["fit_statistics/n_seg_pulses"] = np.full(8, 57.0, np.float32)
+    rf = real.read_product(path)
+    assert rf.sc_orient == 1                         # (a strong right beam: forward)
+    assert [b.strength for b in rf.beams] == ["weak", "strong"]
+    assert "strength from sc_orient" not in rf.missing_line()

@@ -199,9 +199,12 @@ def _rate_hz(g, key: str) -> np.ndarray | None:
 
 def sc_orient(f) -> int | None:
     """0 backward, 1 forward: ``orbit_info/sc_orient`` or a beam's ``sc_orientation``;
-    None when neither is there."""
+    None when neither is there, or ``sc_orient`` is empty (a time subset that cut its
+    ``sc_orient_time`` rows) or neither 0 nor 1 (2: the yaw flip's transition; its fill,
+    127): no beam layout to take the strengths from."""
     if "orbit_info/sc_orient" in f:
-        return int(np.asarray(f["orbit_info/sc_orient"][()]).ravel()[0])
+        v = np.asarray(f["orbit_info/sc_orient"][()]).ravel()
+        return int(v[0]) if v.size and v[0] in (0, 1) else None
     for name in BEAM_NAMES:
         if name in f and "sc_orientation" in f[name].attrs:
             return 1 if text(f[name].attrs["sc_orientation"]).lower() == "forward" else 0
