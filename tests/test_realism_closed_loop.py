@@ -153,3 +153,30 @@ def test_a_cloudy_twins_cloud_is_read_back_from_its_reflectance(tmp_path):
         assert 0.8 <= r["cloud"]["optical_depth"] <= 1.0, r["cloud"]
         assert r["verdict"] == "agrees", r["reason"]
         assert r["background_cloudy_ratio"] == pytest.approx(1.0, abs=0.05)
+
+
+@pytest.mark.parametrize("name, sun", [
+    ("ATL07-01_20190225115500_09020201_003_02_baffin_lowsun.h5", "low sun, +4 deg"),
+    ("ATL06_20181015100401_02560110_003_01_pine_island.h5", "twilight, -1.6 deg")])
+def test_the_loop_closes_at_low_sun_and_in_twilight(tmp_path, name, sun):
+    """Clear-sky twins of two beams of the low-sun ATL07 and the twilight ATL06, written as our
+    ATL06: the matrix's sky (direct and diffuse light through the curved Earth's air, the
+    twilight sky above the Earth's shadow) against the twin's, shot by shot. The matrix adds
+    what our rate leaves out, the laser photons ATL03's finder would leave over its band (the
+    row's ``leak``), and takes the sun from the time and place: each background ratio is held
+    within the leak's share of the prediction plus 3 %; the signal by four standard errors of
+    the two Poisson counts."""
+    a3, a6 = tmp_path / "ATL03_t.h5", tmp_path / "ATL06_t.h5"
+    assert main(["simulate", "--like", str(PACKAGE_DATA / name), "--beams", "gt1l,gt1r",
+                 "--out", str(a3), "--atl06", str(a6), "--seed", "7"]) == 0
+    doc = realism.run([a6], None, signal_shots=200, seed=0)
+    assert len(doc["rows"]) == 2, sun
+    for r in doc["rows"]:
+        p = r["predicted"]
+        assert r["verdict"] == "agrees", (sun, r["reason"])
+        leak_share = p["leak"]["leak_hz"] / p["background_hz"]
+        assert r["background_ratio"] == pytest.approx(1.0, abs=leak_share + 0.03), (sun, r["beam"])
+        s = r["measured"]["signal_clear"]
+        shots = r["measured"]["segments"] * r["measured"]["clear_fraction"] * 20 / 0.7
+        se = math.sqrt(1 / (s * shots) + 1 / (s * p["shots"]))
+        assert r["signal_ratio"] == pytest.approx(1.0, abs=4 * se), (sun, r["beam"], se)
