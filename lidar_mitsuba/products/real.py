@@ -187,13 +187,8 @@ def _rate_hz(g, key: str) -> np.ndarray | None:
     a = _num(g, key)
     if a is None:
         return None
-    u = g[key].attrs.get("units")
-    if isinstance(u, np.ndarray) and u.size:
-        u = u.ravel()[0]
-    if isinstance(u, (bytes, np.bytes_)):
-        u = u.decode("ascii", "replace")
-    factor = RATE_UNITS_TO_HZ.get(str(u).lower().replace(" ", ""), 1.0) if u is not None \
-        else 1.0
+    unit = text(g[key].attrs.get("units", "")).lower().replace(" ", "")
+    factor = RATE_UNITS_TO_HZ.get(unit, 1.0)
     return a * factor if factor != 1.0 else a
 
 
