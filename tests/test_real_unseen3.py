@@ -12,6 +12,7 @@ import pytest
 from lidar_mitsuba.cli import main
 from lidar_mitsuba.products import real
 from lidar_mitsuba.studies import realism
+from real_subsets import atl06_pair
 
 
 def _atl06(path, *, release: str | None, dem: int = 2, asr=0, atm=0, n: int = 8):
@@ -19,28 +20,7 @@ def _atl06(path, *, release: str | None, dem: int = 2, asr=0, atm=0, n: int = 8)
     flags 0 on every segment (``ATL06_20181014001049_02350102_001_01``, where the granule's
     release 003 has ``cloud_flg_asr`` 5 on every segment), ``dem_flag`` 2 (``gmted``: land,
     the Juneau Icefield) or 4 (``antarctic``: land ice), r_eff 0.08."""
-    import h5py
-    with h5py.File(path, "w") as f:
-        if release is not None:
-            f["ancillary_data/release"] = np.bytes_(release.encode())
-        for name in ("gt1l", "gt1r"):
-            g = f.create_group(name)
-            g.attrs["atlas_beam_type"] = "weak" if name == "gt1l" else "strong"
-            s = g.create_group("land_ice_segments")
-            s["delta_time"] = 2.4e7 + np.arange(n) * 20.0 / 7000.0
-            s["latitude"] = 58.5 + np.arange(n) * 20.0 / 111_000.0
-            s["longitude"] = np.full(n, -134.2)
-            s["h_li"] = np.full(n, 1400.0, np.float32)
-            s["geophysical/bckgrd"] = np.full(n, 1.7e6, np.float32)
-            s["geophysical/r_eff"] = np.full(n, 0.08, np.float32)
-            s["geophysical/cloud_flg_asr"] = np.full(n, asr, np.int8)
-            s["geophysical/cloud_flg_atm"] = np.full(n, atm, np.int8)
-            d = s.create_dataset("dem/dem_flag", data=np.full(n, dem, np.int8))
-            d.attrs["flag_meanings"] = np.bytes_(b"none gimp gmted mss antarctic")
-            d.attrs["flag_values"] = np.arange(5, dtype=np.int8)
-            s["dem/dem_h"] = np.full(n, 1400.0, np.float32)
-            s["dem/geoid_h"] = np.full(n, 5.0, np.float32)
-    return path
+    return atl06_pair(path, release=release, dem=dem, asr=asr, atm=atm, n=n)
 
 
 def test_release_001_cloud_flags_left_at_0_are_not_read_as_clear(tmp_path):

@@ -1,4 +1,4 @@
-"""The fourth hold-out round (session 30): public files the realism matrix had not met
+"""The fourth hold-out round (session 29): public files the realism matrix had not met
 (harmony-trajectory-subsetter's ATL03 v006 cut ``ATL03_gt1l.h5``, OPeNDAP's ATL16 ``.nc4``,
 Floes-are-Swell's ``atl012.nc``, Snowblower's and Floes-are-Swell's earlier v001 outputs),
 each reading bug made small. Pure h5py; no rendering."""
@@ -9,6 +9,7 @@ import pytest
 
 from lidar_mitsuba.cli import main
 from lidar_mitsuba.products import real
+from real_subsets import atl06_pair
 
 
 def _atl06_cut(path, *, version: str | None, n: int = 8):
@@ -17,27 +18,7 @@ def _atl06_cut(path, *, version: str | None, n: int = 8):
     the file renamed without the granule's ``_RRR_VV`` tail (harmony-trajectory-subsetter's
     ``ATL03_gt1l.h5`` of ``ATL03_20181014002445_02350104_006_02``). Release 001's cloud
     flags, 0 on every segment, over GMTED land (``dem_flag`` 2), r_eff 0.08."""
-    import h5py
-    with h5py.File(path, "w") as f:
-        if version is not None:
-            f.create_group("METADATA/DatasetIdentification").attrs["VersionID"] = \
-                np.bytes_(version.encode())
-        for name in ("gt1l", "gt1r"):
-            g = f.create_group(name)
-            g.attrs["atlas_beam_type"] = "weak" if name == "gt1l" else "strong"
-            s = g.create_group("land_ice_segments")
-            s["delta_time"] = 2.4e7 + np.arange(n) * 20.0 / 7000.0
-            s["latitude"] = 58.5 + np.arange(n) * 20.0 / 111_000.0
-            s["longitude"] = np.full(n, -134.2)
-            s["h_li"] = np.full(n, 1400.0, np.float32)
-            s["geophysical/bckgrd"] = np.full(n, 1.7e6, np.float32)
-            s["geophysical/r_eff"] = np.full(n, 0.08, np.float32)
-            s["geophysical/cloud_flg_asr"] = np.zeros(n, np.int8)
-            s["geophysical/cloud_flg_atm"] = np.zeros(n, np.int8)
-            d = s.create_dataset("dem/dem_flag", data=np.full(n, 2, np.int8))
-            d.attrs["flag_meanings"] = np.bytes_(b"none gimp gmted mss antarctic")
-            d.attrs["flag_values"] = np.arange(5, dtype=np.int8)
-    return path
+    return atl06_pair(path, version=version, n=n)
 
 
 def test_the_release_of_a_renamed_cut_is_read_from_its_metadata(tmp_path):
